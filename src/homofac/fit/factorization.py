@@ -1,0 +1,99 @@
+"""The result of a factorization and its evaluation as a GPU computes it.
+
+``value(a, b) = correction * prod_j bilinear(t_k(j), mapper(pi_j(a, b)))`` on the *linear* textures
+(DESIGN.md, factorization.json), which is what a renderer multiplies together per pixel.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from ..param import mappers
+from ..param import parametrizations as pz
+
+
+def evaluate_textures(
+    parametrization: str,
+    mapper: str,
+    textures,
+    correction: Float[Array, "3"],
+    a: Float[Array, "N 3"],
+    b: Float[Array, "N 3"],
+    context: dict | None = None,
+) -> Float[Array, "N 3"]:
+    """Pure, differentiable evaluation of eq. 45 on linear textures with bilinear lookups."""
+    p = pz.get(parametrization)
+    m = mappers.get(mapper)
+    out = jnp.broadcast_to(jnp.asarray(correction, a.dtype), a.shape[:-1] + (3,))
+    for f, d in zip(p.factors, pz.project(p, a, b, context or {})):
+        out = out * mappers.lookup(m, textures[f.texture], d)
+    return out
+
+
+_evaluate_jit = eqx.filter_jit(evaluate_textures)
+
+
+@dataclasses.dataclass(frozen=True)
+class Factorization:
+    """Textures, correction colour and the record of how they were made.
+
+    Attributes:
+        kind: ``brdf`` or ``lighting``.
+        parametrization: registry name (``PQP``, ``NR`` ...).
+        mapper: direction mapper of every texture.
+        texture_size: S of the mapper table.
+        textures: linear float textures (H, W, 3), each channel normalized to a maximum of 1.
+        correction: RGB correction colour; value = correction * product of texture lookups.
+        context: projection context (``dominant`` light direction for NRHD).
+        quantity: ``brdf``, ``brdf_cos`` or ``lighting``: what the product approximates.
+        metrics: {train, validation} x {float, quantized} -> pinned metric dict.
+        solver: method, iterations, converged, residual, objective.
+        timings: sample_s, solve_s, total_s (and compile/aux entries).
+        counts: train, validation, lights.
+        config: the full resolved configuration (for factorization.json).
+        target_info: description of the target (model and parameters, environment provenance).
+    """
+
+    kind: str
+    parametrization: str
+    mapper: str
+    texture_size: int
+    textures: tuple
+    correction: Any
+    context: dict = dataclasses.field(default_factory=dict)
+    quantity: str = "brdf"
+    metrics: dict = dataclasses.field(default_factory=dict)
+    solver: dict = dataclasses.field(default_factory=dict)
+    timings: dict = dataclasses.field(default_factory=dict)
+    counts: dict = dataclasses.field(default_factory=dict)
+    config: dict = dataclasses.field(default_factory=dict)
+    target_info: dict = dataclasses.field(default_factory=dict)
+    warnings: tuple = ()
+    samples: Any = None  # the Samples used, when kept (written as samples.npz)
+
+    @property
+    def texture_names(self) -> tuple[str, ...]:
+        return pz.get(self.parametrization).textures
+
+    def evaluate(self, a, b, *, quantized: bool = False) -> Float[Array, "N 3"]:
+        """Factorized values at direction pairs (a, b): (wi, wo) for BRDFs, (n, v) for lighting."""
+        from .precision import quantize
+
+        tex = tuple(quantize(list(self.textures))) if quantized else self.textures
+        a = jnp.asarray(a, jnp.asarray(self.textures[0]).dtype)
+        b = jnp.asarray(b, a.dtype)
+        return _evaluate_jit(self.parametrization, self.mapper, tex, jnp.asarray(self.correction), a, b, self.context)
+
+    def __call__(self, a, b):
+        return self.evaluate(a, b)
+
+    def save(self, out_dir, **kwargs):
+        """Write the pinned output directory (see :func:`homofac.io.output.save`)."""
+        from ..io.output import save
+
+        return save(self, out_dir, **kwargs)

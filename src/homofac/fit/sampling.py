@@ -1,0 +1,152 @@
+"""Sample iterators: which direction pairs (a, b) the target is sampled at (thesis §4.2, §5.6).
+
+* ``texels``: reverse projection of the texel centres of a mapper grid (thesis eq. 46), once for a
+  and once for b, all pairs kept that are valid. For GSHD the grid directions are read as (h, d) and
+  turned into (wi, wo) (thesis §4.2, last paragraph).
+* ``latlong``: a latitude/longitude grid for both directions (thesis §4.2).
+* ``random``: uniformly distributed directions, seeded.
+
+Valid pairs (DESIGN.md): BRDF targets need wi.z > 0 and wo.z > 0; lighting targets need n.v > 0
+(the valid-view filter of thesis §5.6). Invalid pairs are never produced, so they are never evaluated.
+The validation set is always ``random`` with its own seed.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from ..errors import HomofacError
+from ..param import mappers
+
+#: Smallest cosine accepted as "above the surface" for a valid pair.
+MIN_COS = 1e-4
+
+
+class Pairs(NamedTuple):
+    """Direction pairs (float32 numpy arrays (M, 3))."""
+
+    a: np.ndarray
+    b: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.a.shape[0])
+
+
+def _normalize(d: np.ndarray) -> np.ndarray:
+    return d / np.linalg.norm(d, axis=-1, keepdims=True)
+
+
+def valid_pairs(kind: str, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Boolean mask of valid pairs for a target kind."""
+    if kind == "brdf":
+        return (a[:, 2] > MIN_COS) & (b[:, 2] > MIN_COS)
+    return np.sum(a * b, axis=-1) > MIN_COS
+
+
+def grid_directions(mapper: str, size: int, hemisphere: bool) -> np.ndarray:
+    """Centre directions of the texels inside the domain of a ``size`` grid of ``mapper`` (eq. 46)."""
+    m = mappers.get(mapper)
+    d = np.asarray(mappers.texel_directions(m, size), dtype=np.float64)[mappers.inside_mask(m, size)]
+    if hemisphere:
+        d = d[d[:, 2] > MIN_COS]
+    return _normalize(d)
+
+
+def latlong_directions(size: int, hemisphere: bool) -> np.ndarray:
+    """A lat-long grid: ``size`` steps in phi, size/4 (hemisphere) or size/2 (sphere) in theta."""
+    n_theta = max(1, size // 4 if hemisphere else size // 2)
+    theta_max = np.pi / 2 if hemisphere else np.pi
+    theta = (np.arange(n_theta) + 0.5) * theta_max / n_theta
+    phi = (np.arange(size) + 0.5) * 2 * np.pi / size
+    t, p = np.meshgrid(theta, phi, indexing="ij")
+    d = np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], -1).reshape(-1, 3)
+    return d
+
+
+def random_directions(rng: np.random.Generator, count: int, hemisphere: bool) -> np.ndarray:
+    """Uniform directions on the sphere (or the upper hemisphere)."""
+    d = _normalize(rng.normal(size=(count, 3)))
+    if hemisphere:
+        d[:, 2] = np.abs(d[:, 2])
+    return d
+
+
+def all_pairs(kind: str, da: np.ndarray, db: np.ndarray) -> Pairs:
+    """Every valid pair of a direction from ``da`` with one from ``db`` (vectorised product)."""
+    a = np.repeat(da, len(db), axis=0)
+    b = np.tile(db, (len(da), 1))
+    keep = valid_pairs(kind, a, b)
+    return Pairs(a[keep].astype(np.float32), b[keep].astype(np.float32))
+
+
+def half_difference_to_pairs(h: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Invert the GSHD projection (eq. 22): wi = d_x t' + d_y b' + d_z h, wo = 2 (wi.h) h - wi."""
+    x = np.broadcast_to(np.array([1.0, 0.0, 0.0]), h.shape)
+    tp = x - np.sum(x * h, -1, keepdims=True) * h
+    tp = _normalize(tp)
+    bp = np.cross(h, tp)
+    wi = d[:, 0:1] * tp + d[:, 1:2] * bp + d[:, 2:3] * h
+    wo = 2 * np.sum(wi * h, -1, keepdims=True) * h - wi
+    return wi, wo
+
+
+def sample_pairs(
+    kind: str,
+    sampling_kind: str,
+    size: int,
+    *,
+    mapper: str,
+    parametrization: str = "",
+    count: int = 0,
+    seed: int = 0,
+) -> Pairs:
+    """Training pairs for a target of ``kind`` ("brdf" or "lighting").
+
+    Args:
+        kind: target kind; decides the domain (hemisphere pairs or sphere pairs with n.v > 0).
+        sampling_kind: ``texels``, ``latlong`` or ``random``.
+        size: grid size of the sampling mapper (texels) or phi steps (latlong).
+        mapper: the mapper whose texel grid is reverse-projected (``texels`` only).
+        parametrization: with ``GSHD`` the texel grids are read as (h, d) (thesis §4.2).
+        count: number of random pairs (``random`` only).
+        seed: random seed (``random`` only).
+    """
+    hemi = kind == "brdf"
+    if sampling_kind == "texels":
+        m = mappers.get(mapper)
+        if not m.covers_sphere and not hemi:
+            raise HomofacError(f"sampling.mapper {mapper} covers only a hemisphere; lighting needs a sphere mapper")
+        g = grid_directions(mapper, size, hemi)
+        if kind == "brdf" and parametrization == "GSHD":
+            h = np.repeat(g, len(g), axis=0)
+            d = np.tile(g, (len(g), 1))
+            wi, wo = half_difference_to_pairs(h, d)
+            keep = valid_pairs(kind, wi, wo)
+            return Pairs(_normalize(wi[keep]).astype(np.float32), _normalize(wo[keep]).astype(np.float32))
+        return all_pairs(kind, g, g)
+    if sampling_kind == "latlong":
+        g = latlong_directions(size, hemi)
+        return all_pairs(kind, g, g)
+    if sampling_kind == "random":
+        return random_pairs(kind, count or size * size * size * size // 4, seed)
+    raise HomofacError(f"sampling.kind must be texels, latlong or random, got {sampling_kind!r}")
+
+
+def random_pairs(kind: str, count: int, seed: int) -> Pairs:
+    """``count`` uniformly random valid pairs (rejection of invalid ones), reproducible from ``seed``."""
+    rng = np.random.default_rng(seed)
+    hemi = kind == "brdf"
+    out_a, out_b, have = [], [], 0
+    while have < count:  # rejection rounds (about 2 for lighting), not a loop over samples
+        n = 2 * (count - have) + 16
+        a = random_directions(rng, n, hemi)
+        b = random_directions(rng, n, hemi)
+        keep = valid_pairs(kind, a, b)
+        out_a.append(a[keep])
+        out_b.append(b[keep])
+        have += int(keep.sum())
+    a = np.concatenate(out_a)[:count]
+    b = np.concatenate(out_b)[:count]
+    return Pairs(a.astype(np.float32), b.astype(np.float32))

@@ -1,0 +1,141 @@
+"""Solvers for the least-squares system of eq. 37, all three RGB channels together.
+
+* ``lsmr`` (default): matrix-free LSMR from lineax on an ``lx.FunctionLinearOperator`` that gathers
+  from the ELL arrays; the Laplacian rows are extra outputs of the operator (LSMR has no damping
+  matrix). Solves for the correction to the starting solution x0. Float32 by default.
+* ``qmr``: scipy's QMR on the explicit augmented square system of thesis eq. 16,
+  ``[[I, A], [A^T, 0]] [r; x] = [b; 0]`` -- the method of the original implementation, one channel
+  at a time as there (thesis §3.1.2, "Iterative Computation"). The reference.
+* ``direct``: the normal equations ``(A^T A) x = A^T b`` formed densely in float64 and solved by
+  Cholesky with a negligible ridge (the log-space problem has gauge directions: a constant can move
+  between textures). Small sizes only; it is the optimum the iterative results are measured against.
+"""
+
+from __future__ import annotations
+
+import functools
+import time
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import lineax as lx
+import numpy as np
+
+from ..errors import HomofacError
+from .system import System, apply, augmented_rhs, objective, to_scipy
+
+SOLVERS = ("lsmr", "qmr", "direct")
+
+#: Largest number of unknowns the dense ``direct`` solver accepts.
+DIRECT_MAX_UNKNOWNS = 12000
+
+
+class SolveResult(NamedTuple):
+    """A solution x (n, 3) and how it was reached."""
+
+    x: jnp.ndarray
+    method: str
+    iterations: int
+    converged: bool
+    residual: float  # ||A x - b|| / ||b|| of the augmented system
+    objective: float  # ||A x - b||^2 summed over RGB
+    seconds: float
+
+
+@functools.partial(jax.jit, static_argnames=("rtol", "max_steps"))
+def _lsmr(sys: System, lam, x0, *, rtol: float, max_steps: int):
+    def mv(x):
+        return apply(sys, lam, x)
+
+    op = lx.FunctionLinearOperator(mv, jax.ShapeDtypeStruct(x0.shape, x0.dtype))
+    r0 = augmented_rhs(sys) - mv(x0)
+    sol = lx.linear_solve(op, r0, lx.LSMR(rtol=rtol, atol=rtol, max_steps=max_steps), throw=False)
+    return x0 + sol.value, sol.stats["num_steps"], sol.result == lx.RESULTS.successful
+
+
+def solve(
+    sys: System,
+    x0: jnp.ndarray,
+    *,
+    method: str = "lsmr",
+    laplacian: float = 1.0,
+    tolerance: float = 1e-6,
+    max_iterations: int = 1000,
+) -> SolveResult:
+    """Minimise ``||A x - b||^2 + ||lambda L x||^2`` (eq. 37) from the starting solution ``x0``.
+
+    Args:
+        sys: the system from :func:`homofac.fit.system.build_system`.
+        x0: starting solution (n, 3), e.g. from :func:`homofac.fit.start.starting_solution`.
+        method: ``lsmr``, ``qmr`` or ``direct``.
+        laplacian: lambda of eq. 37.
+        tolerance: relative stopping tolerance of the iterative solvers.
+        max_iterations: iteration cap of the iterative solvers.
+    """
+    t0 = time.perf_counter()
+    lam = jnp.asarray(laplacian, x0.dtype)
+    if method == "lsmr":
+        x, steps, ok = _lsmr(sys, lam, x0, rtol=float(tolerance), max_steps=int(max_iterations))
+        x = jax.block_until_ready(x)
+        iterations, converged = int(steps), bool(ok)
+    elif method == "qmr":
+        x, iterations, converged = _qmr(sys, laplacian, np.asarray(x0, np.float64), tolerance, max_iterations)
+        x = jnp.asarray(x, x0.dtype)
+    elif method == "direct":
+        x = jnp.asarray(_direct(sys, laplacian, x0.shape[0]), x0.dtype)
+        iterations, converged = 1, True
+    else:
+        raise HomofacError(f"solver.method must be one of {', '.join(SOLVERS)}, got {method!r}")
+    seconds = time.perf_counter() - t0
+    obj = float(objective(sys, lam, x))
+    bnorm2 = float(jnp.sum(augmented_rhs(sys) ** 2))
+    residual = float(np.sqrt(obj / bnorm2)) if bnorm2 > 0 else float(np.sqrt(obj))
+    if not np.all(np.isfinite(np.asarray(x))):
+        raise HomofacError(f"solver {method} produced non-finite texture values; try a larger solver.laplacian")
+    return SolveResult(x, method, iterations, converged, residual, obj, seconds)
+
+
+def _qmr(sys: System, lam: float, x0: np.ndarray, tol: float, maxiter: int):
+    """QMR on eq. 16, one channel at a time (as the original implementation)."""
+    import scipy.sparse as sp
+    from scipy.sparse.linalg import qmr
+
+    a = to_scipy(sys, lam, x0.shape[0])
+    m, n = a.shape
+    big = sp.bmat([[sp.identity(m, format="csr"), a], [a.T, None]], format="csr")
+    b_all = np.asarray(augmented_rhs(sys), np.float64)
+    out = np.empty_like(x0)
+    iters, converged = 0, True
+    for c in range(3):
+        r0 = b_all[:, c] - a @ x0[:, c]
+        rhs = np.concatenate([b_all[:, c], np.zeros(n)])
+        count = [0]
+
+        def cb(_xk, count=count):
+            count[0] += 1
+
+        sol, info = qmr(big, rhs, x0=np.concatenate([r0, x0[:, c]]), rtol=tol, maxiter=maxiter, callback=cb)
+        out[:, c] = sol[m:]
+        iters = max(iters, count[0])
+        converged &= info == 0
+    return out, iters, bool(converged)
+
+
+def _direct(sys: System, lam: float, n: int) -> np.ndarray:
+    """Dense normal equations in float64 with a 1e-12 relative ridge for the gauge directions."""
+    import scipy.linalg as sla
+
+    if n > DIRECT_MAX_UNKNOWNS:
+        raise HomofacError(
+            f"solver direct forms a dense {n}x{n} matrix; use it for at most {DIRECT_MAX_UNKNOWNS} unknowns "
+            "(smaller texture_size) or use lsmr"
+        )
+    a = to_scipy(sys, lam, n)
+    b = np.asarray(augmented_rhs(sys), np.float64)
+    ata = (a.T @ a).toarray()
+    atb = a.T @ b
+    ridge = 1e-12 * max(float(np.mean(np.diag(ata))), 1e-30)
+    ata[np.diag_indices_from(ata)] += ridge
+    c = sla.cho_factor(ata, lower=True, check_finite=False)
+    return sla.cho_solve(c, atb, check_finite=False)

@@ -1,0 +1,159 @@
+"""The sparse log-space system of the homomorphic factorization (thesis §3.1.2, eq. 30-37).
+
+Unknowns are the log-texel values of all *valid* texels of all textures, stacked (eq. 32), with RGB
+as a trailing axis of size 3: ``x`` has shape (n, 3) and all three channels share one matrix.
+
+Rows:
+
+* one data row per sample: ``sum_j bilinear(x_k(j), pi_j(a, b)) = log((y + eps alpha) / alpha)``
+  (eq. 26, 30, 33-35): 4 bilinear weights per factor, so K = 4 J entries per row (duplicate
+  columns, e.g. p used twice by PQP, simply add up);
+* one Laplacian row per valid texel, ``lambda (deg x_c - sum_nb x_nb) = 0`` (eq. 36-37; the centre
+  weight is the number of existing neighbours at borders, and the cube map's neighbours continue
+  across face edges so smoothing has no seams).
+
+Both are stored as ELL index/weight arrays (``cols``, ``w``), which a matrix-free operator gathers
+from; this was about 2x faster than BCOO on the target machine (DESIGN.md).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float, Int
+
+from ..param import mappers
+from ..param.parametrizations import Parametrization, project
+
+
+class Layout(NamedTuple):
+    """Where each texture's valid texels live in the unknown vector (static, numpy)."""
+
+    mapper: str
+    size: int
+    shape: tuple[int, int]  # (H, W) of every texture
+    n_textures: int
+    valid: np.ndarray  # (H*W,) bool, same for every texture
+    unknown_of_texel: np.ndarray  # (H*W,) int32: unknown index within a texture or -1
+    texel_of_unknown: np.ndarray  # (n_valid,) int32 flat texel index
+
+    @property
+    def n_valid(self) -> int:
+        return int(self.texel_of_unknown.shape[0])
+
+    @property
+    def n_unknowns(self) -> int:
+        return self.n_valid * self.n_textures
+
+
+def make_layout(mapper: str, size: int, n_textures: int) -> Layout:
+    """The unknown layout for ``n_textures`` textures of one mapper and size."""
+    m = mappers.get(mapper)
+    shape = mappers.texture_shape(m, size)
+    valid = np.asarray(mappers.valid_mask(m, size)).reshape(-1)
+    texel_of_unknown = np.nonzero(valid)[0].astype(np.int32)
+    unknown_of_texel = np.full(valid.shape, -1, np.int32)
+    unknown_of_texel[texel_of_unknown] = np.arange(texel_of_unknown.size, dtype=np.int32)
+    return Layout(mapper, size, tuple(shape), n_textures, valid, unknown_of_texel, texel_of_unknown)
+
+
+class System(NamedTuple):
+    """ELL rows of eq. 37: data rows (``cols``, ``w``, ``rhs``) and Laplacian rows (``lap_cols``, ``lap_w``)."""
+
+    cols: Int[Array, "m K"]
+    w: Float[Array, "m K"]
+    rhs: Float[Array, "m 3"]
+    lap_cols: Int[Array, "n 5"]
+    lap_w: Float[Array, "n 5"]
+
+
+def data_rows(
+    param: Parametrization, layout: Layout, a: Float[Array, "m 3"], b: Float[Array, "m 3"], context: dict
+) -> tuple[Int[Array, "m K"], Float[Array, "m K"]]:
+    """Columns and bilinear weights of the data rows (eq. 33-35), K = 4 J."""
+    m = mappers.get(layout.mapper)
+    u_of_t = jnp.asarray(layout.unknown_of_texel)
+    cols, ws = [], []
+    for f, d in zip(param.factors, project(param, a, b, context)):
+        idx, w = mappers.bilinear(m, d, layout.size)
+        unk = u_of_t[idx]
+        # A texel outside the valid set has weight 0 by construction of the mapper; guard anyway.
+        w = jnp.where(unk >= 0, w, 0.0)
+        cols.append(jnp.where(unk >= 0, unk, 0) + f.texture * layout.n_valid)
+        ws.append(w)
+    return jnp.concatenate(cols, axis=-1).astype(jnp.int32), jnp.concatenate(ws, axis=-1)
+
+
+def laplacian_rows(layout: Layout, dtype=jnp.float32) -> tuple[np.ndarray, np.ndarray]:
+    """Laplacian rows (eq. 36) for every valid texel of every texture: (cols (n, 5), w (n, 5))."""
+    m = mappers.get(layout.mapper)
+    nb = np.asarray(mappers.neighbours(m, layout.size))[layout.texel_of_unknown]  # (nv, 4) flat or -1
+    nb_unk = np.where(nb >= 0, layout.unknown_of_texel[np.maximum(nb, 0)], -1)
+    has = nb_unk >= 0
+    deg = has.sum(axis=1).astype(np.float64)
+    centre = np.arange(layout.n_valid, dtype=np.int32)[:, None]
+    cols1 = np.concatenate([centre, np.where(has, nb_unk, 0)], axis=1).astype(np.int32)
+    w1 = np.concatenate([deg[:, None], np.where(has, -1.0, 0.0)], axis=1)
+    cols = np.concatenate([cols1 + k * layout.n_valid for k in range(layout.n_textures)], axis=0)
+    w = np.concatenate([w1] * layout.n_textures, axis=0)
+    return cols, w.astype(dtype)
+
+
+def log_transform(y: Float[Array, "m 3"], alpha: Float[Array, "3"], eps: float) -> Float[Array, "m 3"]:
+    """Thesis eq. 26: ``log((y + eps alpha) / alpha)``, per channel."""
+    return jnp.log((jnp.maximum(y, 0.0) + eps * alpha) / alpha)
+
+
+def build_system(
+    param: Parametrization, layout: Layout, a, b, y, *, eps: float, context: dict | None = None
+) -> tuple[System, Float[Array, "3"]]:
+    """Assemble eq. 37 for samples (a, b, y); returns the system and the sample mean alpha (eq. 26)."""
+    y = jnp.asarray(y)
+    alpha = jnp.mean(jnp.maximum(y, 0.0), axis=0)
+    alpha = jnp.where(alpha > 0, alpha, 1.0)
+    cols, w = _data_rows_jit(param, layout, jnp.asarray(a), jnp.asarray(b), context or {})
+    lap_cols, lap_w = laplacian_rows(layout, np.float32)
+    rhs = log_transform(y, alpha, eps)
+    return System(cols, w.astype(y.dtype), rhs, jnp.asarray(lap_cols), jnp.asarray(lap_w, y.dtype)), alpha
+
+
+def _data_rows_jit(param, layout, a, b, context):
+    fn = jax.jit(lambda a, b, ctx: data_rows(param, layout, a, b, ctx))
+    return fn(a, b, context)
+
+
+def apply(sys: System, lam, x: Float[Array, "n 3"]) -> Float[Array, "m_plus_n 3"]:
+    """The augmented matrix of eq. 37 times x: data rows, then lambda-weighted Laplacian rows."""
+    data = jnp.einsum("mk,mkc->mc", sys.w, x[sys.cols])
+    lap = lam * jnp.einsum("nk,nkc->nc", sys.lap_w, x[sys.lap_cols])
+    return jnp.concatenate([data, lap], axis=0)
+
+
+def augmented_rhs(sys: System) -> Float[Array, "m_plus_n 3"]:
+    """Right-hand side of eq. 37: the log samples, then zeros for the Laplacian rows."""
+    return jnp.concatenate([sys.rhs, jnp.zeros((sys.lap_cols.shape[0], 3), sys.rhs.dtype)], axis=0)
+
+
+def objective(sys: System, lam, x) -> Float[Array, ""]:
+    """``||A x - b||^2 + ||lambda L x||^2`` summed over RGB: what every solver minimises."""
+    r = apply(sys, lam, x) - augmented_rhs(sys)
+    return jnp.sum(r * r)
+
+
+def to_scipy(sys: System, lam: float, n_unknowns: int):
+    """The augmented matrix of eq. 37 as a scipy CSR matrix (float64), for the reference solvers."""
+    import scipy.sparse as sp
+
+    cols = np.asarray(sys.cols)
+    w = np.asarray(sys.w, np.float64)
+    lc = np.asarray(sys.lap_cols)
+    lw = np.asarray(sys.lap_w, np.float64) * lam
+    m, k = cols.shape
+    n, k2 = lc.shape
+    rows = np.concatenate([np.repeat(np.arange(m), k), m + np.repeat(np.arange(n), k2)])
+    data = np.concatenate([w.ravel(), lw.ravel()])
+    c = np.concatenate([cols.ravel(), lc.ravel()])
+    return sp.csr_matrix((data, (rows, c)), shape=(m + n, n_unknowns))
