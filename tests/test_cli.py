@@ -1,0 +1,189 @@
+"""The CLI and config: valid runs write the pinned output directory; bad input is one line, nothing written."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from homofac.fit.__main__ import main
+
+SMALL_BRDF = {
+    "target": {"kind": "brdf", "brdf": {"model": "cook_torrance", "kd": 0.1, "ks": 1.0, "roughness": 0.3,
+                                         "f0": [1.0, 0.78, 0.34]}},
+    "parametrization": "PQP",
+    "mapper": "parabolic",
+    "texture_size": 8,
+    "sampling": {"kind": "texels", "size": 8, "validation": 500, "seed": 0},
+    "solver": {"method": "lsmr", "tolerance": 1e-5, "max_iterations": 300, "laplacian": 1.0},
+    "output": {"dir": "out", "samples": True},
+}
+
+
+def write_config(tmp_path: Path, cfg: dict | str, name="c.yaml") -> Path:
+    p = tmp_path / name
+    p.write_text(cfg if isinstance(cfg, str) else yaml.safe_dump(cfg))
+    return p
+
+
+def nested(cfg: dict, path: str, value):
+    out = json.loads(json.dumps(cfg))
+    keys = path.split(".")
+    d = out
+    for k in keys[:-1]:
+        d = d.setdefault(k, {})
+    if value is _DELETE:
+        del d[keys[-1]]
+    else:
+        d[keys[-1]] = value
+    return out
+
+
+_DELETE = object()
+
+
+def leftovers(tmp_path: Path) -> list[str]:
+    """Anything homofac may have left behind: outputs or temporary directories."""
+    return sorted(p.name for p in tmp_path.iterdir() if p.name not in ("c.yaml", "file.txt", "foreign"))
+
+
+def test_brdf_run_writes_pinned_output(tmp_path):
+    cfg = write_config(tmp_path, SMALL_BRDF)
+    assert main([str(cfg), "--quiet"]) == 0
+    out = tmp_path / "out"
+    doc = json.loads((out / "factorization.json").read_text())
+    assert doc["parametrization"] == "PQP"
+    assert [t["name"] for t in doc["textures"]] == ["p", "q"]
+    assert [f["projection"] for f in doc["factors"]] == ["wi", "h", "wo"]
+    assert doc["target"]["quantity"] == "brdf"
+    for split in ("train", "validation"):
+        for kind in ("float", "quantized"):
+            m = doc["metrics"][split][kind]
+            assert set(m) >= {"avg_abs", "max_abs", "avg_rel", "max_rel", "rms", "nrmse", "log_rms"}
+            assert all(np.isfinite(v) for v in m.values())
+    assert {"sample_s", "solve_s", "total_s"} <= set(doc["timings"])
+    assert doc["counts"]["train"] > 0 and doc["counts"]["validation"] == 500
+    assert doc["solver"]["method"] == "lsmr" and doc["solver"]["iterations"] > 0
+    assert doc["config"]["texture_size"] == 8
+    for t in doc["textures"]:
+        assert (out / t["file"]).is_file()
+    s = np.load(out / "samples.npz")
+    assert set(s.files) == {"a", "b", "y", "val_a", "val_b", "val_y"}
+    assert s["a"].dtype == np.float32 and len(s["val_a"]) == 500
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
+
+
+def test_load_reproduces_metrics(tmp_path):
+    from homofac.fit import metrics
+    from homofac.io.output import load
+
+    cfg = write_config(tmp_path, SMALL_BRDF)
+    assert main([str(cfg), "--quiet"]) == 0
+    fac = load(tmp_path / "out")
+    s = np.load(tmp_path / "out" / "samples.npz")
+    approx = np.asarray(fac.evaluate(s["val_a"], s["val_b"])) * np.maximum(s["val_a"][:, 2:3], 0)
+    exact = s["val_y"] * np.maximum(s["val_a"][:, 2:3], 0)
+    m = metrics(approx, exact)
+    assert m["nrmse"] == pytest.approx(fac.metrics["validation"]["float"]["nrmse"], rel=1e-4)
+
+
+def test_rerun_replaces_previous_result_whole(tmp_path):
+    cfg = write_config(tmp_path, SMALL_BRDF)
+    assert main([str(cfg), "--quiet"]) == 0
+    (tmp_path / "out" / "stale.txt").write_text("old")
+    assert main([str(cfg), "--quiet"]) == 0
+    assert not (tmp_path / "out" / "stale.txt").exists()
+
+
+BAD = [
+    ("malformed yaml", "target: {kind: brdf\n  brdf: [", "malformed YAML"),
+    ("unknown key", nested(SMALL_BRDF, "solver.tolerence", 1e-3), "solver.tolerence"),
+    ("wrong type", nested(SMALL_BRDF, "texture_size", "big"), "texture_size"),
+    ("unknown model", nested(SMALL_BRDF, "target.brdf.model", "glossy9000"), "glossy9000"),
+    ("unknown parametrization", nested(SMALL_BRDF, "parametrization", "XYZ"), "XYZ"),
+    ("lighting param for brdf", nested(SMALL_BRDF, "parametrization", "NR"), "NR"),
+    ("texture too small", nested(SMALL_BRDF, "texture_size", 2), "texture_size"),
+    ("texture absurd", nested(SMALL_BRDF, "texture_size", 100000), "texture_size"),
+    ("nan roughness", nested(SMALL_BRDF, "target.brdf.roughness", float("nan")), "roughness"),
+    ("negative kd", nested(SMALL_BRDF, "target.brdf.kd", -0.5), "kd"),
+    ("missing merl", nested(SMALL_BRDF, "target.brdf", {"model": "merl", "file": "nope.binary"}), "nope.binary"),
+    ("missing brdf", nested(SMALL_BRDF, "target.brdf", _DELETE), "target.brdf"),
+    ("empty file", "", "empty"),
+    ("not a mapping", "- 1\n- 2\n", "mapping"),
+]
+
+
+@pytest.mark.parametrize("name,cfg,needle", BAD, ids=[b[0] for b in BAD])
+def test_bad_config_is_one_line_and_writes_nothing(tmp_path, capsys, name, cfg, needle):
+    path = write_config(tmp_path, cfg)
+    code = main([str(path)])
+    err = capsys.readouterr().err.strip()
+    assert code == 2
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("homofac: error:"), err
+    assert needle in lines[0]
+    assert "Traceback" not in err
+    assert leftovers(tmp_path) == []
+
+
+def test_truncated_merl_is_refused(tmp_path, capsys):
+    from homofac import brdf
+
+    table = brdf.tabulate_merl(brdf.lambert(kd=0.5), dims=(90, 90, 180))
+    path = tmp_path / "m.binary"
+    brdf.save_merl(path, table)
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+    cfg = write_config(tmp_path, nested(SMALL_BRDF, "target.brdf", {"model": "merl", "file": "m.binary"}))
+    assert main([str(cfg)]) == 2
+    err = capsys.readouterr().err
+    assert "m.binary" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "out").exists()
+
+
+def test_output_path_that_is_a_file(tmp_path, capsys):
+    (tmp_path / "file.txt").write_text("precious")
+    cfg = write_config(tmp_path, SMALL_BRDF)
+    assert main([str(cfg), "--out", str(tmp_path / "file.txt")]) == 2
+    assert "not a directory" in capsys.readouterr().err
+    assert (tmp_path / "file.txt").read_text() == "precious"
+
+
+def test_foreign_directory_is_never_overwritten(tmp_path, capsys):
+    foreign = tmp_path / "foreign"
+    foreign.mkdir()
+    (foreign / "thesis.tex").write_text("years of work")
+    cfg = write_config(tmp_path, SMALL_BRDF)
+    assert main([str(cfg), "--out", str(foreign)]) == 2
+    assert "not written by homofac" in capsys.readouterr().err
+    assert (foreign / "thesis.tex").read_text() == "years of work"
+
+
+def test_debug_shows_traceback(tmp_path):
+    cfg = write_config(tmp_path, nested(SMALL_BRDF, "target.brdf.model", "glossy9000"))
+    with pytest.raises(Exception):
+        main([str(cfg), "--debug"])
+
+
+def test_help_documents_options():
+    r = subprocess.run([sys.executable, "-m", "homofac.fit", "--help"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0
+    for word in ("--out", "--debug", "--quiet", "parametrization", "sampling", "solver", "texture_size"):
+        assert word in r.stdout
+
+
+def test_default_run_as_a_user_would(tmp_path):
+    """`python -m homofac.fit` with no config runs the bundled default and writes a valid directory."""
+    env = {**os.environ, "JAX_PLATFORMS": "cpu"}
+    r = subprocess.run([sys.executable, "-m", "homofac.fit", "--quiet"], cwd=tmp_path, capture_output=True,
+                       text=True, timeout=600, env=env)
+    assert r.returncode == 0, r.stderr
+    doc = json.loads((tmp_path / "out" / "factorization.json").read_text())
+    assert doc["format"] == "homofac.factorization"
+    assert np.isfinite(doc["metrics"]["validation"]["float"]["nrmse"])
