@@ -80,7 +80,7 @@ def test_brdf_run_writes_pinned_output(tmp_path):
 
 
 def test_load_reproduces_metrics(tmp_path):
-    from homofac.fit import metrics
+    from homofac.fit.metrics import metrics
     from homofac.io.output import load
 
     cfg = write_config(tmp_path, SMALL_BRDF)

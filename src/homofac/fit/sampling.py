@@ -138,7 +138,7 @@ def random_pairs(kind: str, count: int, seed: int) -> Pairs:
     """``count`` uniformly random valid pairs (rejection of invalid ones), reproducible from ``seed``."""
     rng = np.random.default_rng(seed)
     hemi = kind == "brdf"
-    out_a, out_b, have = [], [], 0
+    out_a, out_b, have = [np.zeros((0, 3))], [np.zeros((0, 3))], 0
     while have < count:  # rejection rounds (about 2 for lighting), not a loop over samples
         n = 2 * (count - have) + 16
         a = random_directions(rng, n, hemi)

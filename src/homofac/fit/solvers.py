@@ -108,15 +108,17 @@ def _qmr(sys: System, lam: float, x0: np.ndarray, tol: float, maxiter: int):
     out = np.empty_like(x0)
     iters, converged = 0, True
     for c in range(3):
-        r0 = b_all[:, c] - a @ x0[:, c]
-        rhs = np.concatenate([b_all[:, c], np.zeros(n)])
+        # Solve for the correction d = x - x0 from a zero start: [[I, A], [A^T, 0]] [r; d] = [b - A x0; 0].
+        # (Starting QMR at [b - A x0; x0] instead makes the first block of its residual zero, and the
+        # Lanczos process breaks down at once.)
+        rhs = np.concatenate([b_all[:, c] - a @ x0[:, c], np.zeros(n)])
         count = [0]
 
         def cb(_xk, count=count):
             count[0] += 1
 
-        sol, info = qmr(big, rhs, x0=np.concatenate([r0, x0[:, c]]), rtol=tol, maxiter=maxiter, callback=cb)
-        out[:, c] = sol[m:]
+        sol, info = qmr(big, rhs, rtol=tol, maxiter=maxiter, callback=cb)
+        out[:, c] = x0[:, c] + sol[m:]
         iters = max(iters, count[0])
         converged &= info == 0
     return out, iters, bool(converged)
