@@ -1,0 +1,237 @@
+"""The BRDF registry: a model is data (:class:`ModelSpec`) plus a pure function, registered by name.
+
+Convention (DESIGN.md, pinned): a BRDF is ``f(wi, wo) -> (..., 3)`` RGB in the local frame (z = normal),
+*without* the cosine factor, and exactly zero where ``wi.z <= 0`` or ``wo.z <= 0``. Directions are
+``(..., 3)`` unit vectors; all models here are isotropic.
+
+A model function ``fn(params, wi, wo)`` only ever sees directions strictly above the horizon:
+:class:`BRDF` substitutes the normal for invalid directions before calling it and zeroes the result
+afterwards (the "double where" that keeps gradients finite), so model functions need no horizon logic.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from typing import Any, NamedTuple
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array
+
+from homofac.errors import HomofacError
+
+#: Smallest cosine used in denominators (1 / (n.l), 1 / (n.h)^4, ...) so that directions a hair
+#: above the horizon give large but finite values, also in float32.
+COS_EPS = 1e-12
+
+
+class ModelSpec(NamedTuple):
+    """A registered BRDF model (imitates a Mitsuba plugin: data plus a pure function).
+
+    Attributes:
+        name: registry key, also the config's ``model:`` value.
+        fn: ``(params, wi, wo) -> (..., 3)``; pure ``jnp``, jittable, differentiable w.r.t. params.
+            Called only with directions above the horizon (see module docstring).
+        defaults: default parameter values; also the list of the model's parameter names.
+        reciprocal: ``f(wi, wo) == f(wo, wi)``.
+        energy_conserving: human-readable condition under which the directional albedo is <= 1
+            for every view direction, or ``""`` if never guaranteed.
+        doc: formula and source.
+        prepare: optional hook ``dict -> dict`` run by :func:`make` on the user's parameters before
+            defaults and validation (``merl`` uses it to turn ``file=`` into ``table=``).
+    """
+
+    name: str
+    fn: Callable[[dict[str, Array], Array, Array], Array]
+    defaults: dict[str, Any]
+    reciprocal: bool
+    energy_conserving: str
+    doc: str
+    prepare: Callable[[dict[str, Any]], dict[str, Any]] | None = None
+
+
+#: All registered models by name.
+MODELS: dict[str, ModelSpec] = {}
+
+
+def register(spec: ModelSpec) -> ModelSpec:
+    """Add ``spec`` to :data:`MODELS` (replacing a model of the same name) and return it."""
+    if not isinstance(spec, ModelSpec):
+        raise HomofacError(f"brdf.register expects a ModelSpec, got {type(spec).__name__}")
+    MODELS[spec.name] = spec
+    return spec
+
+
+class BRDF(eqx.Module):
+    """A BRDF instance: a registered model name (static) and its parameters (a pytree).
+
+    ``jax.grad`` w.r.t. ``brdf.params["roughness"]`` works as for any equinox module; tables (``merl``)
+    are leaves too, so under ``eqx.filter_jit`` they are arguments, never captured constants.
+    Construct with :func:`make` (or a per-model constructor) to get defaults and validation.
+    """
+
+    model: str = eqx.field(static=True)
+    params: dict[str, Array]
+
+    def __call__(self, wi: Array, wo: Array) -> Array:
+        """``f(wi, wo)``, shape ``broadcast(wi, wo).shape[:-1] + (3,)``; exactly 0 below the horizon.
+
+        Jitted (one compilation per model and input shapes; params are traced arguments), and
+        usable inside other jitted / differentiated functions.
+        """
+        return _call(self, _as_float(wi), _as_float(wo))
+
+    @property
+    def spec(self) -> ModelSpec:
+        """The :class:`ModelSpec` of this BRDF's model."""
+        return MODELS[self.model]
+
+
+@eqx.filter_jit
+def _call(brdf: BRDF, wi: Array, wo: Array) -> Array:
+    mask = (wi[..., 2] > 0) & (wo[..., 2] > 0)
+    up = jnp.zeros(3, wi.dtype).at[2].set(1.0)
+    m = mask[..., None]
+    # "double where": the model only sees valid directions, so masked entries cannot produce
+    # inf / nan that would leak into gradients through the final where.
+    wi_s = jnp.where(m, wi, up)
+    wo_s = jnp.where(m, wo, up)
+    val = MODELS[brdf.model].fn(brdf.params, wi_s, wo_s)
+    shape = jnp.broadcast_shapes(wi.shape, wo.shape)
+    return jnp.where(m, jnp.broadcast_to(val, shape), jnp.zeros((), val.dtype))
+
+
+def evaluate(brdf: BRDF, wi: Array, wo: Array) -> Array:
+    """``brdf(wi, wo)`` (an alias; the call is jitted already)."""
+    return brdf(wi, wo)
+
+
+def _as_float(x: Any) -> Array:
+    x = jnp.asarray(x)
+    if not jnp.issubdtype(x.dtype, jnp.floating):
+        x = x.astype(jnp.result_type(float))
+    return x
+
+
+# --------------------------------------------------------------------------------------------
+# Validation. Rules are per parameter name (names are pinned across models, DESIGN.md config).
+
+#: name -> (kind, lower bound, lower bound inclusive, upper bound or None, description for errors)
+_RULES: dict[str, tuple[str, float | None, bool, float | None, str]] = {
+    "kd": ("color", 0.0, True, None, "finite and >= 0"),
+    "ks": ("color", 0.0, True, None, "finite and >= 0"),
+    "f0": ("color", 0.0, True, 1.0, "finite and in [0, 1]"),
+    "roughness": ("scalar", 0.0, False, None, "a finite number > 0"),
+    "exponent": ("scalar", 0.0, True, None, "a finite number >= 0"),
+    "table": ("array", None, True, None, "finite (negative entries are holes)"),
+}
+
+
+def _fmt(a: np.ndarray) -> str:
+    if a.ndim == 0:
+        return repr(float(a)) if np.isfinite(a) else str(float(a))
+    if a.size <= 6:
+        return "[" + ", ".join(str(float(v)) for v in a.ravel()) + "]"
+    return f"array of shape {a.shape}"
+
+
+def _concrete(value: Any) -> np.ndarray | None:
+    """``value`` as a numpy array, or None if it is a tracer (abstract: skip value checks)."""
+    if isinstance(value, jax.core.Tracer):
+        return None
+    try:
+        return np.asarray(value)
+    except (jax.errors.TracerArrayConversionError, jax.errors.ConcretizationTypeError):
+        return None
+
+
+def _rule_for(name: str, default: Any) -> tuple[str, float | None, bool, float | None, str]:
+    if name in _RULES:
+        return _RULES[name]
+    shape = np.shape(default) if default is not None else None
+    kind = "color" if shape == (3,) else ("scalar" if shape == () else "array")
+    return (kind, None, True, None, "finite")
+
+
+def _convert(name: str, value: Any, default: Any) -> Array:
+    """Validate one parameter and convert it to a jnp array ((3,) colour, () scalar)."""
+    kind, lo, lo_incl, hi, what = _rule_for(name, default)
+    where = f"brdf.{name}"
+    conc = _concrete(value)
+    if conc is not None:
+        if conc.dtype == object or conc.dtype.kind not in "biuf":
+            raise HomofacError(f"{where} must be {'a number or 3 numbers' if kind == 'color' else 'a number'}, got {value!r}")
+        if conc.dtype.kind == "b":
+            raise HomofacError(f"{where} must be a number, got {value!r}")
+    shape = tuple(conc.shape) if conc is not None else tuple(jnp.shape(value))
+    if kind == "color" and shape not in ((), (1,), (3,)):
+        raise HomofacError(f"{where} must be a scalar or 3 values (RGB), got shape {shape}")
+    if kind == "scalar" and shape not in ((), (1,)):
+        raise HomofacError(f"{where} must be a single number, got shape {shape}")
+    if conc is not None:
+        if kind == "array":  # tables: keep their float dtype, check finiteness only
+            if not np.all(np.isfinite(conc)):
+                raise HomofacError(f"{where} must be {what}, got non-finite values")
+            out = jnp.asarray(conc if conc.dtype.kind == "f" else conc.astype(np.float32))
+            return out
+        a = conc.astype(np.float64)
+        bad = ~np.isfinite(a)
+        if lo is not None:
+            bad |= (a < lo) if lo_incl else (a <= lo)
+        if hi is not None:
+            bad |= a > hi
+        if np.any(bad):
+            shown = a.reshape(()) if a.size == 1 else a
+            raise HomofacError(f"{where} must be {what}, got {_fmt(shown)}")
+        out = jnp.asarray(a, dtype=jnp.result_type(float))
+    else:
+        out = jnp.asarray(value)
+        if not jnp.issubdtype(out.dtype, jnp.floating):
+            out = out.astype(jnp.result_type(float))
+    if kind == "color":
+        out = jnp.broadcast_to(out.reshape(-1) if out.ndim else out, (3,))
+    elif kind == "scalar":
+        out = out.reshape(())
+    return out
+
+
+def make(model: str, **params: Any) -> BRDF:
+    """A :class:`BRDF` of a registered ``model``: fills defaults, validates, converts to jnp arrays.
+
+    Colours (``kd``, ``ks``, ``f0``) accept a scalar or 3 values and become ``(3,)`` arrays; scalars
+    (``roughness``, ``exponent``) become ``()`` arrays. Value checks (finite, >= 0, roughness > 0, ...)
+    run only on concrete values, so ``make`` can be called inside ``jax.grad`` with tracers.
+
+    Raises:
+        HomofacError: unknown model (lists the known ones), unknown parameter (names it and lists the
+            model's parameters), or a bad value (names the parameter).
+    """
+    if not isinstance(model, str) or model not in MODELS:
+        known = ", ".join(MODELS)
+        raise HomofacError(f"brdf.model: unknown model {model!r}; known models: {known}")
+    spec = MODELS[model]
+    if spec.prepare is not None:
+        params = spec.prepare(dict(params))
+    allowed = list(spec.defaults)
+    for name in params:
+        if name not in spec.defaults:
+            raise HomofacError(
+                f"brdf.{name}: unknown parameter for model {model!r}; its parameters: {', '.join(allowed)}"
+            )
+    full: dict[str, Array] = {}
+    for name, default in spec.defaults.items():
+        value = params.get(name, default)
+        if value is None:
+            raise HomofacError(f"brdf.{name}: model {model!r} needs a value for {name!r}")
+        full[name] = _convert(name, value, default)
+    return BRDF(model, full)
+
+
+def from_config(cfg: Mapping[str, Any]) -> BRDF:
+    """``make(cfg["model"], **rest)`` for a config mapping like ``{model: cook_torrance, kd: [...], ...}``."""
+    if not isinstance(cfg, Mapping) or "model" not in cfg:
+        raise HomofacError("brdf.model: missing; known models: " + ", ".join(MODELS))
+    rest = {k: v for k, v in cfg.items() if k != "model"}
+    return make(cfg["model"], **rest)
