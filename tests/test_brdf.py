@@ -191,7 +191,7 @@ def test_albedo_lambert_is_kd():
     a = np.asarray(B.albedo(B.lambert(1.0), WO))
     assert a.shape == (len(VIEW_DEG), 3)
     np.testing.assert_allclose(a, 1.0, atol=1e-4)
-    np.testing.assert_allclose(B.albedo(B.lambert((0.2, 0.4, 0.8)), WO[0]), [0.2, 0.4, 0.8], rtol=1e-4)
+    np.testing.assert_allclose(B.albedo(B.lambert((0.2, 0.4, 0.8)), WO)[0], [0.2, 0.4, 0.8], rtol=1e-4)
     # below the horizon: 0; batch shapes kept
     assert np.all(np.asarray(B.albedo(B.lambert(1.0), jnp.array([[[0.0, 0.6, -0.8]]]))) == 0.0)
 
@@ -221,26 +221,26 @@ def test_albedo_blinn_phong_overshoot_matches_closed_form():
 
 def test_albedo_phong_normal_incidence_closed_form():
     for n in (2.0, 30.0):
-        a = np.asarray(B.albedo(B.phong(kd=0.1, ks=1.0, exponent=n), WO[0]))
+        a = np.asarray(B.albedo(B.phong(kd=0.1, ks=1.0, exponent=n), WO))[0]
         np.testing.assert_allclose(a, 0.1 + 2 * PI / (n + 2), rtol=1e-4)
 
 
 @pytest.mark.parametrize("model", ["cook_torrance", "ggx"])
 def test_albedo_microfacet_at_most_one(model):
+    normal = {}
     for r in (0.05, 0.2, 0.5, 1.0):
         a = np.asarray(B.albedo(B.make(model, kd=0.0, ks=1.0, roughness=r, f0=1.0), WO))
         assert np.all(a <= 1.0 + 1e-4), (r, a)
         assert np.all(a > 0.25)
+        normal[r] = a[0, 0]
     # smooth surfaces keep almost all energy at normal incidence; rough ones lose it (single scattering)
-    smooth = float(B.albedo(B.make(model, kd=0.0, ks=1.0, roughness=0.05, f0=1.0), WO[0])[0])
-    rough = float(B.albedo(B.make(model, kd=0.0, ks=1.0, roughness=1.0, f0=1.0), WO[0])[0])
-    assert smooth > 0.99 and rough < 0.5
+    assert normal[0.05] > 0.99 and normal[1.0] < 0.5
 
 
 def test_albedo_ward_not_energy_conserving():
     assert B.MODELS["ward"].energy_conserving == ""
-    near_grazing = jnp.asarray([sph(89.99, 0.0)], jnp.float32)
-    assert float(B.albedo(B.ward(kd=0.0, ks=1.0, roughness=0.2), near_grazing)[0, 0]) > 1.2
+    near_grazing = WO.at[-1].set(jnp.asarray(sph(89.99, 0.0), jnp.float32))
+    assert float(B.albedo(B.ward(kd=0.0, ks=1.0, roughness=0.2), near_grazing)[-1, 0]) > 1.2
 
 
 # ------------------------------------------------------------------------------------------------
@@ -482,14 +482,15 @@ def test_grad_roughness_matches_finite_difference(x64):
         return jnp.sum(brdf(wi, wo) * weights)
 
     r0, h = 0.3, 1e-6
-    g = float(jax.grad(loss)(r0))
-    fd = (float(loss(r0 + h)) - float(loss(r0 - h))) / (2 * h)
+    g = float(jax.jit(jax.grad(loss))(r0))
+    loss_j = jax.jit(loss)
+    fd = (float(loss_j(r0 + h)) - float(loss_j(r0 - h))) / (2 * h)
     assert np.isfinite(g) and abs(g) > 1e-3
     assert g == pytest.approx(fd, rel=1e-6)
 
     # the same through the module's params pytree
     brdf = B.cook_torrance(roughness=r0)
-    grads = jax.grad(lambda p: jnp.sum(B.BRDF("cook_torrance", p)(wi, wo) * weights))(brdf.params)
+    grads = jax.jit(jax.grad(lambda p: jnp.sum(B.BRDF("cook_torrance", p)(wi, wo) * weights)))(brdf.params)
     assert float(grads["roughness"]) == pytest.approx(g, rel=1e-12)
     assert all(np.all(np.isfinite(np.asarray(v))) for v in grads.values())
 
