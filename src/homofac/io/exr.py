@@ -1,0 +1,167 @@
+"""OpenEXR read and write (OpenEXR 3.x python bindings), RGB float32.
+
+``read_exr`` returns an ``(H, W, 3)`` float32 array whatever the file stores: an interleaved
+``"RGB"``/``"RGBA"`` group, separate ``"R"``, ``"G"``, ``"B"`` channels, or a single grey ``"Y"``
+channel (copied to the three channels). Half and uint channels are converted to float32.
+``read_exr_with_header`` also returns the header dict, e.g. to read the ``envmap`` attribute
+(``OpenEXR.ENVMAP_LATLONG`` or ``OpenEXR.ENVMAP_CUBE``); :func:`envmap_kind` turns it into a string.
+
+``write_exr`` writes float32 (or half) RGB into a temporary file in the target directory and renames
+it at the end, so a failure never leaves a partial file. A float32 round trip is bit-exact.
+
+Every problem (missing file, not an EXR, truncated or corrupt file, no colour channels, bad array)
+raises :class:`~homofac.errors.HomofacError` with one line naming the path and the problem.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import HomofacError
+
+#: The four magic bytes every OpenEXR file starts with.
+EXR_MAGIC = b"\x76\x2f\x31\x01"
+
+__all__ = ["read_exr", "read_exr_with_header", "write_exr", "envmap_kind", "is_exr", "EXR_MAGIC"]
+
+
+def _one_line(e: BaseException) -> str:
+    return " ".join(str(e).split()) or type(e).__name__
+
+
+def is_exr(path: str | os.PathLike) -> bool:
+    """True if ``path`` is a readable file that starts with the OpenEXR magic number."""
+    try:
+        with open(path, "rb") as f:
+            return f.read(4) == EXR_MAGIC
+    except OSError:
+        return False
+
+
+def _check_file(path: Path) -> None:
+    if not path.exists():
+        raise HomofacError(f"{path}: no such file")
+    if path.is_dir():
+        raise HomofacError(f"{path}: is a directory, not an EXR file")
+    try:
+        with open(path, "rb") as f:
+            magic = f.read(4)
+    except OSError as e:
+        raise HomofacError(f"{path}: cannot read: {_one_line(e)}") from None
+    if magic != EXR_MAGIC:
+        raise HomofacError(f"{path}: not an OpenEXR file (bad magic number)")
+
+
+def _rgb_from_channels(path: Path, channels: dict[str, Any]) -> np.ndarray:
+    pix = {name: np.asarray(ch.pixels) for name, ch in channels.items()}
+    if "RGB" in pix or "RGBA" in pix:
+        a = pix["RGB"] if "RGB" in pix else pix["RGBA"]
+        if a.ndim != 3 or a.shape[2] < 3:
+            raise HomofacError(f"{path}: RGB channel group has unexpected shape {a.shape}")
+        rgb = a[..., :3]
+    elif all(c in pix for c in "RGB"):
+        rgb = np.stack([pix["R"], pix["G"], pix["B"]], axis=-1)
+    elif "Y" in pix:
+        y = pix["Y"]
+        rgb = np.repeat(y[..., None], 3, axis=-1)
+    else:
+        names = ", ".join(sorted(pix)) or "none"
+        raise HomofacError(f"{path}: no RGB, RGBA or Y channels (has: {names})")
+    if rgb.ndim != 3 or rgb.shape[0] == 0 or rgb.shape[1] == 0:
+        raise HomofacError(f"{path}: empty image (shape {rgb.shape})")
+    return np.ascontiguousarray(rgb, dtype=np.float32)
+
+
+def read_exr_with_header(path: str | os.PathLike) -> tuple[np.ndarray, dict]:
+    """``(rgb (H, W, 3) float32, header dict)`` of the first part of an OpenEXR file."""
+    import OpenEXR
+
+    p = Path(path)
+    _check_file(p)
+    try:
+        f = OpenEXR.File(str(p))
+        header = dict(f.header())
+        channels = f.channels()
+    except HomofacError:
+        raise
+    except Exception as e:  # OpenEXR raises RuntimeError / ValueError on corrupt or truncated data
+        raise HomofacError(f"{p}: cannot read EXR (corrupt or truncated?): {_one_line(e)}") from None
+    if not channels:
+        raise HomofacError(f"{p}: cannot read EXR pixel data (corrupt or truncated?)")
+    return _rgb_from_channels(p, channels), header
+
+
+def read_exr(path: str | os.PathLike) -> np.ndarray:
+    """RGB pixels of an OpenEXR file as an ``(H, W, 3)`` float32 array (row 0 is the top row)."""
+    return read_exr_with_header(path)[0]
+
+
+def envmap_kind(header: dict) -> str | None:
+    """``"latlong"``, ``"cube"`` or None from an EXR header's ``envmap`` attribute."""
+    import OpenEXR
+
+    v = header.get("envmap")
+    if v is None:
+        return None
+    if v == OpenEXR.ENVMAP_CUBE or "CUBE" in str(v).upper():
+        return "cube"
+    if v == OpenEXR.ENVMAP_LATLONG or "LATLONG" in str(v).upper():
+        return "latlong"
+    return None
+
+
+def write_exr(
+    path: str | os.PathLike,
+    rgb,
+    *,
+    half: bool = False,
+    header: dict | None = None,
+    compression: str | None = None,
+) -> Path:
+    """Write an ``(H, W, 3)`` (or ``(H, W)`` grey) image as an RGB OpenEXR file; returns the path.
+
+    float32 by default (bit-exact round trip), half precision with ``half=True``. ``header`` adds or
+    overrides attributes (e.g. ``{"envmap": OpenEXR.ENVMAP_CUBE}``); ``compression`` is a name such
+    as ``"zip"``, ``"piz"``, ``"none"`` (default ZIP). The file is written to a temporary name in the
+    same directory and renamed, so a failure leaves no partial file.
+    """
+    import OpenEXR
+
+    p = Path(path)
+    a = np.asarray(rgb)
+    if a.ndim == 2:
+        a = np.repeat(a[..., None], 3, axis=-1)
+    if a.ndim != 3 or a.shape[2] not in (3, 4) or a.shape[0] == 0 or a.shape[1] == 0:
+        raise HomofacError(f"{p}: cannot write EXR: expected an (H, W, 3) image, got shape {a.shape}")
+    a = np.ascontiguousarray(a[..., :3], dtype=np.float16 if half else np.float32)
+    hdr: dict = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    if compression is not None:
+        name = compression.upper().removesuffix("_COMPRESSION") + "_COMPRESSION"
+        if not hasattr(OpenEXR, name):
+            raise HomofacError(f"{p}: unknown EXR compression {compression!r}")
+        hdr["compression"] = getattr(OpenEXR, name)
+    if header:
+        hdr.update(header)
+    directory = p.parent if str(p.parent) else Path(".")
+    if not directory.is_dir():
+        raise HomofacError(f"{p}: cannot write EXR: directory {directory} does not exist")
+    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp.exr", dir=directory)
+    os.close(fd)
+    try:
+        OpenEXR.File(hdr, {"RGB": a}).write(tmp)
+        os.chmod(tmp, (p.stat().st_mode & 0o777) if p.exists() else 0o644)
+        os.replace(tmp, p)
+    except Exception as e:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        if isinstance(e, HomofacError):
+            raise
+        raise HomofacError(f"{p}: cannot write EXR: {_one_line(e)}") from None
+    return p
