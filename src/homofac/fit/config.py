@@ -71,6 +71,7 @@ class TargetConfig(_Strict):
 class SamplingConfig(_Strict):
     kind: Literal["texels", "latlong", "random"] = "texels"
     size: int = Field(24, ge=2, le=512)
+    view_size: Optional[int] = Field(None, ge=2, le=512)
     validation: int = Field(20000, ge=0, le=10_000_000)
     seed: int = 0
     count: int = Field(0, ge=0)
@@ -151,12 +152,17 @@ def load(path) -> tuple[Config, Path]:
 
 
 def resolve_path(value: str, base: Path) -> str:
-    """A path relative to the config file's directory (bare bundled names are kept as they are)."""
+    """A path relative to the config file's directory; a bare bundled environment name (``forest``,
+    ``forest.exr``) that is not a file there is kept as it is, for the loader to resolve."""
+    from ..light.environment import BUNDLED
+
     q = Path(value).expanduser()
     if q.is_absolute():
         return str(q)
     cand = base / q
-    return str(cand) if (cand.exists() or "/" in value or "." in q.name) else value
+    if not cand.exists() and "/" not in value and q.stem in BUNDLED:
+        return value
+    return str(cand)
 
 
 def build_target(cfg: Config, base: Path):

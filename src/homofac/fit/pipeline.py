@@ -22,10 +22,12 @@ from .metrics import metrics
 from .solvers import solve
 from .start import starting_solution
 from .system import build_system, make_layout
-from .target import Target, evaluate
+from .target import Target, evaluate, evaluate_grouped
 
 #: Default sampling settings (DESIGN.md config).
-DEFAULT_SAMPLING = {"kind": "texels", "size": 24, "validation": 20000, "seed": 0, "count": 0, "mapper": None}
+DEFAULT_SAMPLING = {
+    "kind": "texels", "size": 24, "view_size": None, "validation": 20000, "seed": 0, "count": 0, "mapper": None,
+}
 #: Default solver settings (DESIGN.md config).
 DEFAULT_SOLVER = {"method": "lsmr", "tolerance": 1e-6, "max_iterations": 1000, "laplacian": 1.0, "epsilon": 1e-5}
 #: Largest texture size accepted (a 4096^2 cube has 100M unknowns: nothing here would finish).
@@ -71,9 +73,22 @@ def draw_samples(target: Target, parametrization: str, sampling_cfg: dict, log: 
     """Sample the target on training pairs (thesis §4.2 / §5.6) and on a seeded validation set."""
     s = {**DEFAULT_SAMPLING, **(sampling_cfg or {})}
     smapper = s["mapper"] or default_mapper(target.kind)
+    if target.kind == "lighting":
+        # grouped by normal: per-normal work (weights, frames, diffuse, horizon culling) done once
+        groups = sampling.grouped_pairs(s["kind"], int(s["size"]), mapper=smapper, count=int(s["count"]),
+                                        seed=int(s["seed"]), view_size=s["view_size"])
+        pairs = groups.flatten()
+        if len(pairs) == 0:
+            raise HomofacError("sampling produced no valid direction pairs; increase sampling.size")
+        log(f"sampling {len(pairs)} training pairs ({len(groups.normals)} normals)")
+        y = np.asarray(evaluate_grouped(target, groups))
+        vgroups = sampling.grouped_random(int(s["validation"]), int(s["seed"]) + 1)
+        val = vgroups.flatten()
+        val_y = np.asarray(evaluate_grouped(target, vgroups)) if len(val) else np.zeros((0, 3), np.float32)
+        return Samples(pairs.a, pairs.b, y, val.a, val.b, val_y)
     pairs = sampling.sample_pairs(
         target.kind, s["kind"], int(s["size"]), mapper=smapper, parametrization=parametrization,
-        count=int(s["count"]), seed=int(s["seed"]),
+        count=int(s["count"]), seed=int(s["seed"]), view_size=s["view_size"],
     )
     if len(pairs) == 0:
         raise HomofacError("sampling produced no valid direction pairs; increase sampling.size")
@@ -113,7 +128,7 @@ def factorize(
         parametrization: ``IV``, ``GSHD``, ``PQP`` (BRDF) or ``N``, ``R``, ``NR``, ``NRV``, ``NRHD``.
         mapper: direction mapper of the textures (default: parabolic for BRDF, dual_paraboloid for lighting).
         texture_size: S of the mapper table (4 ... 1024).
-        sampling: ``{kind, size, validation, seed, count, mapper}`` (DESIGN.md config ``sampling``).
+        sampling: ``{kind, size, view_size, validation, seed, count, mapper}`` (DESIGN.md config ``sampling``).
         solver: ``{method, tolerance, max_iterations, laplacian, epsilon}``.
         samples: precomputed :class:`Samples` (skip sampling, e.g. to compare solvers).
         config: the resolved config to record in the result.

@@ -101,36 +101,40 @@ def sample_pairs(
     parametrization: str = "",
     count: int = 0,
     seed: int = 0,
+    view_size: int | None = None,
 ) -> Pairs:
     """Training pairs for a target of ``kind`` ("brdf" or "lighting").
 
     Args:
         kind: target kind; decides the domain (hemisphere pairs or sphere pairs with n.v > 0).
         sampling_kind: ``texels``, ``latlong`` or ``random``.
-        size: grid size of the sampling mapper (texels) or phi steps (latlong).
+        size: grid size of the sampling mapper (texels) or phi steps (latlong) for the first direction.
+        view_size: the same for the second direction (wo, or d for GSHD); default ``size``
+            (the two direction iterators of thesis §6.1.5 have their own sizes).
         mapper: the mapper whose texel grid is reverse-projected (``texels`` only).
         parametrization: with ``GSHD`` the texel grids are read as (h, d) (thesis §4.2).
         count: number of random pairs (``random`` only).
         seed: random seed (``random`` only).
     """
     hemi = kind == "brdf"
+    view_size = view_size or size
     if sampling_kind == "texels":
         m = mappers.get(mapper)
         if not m.covers_sphere and not hemi:
             raise HomofacError(f"sampling.mapper {mapper} covers only a hemisphere; lighting needs a sphere mapper")
         g = grid_directions(mapper, size, hemi)
+        g2 = grid_directions(mapper, view_size, hemi)
         if kind == "brdf" and parametrization == "GSHD":
-            h = np.repeat(g, len(g), axis=0)
-            d = np.tile(g, (len(g), 1))
+            h = np.repeat(g, len(g2), axis=0)
+            d = np.tile(g2, (len(g), 1))
             wi, wo = half_difference_to_pairs(h, d)
             keep = valid_pairs(kind, wi, wo)
             return Pairs(_normalize(wi[keep]).astype(np.float32), _normalize(wo[keep]).astype(np.float32))
-        return all_pairs(kind, g, g)
+        return all_pairs(kind, g, g2)
     if sampling_kind == "latlong":
-        g = latlong_directions(size, hemi)
-        return all_pairs(kind, g, g)
+        return all_pairs(kind, latlong_directions(size, hemi), latlong_directions(view_size, hemi))
     if sampling_kind == "random":
-        return random_pairs(kind, count or size * size * size * size // 4, seed)
+        return random_pairs(kind, count or size * size * view_size * view_size // 4, seed)
     raise HomofacError(f"sampling.kind must be texels, latlong or random, got {sampling_kind!r}")
 
 
@@ -150,3 +154,64 @@ def random_pairs(kind: str, count: int, seed: int) -> Pairs:
     a = np.concatenate(out_a)[:count]
     b = np.concatenate(out_b)[:count]
     return Pairs(a.astype(np.float32), b.astype(np.float32))
+
+
+class Grouped(NamedTuple):
+    """Lighting pairs grouped by normal: G normals, P views each, mask of the valid (n . v > 0) ones.
+
+    The lighting computation does the per-normal work (texel weights, local light frame, diffuse
+    term, horizon culling) once per group (:meth:`homofac.light.Lighting.grouped`).
+    """
+
+    normals: np.ndarray  # (G, 3)
+    views: np.ndarray  # (G, P, 3)
+    mask: np.ndarray  # (G, P) bool
+
+    def flatten(self) -> Pairs:
+        """The valid pairs, normal-major (the order of :func:`all_pairs`)."""
+        g, p = self.mask.shape
+        a = np.broadcast_to(self.normals[:, None, :], (g, p, 3))[self.mask]
+        return Pairs(a.astype(np.float32), self.views[self.mask].astype(np.float32))
+
+
+def group_product(normals: np.ndarray, views: np.ndarray) -> Grouped:
+    """All valid (n, v) of two direction sets, grouped by normal; views padded per normal."""
+    valid = normals @ views.T > MIN_COS  # (G, V)
+    p = max(1, int(valid.sum(axis=1).max()))
+    # stable sort puts each normal's valid views first, in their original order
+    order = np.argsort(~valid, axis=1, kind="stable")[:, :p]
+    mask = np.take_along_axis(valid, order, axis=1)
+    v = views[order]
+    return Grouped(normals.astype(np.float32), v.astype(np.float32), mask)
+
+
+def grouped_pairs(sampling_kind: str, size: int, *, mapper: str, count: int = 0, seed: int = 0,
+                  view_size: int | None = None) -> Grouped:
+    """Lighting training pairs grouped by normal (same pairs as :func:`sample_pairs`)."""
+    view_size = view_size or size
+    if sampling_kind == "texels":
+        m = mappers.get(mapper)
+        if not m.covers_sphere:
+            raise HomofacError(f"sampling.mapper {mapper} covers only a hemisphere; lighting needs a sphere mapper")
+        return group_product(grid_directions(mapper, size, False), grid_directions(mapper, view_size, False))
+    if sampling_kind == "latlong":
+        return group_product(latlong_directions(size, False), latlong_directions(view_size, False))
+    if sampling_kind == "random":
+        return grouped_random(count or size * size * view_size * view_size // 4, seed)
+    raise HomofacError(f"sampling.kind must be texels, latlong or random, got {sampling_kind!r}")
+
+
+def grouped_random(count: int, seed: int) -> Grouped:
+    """``count`` random valid lighting pairs: about sqrt(count) uniform normals, each with uniform
+    views on its upper hemisphere (the same distribution as uniform pairs conditioned on n . v > 0)."""
+    rng = np.random.default_rng(seed)
+    if count <= 0:
+        return Grouped(np.zeros((0, 3), np.float32), np.zeros((0, 1, 3), np.float32), np.zeros((0, 1), bool))
+    g = max(1, int(round(np.sqrt(count))))
+    p = -(-count // g)
+    n = random_directions(rng, g, False)
+    v = _normalize(rng.normal(size=(g, p, 3)))
+    flip = np.sum(v * n[:, None, :], axis=-1) < 0
+    v = np.where(flip[..., None], -v, v)
+    mask = (np.arange(g * p) < count).reshape(g, p) & (np.sum(v * n[:, None, :], axis=-1) > MIN_COS)
+    return Grouped(n.astype(np.float32), v.astype(np.float32), mask)

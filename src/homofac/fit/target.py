@@ -56,6 +56,25 @@ def _eval_chunks(fn, a, b):
     return jax.lax.map(lambda ab: fn(ab[0], ab[1]), (a, b))
 
 
+@eqx.filter_jit
+def _eval_groups(fn, normals, views):
+    return fn.grouped(normals, views)
+
+
+def evaluate_grouped(target: Target, grouped) -> Float[Array, "M 3"]:
+    """Values at the valid pairs of a :class:`~homofac.fit.sampling.Grouped` set, in flattened order.
+
+    Uses the target's per-normal fast path (``target.fn.grouped``) when it has one.
+    """
+    if grouped.mask.size == 0 or not grouped.mask.any():
+        return jnp.zeros((0, 3))
+    if hasattr(target.fn, "grouped"):
+        out = _eval_groups(target.fn, jnp.asarray(grouped.normals), jnp.asarray(grouped.views))
+        return out[jnp.asarray(grouped.mask)]
+    pairs = grouped.flatten()
+    return evaluate(target, pairs.a, pairs.b)
+
+
 def evaluate(fn: Callable, a, b, chunk: int = 4096) -> Float[Array, "N 3"]:
     """Evaluate ``fn(a, b)`` on N pairs in chunks of ``chunk`` rows (bounded memory, one compile)."""
     a = jnp.asarray(a)

@@ -50,7 +50,7 @@ import math
 import os
 import warnings
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Optional, Sequence
 
 import equinox as eqx
 import jax
@@ -105,6 +105,9 @@ class Environment(eqx.Module):
     radiance: Float[Array, "L 3"]
     solid_angle: Float[Array, "L"]
     info: dict = eqx.field(static=True)
+    #: Corners (L, 4, 3) of each light texel, counter-clockwise from outside (all zero for delta
+    #: lights); they let the lighting integrate max(n.l, 0) exactly over each texel (light.geometry).
+    corners: Optional[Float[Array, "L 4 3"]] = None
 
     @property
     def num_lights(self) -> int:
@@ -387,11 +390,14 @@ def _finish(
         energy_before=[float(x) for x in (after if energy_before is None else energy_before)],
         energy_after=[float(x) for x in after],
     )
+    from .geometry import cube_corners
+
     env = Environment(
         directions=jnp.asarray(d.astype(np.float32)),
         radiance=jnp.asarray(rad32),
         solid_angle=jnp.asarray(w32),
         info=info,
+        corners=jnp.asarray(cube_corners(r).astype(np.float32)),
     )
     env = with_lights(env, lights)
     _check_power(np.asarray(env.radiance, np.float64), np.asarray(env.solid_angle, np.float64), info["source"])
@@ -732,6 +738,8 @@ def with_lights(env: Environment, lights: Sequence[dict]) -> Environment:
         radiance=jnp.concatenate([env.radiance, rad.astype(env.radiance.dtype)]),
         solid_angle=jnp.concatenate([env.solid_angle, jnp.ones(len(specs), env.solid_angle.dtype)]),
         info=info,
+        corners=None if env.corners is None else jnp.concatenate(
+            [env.corners, jnp.zeros((len(specs), 4, 3), env.corners.dtype)]),
     )
 
 

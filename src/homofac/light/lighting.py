@@ -1,21 +1,26 @@
 """The lighting computation L(v, n) of an isotropic BRDF under an environment (pinned, physical).
 
-DESIGN.md, thesis eq. 61 / Latta-Kolb eq. 6, discretised with exact texel solid angles (thesis eq. 10
-rather than the eq. 11 approximation):
+DESIGN.md, thesis eq. 61 / Latta-Kolb eq. 6, discretised over the light texels k with their exact
+solid angles (thesis eq. 10, not the eq. 11 approximation):
 
-    L(v, n) = sum_k f(w(l_k), w(v)) L_i(l_k) max(n . l_k, 0) dw_k
+    L(v, n) = sum_k f(w(l_k), w(v)) L_i(l_k) w_k(n),    w_k(n) = integral over texel k of max(n . l, 0) dl
 
-with w(.) the direction in the local frame (t(n), n x t(n), n) of Latta-Kolb eq. 6. A white Lambertian
-surface under uniform radiance 1 gives exactly 1. Pairs with n . v <= 0 are invalid (the caller never
-samples them; here they evaluate to 0).
+with w(.) the direction in the local frame (t(n), n x t(n), n) of Latta-Kolb eq. 6. The cosine weight
+w_k(n) is the pinned ``max(n . l_k, 0) dw_k`` integrated exactly over the texel (:mod:`.geometry`;
+equal to second order, and exact where the texel-centre form is not: sum_k w_k(n) = pi, so a white
+Lambertian surface under uniform radiance 1 gives exactly 1). Pairs with n . v <= 0 are invalid (the
+samplers never produce them; here they evaluate to 0).
 
 How it is computed (DESIGN.md "Performance rules of thumb"):
 
-* all dot products with the lights are matmuls of (B, 3) @ (3, L) arrays;
-* pairs are processed in chunks with ``lax.map`` so memory stays bounded (never N x L x 3 at once);
-* the Lambertian part kd/pi of a model depends on n only: it is ``kd/pi * E(n)`` with the irradiance
-  E(n) = sum_k L_i max(n.l_k, 0) dw_k, one (B, L) @ (L, 3) product; the BRDF is evaluated for the
-  remaining (specular) part only, and not at all for a purely Lambertian model;
+* dot products with the lights are matmuls of (B, 3) @ (3, L) arrays, not (B, L, 3) broadcasts;
+* work is chunked with ``lax.map`` so memory stays bounded (never N x L x 3 at once);
+* the Lambertian part kd/pi of a model depends on n only: it is ``kd/pi E(n)`` with the irradiance
+  E(n) = sum_k L_i w_k(n); the BRDF is evaluated for the remaining (specular) part only, and not at
+  all for a purely Lambertian model;
+* :meth:`Lighting.grouped` (used by sampling) takes many views per normal: weights, the local light
+  frame and the diffuse term are computed once per normal, and only the lights above its horizon
+  (about half) are evaluated;
 * optional light culling (:func:`cull_lights`) drops the weakest lights under a stated error bound.
 """
 
@@ -33,8 +38,9 @@ from .. import sphere
 from ..errors import HomofacError
 from ..fit.target import Target
 from .environment import Environment, dominant_direction
+from .geometry import cosine_weights, cube_corners, light_geometry
 
-#: Pairs per inner chunk: B x L x 3 floats live at once (256 x 6144 x 3 x 4 B = 19 MB).
+#: Pairs per inner chunk of the arbitrary-pair path is CHUNK // 4 (B x L x 4 x 3 weight terms live at once).
 CHUNK = 256
 
 
@@ -50,29 +56,79 @@ def _split_diffuse(brdf):
     return spec, kd
 
 
-def _chunk_radiance(spec, kd, env_dirs_t, power, n, v):
-    """L(v, n) for one chunk: n, v (B, 3); env_dirs_t (3, L); power (L, 3) = L_i dw."""
-    t, b, nn = sphere.frame(n)
-    lt = t @ env_dirs_t  # (B, L) -- matmuls, not (B, L, 3) broadcasts
-    lb = b @ env_dirs_t
-    ln = nn @ env_dirs_t
-    cos = jnp.maximum(ln, 0.0)
+def light_corners(env: Environment) -> Float[Array, "L 4 3"]:
+    """Texel corners of the lights (zeros for delta lights): ``env.corners`` when the environment has
+    them, else the cube texels of ``env.info["resolution"]`` followed by delta lights."""
+    c = getattr(env, "corners", None)
+    if c is not None:
+        return c
+    r = int(env.info.get("resolution", 0))
+    n_tex = 6 * r * r
+    L = env.directions.shape[0]
+    if r <= 0 or n_tex > L:
+        return jnp.zeros((L, 4, 3), env.directions.dtype)
+    return jnp.concatenate([jnp.asarray(cube_corners(r), env.directions.dtype),
+                            jnp.zeros((L - n_tex, 4, 3), env.directions.dtype)])
+
+
+def max_visible(env: Environment) -> int:
+    """Static bound on the number of lights with w_k(n) > 0 for any n: half the cube texels plus the
+    ones straddling the horizon (at most 3 r measured; 6 r allowed), plus every delta light."""
+    r = int(env.info.get("resolution", 0))
+    L = int(env.directions.shape[0])
+    n_tex = 6 * r * r if r > 0 and 6 * r * r <= L else 0
+    if n_tex == 0:
+        return L
+    return min(L, 3 * r * r + 6 * r + (L - n_tex))
+
+
+def _pair_radiance(spec, kd, dirs, power_rad, geom, n, v):
+    """L(v, n) for a chunk of arbitrary pairs: n, v (B, 3)."""
+    w = cosine_weights(n, geom, select=True)  # (B, L) exact clamped-cosine texel integrals
     out = jnp.zeros(n.shape[:-1] + (3,), n.dtype)
     if kd is not None:
-        out = out + (kd / jnp.pi) * (cos @ power)  # kd/pi * E(n)
+        out = out + (kd / jnp.pi) * (w @ power_rad)  # kd/pi * E(n)
     if spec is not None:
-        wo = sphere.to_local(v, t, b, nn)  # (B, 3)
-        wi = jnp.stack([lt, lb, ln], axis=-1)  # (B, L, 3)
-        f = spec(wi, jnp.broadcast_to(wo[:, None, :], wi.shape))  # (B, L, 3)
-        out = out + jnp.einsum("bl,blc,lc->bc", cos, f, power)
+        t, b, nn = sphere.frame(n)
+        wi = jnp.stack([t @ dirs.T, b @ dirs.T, nn @ dirs.T], axis=-1)  # (B, L, 3) via matmuls
+        wo = sphere.to_local(v, t, b, nn)
+        f = spec(wi, jnp.broadcast_to(wo[:, None, :], wi.shape))
+        out = out + jnp.einsum("bl,blc,lc->bc", w, f, power_rad)
     valid = sphere.dot(n, v) > 0
+    return jnp.where(valid[:, None], out, 0.0)
+
+
+def _normal_radiance(spec, kd, dirs, rad, geom, k, n, v):
+    """L(v_p, n) for one normal n (3,) and views v (P, 3): weights once per normal, only the k lights
+    with the largest w_k(n) (all the visible ones, see :func:`max_visible`) are evaluated."""
+    w = cosine_weights(n[None], geom, select=True)[0]  # (L,)
+    out = jnp.zeros(v.shape[:-1] + (3,), v.dtype)
+    if kd is not None:
+        out = out + (kd / jnp.pi) * (w @ rad)
+    if spec is not None:
+        # compact the visible lights (w > 0, about half) into k slots: cumsum, no sort
+        vis = w > 0
+        slot = jnp.where(vis, jnp.cumsum(vis) - 1, k)
+        idx = jnp.zeros((k,), jnp.int32).at[slot].set(jnp.arange(w.shape[0], dtype=jnp.int32), mode="drop")
+        wk = jnp.zeros((k,), w.dtype).at[slot].set(w, mode="drop")
+        radk = rad[idx]
+        t, b, nn = sphere.frame(n)
+        frame = jnp.stack([t, b, nn], axis=1)  # (3, 3): columns t, b, n
+        wi = dirs[idx] @ frame  # (k, 3) local light directions, once per normal
+        wo = v @ frame  # (P, 3)
+        shape = (v.shape[0], k, 3)
+        f = spec(jnp.broadcast_to(wi[None], shape), jnp.broadcast_to(wo[:, None], shape))
+        out = out + jnp.einsum("pkc,k,kc->pc", f, wk, radk)
+    valid = v @ n > 0
     return jnp.where(valid[:, None], out, 0.0)
 
 
 class Lighting(eqx.Module):
     """L(v, n) of ``brdf`` under ``env`` as a callable pytree: ``lighting(n, v) -> (N, 3)``.
 
-    Differentiable w.r.t. the BRDF parameters and the environment radiance.
+    Differentiable w.r.t. the BRDF parameters and the environment radiance. :meth:`grouped` evaluates
+    many views per normal and is what sampling uses: the texel weights and the local light frame are
+    computed once per normal and lights below its horizon are skipped.
     """
 
     brdf: eqx.Module
@@ -84,30 +140,61 @@ class Lighting(eqx.Module):
     def n_lights(self) -> int:
         return int(self.env.directions.shape[0])
 
+    def _arrays(self, dtype):
+        e = self.env
+        dirs = e.directions.astype(dtype)
+        geom = light_geometry(dirs, e.solid_angle.astype(dtype), light_corners(e).astype(dtype),
+                              int(e.info.get("resolution", 0)))
+        return dirs, e.radiance.astype(dtype), geom
+
     def __call__(self, n: Float[Array, "N 3"], v: Float[Array, "N 3"]) -> Float[Array, "N 3"]:
         spec, kd = _split_diffuse(self.brdf)
-        dirs_t = self.env.directions.T.astype(n.dtype)
-        power = (self.env.radiance * self.env.solid_angle[:, None]).astype(n.dtype)
+        dirs, rad, geom = self._arrays(n.dtype)
         count = n.shape[0]
-        c = max(1, min(self.chunk, count))
+        c = max(1, min(self.chunk // 4, count))
         pad = (-count) % c
         if pad:
             n = jnp.concatenate([n, jnp.broadcast_to(n[:1], (pad, 3))])
             v = jnp.concatenate([v, jnp.broadcast_to(v[:1], (pad, 3))])
         out = jax.lax.map(
-            lambda nv: _chunk_radiance(spec, kd, dirs_t, power, nv[0], nv[1]),
+            lambda nv: _pair_radiance(spec, kd, dirs, rad, geom, nv[0], nv[1]),
             (n.reshape(-1, c, 3), v.reshape(-1, c, 3)),
         ).reshape(-1, 3)[:count]
-        if self.clamp is not None:
-            out = jnp.minimum(out, self.clamp)
-        return out
+        return self._clamp(out)
+
+    def grouped(self, normals: Float[Array, "G 3"], views: Float[Array, "G P 3"]) -> Float[Array, "G P 3"]:
+        """L(v_gp, n_g) for G normals with P views each (invalid views give 0)."""
+        spec, kd = _split_diffuse(self.brdf)
+        dirs, rad, geom = self._arrays(normals.dtype)
+        k = max_visible(self.env)
+        g_count, p = views.shape[0], views.shape[1]
+        # several normals per lax.map step (vmapped) so each step has a few million light terms
+        per = int(max(1, min(g_count, (1 << 22) // max(1, p * k))))
+        pad = (-g_count) % per
+        views = views.astype(normals.dtype)
+        if pad:
+            normals = jnp.concatenate([normals, jnp.broadcast_to(normals[:1], (pad, 3))])
+            views = jnp.concatenate([views, jnp.broadcast_to(views[:1], (pad, p, 3))])
+        one = lambda n, v: _normal_radiance(spec, kd, dirs, rad, geom, k, n, v)  # noqa: E731
+        out = jax.lax.map(
+            lambda nv: jax.vmap(one)(nv[0], nv[1]),
+            (normals.reshape(-1, per, 3), views.reshape(-1, per, p, 3)),
+        ).reshape(-1, p, 3)[:g_count]
+        return self._clamp(out)
+
+    def _weights(self, n):
+        """Exact cosine weights w_k(n) (B, L) of this environment's lights."""
+        _, _, geom = self._arrays(n.dtype)
+        return cosine_weights(n, geom, select=True)
+
+    def _clamp(self, out):
+        return out if self.clamp is None else jnp.minimum(out, self.clamp)
 
 
 def irradiance(env: Environment, n: Float[Array, "N 3"]) -> Float[Array, "N 3"]:
-    """E(n) = sum_k L_i(l_k) max(n.l_k, 0) dw_k: the lighting of a white Lambertian surface times pi."""
+    """E(n) = sum_k L_i(l_k) w_k(n): the lighting of a white Lambertian surface times pi."""
     n = jnp.asarray(n)
-    power = (env.radiance * env.solid_angle[:, None]).astype(n.dtype)
-    return jnp.maximum(n @ env.directions.T.astype(n.dtype), 0.0) @ power
+    return Lighting(None, env)._weights(n) @ env.radiance.astype(n.dtype)
 
 
 def lighting(brdf, env: Environment, n, v, *, clamp: float | None = None) -> Float[Array, "N 3"]:
@@ -153,7 +240,7 @@ def cull_lights(env: Environment, tolerance: float) -> tuple[Environment, dict]:
     dropped = power[order[:n_drop]].sum(axis=0) if n_drop else np.zeros(3)
     culled = Environment(
         directions=env.directions[keep], radiance=env.radiance[keep], solid_angle=env.solid_angle[keep],
-        info={**env.info, "culled_lights": n_drop},
+        info={**env.info, "culled_lights": n_drop}, corners=light_corners(env)[keep],
     )
     return culled, {"dropped": n_drop, "kept": int(keep.size), "dropped_power": dropped.tolist(),
                     "total_power": power.sum(axis=0).tolist()}
