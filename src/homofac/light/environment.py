@@ -108,6 +108,8 @@ class Environment(eqx.Module):
     #: Corners (L, 4, 3) of each light texel, counter-clockwise from outside (all zero for delta
     #: lights); they let the lighting integrate max(n.l, 0) exactly over each texel (light.geometry).
     corners: Optional[Float[Array, "L 4 3"]] = None
+    #: (moment (L, 3), sin_radius (L,)) of the lights, precomputed from the corners (light.geometry).
+    moments: Optional[tuple] = None
 
     @property
     def num_lights(self) -> int:
@@ -398,6 +400,7 @@ def _finish(
         solid_angle=jnp.asarray(w32),
         info=info,
         corners=jnp.asarray(cube_corners(r).astype(np.float32)),
+        moments=_moments(d, w, cube_corners(r)),
     )
     env = with_lights(env, lights)
     _check_power(np.asarray(env.radiance, np.float64), np.asarray(env.solid_angle, np.float64), info["source"])
@@ -740,7 +743,17 @@ def with_lights(env: Environment, lights: Sequence[dict]) -> Environment:
         info=info,
         corners=None if env.corners is None else jnp.concatenate(
             [env.corners, jnp.zeros((len(specs), 4, 3), env.corners.dtype)]),
+        moments=None if env.moments is None else tuple(
+            jnp.concatenate([a, jnp.asarray(b, a.dtype)]) for a, b in zip(
+                env.moments, _moments(np.asarray(d), np.ones(len(specs)), np.zeros((len(specs), 4, 3))))),
     )
+
+
+def _moments(directions, solid_angle, corners) -> tuple:
+    from .geometry import texel_moments
+
+    m, sinr = texel_moments(directions, solid_angle, corners)
+    return jnp.asarray(m, jnp.float32), jnp.asarray(sinr, jnp.float32)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -55,18 +55,11 @@ def cube_corners(r: int) -> np.ndarray:
     return pts
 
 
-def _angle(a, b):
-    """Angle between unit vectors, stable for small and large angles."""
-    return jnp.arctan2(jnp.linalg.norm(jnp.cross(a, b), axis=-1), jnp.sum(a * b, axis=-1))
-
-
-def vector_solid_angle(corners: Float[Array, "L 4 3"]) -> Float[Array, "L 3"]:
-    """m_k = integral over texel k of l dl (Arvo): 1/2 sum_i Theta_i normalize(p_i x p_(i+1))."""
-    p = corners
-    q = jnp.roll(p, -1, axis=-2)
-    c = jnp.cross(p, q)
-    u = c / jnp.maximum(jnp.linalg.norm(c, axis=-1, keepdims=True), 1e-30)
-    return 0.5 * jnp.sum(_angle(p, q)[..., None] * u, axis=-2)
+def vector_solid_angle(corners) -> np.ndarray:
+    """m_k = integral over texel k of l dl (Arvo): 1/2 sum_i Theta_i normalize(p_i x p_(i+1)) (numpy)."""
+    c = np.asarray(corners, np.float64)
+    d = c.sum(axis=1)
+    return texel_moments(d / np.linalg.norm(d, axis=-1, keepdims=True), np.ones(len(c)), c)[0]
 
 
 def _cross(a, b):
@@ -129,18 +122,42 @@ class LightGeometry(NamedTuple):
     max_straddlers: int  # static bound on texels a horizon can cross
 
 
-def light_geometry(directions, solid_angle, corners, resolution: int) -> LightGeometry:
-    """Precompute moments and radii of the lights once (they do not depend on n)."""
+def texel_moments(directions, solid_angle, corners) -> tuple[np.ndarray, np.ndarray]:
+    """(moment (L, 3), sin_radius (L,)) of lights, in numpy float64 (geometry constants, no gradient).
+
+    moment: the vector solid angle m_k of a texel (Arvo), or l_k dw_k for a delta light (corners 0);
+    sin_radius: sine of the largest centre-corner angle, slightly enlarged (-1 for delta lights).
+    Computed outside XLA on purpose: the jitted float32 form of this reduction over (L, 4, 3) arrays
+    was miscompiled by XLA CPU (jax 0.10.2) for L >= ~12000 (wrong components), see tests/test_geometry.
+    """
+    d = np.asarray(directions, np.float64)
+    w = np.asarray(solid_angle, np.float64)
+    p = np.asarray(corners, np.float64)
+    is_delta = np.all(p == 0, axis=(-1, -2))
+    q = np.roll(p, -1, axis=-2)
+    cr = np.cross(p, q)
+    nrm = np.linalg.norm(cr, axis=-1)
+    theta = np.arctan2(nrm, np.sum(p * q, axis=-1))
+    m = 0.5 * np.sum((theta / np.maximum(nrm, 1e-300))[..., None] * cr, axis=-2)
+    m = np.where(is_delta[:, None], d * w[:, None], m)
+    cosr = np.min(np.sum(p * d[:, None, :], axis=-1), axis=-1)
+    sinr = np.where(is_delta, -1.0, np.sqrt(np.clip(1.0 - cosr * cosr, 0.0, 1.0)) * 1.001 + 1e-6)
+    return m, sinr
+
+
+def light_geometry(directions, solid_angle, corners, resolution: int, moments=None) -> LightGeometry:
+    """Per-light data of :func:`cosine_weights`; ``moments`` = :func:`texel_moments` (computed here if None)."""
     corners = jnp.asarray(corners)
-    is_delta = jnp.all(corners == 0, axis=(-1, -2))
-    m = jnp.where(is_delta[:, None], directions * solid_angle[:, None], vector_solid_angle(corners))
-    cosr = jnp.min(jnp.sum(corners * directions[:, None, :], axis=-1), axis=-1)
-    sinr = jnp.where(is_delta, -1.0, jnp.sqrt(jnp.clip(1.0 - cosr * cosr, 0.0, 1.0)) * 1.001 + 1e-6)
+    if moments is None:
+        moments = texel_moments(directions, solid_angle, corners)
+    m, sinr = moments
+    dtype = jnp.asarray(directions).dtype
     n_lights = corners.shape[0]
     # A great circle meets about 8.5 r texels of a face-size-r cube within one texel radius; 12 r + 16 is safe
     # (checked over many normals in the tests).
     k = min(n_lights, 12 * int(resolution) + 16) if resolution else n_lights
-    return LightGeometry(directions, m, sinr, jnp.transpose(corners, (1, 2, 0)), k)
+    return LightGeometry(jnp.asarray(directions), jnp.asarray(m, dtype), jnp.asarray(sinr, dtype),
+                         jnp.transpose(corners, (1, 2, 0)), k)
 
 
 def cosine_weights(n: Float[Array, "B 3"], geom: LightGeometry, *, select: bool = False) -> Float[Array, "B L"]:

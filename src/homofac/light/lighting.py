@@ -71,6 +71,15 @@ def light_corners(env: Environment) -> Float[Array, "L 4 3"]:
                             jnp.zeros((L - n_tex, 4, 3), env.directions.dtype)])
 
 
+def light_moments(env: Environment):
+    """(moment, sin_radius) of the lights: ``env.moments`` or computed from the corners (concrete only)."""
+    if getattr(env, "moments", None) is not None:
+        return env.moments
+    from .geometry import texel_moments
+
+    return texel_moments(env.directions, env.solid_angle, light_corners(env))
+
+
 def max_visible(env: Environment) -> int:
     """Static bound on the number of lights with w_k(n) > 0 for any n: half the cube texels plus the
     ones straddling the horizon (at most 3 r measured; 6 r allowed), plus every delta light."""
@@ -144,7 +153,7 @@ class Lighting(eqx.Module):
         e = self.env
         dirs = e.directions.astype(dtype)
         geom = light_geometry(dirs, e.solid_angle.astype(dtype), light_corners(e).astype(dtype),
-                              int(e.info.get("resolution", 0)))
+                              int(e.info.get("resolution", 0)), moments=light_moments(e))
         return dirs, e.radiance.astype(dtype), geom
 
     def __call__(self, n: Float[Array, "N 3"], v: Float[Array, "N 3"]) -> Float[Array, "N 3"]:
@@ -241,6 +250,7 @@ def cull_lights(env: Environment, tolerance: float) -> tuple[Environment, dict]:
     culled = Environment(
         directions=env.directions[keep], radiance=env.radiance[keep], solid_angle=env.solid_angle[keep],
         info={**env.info, "culled_lights": n_drop}, corners=light_corners(env)[keep],
+        moments=tuple(jnp.asarray(a)[keep] for a in light_moments(env)),
     )
     return culled, {"dropped": n_drop, "kept": int(keep.size), "dropped_power": dropped.tolist(),
                     "total_power": power.sum(axis=0).tolist()}
