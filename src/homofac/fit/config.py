@@ -84,6 +84,7 @@ class SolverConfig(_Strict):
     max_iterations: int = Field(1000, ge=1)
     laplacian: float = Field(1.0, ge=0)
     epsilon: float = Field(1e-5, gt=0, lt=1)
+    levels: int = Field(1, ge=1, le=8)
 
 
 class OutputConfig(_Strict):

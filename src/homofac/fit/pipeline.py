@@ -29,7 +29,9 @@ DEFAULT_SAMPLING = {
     "kind": "texels", "size": 24, "view_size": None, "validation": 20000, "seed": 0, "count": 0, "mapper": None,
 }
 #: Default solver settings (DESIGN.md config).
-DEFAULT_SOLVER = {"method": "lsmr", "tolerance": 1e-6, "max_iterations": 1000, "laplacian": 1.0, "epsilon": 1e-5}
+DEFAULT_SOLVER = {
+    "method": "lsmr", "tolerance": 1e-6, "max_iterations": 1000, "laplacian": 1.0, "epsilon": 1e-5, "levels": 1,
+}
 #: Largest texture size accepted (a 4096^2 cube has 100M unknowns: nothing here would finish).
 MAX_TEXTURE_SIZE = 1024
 
@@ -129,7 +131,8 @@ def factorize(
         mapper: direction mapper of the textures (default: parabolic for BRDF, dual_paraboloid for lighting).
         texture_size: S of the mapper table (4 ... 1024).
         sampling: ``{kind, size, view_size, validation, seed, count, mapper}`` (DESIGN.md config ``sampling``).
-        solver: ``{method, tolerance, max_iterations, laplacian, epsilon}``.
+        solver: ``{method, tolerance, max_iterations, laplacian, epsilon, levels}``; ``levels`` > 1 solves at
+            S / 2^(levels-1) first and refines each doubled size from the upsampled result.
         samples: precomputed :class:`Samples` (skip sampling, e.g. to compare solvers).
         config: the resolved config to record in the result.
         target_info: description of the target to record.
@@ -152,27 +155,34 @@ def factorize(
     sample_s = time.perf_counter() - t0
     _check_values(samples.y, "training")
 
-    log(f"assembling the system ({p.J} factors, {p.T} textures of {mapper} {texture_size})")
-    t0 = time.perf_counter()
-    layout = make_layout(mapper, int(texture_size), p.T)
+    levels = level_sizes(int(texture_size), int(scfg["levels"]))
     dtype = jnp.result_type(float)
-    sys, alpha = build_system(
-        p, layout, jnp.asarray(samples.a, dtype), jnp.asarray(samples.b, dtype), jnp.asarray(samples.y, dtype),
-        eps=float(scfg["epsilon"]), context=target.context,
-    )
-    x0 = starting_solution(sys, layout, p.J)
-    assemble_s = time.perf_counter() - t0
-
-    log(f"solving with {scfg['method']} ({layout.n_unknowns} unknowns x 3 channels, {len(samples.a)} rows)")
-    res = solve(
-        sys, x0, method=scfg["method"], laplacian=float(scfg["laplacian"]),
-        tolerance=float(scfg["tolerance"]), max_iterations=int(scfg["max_iterations"]),
-    )
+    a, b, y = (jnp.asarray(v, dtype) for v in (samples.a, samples.b, samples.y))
+    x0 = None
+    assemble_s = solve_s = 0.0
+    iterations = 0
     warnings = []
-    if not res.converged:
-        msg = f"solver {res.method} did not converge in {res.iterations} iterations (residual {res.residual:.3g})"
-        warnings.append(msg)
-        log("warning: " + msg)
+    for size in levels:
+        # multi-resolution (thesis §3.1.2): solve small, upsample the log textures, refine with the same samples
+        log(f"assembling the system ({p.J} factors, {p.T} textures of {mapper} {size})")
+        t0 = time.perf_counter()
+        coarse = (layout, res.x) if x0 is not None else None
+        layout = make_layout(mapper, size, p.T)
+        sys, alpha = build_system(p, layout, a, b, y, eps=float(scfg["epsilon"]), context=target.context)
+        x0 = starting_solution(sys, layout, p.J) if coarse is None else upsample(coarse[0], coarse[1], layout)
+        assemble_s += time.perf_counter() - t0
+        log(f"solving with {scfg['method']} ({layout.n_unknowns} unknowns x 3 channels, {len(samples.a)} rows)")
+        res = solve(
+            sys, x0, method=scfg["method"], laplacian=float(scfg["laplacian"]),
+            tolerance=float(scfg["tolerance"]), max_iterations=int(scfg["max_iterations"]),
+        )
+        solve_s += res.seconds
+        iterations += res.iterations
+        if not res.converged:
+            msg = (f"solver {res.method} did not converge in {res.iterations} iterations at size {size} "
+                   f"(residual {res.residual:.3g})")
+            warnings.append(msg)
+            log("warning: " + msg)
 
     textures_log = unpack(res.x, layout)
     textures = precision.exponentiate(textures_log, alpha, p.J)
@@ -190,12 +200,12 @@ def factorize(
         **{
             "metrics": mets,
             "solver": {
-                "method": res.method, "iterations": res.iterations, "converged": res.converged,
+                "method": res.method, "iterations": iterations, "converged": not warnings, "levels": levels,
                 "residual": res.residual, "objective": res.objective,
                 "tolerance": float(scfg["tolerance"]), "max_iterations": int(scfg["max_iterations"]),
                 "laplacian": float(scfg["laplacian"]), "epsilon": float(scfg["epsilon"]),
             },
-            "timings": {"sample_s": sample_s, "assemble_s": assemble_s, "solve_s": res.seconds, "total_s": total_s},
+            "timings": {"sample_s": sample_s, "assemble_s": assemble_s, "solve_s": solve_s, "total_s": total_s},
             "counts": {
                 "train": int(len(samples.a)), "validation": int(len(samples.val_a)),
                 "unknowns": int(layout.n_unknowns), "lights": int(getattr(target.fn, "n_lights", 0)),
@@ -206,6 +216,29 @@ def factorize(
             "samples": samples if keep_samples else None,
         }
     )
+
+
+def level_sizes(texture_size: int, levels: int) -> list[int]:
+    """Texture sizes of a multi-resolution solve, coarsest first: S / 2^(levels-1), ..., S (at least 4)."""
+    if levels < 1:
+        raise HomofacError(f"solver.levels must be at least 1, got {levels}")
+    sizes = [texture_size]
+    for _ in range(levels - 1):
+        if sizes[0] // 2 < 4 or sizes[0] % 2:
+            break
+        sizes.insert(0, sizes[0] // 2)
+    return sizes
+
+
+def upsample(coarse_layout, x, fine_layout):
+    """Starting solution on a finer layout: the coarse log textures looked up (bilinearly, through the
+    mapper) at the directions of the fine texels (thesis §3.1.2, multi-resolution start)."""
+    m = mappers.get(fine_layout.mapper)
+    dirs = jnp.asarray(mappers.texel_directions(m, fine_layout.size).reshape(-1, 3)[fine_layout.texel_of_unknown])
+    out = []
+    for t in unpack(x, coarse_layout):
+        out.append(mappers.lookup(m, t, dirs.astype(t.dtype)))
+    return jnp.concatenate(out, axis=0)
 
 
 def unpack(x, layout) -> list:
