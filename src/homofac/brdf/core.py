@@ -41,6 +41,11 @@ class ModelSpec(NamedTuple):
         doc: formula and source.
         prepare: optional hook ``dict -> dict`` run by :func:`make` on the user's parameters before
             defaults and validation (``merl`` uses it to turn ``file=`` into ``table=``).
+        lobes: optional ``(params, wi, wo) -> tuple of M arrays``, directions given as component
+            triples ``(x, y, z)`` of broadcastable arrays: scalar lobes such that
+            ``fn = kd/pi + sum_m colors(params)[m] * lobes[m]`` (the *lobe form*). The lighting
+            computation then sums over lights with one matmul per lobe instead of RGB per light.
+        colors: ``params -> tuple of M RGB colours (3,)`` of the lobe form (with ``lobes``).
     """
 
     name: str
@@ -50,6 +55,8 @@ class ModelSpec(NamedTuple):
     energy_conserving: str
     doc: str
     prepare: Callable[[dict[str, Any]], dict[str, Any]] | None = None
+    lobes: Callable[[dict[str, Array], Array, Array], tuple[Array, ...]] | None = None
+    colors: Callable[[dict[str, Array]], tuple[Array, ...]] | None = None
 
 
 #: All registered models by name.
@@ -101,6 +108,40 @@ def _call(brdf: BRDF, wi: Array, wo: Array) -> Array:
     val = MODELS[brdf.model].fn(brdf.params, wi_s, wo_s)
     shape = jnp.broadcast_shapes(wi.shape, wo.shape)
     return jnp.where(m, jnp.broadcast_to(val, shape), jnp.zeros((), val.dtype))
+
+
+def has_lobes(brdf: Any) -> bool:
+    """True when ``brdf`` is a :class:`BRDF` whose model has a lobe form (see :class:`ModelSpec`)."""
+    return isinstance(brdf, BRDF) and MODELS[brdf.model].lobes is not None
+
+
+def lobe_terms(brdf: BRDF, wi, wo) -> tuple[Array, ...]:
+    """The scalar lobes of ``brdf``'s lobe form at (wi, wo), each exactly 0 below the horizon.
+
+    ``brdf(wi, wo) == kd/pi + sum_m lobe_colors(brdf)[m] * lobe_terms(brdf, wi, wo)[m]`` above it.
+    ``wi`` and ``wo`` are ``(..., 3)`` arrays or component triples ``(x, y, z)`` of arrays that
+    broadcast against each other (what the lighting computation passes: no (P, K, 3) array is built).
+    Masked with the same "double where" as :meth:`BRDF.__call__` (finite gradients).
+    """
+    wi = _triple(wi)
+    wo = _triple(wo)
+    m = (wi[2] > 0) & (wo[2] > 0)
+    # masked entries see the normal direction, so no model divides by zero there
+    safe = lambda w: (jnp.where(m, w[0], 0.0), jnp.where(m, w[1], 0.0), jnp.where(m, w[2], 1.0))  # noqa: E731
+    terms = MODELS[brdf.model].lobes(brdf.params, safe(wi), safe(wo))
+    return tuple(jnp.where(m, g, jnp.zeros((), g.dtype)) for g in terms)
+
+
+def _triple(w):
+    if isinstance(w, (tuple, list)):
+        return tuple(_as_float(c) for c in w)
+    w = _as_float(w)
+    return (w[..., 0], w[..., 1], w[..., 2])
+
+
+def lobe_colors(brdf: BRDF) -> tuple[Array, ...]:
+    """The RGB colours (3,) of ``brdf``'s lobes (see :func:`lobe_terms`)."""
+    return tuple(jnp.broadcast_to(c, (3,)) for c in MODELS[brdf.model].colors(brdf.params))
 
 
 def evaluate(brdf: BRDF, wi: Array, wo: Array) -> Array:

@@ -35,6 +35,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .. import sphere
+from ..brdf.core import has_lobes, lobe_colors, lobe_terms
 from ..errors import HomofacError
 from ..fit.target import Target
 from .environment import Environment, dominant_direction
@@ -54,6 +55,29 @@ def _split_diffuse(brdf):
         return None, kd
     spec = eqx.tree_at(lambda b: b.params, brdf, {**params, "kd": jnp.zeros_like(jnp.asarray(params["kd"]))})
     return spec, kd
+
+
+def _specular_sum(brdf, spec, wi, wo, weights, rad):
+    """sum_k f_spec(wi_k, wo) weights_k rad_k -> (..., 3), with the local directions wi, wo given as
+    component triples of broadcastable arrays (wi (..., K), wo (..., 1)), weights (..., K) or None
+    (already folded into rad), rad (K, 3).
+
+    For a model with a lobe form (``ModelSpec.lobes``) the sum is one (..., K) @ (K, 3) matmul per
+    scalar lobe, times the lobe's RGB colour: the BRDF is evaluated once per (view, light), not per
+    channel, and the reduction runs as a matrix product. Otherwise the specular BRDF ``spec`` (kd
+    zeroed) is evaluated in RGB and reduced with an einsum.
+    """
+    if has_lobes(brdf):
+        out = 0.0
+        for g, c in zip(lobe_terms(brdf, wi, wo), lobe_colors(brdf)):
+            out = out + c * ((g if weights is None else g * weights) @ rad)
+        return out
+    wi3 = jnp.stack(jnp.broadcast_arrays(*wi, *wo)[:3], axis=-1)
+    wo3 = jnp.stack(jnp.broadcast_arrays(*wi, *wo)[3:], axis=-1)
+    f = spec(wi3, wo3)
+    if weights is None:
+        return jnp.einsum("...kc,kc->...c", f, rad)
+    return jnp.einsum("...k,...kc,kc->...c", weights, f, rad)
 
 
 def light_corners(env: Environment) -> Float[Array, "L 4 3"]:
@@ -91,7 +115,7 @@ def max_visible(env: Environment) -> int:
     return min(L, 3 * r * r + 6 * r + (L - n_tex))
 
 
-def _pair_radiance(spec, kd, dirs, power_rad, geom, n, v):
+def _pair_radiance(brdf, spec, kd, dirs, power_rad, geom, n, v):
     """L(v, n) for a chunk of arbitrary pairs: n, v (B, 3)."""
     w = cosine_weights(n, geom, select=True)  # (B, L) exact clamped-cosine texel integrals
     out = jnp.zeros(n.shape[:-1] + (3,), n.dtype)
@@ -99,15 +123,14 @@ def _pair_radiance(spec, kd, dirs, power_rad, geom, n, v):
         out = out + (kd / jnp.pi) * (w @ power_rad)  # kd/pi * E(n)
     if spec is not None:
         t, b, nn = sphere.frame(n)
-        wi = jnp.stack([t @ dirs.T, b @ dirs.T, nn @ dirs.T], axis=-1)  # (B, L, 3) via matmuls
+        wi = (t @ dirs.T, b @ dirs.T, nn @ dirs.T)  # local light directions, 3 x (B, L) via matmuls
         wo = sphere.to_local(v, t, b, nn)
-        f = spec(wi, jnp.broadcast_to(wo[:, None, :], wi.shape))
-        out = out + jnp.einsum("bl,blc,lc->bc", w, f, power_rad)
+        out = out + _specular_sum(brdf, spec, wi, tuple(wo[:, None, c] for c in range(3)), w, power_rad)
     valid = sphere.dot(n, v) > 0
     return jnp.where(valid[:, None], out, 0.0)
 
 
-def _normal_radiance(spec, kd, dirs, rad, geom, k, n, v):
+def _normal_radiance(brdf, spec, kd, dirs, rad, geom, k, n, v):
     """L(v_p, n) for one normal n (3,) and views v (P, 3): weights once per normal, only the k lights
     with the largest w_k(n) (all the visible ones, see :func:`max_visible`) are evaluated."""
     w = cosine_weights(n[None], geom, select=True)[0]  # (L,)
@@ -125,9 +148,8 @@ def _normal_radiance(spec, kd, dirs, rad, geom, k, n, v):
         frame = jnp.stack([t, b, nn], axis=1)  # (3, 3): columns t, b, n
         wi = dirs[idx] @ frame  # (k, 3) local light directions, once per normal
         wo = v @ frame  # (P, 3)
-        shape = (v.shape[0], k, 3)
-        f = spec(jnp.broadcast_to(wi[None], shape), jnp.broadcast_to(wo[:, None], shape))
-        out = out + jnp.einsum("pkc,k,kc->pc", f, wk, radk)
+        out = out + _specular_sum(brdf, spec, tuple(wi[None, :, c] for c in range(3)),
+                                  tuple(wo[:, None, c] for c in range(3)), None, wk[:, None] * radk)
     valid = v @ n > 0
     return jnp.where(valid[:, None], out, 0.0)
 
@@ -166,7 +188,7 @@ class Lighting(eqx.Module):
             n = jnp.concatenate([n, jnp.broadcast_to(n[:1], (pad, 3))])
             v = jnp.concatenate([v, jnp.broadcast_to(v[:1], (pad, 3))])
         out = jax.lax.map(
-            lambda nv: _pair_radiance(spec, kd, dirs, rad, geom, nv[0], nv[1]),
+            lambda nv: _pair_radiance(self.brdf, spec, kd, dirs, rad, geom, nv[0], nv[1]),
             (n.reshape(-1, c, 3), v.reshape(-1, c, 3)),
         ).reshape(-1, 3)[:count]
         return self._clamp(out)
@@ -184,7 +206,7 @@ class Lighting(eqx.Module):
         if pad:
             normals = jnp.concatenate([normals, jnp.broadcast_to(normals[:1], (pad, 3))])
             views = jnp.concatenate([views, jnp.broadcast_to(views[:1], (pad, p, 3))])
-        one = lambda n, v: _normal_radiance(spec, kd, dirs, rad, geom, k, n, v)  # noqa: E731
+        one = lambda n, v: _normal_radiance(self.brdf, spec, kd, dirs, rad, geom, k, n, v)  # noqa: E731
         out = jax.lax.map(
             lambda nv: jax.vmap(one)(nv[0], nv[1]),
             (normals.reshape(-1, per, 3), views.reshape(-1, per, p, 3)),
