@@ -38,6 +38,32 @@ def evaluate_textures(
 _evaluate_jit = eqx.filter_jit(evaluate_textures)
 
 
+def evaluate_rgba8(
+    parametrization: str,
+    mapper: str,
+    rgba,
+    colour_scale: Float[Array, "3"],
+    a: Float[Array, "N 3"],
+    b: Float[Array, "N 3"],
+    context: dict | None = None,
+) -> Float[Array, "N 3"]:
+    """The decode rule of 8-bit RGBA textures (thesis eq. 50, :mod:`homofac.fit.precision`).
+
+    ``rgba``: per texture the ``(H, W, 4)`` channel values ``code / 255``. Each of the four channels is
+    interpolated bilinearly (as texture units do), then ``colour * scale * prod_j rgb_j * prod_j alpha_j``.
+    """
+    p = pz.get(parametrization)
+    m = mappers.get(mapper)
+    out = jnp.broadcast_to(jnp.asarray(colour_scale, a.dtype), a.shape[:-1] + (3,))
+    for f, d in zip(p.factors, pz.project(p, a, b, context or {})):
+        v = mappers.lookup(m, rgba[f.texture], d)
+        out = out * v[..., :3] * v[..., 3:4]
+    return out
+
+
+_evaluate_rgba8_jit = eqx.filter_jit(evaluate_rgba8)
+
+
 @dataclasses.dataclass(frozen=True)
 class Factorization:
     """Textures, correction colour and the record of how they were made.
@@ -75,19 +101,46 @@ class Factorization:
     target_info: dict = dataclasses.field(default_factory=dict)
     warnings: tuple = ()
     samples: Any = None  # the Samples used, when kept (written as samples.npz)
+    encoding: dict = dataclasses.field(default_factory=dict)  # encode_rgba8 options: weights, alpha
+    rgba8: Any = None  # precision.Encoded8 as stored (PNG files); None: encoded from ``textures``
+    source: str = "float"  # "png" when loaded from the 8-bit textures only: evaluate() decodes them
 
     @property
     def texture_names(self) -> tuple[str, ...]:
         return pz.get(self.parametrization).textures
 
-    def evaluate(self, a, b, *, quantized: bool = False) -> Float[Array, "N 3"]:
-        """Factorized values at direction pairs (a, b): (wi, wo) for BRDFs, (n, v) for lighting."""
-        from .precision import quantize
+    def encoded(self):
+        """The 8-bit RGBA textures and decode constants (:class:`~homofac.fit.precision.Encoded8`).
 
-        tex = tuple(quantize(list(self.textures))) if quantized else self.textures
+        The stored ones when loaded from PNG files, else :func:`~homofac.fit.precision.encode_rgba8` of
+        the float textures with the options in ``encoding`` (``weights``: thesis §4.3.1 prescale
+        weights; ``alpha``: the §4.3.2 alpha trick, default on).
+        """
+        from .precision import encode_rgba8
+
+        if self.rgba8 is not None:
+            return self.rgba8
+        return encode_rgba8(pz.get(self.parametrization), self.textures, self.correction, **self.encoding)
+
+    def evaluate(self, a, b, *, quantized: bool | None = None) -> Float[Array, "N 3"]:
+        """Factorized values at direction pairs (a, b): (wi, wo) for BRDFs, (n, v) for lighting.
+
+        ``quantized=True`` evaluates the 8-bit RGBA textures with their decode rule (thesis eq. 50, the
+        textures a PNG stores, see :meth:`encoded`); ``False`` the float textures (eq. 45). The default
+        is the float path, or the 8-bit one for a result loaded with ``textures="png"``.
+        """
+        if quantized is None:
+            quantized = self.source == "png"
         a = jnp.asarray(a, jnp.asarray(self.textures[0]).dtype)
         b = jnp.asarray(b, a.dtype)
-        return _evaluate_jit(self.parametrization, self.mapper, tex, jnp.asarray(self.correction), a, b, self.context)
+        if quantized:
+            from .precision import decode_rgba8
+
+            enc = self.encoded()
+            rgba = tuple(jnp.asarray(decode_rgba8(q), a.dtype) for q in enc.rgba)
+            cs = jnp.asarray(enc.colour * enc.scale, a.dtype)
+            return _evaluate_rgba8_jit(self.parametrization, self.mapper, rgba, cs, a, b, self.context)
+        return _evaluate_jit(self.parametrization, self.mapper, self.textures, jnp.asarray(self.correction), a, b, self.context)
 
     def __call__(self, a, b):
         return self.evaluate(a, b)

@@ -253,7 +253,13 @@ def unpack(x, layout) -> list:
 
 
 def measure(fac: Factorization, target: Target, samples: Samples, eps: float = 1e-5) -> dict:
-    """Pinned metrics on training and validation samples, float and 8-bit textures."""
+    """Pinned metrics on training and validation samples, float and 8-bit textures.
+
+    ``quantized`` is the thesis' RMS II (§4.3, §6.1.8 step 10): the 8-bit RGBA textures with the
+    prescale and alpha trick of ``fac.encoding`` (or the stored ``fac.rgba8``) and their decode rule.
+    """
+    if fac.rgba8 is None:
+        fac = dataclasses.replace(fac, rgba8=fac.encoded())  # encode once, not per chunk
     out = {}
     for split, a, b, y in (
         ("train", samples.a, samples.b, samples.y),

@@ -2,7 +2,8 @@
 
 ``read_exr`` returns an ``(H, W, 3)`` float32 array whatever the file stores: an interleaved
 ``"RGB"``/``"RGBA"`` group, separate ``"R"``, ``"G"``, ``"B"`` channels, or a single grey ``"Y"``
-channel (copied to the three channels). Half and uint channels are converted to float32.
+channel (copied to the three channels). Half and uint channels are converted to float32
+(``native=True`` keeps half pixels as float16, for a bit-exact half round trip).
 ``read_exr_with_header`` also returns the header dict, e.g. to read the ``envmap`` attribute
 (``OpenEXR.ENVMAP_LATLONG`` or ``OpenEXR.ENVMAP_CUBE``); :func:`envmap_kind` turns it into a string.
 
@@ -57,7 +58,7 @@ def _check_file(path: Path) -> None:
         raise HomofacError(f"{path}: not an OpenEXR file (bad magic number)")
 
 
-def _rgb_from_channels(path: Path, channels: dict[str, Any]) -> np.ndarray:
+def _rgb_from_channels(path: Path, channels: dict[str, Any], native: bool = False) -> np.ndarray:
     pix = {name: np.asarray(ch.pixels) for name, ch in channels.items()}
     if "RGB" in pix or "RGBA" in pix:
         a = pix["RGB"] if "RGB" in pix else pix["RGBA"]
@@ -74,11 +75,16 @@ def _rgb_from_channels(path: Path, channels: dict[str, Any]) -> np.ndarray:
         raise HomofacError(f"{path}: no RGB, RGBA or Y channels (has: {names})")
     if rgb.ndim != 3 or rgb.shape[0] == 0 or rgb.shape[1] == 0:
         raise HomofacError(f"{path}: empty image (shape {rgb.shape})")
+    if native and rgb.dtype in (np.float16, np.float32):
+        return np.ascontiguousarray(rgb)
     return np.ascontiguousarray(rgb, dtype=np.float32)
 
 
-def read_exr_with_header(path: str | os.PathLike) -> tuple[np.ndarray, dict]:
-    """``(rgb (H, W, 3) float32, header dict)`` of the first part of an OpenEXR file."""
+def read_exr_with_header(path: str | os.PathLike, *, native: bool = False) -> tuple[np.ndarray, dict]:
+    """``(rgb (H, W, 3) float32, header dict)`` of the first part of an OpenEXR file.
+
+    ``native=True`` keeps half channels as float16 (float32 stays float32; uint becomes float32).
+    """
     import OpenEXR
 
     p = Path(path)
@@ -93,12 +99,15 @@ def read_exr_with_header(path: str | os.PathLike) -> tuple[np.ndarray, dict]:
         raise HomofacError(f"{p}: cannot read EXR (corrupt or truncated?): {_one_line(e)}") from None
     if not channels:
         raise HomofacError(f"{p}: cannot read EXR pixel data (corrupt or truncated?)")
-    return _rgb_from_channels(p, channels), header
+    return _rgb_from_channels(p, channels, native), header
 
 
-def read_exr(path: str | os.PathLike) -> np.ndarray:
-    """RGB pixels of an OpenEXR file as an ``(H, W, 3)`` float32 array (row 0 is the top row)."""
-    return read_exr_with_header(path)[0]
+def read_exr(path: str | os.PathLike, *, native: bool = False) -> np.ndarray:
+    """RGB pixels of an OpenEXR file as an ``(H, W, 3)`` float32 array (row 0 is the top row).
+
+    ``native=True`` returns half files as float16 arrays (bit-exact half round trip).
+    """
+    return read_exr_with_header(path, native=native)[0]
 
 
 def envmap_kind(header: dict) -> str | None:

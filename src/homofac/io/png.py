@@ -1,0 +1,92 @@
+"""8-bit RGBA PNG textures (pillow), the files of the thesis' alpha precision trick (§4.3.2).
+
+``write_png`` stores an ``(H, W, 4)`` uint8 array (row 0 is the top row, as in the float textures)
+through a temporary file in the target directory that is renamed at the end, so a failure never leaves
+a partial file. The values are *linear* codes (``value = code / 255``, no sRGB transfer); optional text
+chunks (``text``) can carry a short description. ``read_png`` returns the uint8 RGBA array again (an RGB
+or grey PNG gets an opaque alpha). A round trip is exact.
+
+Every problem (missing file, not a PNG, truncated or corrupt data, wrong array) raises
+:class:`~homofac.errors.HomofacError` with one line naming the path and the problem.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import warnings
+from pathlib import Path
+
+import numpy as np
+from jaxtyping import UInt8
+
+from ..errors import HomofacError
+
+__all__ = ["read_png", "write_png", "PNG_MAGIC"]
+
+#: The eight bytes every PNG file starts with.
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+def _one_line(e: BaseException) -> str:
+    return " ".join(str(e).split()) or type(e).__name__
+
+
+def write_png(path: str | os.PathLike, rgba: UInt8[np.ndarray, "H W 4"], *, text: dict | None = None) -> Path:
+    """Write an ``(H, W, 4)`` uint8 array as an 8-bit RGBA PNG (atomically); returns the path."""
+    from PIL import Image, PngImagePlugin
+
+    p = Path(path)
+    a = np.asarray(rgba)
+    if a.dtype != np.uint8 or a.ndim != 3 or a.shape[2] != 4 or a.shape[0] == 0 or a.shape[1] == 0:
+        raise HomofacError(f"{p}: cannot write PNG: expected an (H, W, 4) uint8 array, got {a.dtype} {a.shape}")
+    directory = p.parent if str(p.parent) else Path(".")
+    if not directory.is_dir():
+        raise HomofacError(f"{p}: cannot write PNG: directory {directory} does not exist")
+    info = PngImagePlugin.PngInfo()
+    for k, v in (text or {}).items():
+        info.add_text(str(k), str(v))
+    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp.png", dir=directory)
+    os.close(fd)
+    try:
+        Image.fromarray(np.ascontiguousarray(a)).save(tmp, format="PNG", pnginfo=info)
+        os.chmod(tmp, (p.stat().st_mode & 0o777) if p.exists() else 0o644)
+        os.replace(tmp, p)
+    except Exception as e:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise HomofacError(f"{p}: cannot write PNG: {_one_line(e)}") from None
+    return p
+
+
+def read_png(path: str | os.PathLike) -> UInt8[np.ndarray, "H W 4"]:
+    """The pixels of a PNG file as an ``(H, W, 4)`` uint8 RGBA array (row 0 is the top row)."""
+    from PIL import Image
+
+    p = Path(path)
+    if not p.exists():
+        raise HomofacError(f"{p}: no such file")
+    if p.is_dir():
+        raise HomofacError(f"{p}: is a directory, not a PNG file")
+    try:
+        with open(p, "rb") as f:
+            magic = f.read(8)
+    except OSError as e:
+        raise HomofacError(f"{p}: cannot read: {_one_line(e)}") from None
+    if magic != PNG_MAGIC:
+        raise HomofacError(f"{p}: not a PNG file (bad signature)")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            with Image.open(p) as im:
+                im.load()  # decode now: truncated data raises here, not later
+                if im.mode not in ("RGBA", "RGB", "L", "LA"):
+                    raise HomofacError(f"{p}: unsupported PNG mode {im.mode} (expected 8-bit RGBA)")
+                a = np.asarray(im.convert("RGBA"), dtype=np.uint8)
+    except HomofacError:
+        raise
+    except Exception as e:  # pillow raises OSError / SyntaxError / ValueError on corrupt data
+        raise HomofacError(f"{p}: cannot read PNG (corrupt or truncated?): {_one_line(e)}") from None
+    return np.ascontiguousarray(a)
