@@ -22,7 +22,7 @@ config keys (DESIGN.md; unknown keys are errors):
   texture_size:    S of the mapper (4 ... 1024)
   sampling:        {kind: texels | latlong | random, size, validation, seed, count, mapper}
   solver:          {method: lsmr | qmr | direct, tolerance, max_iterations, laplacian, epsilon}
-  output:          {dir, png, samples}
+  output:          {dir, png, samples, exr (float32 | half), alpha, prescale [w0 .. wT], preview}
 relative paths are relative to the config file; --out is relative to the current directory.
 exit status: 0 success, 2 bad input (one line on stderr), 1 unexpected failure.
 """
@@ -40,6 +40,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", "-q", action="store_true", help="no progress display, only the summary line")
     p.add_argument("--debug", action="store_true", help="show full tracebacks on errors")
     p.add_argument("--print-config", action="store_true", help="print the resolved config as YAML and exit")
+    p.add_argument("--no-preview", action="store_true", help="do not write preview.png (output.preview: false)")
     return p
 
 
@@ -86,7 +87,7 @@ def _run(args) -> int:
             status.update(msg)
             console.log(msg)
 
-        fac, out = cfgmod.run(cfg, base, args.out, log=log)
+        fac, out = cfgmod.run(cfg, base, args.out, log=log, preview=False if args.no_preview else None)
     val = fac.metrics.get("validation", fac.metrics.get("train", {})).get("float", {})
     s = fac.solver
     print(

@@ -88,9 +88,20 @@ class SolverConfig(_Strict):
 
 
 class OutputConfig(_Strict):
+    """``output``: where and what to write (DESIGN.md output directory).
+
+    ``png`` writes the 8-bit RGBA textures; ``exr`` is the EXR pixel type (``float32`` or ``half``);
+    ``alpha`` turns the thesis' alpha precision trick (§4.3.2) of the 8-bit textures on or off;
+    ``prescale`` gives the T + 1 weights ``w_0 .. w_T`` of thesis §4.3.1 (correction, then textures).
+    """
+
     dir: str = "out"
     png: bool = False
     samples: bool = True
+    exr: Literal["float32", "half"] = "float32"
+    alpha: bool = True
+    prescale: Optional[list[float]] = None
+    preview: bool = True  # preview.png (homofac.gl; skipped with a one-line warning when GL is unavailable)
 
 
 class Config(_Strict):
@@ -196,11 +207,11 @@ def build_target(cfg: Config, base: Path):
     return lighting_target(brdf, env, parametrization=cfg.parametrization, clamp=cfg.target.clamp), info
 
 
-def run(cfg: Config, base: Path = Path("."), out_dir: str | None = None, log=None):
+def run(cfg: Config, base: Path = Path("."), out_dir: str | None = None, log=None, preview: bool | None = None):
     """Run the factorization a config describes and write its output directory; returns (result, path).
 
     ``out_dir`` (e.g. the CLI's ``--out``) overrides ``output.dir``; a relative ``output.dir`` is
-    relative to the config file's directory ``base``.
+    relative to the config file's directory ``base``. ``preview`` overrides ``output.preview``.
     """
     from ..io.output import check_output_dir
     from .pipeline import factorize
@@ -208,10 +219,36 @@ def run(cfg: Config, base: Path = Path("."), out_dir: str | None = None, log=Non
     out = Path(out_dir) if out_dir else base / Path(cfg.output.dir).expanduser()
     check_output_dir(out)  # refuse before any work is done
     target, info = build_target(cfg, base)
+    o = cfg.output
+    encoding = {"alpha": o.alpha, **({"weights": list(o.prescale)} if o.prescale is not None else {})}
+    if o.prescale is not None:  # refuse bad weights before any work is done
+        from ..param import parametrizations as pz
+        from .precision import prescale_factors, texture_uses
+
+        try:
+            prescale_factors(o.prescale, texture_uses(pz.get(cfg.parametrization)))
+        except HomofacError as e:
+            raise HomofacError(f"config: output.prescale: {e}") from None
+    custom = encoding != {"alpha": True}
     fac = factorize(
         target, cfg.parametrization, mapper=cfg.mapper, texture_size=cfg.texture_size,
         sampling=cfg.sampling.model_dump(), solver=cfg.solver.model_dump(), config=cfg.model_dump(mode="json"),
-        target_info=info, log=log, keep_samples=cfg.output.samples,
+        target_info=info, log=log, keep_samples=o.samples or custom,
     )
-    fac.save(out, samples=fac.samples)
+    if custom:  # the quantized metrics must describe the 8-bit textures that are written
+        import dataclasses
+
+        from .pipeline import measure
+
+        fac = dataclasses.replace(fac, encoding=encoding)
+        fac = dataclasses.replace(
+            fac, metrics=measure(fac, target, fac.samples, eps=float(cfg.solver.epsilon)),
+            samples=fac.samples if o.samples else None,
+        )
+    extra = {}
+    if o.preview if preview is None else preview:
+        from ..gl.picture import safe_writer
+
+        extra["preview.png"] = safe_writer(fac, target, log=log)
+    fac.save(out, samples=fac.samples, png=o.png, exr=o.exr, extra_files=extra)
     return fac, out

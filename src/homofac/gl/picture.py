@@ -1,0 +1,277 @@
+"""The preview picture: the factorized render (GL) beside the exact lighting (JAX) and an error heat map.
+
+:func:`preview` renders a mesh headless (:func:`homofac.gl.engine.render`), evaluates the exact target
+at exactly the arguments the shader used per pixel (read back from the float targets: ``n``, ``v`` for
+lighting, ``wi``, ``wo`` of the directional light for BRDFs), and composes with numpy + pillow::
+
+    [ factorized (GL) | exact (JAX) | relative error + colour bar ]
+    caption: parametrization, mapper, size, mesh, pixel errors
+
+All three panels use one exposure and the sRGB curve. The error is per pixel
+``mean_c |a - e| / max(mean_c e, tau)`` with ``tau = 1e-3 mean(e)`` (as the pinned ``avg_rel``).
+"""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+
+import numpy as np
+from jaxtyping import Float, UInt8
+
+from ..errors import HomofacError
+from .engine import Camera, Frame, Light, Mesh, render
+
+#: Display value of the background (8-bit, all channels).
+BACKGROUND = 32
+#: Anchors of the viridis colour map (perceptually uniform), evenly spaced on [0, 1].
+_VIRIDIS = np.array([
+    [68, 1, 84], [71, 44, 122], [59, 81, 139], [44, 113, 142], [33, 144, 141],
+    [39, 173, 129], [92, 200, 99], [170, 220, 50], [253, 231, 37],
+], np.float64) / 255.0
+#: Pixels per exact-evaluation call (a fixed shape, compiled once).
+_BLOCK = 4096
+#: Round error scales (upper ends of the colour bar).
+_NICE = (0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0, 10.0)
+
+
+def colormap(x: Float[np.ndarray, "*s"]) -> Float[np.ndarray, "*s 3"]:
+    """Viridis (piecewise linear through 9 anchors) of values in [0, 1] (clipped)."""
+    t = np.clip(np.nan_to_num(np.asarray(x, np.float64)), 0.0, 1.0) * (len(_VIRIDIS) - 1)
+    i = np.minimum(np.floor(t).astype(int), len(_VIRIDIS) - 2)
+    f = (t - i)[..., None]
+    return _VIRIDIS[i] * (1 - f) + _VIRIDIS[i + 1] * f
+
+
+def srgb(x: Float[np.ndarray, "*s"]) -> Float[np.ndarray, "*s"]:
+    """The sRGB transfer curve of linear values clipped to [0, 1]."""
+    x = np.clip(x, 0.0, 1.0)
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
+
+
+def to_display(value: Float[np.ndarray, "H W 3"], mask, exposure: float) -> UInt8[np.ndarray, "H W 3"]:
+    """Linear values -> 8-bit sRGB, background where ``mask`` is False."""
+    out = np.round(srgb(np.asarray(value, np.float64) * exposure) * 255).astype(np.uint8)
+    out[~mask] = BACKGROUND
+    return out
+
+
+def auto_exposure(value: Float[np.ndarray, "N 3"]) -> float:
+    """1 / the 99.5th percentile of the per-pixel maximum channel (1 when that is not positive)."""
+    if value.size == 0:
+        return 1.0
+    hi = float(np.percentile(np.max(value, axis=-1), 99.5))
+    return 1.0 / hi if np.isfinite(hi) and hi > 0 else 1.0
+
+
+def relative_error(approx: Float[np.ndarray, "N 3"], exact: Float[np.ndarray, "N 3"]) -> Float[np.ndarray, "N"]:
+    """Per pixel ``mean_c |a - e| / max(mean_c e, tau)``, ``tau = 1e-3 mean(e)`` (0 where e and a vanish)."""
+    e = np.mean(exact, axis=-1)
+    tau = max(1e-3 * float(np.mean(exact)) if exact.size else 0.0, 1e-12)
+    return np.mean(np.abs(approx - exact), axis=-1) / np.maximum(e, tau)
+
+
+def target_from_config(fac, base: str | Path | None = None):
+    """Rebuild the exact target of a factorization from its recorded config (None when there is none).
+
+    The environment is read from the recorded absolute source path when the config's (relative) path
+    cannot be found; ``base`` is the directory relative paths refer to (default: the current one).
+    Raises HomofacError when the config is there but cannot be rebuilt.
+    """
+    from ..fit import config as cfgmod
+
+    if not fac.config:
+        return None
+    data = copy.deepcopy(dict(fac.config))
+    base = Path(base) if base is not None else Path(".")
+    env_info = (fac.target_info or {}).get("environment") or {}
+    env_cfg = (data.get("target") or {}).get("environment")
+    src = env_info.get("source")
+    if isinstance(env_cfg, dict) and isinstance(src, str) and Path(src).is_file():
+        f = env_cfg.get("file", "forest")
+        if not Path(cfgmod.resolve_path(f, base)).exists() and not _bundled(f):
+            env_cfg["file"] = src
+    cfg = cfgmod.parse(data, "factorization.json config")
+    target, _ = cfgmod.build_target(cfg, base)
+    return target
+
+
+def _bundled(name: str) -> bool:
+    from ..light.environment import BUNDLED
+
+    return "/" not in name and Path(name).stem in BUNDLED
+
+
+def exact_values(target, frame: Frame, light: Light = Light()) -> Float[np.ndarray, "N 3"]:
+    """The exact target at the frame's covered pixels (same arguments as the shader), as displayed.
+
+    Lighting: ``L(v, n)`` (0 where n.v <= 0). BRDF: ``f(wi, wo) cos(theta_i) E`` for the light's
+    irradiance E (0 below either horizon).
+    """
+    import jax.numpy as jnp
+
+    from ..fit.target import evaluate
+
+    a = jnp.asarray(frame.a[frame.mask])
+    b = jnp.asarray(frame.b[frame.mask])
+    if len(a) == 0:
+        return np.zeros((0, 3), np.float32)
+    n = len(a)
+    pad = (-n) % _BLOCK  # fixed-shape blocks: one compile for every picture size
+    a_p = jnp.concatenate([a, jnp.broadcast_to(a[:1], (pad, 3))])
+    b_p = jnp.concatenate([b, jnp.broadcast_to(b[:1], (pad, 3))])
+    y = jnp.concatenate([evaluate(target, a_p[i : i + _BLOCK], b_p[i : i + _BLOCK], chunk=_BLOCK)
+                         for i in range(0, n + pad, _BLOCK)])[:n]
+    if target.kind == "brdf":
+        y = target.shown(a, y) * jnp.asarray(np.broadcast_to(light.irradiance, (3,)), y.dtype)
+        ok = (a[:, 2] > 0) & (b[:, 2] > 0)
+    else:
+        ok = jnp.sum(a * b, axis=-1) > 0
+    return np.asarray(jnp.where(ok[:, None], y, 0.0), np.float32)
+
+
+def _font(size: int):
+    from PIL import ImageFont
+
+    try:
+        return ImageFont.load_default(size=size)
+    except TypeError:  # Pillow < 10.1: the bitmap font only
+        return ImageFont.load_default()
+
+
+def _nice(x: float) -> float:
+    return next((n for n in _NICE if x <= n), _NICE[-1])
+
+
+def compose(panels: list[tuple[str, np.ndarray]], caption: str, colour_bar: tuple[float, str] | None = None
+            ) -> UInt8[np.ndarray, "H W 3"]:
+    """Panels side by side under titles, an optional colour bar ``(scale, label)`` after the last one,
+    and a caption line; all on the background colour."""
+    from PIL import Image, ImageDraw
+
+    size = panels[0][1].shape[0]
+    fs = max(10, size // 18)
+    font, small = _font(fs), _font(max(9, fs - 2))
+    head, foot, gap = fs + 8, fs + 10, 6
+    bar_w = (fs * 4 + 24) if colour_bar else 0
+    W = len(panels) * size + (len(panels) - 1) * gap + bar_w + 2 * gap
+    H = head + size + foot
+    img = Image.new("RGB", (W, H), (BACKGROUND,) * 3)
+    draw = ImageDraw.Draw(img)
+    x = gap
+    for title, px in panels:
+        img.paste(Image.fromarray(np.ascontiguousarray(px)), (x, head))
+        draw.text((x + 4, 3), title, fill=(230, 230, 230), font=font)
+        x += size + gap
+    if colour_bar:
+        scale, label = colour_bar
+        bx, by, bh, bw = x, head + fs // 2, size - fs, 12
+        ramp = colormap(np.linspace(1, 0, bh))[:, None, :].repeat(bw, axis=1)
+        img.paste(Image.fromarray(np.round(ramp * 255).astype(np.uint8)), (bx, by))
+        for t in (0.0, 0.25, 0.5, 0.75, 1.0):
+            y = by + round((1 - t) * (bh - 1))
+            draw.line([(bx + bw, y), (bx + bw + 3, y)], fill=(230, 230, 230))
+            v = t * scale
+            draw.text((bx + bw + 5, y - fs // 2), f"{v:.3g}" if t < 1 else f"{v:.3g}+", fill=(230, 230, 230), font=small)
+        draw.text((bx, 3), label, fill=(230, 230, 230), font=small)
+    draw.text((gap + 4, head + size + 4), caption, fill=(200, 200, 200), font=small)
+    return np.asarray(img)
+
+
+def preview(
+    fac,
+    target=None,
+    *,
+    mesh: Mesh | str = "sphere",
+    size: int = 256,
+    camera: Camera = Camera(),
+    light: Light = Light(),
+    exposure: float | None = None,
+    error_scale: float | None = None,
+    return_data: bool = False,
+):
+    """The preview picture of a factorization: its GL render beside the exact target and the error.
+
+    Args:
+        fac: a :class:`~homofac.fit.factorization.Factorization` (lighting: a = n, b = v in the world
+            frame; BRDF: lit by ``light``).
+        target: the exact target (``hf.light.lighting_target(...)`` / ``hf.fit.brdf_target(...)``);
+            default: rebuilt from ``fac.config`` when it has one (:func:`target_from_config`), else only
+            the factorized render is shown.
+        mesh: ``"sphere"``, ``"torus"``, a mesh file (OBJ ...) or a :class:`~homofac.gl.engine.Mesh`.
+        size: pixels of each square panel.
+        camera: orbit camera (+z up).
+        light: directional light of BRDF previews.
+        exposure: linear scale before the sRGB curve (default: the 99.5th percentile of the exact
+            values, or of the factorized ones without a target, maps to 1).
+        error_scale: relative error at the top of the colour bar (default: a round number at or above
+            the 95th percentile).
+        return_data: also return a dict with the frame, the exact values and the pixel errors.
+
+    Returns:
+        ``uint8 (H, W, 3)`` image (and the dict when ``return_data``). Raises HomofacError (one line)
+        when no headless GL context can be created.
+    """
+    if target is None:
+        target = target_from_config(fac)
+    if target is not None and target.kind != fac.kind:
+        raise HomofacError(f"target kind {target.kind} does not match the factorization ({fac.kind})")
+    name = mesh if isinstance(mesh, str) else "mesh"
+    frame = render(fac, mesh, size=size, camera=camera, light=light)
+    approx = frame.value[frame.mask]
+    exact = exact_values(target, frame, light) if target is not None else None
+    if exposure is None:
+        exposure = auto_exposure(exact if exact is not None else approx)
+    panels = [("factorized (GL)", to_display(frame.value, frame.mask, exposure))]
+    head = f"{fac.parametrization} on {fac.mapper} {fac.texture_size}, {Path(str(name)).name}"
+    data = {"frame": frame, "exposure": exposure}
+    if exact is None:
+        img = compose(panels, f"{head}; no exact target to compare with")
+    else:
+        err = relative_error(approx, exact)
+        scale = float(error_scale) if error_scale else _nice(float(np.percentile(err, 95)) if err.size else 1.0)
+        ex = np.zeros_like(frame.value)
+        ex[frame.mask] = exact
+        panels.append(("exact (JAX)", to_display(ex, frame.mask, exposure)))
+        heat = np.full(frame.value.shape, BACKGROUND, np.uint8)
+        heat[frame.mask] = np.round(colormap(err / scale) * 255).astype(np.uint8)
+        panels.append(("relative error", heat))
+        nrmse = float(np.linalg.norm(approx - exact) / max(np.linalg.norm(exact), 1e-30)) if err.size else 0.0
+        mean_rel = float(np.mean(err)) if err.size else 0.0
+        img = compose(panels, f"{head}; pixels: nrmse {nrmse:.3g}, mean rel. error {mean_rel:.3g}",
+                      colour_bar=(scale, "rel. err."))
+        data.update(exact=exact, error=err, nrmse=nrmse, mean_rel=mean_rel, error_scale=scale)
+    return (img, data) if return_data else img
+
+
+def write_preview(fac, path, target=None, **kwargs) -> Path:
+    """:func:`preview` written as a PNG file."""
+    from PIL import Image
+
+    img = preview(fac, target, **kwargs)
+    path = Path(path)
+    Image.fromarray(img).save(path, format="PNG")
+    return path
+
+
+__all__ = ["auto_exposure", "colormap", "compose", "exact_values", "preview", "relative_error", "safe_writer", "srgb",
+           "target_from_config", "to_display", "write_preview"]
+
+
+def safe_writer(fac, target=None, log=None, **kwargs):
+    """A writer ``path -> None`` of preview.png for :func:`homofac.io.output.save` (``extra_files``) that
+    never fails: when there is no GL (no EGL, no moderngl) or anything else goes wrong it prints one
+    line ``homofac: warning: ...`` on stderr and writes nothing."""
+    import sys
+
+    def write(path) -> None:
+        if log is not None:
+            log("rendering preview.png")
+        try:
+            write_preview(fac, path, target, **kwargs)
+        except Exception as e:  # noqa: BLE001 - a preview never fails the fit
+            Path(path).unlink(missing_ok=True)
+            msg = " ".join(str(e).split()) or type(e).__name__
+            print(f"homofac: warning: preview.png skipped: {msg[:300]}", file=sys.stderr)
+
+    return write

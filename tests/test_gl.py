@@ -1,0 +1,318 @@
+"""The GL preview: generated GLSL equals the Python mappers/projections/lookups, the render equals
+``Factorization.evaluate`` at the same pixels, the picture and the CLIs (headless EGL)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from PIL import Image
+
+import homofac as hf
+import homofac.gl  # noqa: F401 - hf.gl
+from homofac.errors import HomofacError
+from homofac.gl import glsl, picture
+from homofac.gl.engine import Camera, Light, load_mesh, render, run_glsl
+from homofac.param import mappers
+from homofac.param import parametrizations as pz
+
+RNG = np.random.default_rng(7)
+
+
+def unit(n: int, rng=RNG) -> np.ndarray:
+    d = rng.normal(size=(n, 3))
+    return (d / np.linalg.norm(d, axis=1, keepdims=True)).astype(np.float32)
+
+
+def edge_directions() -> np.ndarray:
+    """Axes, cube-edge ties, the equator and the diagonals: the branch points of the mappers."""
+    s = np.float32(np.sqrt(0.5))
+    t = np.float32(1 / np.sqrt(3))
+    d = [*np.eye(3), *-np.eye(3), [s, s, 0], [s, 0, s], [0, s, -s], [-s, -s, 0], [t, t, t], [-t, t, -t],
+         [0.6, 0.8, 0], [0.6, 0, -0.8]]
+    return np.asarray(d, np.float32)
+
+
+# --------------------------------------------------------------------------------------------------
+# GLSL twins of the Python functions
+
+
+def test_every_mapper_and_projection_has_glsl():
+    assert set(mappers.MAPPERS) <= set(glsl.MAPPER_GLSL)
+    assert set(pz.PROJECTIONS) <= set(glsl.PROJECTION_GLSL)
+    with pytest.raises(HomofacError, match="no GLSL for mapper"):
+        glsl._need({}, "new_map", "mapper")
+
+
+@pytest.mark.parametrize("name", sorted(mappers.MAPPERS))
+def test_glsl_mapper_equals_python(name):
+    d = np.concatenate([unit(4000), edge_directions()])
+    decl = glsl.library_glsl(name) + (
+        f"\nvec3 f(vec3 d) {{ int face; float u, v; hf_map_{name}(d, face, u, v); return vec3(float(face), u, v); }}"
+    )
+    gpu = run_glsl(decl, "f(a)", d, d)
+    face, u, v = mappers.get(name).to_face_uv(jnp.asarray(d))
+    assert np.array_equal(gpu[:, 0], np.asarray(face, np.float32))
+    np.testing.assert_allclose(gpu[:, 1:], np.stack([u, v], -1), atol=2e-6, rtol=1e-6)
+
+
+def _pairs(kind: str, n: int):
+    a, b = unit(n), unit(n)
+    if kind == "brdf":  # local frame: both above the surface
+        a[:, 2], b[:, 2] = np.abs(a[:, 2]), np.abs(b[:, 2])
+    else:  # valid (n, v): n.v > 0
+        b = np.where(np.sum(a * b, axis=1, keepdims=True) < 0, -b, b)
+    return a, b
+
+
+@pytest.mark.parametrize("name", sorted(pz.PROJECTIONS))
+def test_glsl_projection_equals_python(name):
+    proj = pz.PROJECTIONS[name]
+    a, b = _pairs(proj.kind, 4000)
+    dominant = np.asarray([0.3, -0.5, 0.81], np.float32)
+    dominant /= np.linalg.norm(dominant)
+    gpu = run_glsl(glsl.library_glsl(None, [name]), f"hf_proj_{name}(a, b)", a, b,
+                   uniforms={"u_dominant": tuple(float(x) for x in dominant)})
+    cpu = np.asarray(proj.fn(jnp.asarray(a), jnp.asarray(b), {"dominant": jnp.asarray(dominant)}))
+    np.testing.assert_allclose(gpu, cpu, atol=1e-5)  # float32 rounding (GPU FMA, sqrt)
+
+
+@pytest.mark.parametrize("name", sorted(mappers.MAPPERS))
+def test_glsl_lookup_equals_mappers_lookup(name):
+    """Bilinear weights, clamping to the face, invalid corners and the nearest-valid redirect."""
+    S = 8
+    H, W = mappers.texture_shape(name, S)
+    tex = RNG.uniform(0.1, 1.0, size=(H, W, 3)).astype(np.float32)
+    d = np.concatenate([unit(3000), edge_directions()])  # includes z < 0 for the hemisphere mappers
+    decl = glsl.library_glsl(name) + glsl.lookup_glsl(name, S) + "\nuniform sampler2D u_tex;"
+    gpu = run_glsl(decl, "hf_lookup(u_tex, a)", d, d, textures=[tex],
+                   ints=[("u_nearest", glsl.nearest_table(name, S))], uniforms={"u_tex": 0})
+    cpu = np.asarray(mappers.lookup(name, jnp.asarray(tex), jnp.asarray(d)))
+    np.testing.assert_allclose(gpu, cpu, atol=2e-6)
+
+
+# --------------------------------------------------------------------------------------------------
+# Lighting factorizations (small: light resolution 8, texture size 8, sampling size 8)
+
+
+@pytest.fixture(scope="module")
+def lighting():
+    env = hf.light.load_environment("forest", resolution=8)
+    brdf = hf.brdf.cook_torrance(kd=(0.05, 0.04, 0.02), ks=1.0, roughness=0.3, f0=(1.0, 0.78, 0.34))
+    target = hf.light.lighting_target(brdf, env, parametrization="NRHD")
+    samples = hf.fit.draw_samples(target, "NRHD", {"kind": "texels", "size": 8, "validation": 1000}, lambda m: None)
+    facs = {m: hf.fit.factorize(target, p, mapper=m, texture_size=8, samples=samples)
+            for p, m in (("NRHD", "cube"), ("NR", "dual_paraboloid"), ("NRV", "octahedral"))}
+    return {"env": env, "brdf": brdf, "target": target, "facs": facs}
+
+
+def as_parametrization(fac, name: str):
+    """The fitted textures of ``fac`` reused (cyclically) as the textures of parametrization ``name``."""
+    T = pz.get(name).T
+    tex = tuple(fac.textures[k % len(fac.textures)] for k in range(T))
+    return dataclasses.replace(fac, parametrization=name, textures=tex)
+
+
+MAX_DIFF: dict = {}
+
+
+@pytest.mark.parametrize("mapper", ["dual_paraboloid", "cube", "octahedral"])
+@pytest.mark.parametrize("param", ["NR", "NRV", "NRHD"])
+def test_render_equals_cpu_evaluate(lighting, mapper, param):
+    """Every covered pixel: the GL value equals Factorization.evaluate at the read-back (n, v) within 2/255."""
+    fac = as_parametrization(lighting["facs"][mapper], param)
+    mesh = "torus" if param == "NRV" else "sphere"
+    frame = render(fac, mesh, size=96, camera=Camera(azimuth=40.0, elevation=25.0))
+    m = frame.mask
+    assert 0.2 < m.mean() < 0.9
+    n, v = frame.a[m], frame.b[m]
+    np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1, atol=1e-5)
+    cpu = np.asarray(fac.evaluate(n, v))
+    cpu = np.where((np.sum(n * v, axis=1) > 0)[:, None], cpu, 0.0)  # invalid pairs are 0 (DESIGN.md)
+    gl = frame.value[m]
+    exposure = picture.auto_exposure(cpu)
+    show = lambda x: np.round(picture.srgb(x * exposure) * 255)  # noqa: E731 - what the PNG shows
+    diff = np.abs(show(gl) - show(cpu)).max()
+    MAX_DIFF[(param, mapper)] = (diff, float(np.abs(gl - cpu).max() * exposure))
+    assert diff <= 2, (param, mapper, diff)
+    assert np.abs(gl - cpu).max() * exposure <= 2 / 255
+    assert np.abs(gl - cpu).max() <= 1e-4 * np.abs(cpu).max()  # in fact to float rounding
+
+
+def test_gpu_evaluate_equals_cpu(lighting):
+    fac = lighting["facs"]["cube"]
+    a, b = _pairs("lighting", 5000)
+    np.testing.assert_allclose(hf.gl.evaluate(fac, a, b), np.asarray(fac.evaluate(a, b)), rtol=1e-5, atol=1e-6)
+
+
+def test_brdf_render_under_one_light_equals_cpu():
+    """A PQP BRDF factorization under a directional light: f(wi, wo) cos(theta_i) E, as the CPU computes it."""
+    S = 8
+    H, W = mappers.texture_shape("parabolic", S)
+    yy, xx = np.mgrid[0:H, 0:W] / S
+    tex = tuple(np.stack([0.5 + 0.4 * np.sin(3 * xx + k), 0.6 + 0.3 * np.cos(2 * yy), 0.4 + 0.2 * xx * yy], -1)
+                .astype(np.float32) for k in range(2))
+    fac = hf.fit.Factorization(kind="brdf", parametrization="PQP", mapper="parabolic", texture_size=S,
+                               textures=tex, correction=jnp.asarray([0.9, 0.8, 0.7]), quantity="brdf")
+    light = Light(direction=(0.3, 0.5, 0.8), irradiance=(2.0, 2.0, 2.0))
+    frame = render(fac, "sphere", size=80, light=light)
+    m = frame.mask
+    wi, wo = frame.a[m], frame.b[m]
+    cpu = np.asarray(fac.evaluate(wi, wo)) * np.maximum(wi[:, 2:3], 0) * 2.0
+    cpu = np.where(((wi[:, 2] > 0) & (wo[:, 2] > 0))[:, None], cpu, 0.0)
+    assert np.abs(frame.value[m] - cpu).max() <= 1e-5 * cpu.max()
+    assert (cpu > 0).mean() > 0.3  # the lit side is visible
+    # the preview with the exact BRDF target shows the three panels
+    target = hf.fit.brdf_target(hf.brdf.cook_torrance(kd=0.1, ks=1.0, roughness=0.3, f0=(1.0, 0.78, 0.34)))
+    img, data = hf.gl.preview(fac, target, size=64, light=light, return_data=True)
+    assert img.dtype == np.uint8 and img.shape[1] > 3 * 64 and np.isfinite(data["nrmse"])
+
+
+def test_preview_exact_panel_is_the_lighting(lighting):
+    """The exact panel is hf.light.lighting at the pixels' (n, v); the error is measured against it."""
+    fac = lighting["facs"]["dual_paraboloid"]
+    img, data = hf.gl.preview(fac, lighting["target"], size=64, return_data=True)
+    frame = data["frame"]
+    m = frame.mask
+    n, v = frame.a[m], frame.b[m]
+    ref = np.asarray(hf.light.lighting(lighting["brdf"], lighting["env"], n, v))
+    np.testing.assert_allclose(data["exact"], ref, rtol=1e-5, atol=1e-7)
+    assert data["exact"].max() > 0 and 0 < data["nrmse"] < 1
+    assert img.shape[0] > 64 and img.shape[1] > 3 * 64
+    # background, the object and the colour bar: many colours
+    assert len(np.unique(img.reshape(-1, 3), axis=0)) > 500
+    # without a target (and no config to rebuild one): the factorized panel only
+    only = hf.gl.preview(fac, size=64)
+    assert only.shape[1] < img.shape[1]
+
+
+def test_meshes():
+    s, t = load_mesh("sphere"), load_mesh("torus")
+    for m in (s, t):
+        assert np.abs(np.linalg.norm(m.positions, axis=1)).max() <= 1 + 1e-6
+        np.testing.assert_allclose(np.linalg.norm(m.normals, axis=1), 1, atol=1e-5)
+    with pytest.raises(HomofacError, match="no such file"):
+        load_mesh("/nonexistent/bunny.obj")
+
+
+def test_obj_mesh(tmp_path, lighting):
+    obj = tmp_path / "tet.obj"
+    obj.write_text("v 0 0 1\nv 1 0 -0.5\nv -0.5 0.8 -0.5\nv -0.5 -0.8 -0.5\nf 1 2 3\nf 1 3 4\nf 1 4 2\nf 2 4 3\n")
+    frame = render(lighting["facs"]["cube"], str(obj), size=48)
+    assert frame.mask.mean() > 0.1
+    (tmp_path / "bad.obj").write_text("this is not a mesh\n")
+    with pytest.raises(HomofacError):
+        load_mesh(tmp_path / "bad.obj")
+
+
+# --------------------------------------------------------------------------------------------------
+# CLIs
+
+
+@pytest.fixture(scope="module")
+def default_run(tmp_path_factory):
+    """`python -m homofac.fit --out DIR` as a user would run it (the bundled default)."""
+    out = tmp_path_factory.mktemp("default") / "out"
+    env = {**os.environ, "JAX_PLATFORMS": "cpu"}
+    r = subprocess.run([sys.executable, "-m", "homofac.fit", "--quiet", "--out", str(out)], capture_output=True,
+                       text=True, timeout=600, env=env)
+    assert r.returncode == 0, r.stderr
+    return out
+
+
+def test_default_run_writes_a_preview(default_run):
+    img = np.asarray(Image.open(default_run / "preview.png").convert("RGB"))
+    background = (img == picture.BACKGROUND).all(axis=-1)
+    assert 1 - background.mean() > 0.2
+    assert len(np.unique(img[~background], axis=0)) > 100
+    # the preview is no part of the pinned document
+    assert "preview" not in json.loads((default_run / "factorization.json").read_text())
+
+
+def test_preview_cli_writes_a_png(default_run, tmp_path, capsys):
+    from homofac.preview import main
+
+    out = tmp_path / "p.png"
+    assert main([str(default_run), "-o", str(out), "--size", "64", "--mesh", "torus"]) == 0
+    img = np.asarray(Image.open(out))
+    assert img.ndim == 3 and img.shape[0] > 64 and img.shape[1] > 3 * 64
+    assert "wrote" in capsys.readouterr().out
+    assert [p.name for p in tmp_path.iterdir()] == ["p.png"]  # no temporary files left
+
+
+def _one_line_error(capsys, code: int) -> str:
+    err = capsys.readouterr().err.strip()
+    assert code == 2
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("homofac: error:"), err
+    assert "Traceback" not in err
+    return lines[0]
+
+
+def test_preview_cli_refuses_bad_input(tmp_path, capsys, monkeypatch, default_run):
+    from homofac.preview import main
+
+    assert "no such directory" in _one_line_error(capsys, main([str(tmp_path / "missing")]))
+    (tmp_path / "notes.txt").write_text("x")
+    assert "not a homofac output directory" in _one_line_error(capsys, main([str(tmp_path)]))
+    assert "bunny.obj" in _one_line_error(capsys, main([str(default_run), "--mesh", str(tmp_path / "bunny.obj"),
+                                                        "-o", str(tmp_path / "x.png")]))
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    assert "display" in _one_line_error(capsys, main([str(default_run), "--window"]))
+    assert not (tmp_path / "x.png").exists()
+    with pytest.raises(HomofacError):
+        main([str(tmp_path), "--debug"])
+
+
+SMALL_BRDF = {
+    "target": {"kind": "brdf", "brdf": {"model": "cook_torrance", "kd": 0.1, "ks": 1.0, "roughness": 0.3,
+                                         "f0": [1.0, 0.78, 0.34]}},
+    "parametrization": "PQP", "mapper": "parabolic", "texture_size": 8,
+    "sampling": {"kind": "texels", "size": 8, "validation": 200, "seed": 0},
+    "solver": {"method": "lsmr", "tolerance": 1e-4, "max_iterations": 100},
+    "output": {"dir": "out", "samples": False},
+}
+
+
+def test_fit_without_gl_warns_and_skips_the_preview(tmp_path, capsys, monkeypatch):
+    import yaml
+
+    from homofac.fit.__main__ import main
+    from homofac.gl import engine as render_mod
+
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(yaml.safe_dump(SMALL_BRDF))
+
+    def no_egl():
+        raise HomofacError("no headless OpenGL (EGL) context: test")
+
+    monkeypatch.setattr(render_mod, "context", no_egl)
+    assert main([str(cfg), "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert [ln for ln in err.splitlines() if "preview" in ln] == [
+        "homofac: warning: preview.png skipped: no headless OpenGL (EGL) context: test"]
+    assert (tmp_path / "out" / "factorization.json").is_file()
+    assert not (tmp_path / "out" / "preview.png").exists()
+    monkeypatch.undo()
+    # --no-preview: nothing rendered, nothing said
+    assert main([str(cfg), "--quiet", "--no-preview"]) == 0
+    assert "preview" not in capsys.readouterr().err
+    assert not (tmp_path / "out" / "preview.png").exists()
+
+
+def test_window_viewer_renders_headless(lighting):
+    """The --window viewer's code path, on moderngl-window's headless (EGL) window for a few frames."""
+    from homofac.gl.window import show
+
+    img = show(lighting["facs"]["octahedral"], size=64, backend="headless", frames=2, exposure=1.0)
+    assert img.shape == (64, 64, 3)
+    covered = (img != 32).any(axis=-1)
+    assert 0.2 < covered.mean() < 0.9 and len(np.unique(img[covered], axis=0)) > 50
