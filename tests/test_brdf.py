@@ -505,3 +505,31 @@ def test_grads_finite_for_all_models():
         grads = jax.jit(jax.grad(lambda p, m=brdf.model: jnp.sum(B.BRDF(m, p)(wi, wo))))(brdf.params)
         for k, v in grads.items():
             assert np.all(np.isfinite(np.asarray(v))), (brdf.model, k)
+
+
+@pytest.mark.parametrize("model", [m for m in PARAMS if m != "lambert"] + ["lambert"])
+def test_lobe_form_reproduces_the_model(model):
+    """kd/pi + sum_m colour_m * lobe_m equals brdf(wi, wo) everywhere, the horizon included: the
+    lighting computation sums the lobe form (one matmul per lobe), so it must be the same function."""
+    from homofac.brdf.core import has_lobes, lobe_colors, lobe_terms
+
+    brdf = B.make(model, **PARAMS[model])
+    assert has_lobes(brdf)
+    rng = np.random.default_rng(7)
+    wi = rng.normal(size=(512, 3))
+    wo = rng.normal(size=(512, 3))
+    wi /= np.linalg.norm(wi, axis=1, keepdims=True)
+    wo /= np.linalg.norm(wo, axis=1, keepdims=True)
+    wi, wo = jnp.asarray(wi, jnp.float32), jnp.asarray(wo, jnp.float32)
+    want = np.asarray(brdf(wi, wo))
+    above = np.asarray((wi[:, 2] > 0) & (wo[:, 2] > 0))
+    kd = np.broadcast_to(np.asarray(PARAMS[model].get("kd", 0.0), np.float32), 3)
+    got = np.where(above[:, None], kd / PI, 0.0)
+    for c, g in zip(lobe_colors(brdf), lobe_terms(brdf, wi, wo)):
+        assert np.all(np.asarray(g)[~above] == 0)
+        got = got + np.asarray(c)[None, :] * np.asarray(g)[:, None]
+    np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-7)
+    # the component-triple form gives the same lobes as the (..., 3) form
+    tri = lobe_terms(brdf, (wi[:, 0], wi[:, 1], wi[:, 2]), (wo[:, 0], wo[:, 1], wo[:, 2]))
+    for g1, g2 in zip(tri, lobe_terms(brdf, wi, wo)):
+        np.testing.assert_array_equal(np.asarray(g1), np.asarray(g2))
