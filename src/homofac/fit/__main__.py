@@ -79,7 +79,7 @@ def _run(args) -> int:
 
     from rich.console import Console
 
-    console = Console(stderr=True, quiet=args.quiet)
+    console = Console(stderr=True, quiet=args.quiet, log_path=False, soft_wrap=True)
     t0 = time.perf_counter()
     with console.status("starting") as status:
 
