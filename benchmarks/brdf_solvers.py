@@ -1,4 +1,4 @@
-"""Issue 2's report: the three solvers on one BRDF factorization. python benchmarks/brdf_solvers.py
+"""The solvers on one BRDF factorization (issue 2's report). python benchmarks/brdf_solvers.py
 
 Cook-Torrance (kd 0.1, ks 1, roughness 0.3, F0 (1.0, 0.78, 0.34)), PQP on parabolic textures of
 S = 32, the default texel sampling (24^2 per hemisphere) and 20,000 validation pairs. The samples are
@@ -22,7 +22,7 @@ def main(size: int = 32, sampling: int = 24) -> list[dict]:
     samples = pipeline.draw_samples(target, "PQP", {"kind": "texels", "size": sampling, "validation": 20000},
                                     log=lambda m: None)
     out = []
-    for method in ("direct", "lsmr", "qmr"):
+    for method in ("direct", "lsmr", "qmr", "cg", "optimistix"):
         runs = []
         for _ in range(2):
             fac = pipeline.factorize(

@@ -76,17 +76,20 @@ def _small_system(x64_dtype=jnp.float64):
 
 
 def test_solvers_agree_with_direct_optimum(x64):
-    """LSMR and QMR reach an objective within 1e-4 (relative) of the direct normal-equation optimum."""
+    """LSMR, QMR, normal-equation CG and optimistix Gauss-Newton reach an objective within 1e-4 (relative)
+    of the direct normal-equation optimum."""
     sys, layout, p = _small_system()
     x0 = starting_solution(sys, layout, p.J)
     direct = solvers.solve(sys, x0, method="direct", laplacian=1.0)
     lsmr = solvers.solve(sys, x0, method="lsmr", laplacian=1.0, tolerance=1e-10, max_iterations=5000)
     qmr = solvers.solve(sys, x0, method="qmr", laplacian=1.0, tolerance=1e-10, max_iterations=20000)
+    cg = solvers.solve(sys, x0, method="cg", laplacian=1.0, tolerance=1e-10, max_iterations=20000)
+    gn = solvers.solve(sys, x0, method="optimistix", laplacian=1.0, tolerance=1e-10, max_iterations=5000)
     start = float(objective(sys, 1.0, x0))
     assert direct.objective < start
-    for r in (lsmr, qmr):
+    for r in (lsmr, qmr, cg, gn):
         assert (r.objective - direct.objective) / direct.objective < 1e-4, (r.method, r.objective, direct.objective)
-    assert lsmr.converged
+    assert lsmr.converged and cg.converged and gn.converged
 
 
 def test_starting_solution_fills_every_valid_texel():

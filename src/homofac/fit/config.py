@@ -79,7 +79,7 @@ class SamplingConfig(_Strict):
 
 
 class SolverConfig(_Strict):
-    method: Literal["lsmr", "qmr", "direct"] = "lsmr"
+    method: Literal["lsmr", "qmr", "cg", "optimistix", "direct"] = "lsmr"
     tolerance: float = Field(1e-6, gt=0, lt=1)
     max_iterations: int = Field(1000, ge=1)
     laplacian: float = Field(1.0, ge=0)

@@ -6,6 +6,11 @@
 * ``qmr``: scipy's QMR on the explicit augmented square system of thesis eq. 16,
   ``[[I, A], [A^T, 0]] [r; x] = [b; 0]`` -- the method of the original implementation, one channel
   at a time as there (thesis §3.1.2, "Iterative Computation"). The reference.
+* ``cg``: conjugate gradients on the normal equations ``A^T A x = A^T b`` in float64 (scipy, matrix-free
+  through the CSR matrix and its transpose): the textbook method, a benchmark baseline.
+* ``optimistix``: Gauss-Newton from optimistix on the residual ``A x - b`` with an LSMR linear solver
+  (matrix-free: the Jacobian is a JVP). The system is linear, so it converges in one or two steps; it
+  is the path through which nonlinear refinements (and ``jax.grad`` through the solve) go.
 * ``direct``: the normal equations ``(A^T A) x = A^T b`` formed densely in float64 and solved by
   Cholesky with a negligible ridge (the log-space problem has gauge directions: a constant can move
   between textures). Small sizes only; it is the optimum the iterative results are measured against.
@@ -25,7 +30,7 @@ import numpy as np
 from ..errors import HomofacError
 from .system import System, apply, augmented_rhs, objective, to_scipy
 
-SOLVERS = ("lsmr", "qmr", "direct")
+SOLVERS = ("lsmr", "qmr", "cg", "optimistix", "direct")
 
 #: Largest number of unknowns the dense ``direct`` solver accepts.
 DIRECT_MAX_UNKNOWNS = 12000
@@ -68,7 +73,7 @@ def solve(
     Args:
         sys: the system from :func:`homofac.fit.system.build_system`.
         x0: starting solution (n, 3), e.g. from :func:`homofac.fit.start.starting_solution`.
-        method: ``lsmr``, ``qmr`` or ``direct``.
+        method: ``lsmr``, ``qmr``, ``cg``, ``optimistix`` or ``direct``.
         laplacian: lambda of eq. 37.
         tolerance: relative stopping tolerance of the iterative solvers.
         max_iterations: iteration cap of the iterative solvers.
@@ -82,6 +87,13 @@ def solve(
     elif method == "qmr":
         x, iterations, converged = _qmr(sys, laplacian, np.asarray(x0, np.float64), tolerance, max_iterations)
         x = jnp.asarray(x, x0.dtype)
+    elif method == "cg":
+        x, iterations, converged = _cg(sys, laplacian, np.asarray(x0, np.float64), tolerance, max_iterations)
+        x = jnp.asarray(x, x0.dtype)
+    elif method == "optimistix":
+        x, steps, ok = _optimistix(sys, lam, x0, rtol=float(tolerance), max_steps=int(max_iterations))
+        x = jax.block_until_ready(x)
+        iterations, converged = int(steps), bool(ok)
     elif method == "direct":
         x = jnp.asarray(_direct(sys, laplacian, x0.shape[0]), x0.dtype)
         iterations, converged = 1, True
@@ -122,6 +134,49 @@ def _qmr(sys: System, lam: float, x0: np.ndarray, tol: float, maxiter: int):
         iters = max(iters, count[0])
         converged &= info == 0
     return out, iters, bool(converged)
+
+
+def _cg(sys: System, lam: float, x0: np.ndarray, tol: float, maxiter: int):
+    """CG on the normal equations in float64, one channel at a time, for the correction d = x - x0."""
+    import scipy.sparse.linalg as spla
+
+    a = to_scipy(sys, lam, x0.shape[0])
+    at = a.T.tocsr()
+    n = x0.shape[0]
+    ata = spla.LinearOperator((n, n), matvec=lambda v: at @ (a @ v), dtype=np.float64)
+    b_all = np.asarray(augmented_rhs(sys), np.float64)
+    out = np.empty_like(x0)
+    iters, converged = 0, True
+    for c in range(3):
+        rhs = at @ (b_all[:, c] - a @ x0[:, c])
+        count = [0]
+
+        def cb(_xk, count=count):
+            count[0] += 1
+
+        sol, info = spla.cg(ata, rhs, rtol=tol, maxiter=maxiter, callback=cb)
+        out[:, c] = x0[:, c] + sol
+        iters = max(iters, count[0])
+        converged &= info == 0
+    return out, iters, bool(converged)
+
+
+@functools.partial(jax.jit, static_argnames=("rtol", "max_steps"))
+def _optimistix(sys: System, lam, x0, *, rtol: float, max_steps: int):
+    import optimistix as optx
+
+    rhs = augmented_rhs(sys)
+
+    def residual(x, _):
+        return apply(sys, lam, x) - rhs
+
+    linear = lx.LSMR(rtol=rtol, atol=rtol, max_steps=max_steps)
+    # The outer (Cauchy) test compares successive iterates; below sqrt(eps) of the dtype they differ by
+    # the inner solve's rounding only, so a tighter outer tolerance would never be met in float32.
+    outer = max(rtol, float(np.sqrt(np.finfo(x0.dtype).eps)))
+    solver = optx.GaussNewton(rtol=outer, atol=outer, linear_solver=linear)
+    sol = optx.least_squares(residual, solver, x0, max_steps=16, throw=False)
+    return sol.value, sol.stats["num_steps"], sol.result == optx.RESULTS.successful
 
 
 def _direct(sys: System, lam: float, n: int) -> np.ndarray:
