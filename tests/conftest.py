@@ -2,8 +2,14 @@
 
 from __future__ import annotations
 
+import os
+import tempfile
+
 import jax
 import pytest
+
+# Samples cached by the tests go to a private directory, never to the user's ~/.cache.
+os.environ.setdefault("HOMOFAC_CACHE_DIR", tempfile.mkdtemp(prefix="homofac-test-cache-"))
 
 
 @pytest.fixture

@@ -76,6 +76,7 @@ class SamplingConfig(_Strict):
     seed: int = 0
     count: int = Field(0, ge=0)
     mapper: Optional[str] = None
+    cache: bool = True  # reuse samples from $HOMOFAC_CACHE_DIR (~/.cache/homofac/samples), see fit/cache.py
 
 
 class SolverConfig(_Strict):

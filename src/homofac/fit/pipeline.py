@@ -16,7 +16,7 @@ import numpy as np
 from ..errors import HomofacError
 from ..param import mappers
 from ..param import parametrizations as pz
-from . import precision, sampling
+from . import cache, precision, sampling
 from .factorization import Factorization, evaluate_textures
 from .metrics import metrics
 from .solvers import solve
@@ -27,6 +27,7 @@ from .target import Target, evaluate, evaluate_grouped
 #: Default sampling settings (DESIGN.md config).
 DEFAULT_SAMPLING = {
     "kind": "texels", "size": 24, "view_size": None, "validation": 20000, "seed": 0, "count": 0, "mapper": None,
+    "cache": True,
 }
 #: Default solver settings (DESIGN.md config).
 DEFAULT_SOLVER = {
@@ -72,8 +73,25 @@ def check_size(texture_size: int) -> None:
 
 
 def draw_samples(target: Target, parametrization: str, sampling_cfg: dict, log: Callable = print) -> Samples:
-    """Sample the target on training pairs (thesis §4.2 / §5.6) and on a seeded validation set."""
+    """Sample the target on training pairs (thesis §4.2 / §5.6) and on a seeded validation set.
+
+    With ``sampling_cfg["cache"]`` (the default) the samples are read from, or written to, the on-disk
+    cache of :mod:`homofac.fit.cache`, keyed by a hash of the target and the sampling settings.
+    """
     s = {**DEFAULT_SAMPLING, **(sampling_cfg or {})}
+    k = cache.key(target, s, parametrization) if s["cache"] else None
+    if k is not None:
+        hit = cache.load(k)
+        if hit is not None:
+            log(f"samples from cache {k[:12]} ({len(hit.a)} training pairs)")
+            return hit
+    samples = _draw(target, parametrization, s, log)
+    if k is not None:
+        cache.store(k, samples)
+    return samples
+
+
+def _draw(target: Target, parametrization: str, s: dict, log: Callable) -> Samples:
     smapper = s["mapper"] or default_mapper(target.kind)
     if target.kind == "lighting":
         # grouped by normal: per-normal work (weights, frames, diffuse, horizon culling) done once
@@ -130,7 +148,8 @@ def factorize(
         parametrization: ``IV``, ``GSHD``, ``PQP`` (BRDF) or ``N``, ``R``, ``NR``, ``NRV``, ``NRHD``.
         mapper: direction mapper of the textures (default: parabolic for BRDF, dual_paraboloid for lighting).
         texture_size: S of the mapper table (4 ... 1024).
-        sampling: ``{kind, size, view_size, validation, seed, count, mapper}`` (DESIGN.md config ``sampling``).
+        sampling: ``{kind, size, view_size, validation, seed, count, mapper, cache}`` (DESIGN.md config
+            ``sampling``; ``cache``: reuse samples on disk, see :mod:`homofac.fit.cache`).
         solver: ``{method, tolerance, max_iterations, laplacian, epsilon, levels}``; ``levels`` > 1 solves at
             S / 2^(levels-1) first and refines each doubled size from the upsampled result.
         samples: precomputed :class:`Samples` (skip sampling, e.g. to compare solvers).
