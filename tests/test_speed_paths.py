@@ -81,3 +81,57 @@ def test_refit_from_cache_gives_the_same_factorization(cache_dir):
     assert f2.timings["sample_s"] < f1.timings["sample_s"]
     for a, b in zip(f1.textures, f2.textures):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_target_error_picks_the_cheapest_candidate_that_meets_it(cache_dir):
+    from homofac.fit import auto
+
+    env = hf.light.load_environment("forest", resolution=4)
+    t = hf.light.lighting_target(hf.brdf.phong(kd=0.3, ks=0.5, exponent=8.0), env)
+    sampling = {"kind": "texels", "size": 6, "validation": 1000, "seed": 4}
+    cands = auto.candidates("lighting", "cube", 16)
+    assert [c["cost"] for c in cands] == sorted(c["cost"] for c in cands)
+    samples = pipeline.draw_samples(t, "NR", sampling, log=lambda m: None)
+    # Measured here: N 8 0.35, R 8 0.46, NR 8 0.16, NRV 8 0.17, N 16 0.35, R 16 0.46, NRHD 8 0.10.
+    # A loose target is met by a cheap candidate, a stricter one needs a costlier one; both keep the
+    # promise on the validation set.
+    costs = {}
+    for goal in (0.25, 0.13):
+        fac = auto.choose(t, goal, mapper="cube", max_size=16, sampling=sampling, samples=samples)
+        sel = fac.selection
+        assert sel["met"], sel
+        assert fac.metrics["validation"]["float"]["nrmse"] <= goal
+        assert sel["chosen"] == {"parametrization": fac.parametrization, "texture_size": fac.texture_size}
+        assert all(not c["met"] for c in sel["tried"][:-1]) and sel["tried"][-1]["met"]
+        costs[goal] = sel["tried"][-1]["cost"]
+    assert costs[0.13] > costs[0.25]
+    # an impossible target returns the best tried, with a warning saying so
+    fac = auto.choose(t, 1e-6, mapper="cube", max_size=8, sampling=sampling, samples=samples,
+                      parametrizations=["N", "NR"])
+    assert not fac.selection["met"] and any("no candidate" in w for w in fac.warnings)
+    best = min(c["validation_nrmse"] for c in fac.selection["tried"])
+    assert fac.metrics["validation"]["float"]["nrmse"] == pytest.approx(best)
+
+
+def test_target_error_from_the_cli_records_its_choice(cache_dir, tmp_path):
+    import json
+
+    import yaml
+
+    from homofac.fit.__main__ import main
+
+    cfg = {
+        "target": {"kind": "lighting", "brdf": {"model": "lambert", "kd": 0.8},
+                   "environment": {"file": "forest", "resolution": 4}},
+        "mapper": "cube", "texture_size": 8, "target_error": 0.05,
+        "sampling": {"kind": "texels", "size": 6, "validation": 500},
+        "output": {"dir": "out", "preview": False, "samples": False},
+    }
+    path = tmp_path / "c.yaml"
+    path.write_text(yaml.safe_dump(cfg))
+    assert main([str(path), "--quiet"]) == 0
+    doc = json.loads((tmp_path / "out" / "factorization.json").read_text())
+    sel = doc["selection"]
+    assert sel["met"] and doc["metrics"]["validation"]["float"]["nrmse"] <= 0.05
+    # Lambert lighting depends on n only: the one-texture N is the cheapest that meets it
+    assert doc["parametrization"] == sel["chosen"]["parametrization"] == "N"

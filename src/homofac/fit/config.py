@@ -110,6 +110,8 @@ class Config(_Strict):
     parametrization: str = "NR"
     mapper: Optional[str] = None
     texture_size: int = 32
+    # validation nrmse to meet: pick the cheapest parametrization and size (<= texture_size), fit/auto.py
+    target_error: Optional[float] = Field(None, gt=0, lt=10)
     sampling: SamplingConfig = Field(default_factory=SamplingConfig)
     solver: SolverConfig = Field(default_factory=SolverConfig)
     output: OutputConfig = Field(default_factory=OutputConfig)
@@ -231,11 +233,15 @@ def run(cfg: Config, base: Path = Path("."), out_dir: str | None = None, log=Non
         except HomofacError as e:
             raise HomofacError(f"config: output.prescale: {e}") from None
     custom = encoding != {"alpha": True}
-    fac = factorize(
-        target, cfg.parametrization, mapper=cfg.mapper, texture_size=cfg.texture_size,
-        sampling=cfg.sampling.model_dump(), solver=cfg.solver.model_dump(), config=cfg.model_dump(mode="json"),
-        target_info=info, log=log, keep_samples=o.samples or custom,
-    )
+    common = dict(sampling=cfg.sampling.model_dump(), solver=cfg.solver.model_dump(),
+                  config=cfg.model_dump(mode="json"), target_info=info, keep_samples=o.samples or custom)
+    if cfg.target_error is not None:
+        from .auto import choose
+
+        fac = choose(target, cfg.target_error, mapper=cfg.mapper, max_size=cfg.texture_size, log=log, **common)
+    else:
+        fac = factorize(target, cfg.parametrization, mapper=cfg.mapper, texture_size=cfg.texture_size, log=log,
+                        **common)
     if custom:  # the quantized metrics must describe the 8-bit textures that are written
         import dataclasses
 

@@ -83,6 +83,7 @@ class Factorization:
         counts: train, validation, lights.
         config: the full resolved configuration (for factorization.json).
         target_info: description of the target (model and parameters, environment provenance).
+        selection: with ``target_error``, the candidates tried and why this one was chosen.
     """
 
     kind: str
@@ -104,6 +105,7 @@ class Factorization:
     encoding: dict = dataclasses.field(default_factory=dict)  # encode_rgba8 options: weights, alpha
     rgba8: Any = None  # precision.Encoded8 as stored (PNG files); None: encoded from ``textures``
     source: str = "float"  # "png" when loaded from the 8-bit textures only: evaluate() decodes them
+    selection: dict | None = None  # target_error: the candidates tried and why this one (fit/auto.py)
 
     @property
     def texture_names(self) -> tuple[str, ...]:

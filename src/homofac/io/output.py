@@ -149,6 +149,7 @@ def document(fac, *, png: bool = False, exr: str = "float32", encoded=None) -> d
             "counts": fac.counts,
             "warnings": list(fac.warnings),
             "config": fac.config,
+            **({"selection": fac.selection} if fac.selection is not None else {}),
         }
     )
 
