@@ -135,3 +135,38 @@ def test_target_error_from_the_cli_records_its_choice(cache_dir, tmp_path):
     assert sel["met"] and doc["metrics"]["validation"]["float"]["nrmse"] <= 0.05
     # Lambert lighting depends on n only: the one-texture N is the cheapest that meets it
     assert doc["parametrization"] == sel["chosen"]["parametrization"] == "N"
+
+
+SHARD_SCRIPT = r"""
+import json, sys
+import numpy as np
+import jax
+import homofac as hf
+from homofac.fit import pipeline
+env = hf.light.load_environment("forest", resolution=4)
+t = hf.light.lighting_target(hf.brdf.cook_torrance(), env)
+s = pipeline.draw_samples(t, "NR", {"kind": "texels", "size": 7, "validation": 301, "cache": False}, log=lambda m: None)
+np.savez(sys.argv[1], y=s.y, val_y=s.val_y, a=s.a)
+print(json.dumps({"devices": jax.device_count()}))
+"""
+
+
+def test_sharded_sampling_equals_unsharded(tmp_path):
+    """Sampling with the normals split over 2 (forced CPU) devices gives the unsharded values."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    out = {}
+    for n in (1, 2):
+        env = {**os.environ, "XLA_FLAGS": f"--xla_force_host_platform_device_count={n}"}
+        r = subprocess.run([sys.executable, "-c", SHARD_SCRIPT, str(tmp_path / f"{n}.npz")], env=env,
+                           capture_output=True, text=True, timeout=300)
+        assert r.returncode == 0, r.stderr[-2000:]
+        assert json.loads(r.stdout.strip().splitlines()[-1])["devices"] == n
+        out[n] = np.load(tmp_path / f"{n}.npz")
+    np.testing.assert_array_equal(out[1]["a"], out[2]["a"])
+    for k in ("y", "val_y"):
+        assert out[1][k].shape == out[2][k].shape and len(out[1][k]) > 0
+        np.testing.assert_allclose(out[2][k], out[1][k], rtol=1e-6, atol=1e-7)

@@ -64,12 +64,19 @@ def _eval_groups(fn, normals, views):
 def evaluate_grouped(target: Target, grouped) -> Float[Array, "M 3"]:
     """Values at the valid pairs of a :class:`~homofac.fit.sampling.Grouped` set, in flattened order.
 
-    Uses the target's per-normal fast path (``target.fn.grouped``) when it has one.
+    Uses the target's per-normal fast path (``target.fn.grouped``) when it has one, with the normals
+    split over all devices when there are several (:mod:`homofac.fit.shard`).
     """
     if grouped.mask.size == 0 or not grouped.mask.any():
         return jnp.zeros((0, 3))
     if hasattr(target.fn, "grouped"):
-        out = _eval_groups(target.fn, jnp.asarray(grouped.normals), jnp.asarray(grouped.views))
+        normals, views = jnp.asarray(grouped.normals), jnp.asarray(grouped.views)
+        if jax.device_count() > 1:
+            from .shard import grouped_sharded
+
+            out = grouped_sharded(target.fn, normals, views)
+        else:
+            out = _eval_groups(target.fn, normals, views)
         return out[jnp.asarray(grouped.mask)]
     pairs = grouped.flatten()
     return evaluate(target, pairs.a, pairs.b)
