@@ -32,8 +32,10 @@ system-packages:
 test: $(STAMP) system-packages
 	$(PY) -m pytest -q $(PYTEST_ARGS)
 
+# Run time against error (issue 5): HOMOFAC_BENCH_LEVELS=preview,default,high make benchmark for the thesis run.
 benchmark: $(STAMP)
-	$(PY) -m pytest benchmarks -q --benchmark-json=benchmarks/results.json
+	$(PY) -m pytest benchmarks -q -p no:cacheprovider --benchmark-json=benchmarks/results.json
+	$(PY) benchmarks/report.py benchmarks/results.json --readme README.md
 
 clean:
 	rm -rf out .pytest_cache

@@ -1,0 +1,130 @@
+"""Turn pytest-benchmark JSON into the markdown table and the Pareto plot of error against run time.
+
+    python benchmarks/report.py [benchmarks/results.json] [--readme README.md]
+
+Writes ``benchmarks/results.md`` and ``benchmarks/pareto.png`` beside the JSON; with ``--readme`` it
+also replaces the part of README.md between ``<!-- bench:start -->`` and ``<!-- bench:end -->``.
+Times are warm (compile reported apart); run time = sampling + assembling + solving.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+START, END = "<!-- bench:start -->", "<!-- bench:end -->"
+
+
+def records(path: Path) -> tuple[list[dict], list[dict], dict]:
+    doc = json.loads(path.read_text())
+    cases, baselines = [], []
+    for b in doc["benchmarks"]:
+        r = b.get("extra_info", {})
+        if r.get("solver") == "numpy-baseline":
+            baselines.append(r)
+        elif "val_nrmse" in r:
+            cases.append(r)
+    return cases, baselines, doc.get("machine_info", {})
+
+
+def run_time(r: dict) -> float:
+    return r["sample_s"] + r["assemble_s"] + r["solve_s"]
+
+
+def table(cases: list[dict], baselines: list[dict]) -> str:
+    lines = [
+        "| scene | quality | solver | pairs | lights | sample s (compile) | solve s (compile) | iterations | val nrmse | gap to optimum | lsmr speedup |",
+        "|---|---|---|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    by = {(r["scene"], r["quality"], r["solver"]): r for r in cases}
+    for r in cases:
+        lsmr = by.get((r["scene"], r["quality"], "lsmr"))
+        speed = f"{r['solve_s'] / lsmr['solve_s']:.1f}x" if lsmr and r["solver"] != "lsmr" and lsmr["solve_s"] > 0 else ""
+        conv = "" if r["converged"] else " (cap)"
+        lines.append(
+            f"| {r['scene']} | {r['quality']} | {r['solver']} | {r['pairs']:,} | {r['lights']:,} | "
+            f"{r['sample_s']:.2f} ({r['sample_compile_s']:.1f}) | {r['solve_s']:.2f} ({r['solve_compile_s']:.1f}) | "
+            f"{r['iterations']}{conv} | {r['val_nrmse']:.4f} | {r['objective_gap']:.1e} | {speed} |"
+        )
+    out = "\n".join(lines)
+    if baselines:
+        out += "\n\n| NumPy baseline | pairs | NumPy s (extrapolated from a slice) | homofac s | speedup |\n|---|---:|---:|---:|---:|\n"
+        out += "\n".join(
+            f"| {b['scene']} {b['quality']} | {b['pairs']:,} | {b['numpy_s_extrapolated']:.1f} | "
+            f"{b['homofac_train_sample_s']:.2f} | {b['numpy_s_extrapolated'] / b['homofac_train_sample_s']:.0f}x |"
+            for b in baselines
+        )
+    return out
+
+
+def pareto_front(points: list[tuple[float, float]]) -> list[tuple[float, float]]:
+    """The points no other point beats in both run time and error, by increasing time."""
+    front, best = [], float("inf")
+    for t, e in sorted(points):
+        if e < best:
+            front.append((t, e))
+            best = e
+    return front
+
+
+def plot(cases: list[dict], path: Path, machine: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    scenes = sorted({r["scene"] for r in cases})
+    solvers = sorted({r["solver"] for r in cases})
+    qualities = ["preview", "default", "high"]
+    markers = dict(zip(qualities, "o^s"))
+    colours = dict(zip(solvers, plt.rcParams["axes.prop_cycle"].by_key()["color"]))
+    fig, axes = plt.subplots(1, len(scenes), figsize=(4.2 * len(scenes), 3.8), squeeze=False)
+    for ax, scene in zip(axes[0], scenes):
+        rs = [r for r in cases if r["scene"] == scene]
+        for r in rs:
+            ax.scatter(run_time(r), r["val_nrmse"], color=colours[r["solver"]], marker=markers.get(r["quality"], "x"),
+                       s=36, edgecolor="k" if r["converged"] else "none")
+        f = pareto_front([(run_time(r), r["val_nrmse"]) for r in rs])
+        ax.step([t for t, _ in f], [e for _, e in f], where="post", color="0.4", lw=1, ls="--")
+        ax.set_xscale("log")
+        ax.set_title(scene)
+        ax.set_xlabel("sampling + solve, s (warm)")
+        ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel("validation nrmse")
+    handles = [plt.Line2D([], [], ls="", marker="o", color=colours[s], label=s) for s in solvers]
+    handles += [plt.Line2D([], [], ls="", marker=markers[q], color="0.3", label=q) for q in qualities
+                if any(r["quality"] == q for r in cases)]
+    fig.legend(handles=handles, loc="lower center", ncol=len(handles), frameon=False)
+    fig.suptitle(f"homofac: error against run time ({machine})", fontsize=10)
+    fig.tight_layout(rect=(0, 0.08, 1, 0.95))
+    fig.savefig(path, dpi=110)
+
+
+def main(argv=None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("json", nargs="?", default=str(Path(__file__).with_name("results.json")))
+    p.add_argument("--readme", help="README.md to update between the bench markers")
+    args = p.parse_args(argv)
+    path = Path(args.json)
+    cases, baselines, _ = records(path)
+    if not cases:
+        raise SystemExit(f"{path}: no benchmark records")
+    machine = cases[0].get("machine", "")
+    md = f"Machine: {machine}.\n\n" + table(cases, baselines) + "\n"
+    (path.parent / "results.md").write_text(md)
+    plot(cases, path.parent / "pareto.png", machine)
+    if args.readme:
+        readme = Path(args.readme)
+        text = readme.read_text()
+        if START not in text or END not in text:
+            raise SystemExit(f"{readme}: no {START} ... {END} markers")
+        head, rest = text.split(START, 1)
+        _, tail = rest.split(END, 1)
+        block = f"{START}\n{md}\n![error against run time](benchmarks/pareto.png)\n{END}"
+        readme.write_text(head + block + tail)
+    print(md)
+
+
+if __name__ == "__main__":
+    main()
