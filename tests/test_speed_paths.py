@@ -170,3 +170,33 @@ def test_sharded_sampling_equals_unsharded(tmp_path):
     for k in ("y", "val_y"):
         assert out[1][k].shape == out[2][k].shape and len(out[1][k]) > 0
         np.testing.assert_allclose(out[2][k], out[1][k], rtol=1e-6, atol=1e-7)
+
+
+def test_light_culling_from_the_config_is_recorded_and_bounded(cache_dir, tmp_path):
+    """target.environment.cull drops the weakest lights; factorization.json records what was dropped, and the
+    samples differ from the unculled ones by at most max f x dropped power (Lambert: kd/pi)."""
+    from homofac.fit import config as cfgmod
+
+    def cfg(cull):
+        return cfgmod.parse({
+            "target": {"kind": "lighting", "brdf": {"model": "lambert", "kd": 0.8},
+                       "environment": {"file": "studio", "resolution": 8, **({"cull": cull} if cull else {})}},
+            "mapper": "cube", "texture_size": 8, "parametrization": "N",
+            "sampling": {"kind": "texels", "size": 6, "validation": 300},
+            "output": {"preview": False},
+        })
+
+    full, _ = cfgmod.build_target(cfg(None), tmp_path)
+    culled, info = cfgmod.build_target(cfg(1e-3), tmp_path)
+    c = info["environment"]["culling"]
+    assert c["dropped"] > 0 and c["kept"] == culled.fn.env.directions.shape[0]
+    s_full = pipeline.draw_samples(full, "N", {"size": 6, "validation": 300}, log=lambda m: None)
+    s_cull = pipeline.draw_samples(culled, "N", {"size": 6, "validation": 300}, log=lambda m: None)
+    bound = 0.8 / np.pi * np.asarray(c["dropped_power"])
+    diff = s_full.y - s_cull.y
+    assert np.all(diff >= -1e-6) and np.all(diff <= bound + 1e-6)
+    fac, out = cfgmod.run(cfg(1e-3), tmp_path, str(tmp_path / "out"))
+    import json
+
+    doc = json.loads((out / "factorization.json").read_text())
+    assert doc["target"]["environment"]["culling"]["dropped"] == c["dropped"]

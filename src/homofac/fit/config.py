@@ -58,6 +58,8 @@ class EnvironmentConfig(_Strict):
     resolution: int = Field(32, ge=1, le=512)
     boost: Optional[BoostConfig] = None
     lights: list[LightConfig] = Field(default_factory=list)
+    # drop the weakest lights holding at most this fraction of the total power (light.cull_lights)
+    cull: Optional[float] = Field(None, ge=0, lt=1)
 
 
 class TargetConfig(_Strict):
@@ -207,6 +209,12 @@ def build_target(cfg: Config, base: Path):
         lights=[lc.model_dump() for lc in e.lights],
     )
     info["environment"] = {k: v for k, v in env.info.items()}
+    if e.cull:
+        from ..light import cull_lights
+
+        env, culling = cull_lights(env, e.cull)
+        # the stated bound: |change of L(v, n)| <= max f * dropped_power per channel
+        info["environment"]["culling"] = {"tolerance": e.cull, **culling}
     return lighting_target(brdf, env, parametrization=cfg.parametrization, clamp=cfg.target.clamp), info
 
 
