@@ -118,6 +118,25 @@ def _blinn_phong_lobes(p: Params, wi: Comp, wo: Comp) -> tuple[Array]:
     return ((n + 8.0) / (8.0 * PI) * _pow(_half(wi, wo)[2], n),)
 
 
+def _phong_support(p: Params, delta: float):
+    """(cos a)^n <= delta outside the cone cos a < delta^(1/n) around the mirror direction; peak 1."""
+    n = p["exponent"]
+    return delta ** (1.0 / n), (jnp.ones_like(n),)
+
+
+def _modified_phong_support(p: Params, delta: float):
+    n = p["exponent"]
+    return delta ** (1.0 / n), ((n + 2.0) / (2.0 * PI),)
+
+
+def _blinn_phong_support(p: Params, delta: float):
+    """(n.h)^n <= delta when theta_h > t1 = acos(delta^(1/n)); l is the reflection of v about h and r
+    the reflection about n, so angle(l, r) <= 2 theta_h: lights beyond 2 t1 from r are outside."""
+    n = p["exponent"]
+    t1 = jnp.arccos(delta ** (1.0 / n))
+    return jnp.cos(jnp.minimum(2.0 * t1, PI)), ((n + 8.0) / (8.0 * PI),)
+
+
 _phong = _with_lobes(_phong_lobes, _ks)
 _modified_phong = _with_lobes(_modified_phong_lobes, _ks)
 _blinn_phong = _with_lobes(_blinn_phong_lobes, _ks)
@@ -276,12 +295,12 @@ register(ModelSpec("lambert", _lambert, LAMBERT_DEFAULTS, True, "kd <= 1", LAMBE
                    lobes=_no_lobes, colors=_no_colors))
 register(
     ModelSpec("phong", _phong, PHONG_DEFAULTS, True, "kd + ks * 2 pi / (exponent + 2) <= 1", PHONG_DOC,
-              lobes=_phong_lobes, colors=_ks)
+              lobes=_phong_lobes, support=_phong_support, colors=_ks)
 )
 register(ModelSpec("modified_phong", _modified_phong, MODIFIED_PHONG_DEFAULTS, True, "kd + ks <= 1", MODIFIED_PHONG_DOC,
-                   lobes=_modified_phong_lobes, colors=_ks))
+                   lobes=_modified_phong_lobes, support=_modified_phong_support, colors=_ks))
 register(ModelSpec("blinn_phong", _blinn_phong, BLINN_PHONG_DEFAULTS, True, "kd + 1.075 ks <= 1", BLINN_PHONG_DOC,
-                   lobes=_blinn_phong_lobes, colors=_ks))
+                   lobes=_blinn_phong_lobes, support=_blinn_phong_support, colors=_ks))
 register(
     ModelSpec("cook_torrance", _cook_torrance, COOK_TORRANCE_DEFAULTS, True, "kd + ks <= 1 (f0 <= 1)", COOK_TORRANCE_DOC,
               lobes=_cook_torrance_lobes, colors=_schlick_colors)

@@ -46,6 +46,9 @@ class ModelSpec(NamedTuple):
             ``fn = kd/pi + sum_m colors(params)[m] * lobes[m]`` (the *lobe form*). The lighting
             computation then sums over lights with one matmul per lobe instead of RGB per light.
         colors: ``params -> tuple of M RGB colours (3,)`` of the lobe form (with ``lobes``).
+        support: optional ``(params, delta) -> (cos_theta, peaks)`` for lobe culling: every lobe m is at
+            most ``delta * peaks[m]`` for lights more than ``theta`` away from the mirror direction
+            r = 2 (n.v) n - v. Models whose lobes are not concentrated around r leave it None.
     """
 
     name: str
@@ -57,6 +60,7 @@ class ModelSpec(NamedTuple):
     prepare: Callable[[dict[str, Any]], dict[str, Any]] | None = None
     lobes: Callable[[dict[str, Array], Array, Array], tuple[Array, ...]] | None = None
     colors: Callable[[dict[str, Array]], tuple[Array, ...]] | None = None
+    support: Callable[[dict[str, Array], float], tuple[Array, tuple[Array, ...]]] | None = None
 
 
 #: All registered models by name.
@@ -137,6 +141,13 @@ def _triple(w):
         return tuple(_as_float(c) for c in w)
     w = _as_float(w)
     return (w[..., 0], w[..., 1], w[..., 2])
+
+
+def lobe_support(brdf: Any, delta: float):
+    """``(cos_theta, peaks)`` of :attr:`ModelSpec.support` for ``brdf``, or None when it has none."""
+    if not has_lobes(brdf) or MODELS[brdf.model].support is None:
+        return None
+    return MODELS[brdf.model].support(brdf.params, delta)
 
 
 def lobe_colors(brdf: BRDF) -> tuple[Array, ...]:

@@ -68,6 +68,8 @@ class TargetConfig(_Strict):
     environment: Optional[EnvironmentConfig] = None
     quantity: Optional[Literal["brdf", "brdf_cos"]] = None
     clamp: Optional[float] = Field(None, gt=0)
+    # lobe culling while sampling (Phong family): skip lights where every lobe < lobe_cull x its peak
+    lobe_cull: Optional[float] = Field(None, gt=0, lt=1)
 
 
 class SamplingConfig(_Strict):
@@ -215,7 +217,10 @@ def build_target(cfg: Config, base: Path):
         env, culling = cull_lights(env, e.cull)
         # the stated bound: |change of L(v, n)| <= max f * dropped_power per channel
         info["environment"]["culling"] = {"tolerance": e.cull, **culling}
-    return lighting_target(brdf, env, parametrization=cfg.parametrization, clamp=cfg.target.clamp), info
+    if cfg.target.lobe_cull is not None:
+        info["lobe_cull"] = cfg.target.lobe_cull
+    return lighting_target(brdf, env, parametrization=cfg.parametrization, clamp=cfg.target.clamp,
+                           lobe_tolerance=cfg.target.lobe_cull), info
 
 
 def run(cfg: Config, base: Path = Path("."), out_dir: str | None = None, log=None, preview: bool | None = None):

@@ -71,6 +71,8 @@ def evaluate_grouped(target: Target, grouped) -> Float[Array, "M 3"]:
         return jnp.zeros((0, 3))
     if hasattr(target.fn, "grouped"):
         normals, views = jnp.asarray(grouped.normals), jnp.asarray(grouped.views)
+        if getattr(target.fn, "culls_lobes", False):
+            return _culled(target.fn, normals, views)[jnp.asarray(grouped.mask)]
         if jax.device_count() > 1:
             from .shard import grouped_sharded
 
@@ -80,6 +82,23 @@ def evaluate_grouped(target: Target, grouped) -> Float[Array, "M 3"]:
         return out[jnp.asarray(grouped.mask)]
     pairs = grouped.flatten()
     return evaluate(target, pairs.a, pairs.b)
+
+
+@eqx.filter_jit
+def _eval_groups_culled(fn, normals, views, slots):
+    return fn.grouped_culled(normals, views, slots)
+
+
+def _culled(fn, normals, views):
+    """Lobe-culled values: start from ``fn.lobe_slots()`` lights per cone; when a cone held more, rerun
+    with enough slots (the next multiple of 64), so no light inside a cone is ever left out."""
+    slots = fn.lobe_slots()
+    while True:
+        out, count = _eval_groups_culled(fn, normals, views, slots)
+        count = int(count)
+        if count <= slots:
+            return out
+        slots = 64 * -(-count // 64)
 
 
 def evaluate(fn: Callable, a, b, chunk: int = 4096) -> Float[Array, "N 3"]:

@@ -35,7 +35,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .. import sphere
-from ..brdf.core import has_lobes, lobe_colors, lobe_terms
+from ..brdf.core import has_lobes, lobe_colors, lobe_support, lobe_terms
 from ..errors import HomofacError
 from ..fit.target import Target
 from .environment import Environment, dominant_direction
@@ -154,6 +154,54 @@ def _normal_radiance(brdf, spec, kd, dirs, rad, geom, k, n, v):
     return jnp.where(valid[:, None], out, 0.0)
 
 
+#: Views per lobe-culling cluster: each cluster of consecutive views of a normal shares one cone of lights.
+CULL_CLUSTER = 16
+
+
+def _normal_radiance_culled(brdf, kd, dirs, rad, geom, cos_s, slots, n, v):
+    """L(v_p, n) for one normal with lobe culling (:class:`Lighting` ``lobe_tolerance``).
+
+    The P views are split into clusters of :data:`CULL_CLUSTER`. A cluster's mirror directions
+    r = 2 (n.v) n - v lie within angle rho of their mean axis; a light farther than theta_s + rho from
+    the axis is farther than theta_s from every r of the cluster, where every lobe is below delta x its
+    peak (``ModelSpec.support``). Only the visible lights inside the cone are evaluated, compacted into
+    ``slots`` places (cumsum, no sort). Returns the values (P, 3) and the largest number of lights a
+    cone held: when it exceeds ``slots`` some were left out, and the caller reruns with more slots.
+    """
+    w = cosine_weights(n[None], geom, select=True)[0]  # (L,)
+    out = jnp.zeros(v.shape[:-1] + (3,), v.dtype)
+    if kd is not None:
+        out = out + (kd / jnp.pi) * (w @ rad)
+    vn = v @ n
+    valid = vn > 0
+    r = 2.0 * vn[:, None] * n[None, :] - v  # (P, 3) mirror directions
+    q = v.shape[0] // CULL_CLUSTER
+    rc = r.reshape(q, CULL_CLUSTER, 3)
+    vc = valid.reshape(q, CULL_CLUSTER)
+    s = jnp.sum(jnp.where(vc[..., None], rc, 0.0), axis=1)
+    axis = s / jnp.maximum(jnp.linalg.norm(s, axis=-1, keepdims=True), 1e-20)  # (Q, 3)
+    cos_rho = jnp.min(jnp.where(vc, jnp.einsum("qcx,qx->qc", rc, axis), 1.0), axis=1)
+    theta = jnp.arccos(jnp.clip(cos_s, -1.0, 1.0)) + jnp.arccos(jnp.clip(cos_rho, -1.0, 1.0))
+    cone = jnp.cos(jnp.minimum(theta, jnp.pi)) - 1e-6  # rounding margin: keep lights on the boundary
+    sel = (w > 0)[None, :] & (axis @ dirs.T >= cone[:, None]) & jnp.any(vc, axis=1)[:, None]  # (Q, L)
+    count = jnp.sum(sel, axis=1)
+    slot = jnp.where(sel, jnp.cumsum(sel, axis=1) - 1, slots)
+    rows = jnp.arange(q)[:, None]
+    lights = jnp.broadcast_to(jnp.arange(w.shape[0], dtype=jnp.int32), sel.shape)
+    idx = jnp.zeros((q, slots), jnp.int32).at[rows, slot].set(lights, mode="drop")
+    wk = jnp.zeros((q, slots), w.dtype).at[rows, slot].set(jnp.broadcast_to(w, sel.shape), mode="drop")
+    t, b, nn = sphere.frame(n)
+    frame = jnp.stack([t, b, nn], axis=1)
+    wi = dirs[idx] @ frame  # (Q, slots, 3)
+    wo = v.reshape(q, CULL_CLUSTER, 3) @ frame  # (Q, C, 3)
+    spec = 0.0
+    for g, c in zip(lobe_terms(brdf, tuple(wi[:, None, :, k] for k in range(3)),
+                               tuple(wo[:, :, None, k] for k in range(3))), lobe_colors(brdf)):
+        spec = spec + c * ((g * wk[:, None, :]) @ rad[idx])  # (Q, C, slots) @ (Q, slots, 3)
+    out = out + spec.reshape(-1, 3)
+    return jnp.where(valid[:, None], out, 0.0), jnp.max(count)
+
+
 class Lighting(eqx.Module):
     """L(v, n) of ``brdf`` under ``env`` as a callable pytree: ``lighting(n, v) -> (N, 3)``.
 
@@ -166,6 +214,53 @@ class Lighting(eqx.Module):
     env: Environment
     clamp: Optional[float] = eqx.field(static=True, default=None)
     chunk: int = eqx.field(static=True, default=CHUNK)
+    #: lobe culling (:meth:`grouped_culled`): lights where every lobe is below this fraction of its peak
+    #: are skipped; None: off. Only for models with ``ModelSpec.support`` (the Phong family).
+    lobe_tolerance: Optional[float] = eqx.field(static=True, default=None)
+
+    @property
+    def culls_lobes(self) -> bool:
+        """True when lobe culling is on and the BRDF has a lobe support (see :func:`lobe_support`)."""
+        return self.lobe_tolerance is not None and lobe_support(self.brdf, self.lobe_tolerance) is not None
+
+    def lobe_bound(self, n: Float[Array, "N 3"]) -> Float[Array, "N 3"]:
+        """The stated error bound of lobe culling at normals n: every skipped light has each lobe m below
+        delta x peak_m, so L(v, n) drops by at most ``delta * sum_m |colour_m| peak_m * E(n)`` per channel,
+        E(n) the irradiance (the sum of the cosine-weighted radiance)."""
+        cos_s, peaks = lobe_support(self.brdf, self.lobe_tolerance)
+        scale = sum(jnp.abs(c) * pk for c, pk in zip(lobe_colors(self.brdf), peaks))
+        return self.lobe_tolerance * scale * irradiance(self.env, n)
+
+    def lobe_slots(self) -> int:
+        """A first guess of the lights per cone: the support cone widened by 20 degrees for the cluster,
+        times the number of lights, rounded up to a multiple of 32."""
+        cos_s, _ = lobe_support(self.brdf, self.lobe_tolerance)
+        theta = float(np.arccos(np.clip(float(cos_s), -1, 1))) + np.radians(20.0)
+        frac = (1.0 - np.cos(min(theta, np.pi))) / 2.0
+        return int(min(max_visible(self.env), 32 * np.ceil(1.5 * frac * self.n_lights / 32)))
+
+    def grouped_culled(self, normals: Float[Array, "G 3"], views: Float[Array, "G P 3"], slots: int):
+        """:meth:`grouped` with lobe culling in ``slots`` places per cone; returns (values, the largest
+        number of lights a cone held). Values are exact up to :meth:`lobe_bound` when that number is at
+        most ``slots`` (else lights were left out: call again with more)."""
+        _, kd = _split_diffuse(self.brdf)
+        dirs, rad, geom = self._arrays(normals.dtype)
+        cos_s, _ = lobe_support(self.brdf, self.lobe_tolerance)
+        g_count, p = views.shape[0], views.shape[1]
+        views = views.astype(normals.dtype)
+        pad_p = (-p) % CULL_CLUSTER  # pad the views with invalid ones (v = -n gives n.v < 0)
+        if pad_p:
+            views = jnp.concatenate([views, jnp.broadcast_to(-normals[:, None, :], (g_count, pad_p, 3))], axis=1)
+        pp = views.shape[1]
+        per = int(max(1, min(g_count, (1 << 22) // max(1, pp * slots))))
+        pad = (-g_count) % per
+        if pad:
+            normals = jnp.concatenate([normals, jnp.broadcast_to(normals[:1], (pad, 3))])
+            views = jnp.concatenate([views, jnp.broadcast_to(views[:1], (pad, pp, 3))])
+        one = lambda n, v: _normal_radiance_culled(self.brdf, kd, dirs, rad, geom, cos_s, slots, n, v)  # noqa: E731
+        out, count = jax.lax.map(lambda nv: jax.vmap(one)(nv[0], nv[1]),
+                                 (normals.reshape(-1, per, 3), views.reshape(-1, per, pp, 3)))
+        return self._clamp(out.reshape(-1, pp, 3)[:g_count, :p]), jnp.max(count)
 
     @property
     def n_lights(self) -> int:
@@ -239,17 +334,21 @@ def lighting(brdf, env: Environment, n, v, *, clamp: float | None = None) -> Flo
     return out.reshape(shape)
 
 
-def lighting_target(brdf, env: Environment, *, parametrization: str | None = None, clamp: float | None = None) -> Target:
+def lighting_target(brdf, env: Environment, *, parametrization: str | None = None, clamp: float | None = None,
+                    lobe_tolerance: float | None = None) -> Target:
     """Target of a lighting factorization (Latta & Kolb 2002): a = n, b = v.
 
     For ``NRHD`` the dominant light direction (thesis eq. 66) is computed and put in the context.
+    ``lobe_tolerance`` turns lobe culling on for sampling (:meth:`Lighting.grouped_culled`; Phong family).
     """
     if clamp is not None and not (np.isfinite(clamp) and clamp > 0):
         raise HomofacError(f"target.clamp must be a positive number, got {clamp}")
+    if lobe_tolerance is not None and not (np.isfinite(lobe_tolerance) and 0 < lobe_tolerance < 1):
+        raise HomofacError(f"target.lobe_cull must be in (0, 1), got {lobe_tolerance}")
     ctx = {}
     if parametrization == "NRHD":
         ctx["dominant"] = dominant_direction(env)
-    return Target("lighting", Lighting(brdf, env, clamp), "lighting", ctx)
+    return Target("lighting", Lighting(brdf, env, clamp, lobe_tolerance=lobe_tolerance), "lighting", ctx)
 
 
 def cull_lights(env: Environment, tolerance: float) -> tuple[Environment, dict]:
