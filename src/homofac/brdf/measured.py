@@ -52,8 +52,8 @@ def load_merl(path: str | os.PathLike) -> np.ndarray:
     Values are BRDF values (scale factors applied); holes stay negative.
 
     Raises:
-        HomofacError: missing or unreadable file, short header, non-positive resolutions, or a size
-            that does not match the header (one line, naming the file).
+        HomofacError: missing or unreadable file, short header, non-positive resolutions, a size
+            that does not match the header, or NaN/Inf values (one line, naming the file).
     """
     p = Path(path)
     try:
@@ -75,6 +75,9 @@ def load_merl(path: str | os.PathLike) -> np.ndarray:
             f"{p}: MERL file {what}: {len(raw)} bytes, header {dims} needs {expected}"
         )
     vals = np.frombuffer(raw, dtype="<f8", offset=12, count=3 * n).reshape(3, *dims)
+    bad = int(np.count_nonzero(~np.isfinite(vals)))
+    if bad:
+        raise HomofacError(f"{p}: MERL file has {bad} non-finite (NaN/Inf) values; holes must be negative")
     table = vals * MERL_SCALE[:, None, None, None]
     return np.ascontiguousarray(np.moveaxis(table, 0, -1)).astype(np.float32)
 

@@ -109,6 +109,12 @@ class OutputConfig(_Strict):
     preview: bool = True  # preview.png (homofac.gl; skipped with a one-line warning when GL is unavailable)
 
 
+class LimitsConfig(_Strict):
+    """``limits``: refuse runs estimated to need more memory (fit/budget.py) before any work starts."""
+
+    memory_gb: Optional[float] = Field(None, gt=0)  # default: half of the machine's RAM
+
+
 class Config(_Strict):
     target: TargetConfig
     parametrization: str = "NR"
@@ -119,6 +125,7 @@ class Config(_Strict):
     sampling: SamplingConfig = Field(default_factory=SamplingConfig)
     solver: SolverConfig = Field(default_factory=SolverConfig)
     output: OutputConfig = Field(default_factory=OutputConfig)
+    limits: LimitsConfig = Field(default_factory=LimitsConfig)
 
 
 def default_config_path() -> Path:
@@ -232,8 +239,12 @@ def run(cfg: Config, base: Path = Path("."), out_dir: str | None = None, log=Non
     from ..io.output import check_output_dir
     from .pipeline import factorize
 
+    from . import budget
+
     out = Path(out_dir) if out_dir else base / Path(cfg.output.dir).expanduser()
     check_output_dir(out)  # refuse before any work is done
+    lim = cfg.limits.memory_gb
+    budget.check(cfg, int(lim * budget.GB) if lim is not None else None)
     target, info = build_target(cfg, base)
     o = cfg.output
     encoding = {"alpha": o.alpha, **({"weights": list(o.prescale)} if o.prescale is not None else {})}

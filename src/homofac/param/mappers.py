@@ -214,11 +214,13 @@ def _hemispherical_from(face, u, v):
 
 
 def _spherical_to(d):
-    """OpenGL sphere map, ``m = 2 sqrt(x^2 + y^2 + (z+1)^2)``; singular at -z."""
+    """OpenGL sphere map, ``m = 2 sqrt(x^2 + y^2 + (z+1)^2)``; singular at -z, whose whole rim is the
+    one direction -z: exactly -z maps to the rim point (1, 0.5) (0/0 otherwise gave the centre, +z)."""
     xp = _xp(d)
     x, y, z = _split(d)
     m = 2 * xp.sqrt(xp.maximum(x * x + y * y + (z + 1) ** 2, _TINY * _TINY))
-    return _faces_like(x, xp), x / m + 0.5, y / m + 0.5
+    pole = (x * x + y * y < _TINY * _TINY) & (z < 0)
+    return _faces_like(x, xp), xp.where(pole, 1.0, x / m + 0.5), xp.where(pole, 0.5, y / m + 0.5)
 
 
 def _spherical_from(face, u, v):
