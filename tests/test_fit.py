@@ -169,3 +169,21 @@ def test_level_sizes_halve_down_to_four():
     assert pipeline.level_sizes(32, 3) == [8, 16, 32]
     assert pipeline.level_sizes(8, 5) == [4, 8]
     assert pipeline.level_sizes(6, 2) == [6]  # 3 < 4: no coarser level
+
+
+def test_solver_names_match_the_config():
+    """solvers.SOLVERS and the config's solver.method choices are the same set."""
+    import typing
+
+    from homofac.fit.config import SolverConfig
+
+    assert set(typing.get_args(SolverConfig.model_fields["method"].annotation)) == set(solvers.SOLVERS)
+
+
+def test_column_scaling_is_the_inverse_column_norm():
+    """column_scale(A) gives d_j = 1/||A e_j|| of the augmented matrix (data and lambda-Laplacian rows)."""
+    sys, layout, p = _small_system(jnp.float32)
+    d = np.asarray(solvers.column_scale(sys, 0.5))
+    a = solvers.to_scipy(sys, 0.5, layout.n_unknowns)
+    norms = np.sqrt(np.asarray(a.multiply(a).sum(axis=0))).ravel()
+    np.testing.assert_allclose(d, 1 / norms, rtol=1e-5)

