@@ -181,8 +181,16 @@ def test_solver_names_match_the_config():
 
 
 def test_column_scaling_is_the_inverse_column_norm():
-    """column_scale(A) gives d_j = 1/||A e_j|| of the augmented matrix (data and lambda-Laplacian rows)."""
-    sys, layout, p = _small_system(jnp.float32)
+    """column_scale(A) gives d_j = 1/||A e_j|| of the augmented matrix (data and lambda-Laplacian rows)
+    when no row holds a column twice (IV: two textures, four distinct bilinear taps each)."""
+    from homofac import brdf
+
+    target = brdf_target(brdf.cook_torrance(kd=0.1, ks=1.0, roughness=0.3, f0=(1.0, 0.78, 0.34)))
+    p = pz.get("IV")
+    s = pipeline.draw_samples(target, "IV", {"kind": "texels", "size": 8, "validation": 0, "cache": False},
+                              log=lambda m: None)
+    layout = make_layout("parabolic", 6, p.T)
+    sys, _ = build_system(p, layout, jnp.asarray(s.a), jnp.asarray(s.b), jnp.asarray(s.y), eps=1e-5)
     d = np.asarray(solvers.column_scale(sys, 0.5))
     a = solvers.to_scipy(sys, 0.5, layout.n_unknowns)
     norms = np.sqrt(np.asarray(a.multiply(a).sum(axis=0))).ravel()
