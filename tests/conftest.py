@@ -10,6 +10,8 @@ import pytest
 
 # Samples cached by the tests go to a private directory, never to the user's ~/.cache.
 os.environ.setdefault("HOMOFAC_CACHE_DIR", tempfile.mkdtemp(prefix="homofac-test-cache-"))
+# ... and so do the CLIs' compiled programs (JAX's persistent compilation cache).
+os.environ.setdefault("HOMOFAC_JAX_CACHE", tempfile.mkdtemp(prefix="homofac-test-jax-"))
 
 
 @pytest.fixture

@@ -45,23 +45,11 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = _parser().parse_args(argv)
-    try:
-        return _run(args)
-    except KeyboardInterrupt:
-        print("homofac: interrupted; nothing was written", file=sys.stderr)
-        return 130
-    except Exception as e:  # noqa: BLE001 - the CLI turns every failure into one line
-        from ..errors import HomofacError
+    from ..cli import enable_compilation_cache, run_one_line
 
-        if args.debug:
-            raise
-        if isinstance(e, HomofacError):
-            print(f"homofac: error: {e}", file=sys.stderr)
-            return 2
-        msg = str(e).strip().splitlines()[0] if str(e).strip() else ""
-        print(f"homofac: error: {type(e).__name__}: {msg} (run with --debug for the traceback)", file=sys.stderr)
-        return 1
+    args = _parser().parse_args(argv)
+    enable_compilation_cache()
+    return run_one_line(lambda: _run(args), args.debug, "homofac: interrupted; nothing was written")
 
 
 def _run(args) -> int:
