@@ -233,3 +233,11 @@ def test_lobe_culling_is_refused_where_it_has_no_support():
     assert not t.fn.culls_lobes  # microfacet lobes: no support cone, the full sum is used
     with pytest.raises(hf.HomofacError, match="lobe_cull"):
         hf.light.lighting_target(hf.brdf.phong(), env, lobe_tolerance=2.0)
+
+
+def test_unwritable_cache_never_fails_a_run(tmp_path, monkeypatch):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    monkeypatch.setenv("HOMOFAC_CACHE_DIR", str(blocker / "cache"))  # parent is a file: mkdir fails
+    s = pipeline.draw_samples(_lighting(), "NR", SAMPLING, log=lambda m: None)
+    assert len(s.a) > 0 and blocker.read_text() == "x"

@@ -94,6 +94,7 @@ def store(k: str, samples) -> Path | None:
     """Write ``samples`` under key ``k`` atomically; returns the path, or None when the cache directory is
     not writable (caching is an optimisation: it never fails a run)."""
     d = cache_dir()
+    tmp = None
     try:
         d.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{k[:16]}.", suffix=".npz", dir=d)
@@ -102,10 +103,8 @@ def store(k: str, samples) -> Path | None:
         os.replace(tmp, d / f"{k}.npz")
         return d / f"{k}.npz"
     except OSError:
-        try:
-            os.unlink(tmp)  # noqa: F821 - only when mkstemp succeeded
-        except (OSError, NameError):
-            pass
+        if tmp is not None:
+            Path(tmp).unlink(missing_ok=True)
         return None
 
 
