@@ -22,7 +22,6 @@ Negative entries are holes (unmeasured configurations): the lookup reads them as
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -97,24 +96,14 @@ def save_merl(path: str | os.PathLike, table: Any) -> None:
         raise HomofacError(f"{p}: MERL table has non-finite values")
     header = np.asarray(t.shape[:3], dtype="<i4").tobytes()
     body = (np.moveaxis(t.astype(np.float64), -1, 0) / MERL_SCALE[:, None, None, None]).astype("<f8")
-    try:
-        fd, tmp = tempfile.mkstemp(prefix="." + p.name + ".", suffix=".tmp", dir=p.parent)
-    except OSError as e:
-        raise HomofacError(f"{p}: cannot write MERL file ({e.strerror or e})") from None
-    try:
-        with os.fdopen(fd, "wb") as f:
+    from ..io.atomic import write_atomically
+
+    def write(tmp: str) -> None:
+        with open(tmp, "wb") as f:
             f.write(header)
             f.write(np.ascontiguousarray(body).tobytes())
-        os.chmod(tmp, 0o644)  # mkstemp creates 0600; a data file should be readable like any other
-        os.replace(tmp, p)
-    except BaseException as e:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        if isinstance(e, OSError):
-            raise HomofacError(f"{p}: cannot write MERL file ({e.strerror or e})") from None
-        raise
+
+    write_atomically(p, "MERL file", write)
 
 
 def count_holes(x: BRDF | Any) -> int:

@@ -17,13 +17,14 @@ raises :class:`~homofac.errors.HomofacError` with one line naming the path and t
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from ..errors import HomofacError
+from .atomic import one_line as _one_line
+from .atomic import write_atomically
 
 #: The four magic bytes every OpenEXR file starts with.
 EXR_MAGIC = b"\x76\x2f\x31\x01"
@@ -31,8 +32,6 @@ EXR_MAGIC = b"\x76\x2f\x31\x01"
 __all__ = ["read_exr", "read_exr_with_header", "write_exr", "envmap_kind", "is_exr", "EXR_MAGIC"]
 
 
-def _one_line(e: BaseException) -> str:
-    return " ".join(str(e).split()) or type(e).__name__
 
 
 def is_exr(path: str | os.PathLike) -> bool:
@@ -156,21 +155,4 @@ def write_exr(
         hdr["compression"] = getattr(OpenEXR, name)
     if header:
         hdr.update(header)
-    directory = p.parent if str(p.parent) else Path(".")
-    if not directory.is_dir():
-        raise HomofacError(f"{p}: cannot write EXR: directory {directory} does not exist")
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp.exr", dir=directory)
-    os.close(fd)
-    try:
-        OpenEXR.File(hdr, {"RGB": a}).write(tmp)
-        os.chmod(tmp, (p.stat().st_mode & 0o777) if p.exists() else 0o644)
-        os.replace(tmp, p)
-    except Exception as e:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        if isinstance(e, HomofacError):
-            raise
-        raise HomofacError(f"{p}: cannot write EXR: {_one_line(e)}") from None
-    return p
+    return write_atomically(p, "EXR", lambda tmp: OpenEXR.File(hdr, {"RGB": a}).write(tmp), suffix=".tmp.exr")

@@ -16,12 +16,12 @@ from __future__ import annotations
 
 import os
 import re
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import HomofacError
+from .atomic import write_atomically
 
 __all__ = ["read_hdr", "read_hdr_with_header", "write_hdr", "rgbe_to_float", "float_to_rgbe"]
 
@@ -215,19 +215,4 @@ def write_hdr(path: str | os.PathLike, rgb, *, rle: bool = True) -> Path:
                 parts.append(_encode_rle_channel(rgbe[y, :, c]))
     else:
         parts.append(rgbe.tobytes())
-    directory = p.parent if str(p.parent) else Path(".")
-    if not directory.is_dir():
-        raise HomofacError(f"{p}: cannot write HDR: directory {directory} does not exist")
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=directory)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(b"".join(parts))
-        os.chmod(tmp, (p.stat().st_mode & 0o777) if p.exists() else 0o644)
-        os.replace(tmp, p)
-    except OSError as e:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise HomofacError(f"{p}: cannot write HDR: {' '.join(str(e).split())}") from None
-    return p
+    return write_atomically(p, "HDR", lambda tmp: Path(tmp).write_bytes(b"".join(parts)))

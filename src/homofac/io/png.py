@@ -13,7 +13,6 @@ Every problem (missing file, not a PNG, truncated or corrupt data, wrong array) 
 from __future__ import annotations
 
 import os
-import tempfile
 import warnings
 from pathlib import Path
 
@@ -21,6 +20,8 @@ import numpy as np
 from jaxtyping import UInt8
 
 from ..errors import HomofacError
+from .atomic import one_line as _one_line
+from .atomic import write_atomically
 
 __all__ = ["read_png", "write_png", "PNG_MAGIC"]
 
@@ -28,8 +29,6 @@ __all__ = ["read_png", "write_png", "PNG_MAGIC"]
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 
-def _one_line(e: BaseException) -> str:
-    return " ".join(str(e).split()) or type(e).__name__
 
 
 def write_png(path: str | os.PathLike, rgba: UInt8[np.ndarray, "H W 4"], *, text: dict | None = None) -> Path:
@@ -40,25 +39,11 @@ def write_png(path: str | os.PathLike, rgba: UInt8[np.ndarray, "H W 4"], *, text
     a = np.asarray(rgba)
     if a.dtype != np.uint8 or a.ndim != 3 or a.shape[2] != 4 or a.shape[0] == 0 or a.shape[1] == 0:
         raise HomofacError(f"{p}: cannot write PNG: expected an (H, W, 4) uint8 array, got {a.dtype} {a.shape}")
-    directory = p.parent if str(p.parent) else Path(".")
-    if not directory.is_dir():
-        raise HomofacError(f"{p}: cannot write PNG: directory {directory} does not exist")
     info = PngImagePlugin.PngInfo()
     for k, v in (text or {}).items():
         info.add_text(str(k), str(v))
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp.png", dir=directory)
-    os.close(fd)
-    try:
-        Image.fromarray(np.ascontiguousarray(a)).save(tmp, format="PNG", pnginfo=info)
-        os.chmod(tmp, (p.stat().st_mode & 0o777) if p.exists() else 0o644)
-        os.replace(tmp, p)
-    except Exception as e:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise HomofacError(f"{p}: cannot write PNG: {_one_line(e)}") from None
-    return p
+    img = Image.fromarray(np.ascontiguousarray(a))
+    return write_atomically(p, "PNG", lambda tmp: img.save(tmp, format="PNG", pnginfo=info), suffix=".tmp.png")
 
 
 def read_png(path: str | os.PathLike) -> UInt8[np.ndarray, "H W 4"]:
