@@ -96,7 +96,7 @@ def save_merl(path: str | os.PathLike, table: Any) -> None:
         raise HomofacError(f"{p}: MERL table has non-finite values")
     header = np.asarray(t.shape[:3], dtype="<i4").tobytes()
     body = (np.moveaxis(t.astype(np.float64), -1, 0) / MERL_SCALE[:, None, None, None]).astype("<f8")
-    from ..io.atomic import write_atomically
+    from ..io.files import write_atomically
 
     def write(tmp: str) -> None:
         with open(tmp, "wb") as f:

@@ -23,8 +23,8 @@ from typing import Any
 import numpy as np
 
 from ..errors import HomofacError
-from .atomic import one_line as _one_line
-from .atomic import write_atomically
+from .files import one_line as _one_line
+from .files import read_head, write_atomically
 
 #: The four magic bytes every OpenEXR file starts with.
 EXR_MAGIC = b"\x76\x2f\x31\x01"
@@ -44,16 +44,7 @@ def is_exr(path: str | os.PathLike) -> bool:
 
 
 def _check_file(path: Path) -> None:
-    if not path.exists():
-        raise HomofacError(f"{path}: no such file")
-    if path.is_dir():
-        raise HomofacError(f"{path}: is a directory, not an EXR file")
-    try:
-        with open(path, "rb") as f:
-            magic = f.read(4)
-    except OSError as e:
-        raise HomofacError(f"{path}: cannot read: {_one_line(e)}") from None
-    if magic != EXR_MAGIC:
+    if read_head(path, "an EXR", 4) != EXR_MAGIC:
         raise HomofacError(f"{path}: not an OpenEXR file (bad magic number)")
 
 

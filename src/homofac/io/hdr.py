@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import HomofacError
-from .atomic import write_atomically
+from .files import read_head, write_atomically
 
 __all__ = ["read_hdr", "read_hdr_with_header", "write_hdr", "rgbe_to_float", "float_to_rgbe"]
 
@@ -120,10 +120,7 @@ def _decode_rle_channel(path: Path, buf: np.ndarray, pos: int, w: int, y: int) -
 def read_hdr_with_header(path: str | os.PathLike) -> tuple[np.ndarray, dict]:
     """``(rgb (H, W, 3) float32, header dict)`` of a Radiance RGBE file (row 0 is the top row)."""
     p = Path(path)
-    if not p.exists():
-        raise HomofacError(f"{p}: no such file")
-    if p.is_dir():
-        raise HomofacError(f"{p}: is a directory, not an HDR file")
+    read_head(p, "an HDR", 0)  # exists, not a directory
     try:
         data = p.read_bytes()
     except OSError as e:

@@ -20,8 +20,8 @@ import numpy as np
 from jaxtyping import UInt8
 
 from ..errors import HomofacError
-from .atomic import one_line as _one_line
-from .atomic import write_atomically
+from .files import one_line as _one_line
+from .files import read_head, write_atomically
 
 __all__ = ["read_png", "write_png", "PNG_MAGIC"]
 
@@ -51,16 +51,7 @@ def read_png(path: str | os.PathLike) -> UInt8[np.ndarray, "H W 4"]:
     from PIL import Image
 
     p = Path(path)
-    if not p.exists():
-        raise HomofacError(f"{p}: no such file")
-    if p.is_dir():
-        raise HomofacError(f"{p}: is a directory, not a PNG file")
-    try:
-        with open(p, "rb") as f:
-            magic = f.read(8)
-    except OSError as e:
-        raise HomofacError(f"{p}: cannot read: {_one_line(e)}") from None
-    if magic != PNG_MAGIC:
+    if read_head(p, "a PNG", 8) != PNG_MAGIC:
         raise HomofacError(f"{p}: not a PNG file (bad signature)")
     try:
         with warnings.catch_warnings():

@@ -608,16 +608,11 @@ def bundled(name: str) -> Path:
 
 def _read_image(path: Path) -> tuple[np.ndarray, str | None]:
     """``(rgb, envmap kind from the header or None)`` of an EXR or Radiance HDR file."""
+    from ..io.files import read_head
     from ..io.exr import EXR_MAGIC, envmap_kind, read_exr_with_header
     from ..io.hdr import read_hdr
 
-    if not path.exists():
-        raise HomofacError(f"{path}: no such file")
-    try:
-        with open(path, "rb") as f:
-            magic = f.read(10)
-    except OSError as e:
-        raise HomofacError(f"{path}: cannot read: {' '.join(str(e).split())}") from None
+    magic = read_head(path, "an image", 10)
     if magic.startswith(EXR_MAGIC):
         rgb, header = read_exr_with_header(path)
         return rgb, envmap_kind(header)

@@ -1,4 +1,9 @@
-"""Atomic file writes: every file homofac writes appears whole or not at all.
+"""File plumbing shared by the readers and writers: checked reads and atomic writes.
+
+Reads: :func:`read_head` refuses a missing path or a directory and returns the first bytes (the
+format's magic number) with one-line errors that name the file.
+
+Writes: every file homofac writes appears whole or not at all.
 
 The data goes to a temporary file in the destination's directory (same filesystem), gets the mode
 the old file had (or 0644), and is renamed over the destination with :func:`os.replace`. On any
@@ -19,6 +24,23 @@ from ..errors import HomofacError
 def one_line(e: BaseException) -> str:
     """An exception's message on one line (its type name when it has none)."""
     return " ".join(str(e).split()) or type(e).__name__
+
+
+def read_head(path: str | os.PathLike, kind: str, n: int) -> bytes:
+    """The first ``n`` bytes of the file at ``path``, after checking it exists and is not a directory.
+
+    ``kind`` names the expected format with its article (``an EXR``, ``a PNG``) for the messages.
+    """
+    p = Path(path)
+    if not p.exists():
+        raise HomofacError(f"{p}: no such file")
+    if p.is_dir():
+        raise HomofacError(f"{p}: is a directory, not {kind} file")
+    try:
+        with open(p, "rb") as f:
+            return f.read(n)
+    except OSError as e:
+        raise HomofacError(f"{p}: cannot read: {one_line(e)}") from None
 
 
 def write_atomically(path: str | os.PathLike, kind: str, write: Callable[[str], None], suffix: str = ".tmp") -> Path:
@@ -51,4 +73,4 @@ def write_atomically(path: str | os.PathLike, kind: str, write: Callable[[str], 
     return p
 
 
-__all__ = ["one_line", "write_atomically"]
+__all__ = ["one_line", "read_head", "write_atomically"]
