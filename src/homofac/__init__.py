@@ -1,16 +1,19 @@
-"""homofac: homomorphic factorization of BRDFs and environment lighting into a few 2D textures.
+"""homofac: a few textures whose product, or short sum of products, reproduces a material in real time.
 
-Subpackages: :mod:`homofac.brdf` (BRDF models), :mod:`homofac.light` (environments and the lighting
-computation), :mod:`homofac.param` (direction mappers and parametrizations), :mod:`homofac.fit`
-(sampling, system, solvers, metrics, the CLI) and :mod:`homofac.io` (files); :mod:`homofac.gl` is the OpenGL preview
-(moderngl is imported only when something is rendered).
+Layers, each importing only those below it (docs/architecture.md): :mod:`homofac.errors`, :mod:`homofac.sphere`
+and :mod:`homofac.options`; :mod:`homofac.io` (image formats); :mod:`homofac.brdf` and :mod:`homofac.param`
+(records: BRDF models, mappers, projections, parametrizations); :mod:`homofac.target` and
+:mod:`homofac.factorization` (the schema-2 model); :mod:`homofac.light` and :mod:`homofac.shader`;
+:mod:`homofac.baselines`; :mod:`homofac.fit`; :mod:`homofac.output` and :mod:`homofac.gl`; :mod:`homofac.app`.
 """
 
 from __future__ import annotations
 
-__version__ = "0.1.0"
+from ._version import __version__
+from . import app, brdf, factorization, fit, gl, io, light, output, param, shader, sphere, target
+from .errors import HomofacError
+from .factorization import Factorization
+from .output import load, save
 
-from . import brdf, fit, gl, io, light, param, sphere  # noqa: E402
-from .errors import HomofacError  # noqa: E402
-
-__all__ = ["HomofacError", "brdf", "fit", "gl", "io", "light", "param", "sphere", "__version__"]
+__all__ = ["Factorization", "HomofacError", "app", "brdf", "factorization", "fit", "gl", "io", "light", "load",
+           "output", "param", "save", "shader", "sphere", "target", "__version__"]

@@ -15,9 +15,9 @@ Submodules: ``core`` (registry, BRDF, make, validation), ``analytic`` (models wi
 sources), ``measured`` (MERL files, lookup, tabulation), ``integrate`` (directional albedo).
 """
 
-from homofac.brdf.core import BRDF, MODELS, ModelSpec, evaluate, from_config, make, register
-from homofac.brdf.analytic import blinn_phong, cook_torrance, ggx, lambert, modified_phong, phong, ward
-from homofac.brdf.measured import (
+from .core import BRDF, MODELS, ModelSpec, check_value, evaluate, from_config, make, options_model, options_union, register
+from .analytic import blinn_phong, cook_torrance, ggx, lambert, modified_phong, phong, ward
+from .measured import (
     MERL_DIMS,
     MERL_SCALE,
     count_holes,
@@ -29,7 +29,7 @@ from homofac.brdf.measured import (
     save_merl,
     tabulate_merl,
 )
-from homofac.brdf.integrate import albedo
+from .integrate import albedo
 
 __all__ = [
     "BRDF",
@@ -39,6 +39,7 @@ __all__ = [
     "ModelSpec",
     "albedo",
     "blinn_phong",
+    "check_value",
     "cook_torrance",
     "count_holes",
     "evaluate",
@@ -51,6 +52,8 @@ __all__ = [
     "make",
     "merl",
     "merl_grid",
+    "options_model",
+    "options_union",
     "modified_phong",
     "phong",
     "register",

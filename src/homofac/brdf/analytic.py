@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from homofac.brdf.core import COS_EPS, BRDF, ModelSpec, make, register
+from .core import COS_EPS, BRDF, ModelSpec, make, register
 
 PI = jnp.pi
 #: Floor for cos(theta_h) in microfacet distributions: below it the distributions are 0 anyway

@@ -11,16 +11,19 @@ afterwards (the "double where" that keeps gradients finite), so model functions 
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Mapping
-from typing import Any, NamedTuple
+from typing import Annotated, Any, Literal, NamedTuple, Union
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
+from pydantic import AfterValidator, Field, create_model
 
-from homofac.errors import HomofacError
+from ..errors import HomofacError
+from ..options import Options, validate
 
 #: Smallest cosine used in denominators (1 / (n.l), 1 / (n.h)^4, ...) so that directions a hair
 #: above the horizon give large but finite values, also in float32.
@@ -49,6 +52,11 @@ class ModelSpec(NamedTuple):
         support: optional ``(params, delta) -> (cos_theta, peaks)`` for lobe culling: every lobe m is at
             most ``delta * peaks[m]`` for lights more than ``theta`` away from the mirror direction
             r = 2 (n.v) n - v. Models whose lobes are not concentrated around r leave it None.
+        schema: optional ``{name: (python type, default)}`` of the parameters a *config* gives, when they
+            differ from ``defaults`` (``merl`` takes ``file`` in a config, ``table`` in Python); the
+            option model of :func:`options_model` is derived from it (or from ``defaults``).
+        microfacet: optional description of the model's microfacet distribution, for the split-sum
+            baseline (:mod:`homofac.baselines.split_sum`); None for models without one.
     """
 
     name: str
@@ -61,6 +69,8 @@ class ModelSpec(NamedTuple):
     lobes: Callable[[dict[str, Array], Array, Array], tuple[Array, ...]] | None = None
     colors: Callable[[dict[str, Array]], tuple[Array, ...]] | None = None
     support: Callable[[dict[str, Array], float], tuple[Array, tuple[Array, ...]]] | None = None
+    schema: dict[str, tuple[Any, Any]] | None = None
+    microfacet: Any = None
 
 
 #: All registered models by name.
@@ -72,6 +82,7 @@ def register(spec: ModelSpec) -> ModelSpec:
     if not isinstance(spec, ModelSpec):
         raise HomofacError(f"brdf.register expects a ModelSpec, got {type(spec).__name__}")
     MODELS[spec.name] = spec
+    options_model.cache_clear()
     return spec
 
 
@@ -207,38 +218,58 @@ def _rule_for(name: str, default: Any) -> tuple[str, float | None, bool, float |
     return (kind, None, True, None, "finite")
 
 
+def check_value(name: str, value: Any, default: Any = None) -> str | None:
+    """The problem with a concrete parameter value under the rule of ``name`` (``None`` when it is fine).
+
+    The one place where parameter limits live: :func:`make` and the option models of
+    :func:`options_model` both call it.
+    """
+    kind, lo, lo_incl, hi, what = _rule_for(name, default)
+    try:
+        conc = np.asarray(value)
+    except Exception:  # noqa: BLE001 - ragged lists and other junk
+        return f"must be {'a number or 3 numbers' if kind == 'color' else 'a number'}, got {value!r}"
+    if conc.dtype == object or conc.dtype.kind not in "iuf":
+        return f"must be {'a number or 3 numbers' if kind == 'color' else 'a number'}, got {value!r}"
+    shape = tuple(conc.shape)
+    if kind == "color" and shape not in ((), (1,), (3,)):
+        return f"must be a scalar or 3 values (RGB), got shape {shape}"
+    if kind == "scalar" and shape not in ((), (1,)):
+        return f"must be a single number, got shape {shape}"
+    if kind == "array":
+        return None if np.all(np.isfinite(conc)) else f"must be {what}, got non-finite values"
+    a = conc.astype(np.float64)
+    bad = ~np.isfinite(a)
+    if lo is not None:
+        bad |= (a < lo) if lo_incl else (a <= lo)
+    if hi is not None:
+        bad |= a > hi
+    if np.any(bad):
+        shown = a.reshape(()) if a.size == 1 else a
+        return f"must be {what}, got {_fmt(shown)}"
+    return None
+
+
 def _convert(name: str, value: Any, default: Any) -> Array:
     """Validate one parameter and convert it to a jnp array ((3,) colour, () scalar)."""
-    kind, lo, lo_incl, hi, what = _rule_for(name, default)
+    kind = _rule_for(name, default)[0]
     where = f"brdf.{name}"
     conc = _concrete(value)
     if conc is not None:
-        if conc.dtype == object or conc.dtype.kind not in "biuf":
-            raise HomofacError(f"{where} must be {'a number or 3 numbers' if kind == 'color' else 'a number'}, got {value!r}")
         if conc.dtype.kind == "b":
             raise HomofacError(f"{where} must be a number, got {value!r}")
-    shape = tuple(conc.shape) if conc is not None else tuple(jnp.shape(value))
-    if kind == "color" and shape not in ((), (1,), (3,)):
-        raise HomofacError(f"{where} must be a scalar or 3 values (RGB), got shape {shape}")
-    if kind == "scalar" and shape not in ((), (1,)):
-        raise HomofacError(f"{where} must be a single number, got shape {shape}")
-    if conc is not None:
-        if kind == "array":  # tables: keep their float dtype, check finiteness only
-            if not np.all(np.isfinite(conc)):
-                raise HomofacError(f"{where} must be {what}, got non-finite values")
-            out = jnp.asarray(conc if conc.dtype.kind == "f" else conc.astype(np.float32))
-            return out
-        a = conc.astype(np.float64)
-        bad = ~np.isfinite(a)
-        if lo is not None:
-            bad |= (a < lo) if lo_incl else (a <= lo)
-        if hi is not None:
-            bad |= a > hi
-        if np.any(bad):
-            shown = a.reshape(()) if a.size == 1 else a
-            raise HomofacError(f"{where} must be {what}, got {_fmt(shown)}")
-        out = jnp.asarray(a, dtype=jnp.result_type(float))
+        problem = check_value(name, value, default)
+        if problem:
+            raise HomofacError(f"{where} {problem}")
+        if kind == "array":  # tables: keep their float dtype
+            return jnp.asarray(conc if conc.dtype.kind == "f" else conc.astype(np.float32))
+        out = jnp.asarray(conc.astype(np.float64), dtype=jnp.result_type(float))
     else:
+        shape = tuple(jnp.shape(value))
+        if kind == "color" and shape not in ((), (1,), (3,)):
+            raise HomofacError(f"{where} must be a scalar or 3 values (RGB), got shape {shape}")
+        if kind == "scalar" and shape not in ((), (1,)):
+            raise HomofacError(f"{where} must be a single number, got shape {shape}")
         out = jnp.asarray(value)
         if not jnp.issubdtype(out.dtype, jnp.floating):
             out = out.astype(jnp.result_type(float))
@@ -281,9 +312,63 @@ def make(model: str, **params: Any) -> BRDF:
     return BRDF(model, full)
 
 
-def from_config(cfg: Mapping[str, Any]) -> BRDF:
-    """``make(cfg["model"], **rest)`` for a config mapping like ``{model: cook_torrance, kd: [...], ...}``."""
+def _rule_validator(name: str, default: Any):
+    def check(value):
+        if value is None:
+            return value
+        problem = check_value(name, value, default)
+        if problem:
+            raise ValueError(problem)
+        return value
+
+    return AfterValidator(check)
+
+
+@functools.lru_cache(maxsize=None)
+def options_model(model: str) -> type[Options]:
+    """The pydantic option model of a registered model's config entry ``{model: name, params...}``.
+
+    Derived from the registry (``ModelSpec.schema`` or ``defaults`` with the parameter rules), so the
+    config, ``--help`` and the docs' parameter tables list exactly what :func:`make` accepts.
+    """
+    spec = MODELS[model]
+    fields: dict[str, Any] = {"model": (Literal[model], ...)}
+    if spec.schema is not None:
+        for name, (typ, default) in spec.schema.items():
+            fields[name] = (typ, default)
+    else:
+        for name, default in spec.defaults.items():
+            # the rule (check_value) decides what a value may be: a number, or 3 numbers for colours
+            fields[name] = (Annotated[Any, _rule_validator(name, default)], None)
+    cls = create_model(f"{model}_options", __base__=BRDFOptionsBase, **fields)
+    cls.TAG = model
+    cls.__doc__ = spec.doc.splitlines()[0] if spec.doc else model
+    return cls
+
+
+class BRDFOptionsBase(Options):
+    """Base of the per-model option models: ``params()`` are the values given (``None`` = default)."""
+
+    def params(self) -> dict[str, Any]:
+        return {k: v for k, v in self.model_dump().items() if k != "model" and v is not None}
+
+
+def options_union():
+    """The tagged union (by ``model``) of every registered model's option model, for config schemas."""
+    members = tuple(options_model(name) for name in MODELS)
+    if len(members) == 1:
+        return members[0]
+    return Annotated[Union[members], Field(discriminator="model")]  # type: ignore[valid-type]
+
+
+def from_config(cfg: Mapping[str, Any] | BRDFOptionsBase, where: str = "brdf") -> BRDF:
+    """A BRDF from a config entry like ``{model: cook_torrance, kd: [...], ...}`` (validated as the CLI does)."""
+    if isinstance(cfg, BRDFOptionsBase):
+        return make(cfg.model, **cfg.params())
     if not isinstance(cfg, Mapping) or "model" not in cfg:
-        raise HomofacError("brdf.model: missing; known models: " + ", ".join(MODELS))
-    rest = {k: v for k, v in cfg.items() if k != "model"}
-    return make(cfg["model"], **rest)
+        raise HomofacError(f"{where}.model: missing; known models: " + ", ".join(MODELS))
+    name = cfg["model"]
+    if not isinstance(name, str) or name not in MODELS:
+        raise HomofacError(f"{where}.model: unknown model {name!r}; known models: {', '.join(MODELS)}")
+    opts = validate(options_model(name), dict(cfg), where)
+    return make(name, **opts.params())

@@ -27,9 +27,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from homofac.brdf.core import BRDF, _as_float
-from homofac.errors import HomofacError
-from homofac.sphere import frame
+from .core import BRDF, _as_float
+from ..errors import HomofacError
+from ..sphere import frame
 
 
 @lru_cache(maxsize=8)

@@ -31,8 +31,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array
 
-from homofac.brdf.core import BRDF, ModelSpec, _as_float, make, register
-from homofac.errors import HomofacError
+from ..errors import HomofacError
+from ..io.files import write_atomically
+from .core import BRDF, ModelSpec, _as_float, make, register
 
 #: Standard MERL resolution (theta_half, theta_diff, phi_diff).
 MERL_DIMS = (90, 90, 180)
@@ -96,8 +97,6 @@ def save_merl(path: str | os.PathLike, table: Any) -> None:
         raise HomofacError(f"{p}: MERL table has non-finite values")
     header = np.asarray(t.shape[:3], dtype="<i4").tobytes()
     body = (np.moveaxis(t.astype(np.float64), -1, 0) / MERL_SCALE[:, None, None, None]).astype("<f8")
-    from ..io.files import write_atomically
-
     def write(tmp: str) -> None:
         with open(tmp, "wb") as f:
             f.write(header)
@@ -220,7 +219,8 @@ A (90, 90, 180, 3) table over Rusinkiewicz half/difference angles (theta_h non-l
 phi_d mod pi), trilinearly interpolated (clamped in theta, periodic in phi_d); negative entries
 (holes) read as 0. Parameter: table (a pytree leaf, traced under jit), or file= at construction."""
 
-register(ModelSpec("merl", _merl_fn, {"table": None}, True, "", MERL_DOC, prepare=_prepare))
+register(ModelSpec("merl", _merl_fn, {"table": None}, True, "", MERL_DOC, prepare=_prepare,
+                   schema={"file": (str, ...)}))
 
 
 def merl(file: str | os.PathLike | None = None, table: Any = None) -> BRDF:

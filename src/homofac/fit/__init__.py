@@ -1,14 +1,26 @@
-"""homofac.fit: sampling, system assembly, solvers, metrics, precision, config and the CLI."""
+"""homofac.fit: sampling, the log-space system, solvers, precision, metrics and the pipeline.
+
+``hf.fit.factorize(target, "NR", ...)`` runs it all and returns a :class:`Result` (the model and its run
+record); each stage is a module of its own so a notebook can stop anywhere: :mod:`.sampling` (direction
+pairs), :mod:`.draw` (samples, cached), :mod:`.system` (eq. 30-37), :mod:`.start` (§3.1.2),
+:mod:`.solvers` (one record per solver), :mod:`.product` (one product in log space),
+:mod:`.precision` (8-bit), :mod:`.metrics`, :mod:`.auto` (target_error), :mod:`.differentiable`.
+"""
 
 from __future__ import annotations
 
-from .factorization import Factorization, evaluate_textures
-from . import metrics, sampling, system
-from .pipeline import Samples, draw_samples, factorize, measure
-from .solvers import SolveResult, solve
-from .target import Target, brdf_target, evaluate
+from ..target import Target, brdf_target, evaluate
+from . import metrics, precision, sampling, solvers, system
+from .draw import draw_samples
+from .metrics import measure
+from .options import FitOptions, SamplingOptions
+from .pipeline import factorize
+from .result import Result
+from .samples import Samples, evaluate_grouped
+from .solvers import SolveResult, SolverOptions, solve
 
 __all__ = [
-    "Factorization", "Samples", "SolveResult", "Target", "brdf_target", "draw_samples", "evaluate",
-    "evaluate_textures", "factorize", "measure", "metrics", "sampling", "solve", "system",
+    "FitOptions", "Result", "SamplingOptions", "Samples", "SolveResult", "SolverOptions", "Target", "brdf_target",
+    "draw_samples", "evaluate", "evaluate_grouped", "factorize", "measure", "metrics", "precision", "sampling",
+    "solve", "solvers", "system",
 ]

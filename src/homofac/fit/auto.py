@@ -19,12 +19,13 @@ a warning that says so; the error promised is the validation error actually meas
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Callable
 
 from ..errors import HomofacError
+from ..light import dominant_direction
 from ..param import parametrizations as pz
-from . import pipeline
+from ..target import Target
+from .system import parametrization_layout
 
 #: Texture sizes tried (each at most ``max_size``).
 SIZES = (8, 16, 32, 64)
@@ -32,17 +33,15 @@ SIZES = (8, 16, 32, 64)
 
 def candidates(kind: str, mapper: str, max_size: int, names: list[str] | None = None) -> list[dict]:
     """The (parametrization, size) pairs to try, cheapest first (see the module docstring)."""
-    from .system import make_layout
-
     if names is None:
-        names = [n for n, p in pz.PARAMETRIZATIONS.items() if p.kind == kind]
+        names = list(pz.names(kind))
     out = []
     for name in names:
         p = pz.get(name, kind)
         for size in SIZES:
             if size > max_size:
                 continue
-            cost = make_layout(mapper, size, p.T).n_unknowns
+            cost = parametrization_layout(p, mapper, size).n_unknowns
             out.append({"parametrization": name, "texture_size": size, "cost": cost, "lookups": p.J})
     return sorted(out, key=lambda c: (c["cost"], c["lookups"], c["parametrization"]))
 
@@ -50,44 +49,37 @@ def candidates(kind: str, mapper: str, max_size: int, names: list[str] | None = 
 def choose(
     target,
     target_error: float,
+    fit: Callable,
+    samples,
     *,
-    mapper: str | None = None,
+    mapper: str,
     max_size: int = 64,
     parametrizations: list[str] | None = None,
-    sampling: dict | None = None,
-    solver: dict | None = None,
     log: Callable[[str], None] | None = None,
-    **factorize_kwargs,
 ):
-    """Fit candidates cheapest first; return the first factorization whose validation nrmse <= target_error.
+    """Fit candidates cheapest first; return the first result whose validation nrmse <= target_error.
 
     Args:
         target: the target to factor.
         target_error: the largest acceptable validation nrmse (float textures), > 0.
-        mapper: the mapper of every candidate (default: parabolic for BRDF, dual_paraboloid for lighting).
+        fit: ``fit(target, parametrization, texture_size) -> Result`` on the shared ``samples``
+            (:func:`homofac.fit.pipeline.factorize` passes its product fit).
+        samples: the shared samples (their validation set must not be empty).
+        mapper: the mapper of every candidate.
         max_size: the largest texture size tried.
         parametrizations: restrict the candidates (default: all of the target's kind).
-        sampling, solver: as for :func:`~homofac.fit.pipeline.factorize`; ``sampling.validation`` must be > 0.
         log: progress callback.
-        factorize_kwargs: passed on to :func:`~homofac.fit.pipeline.factorize` (config, target_info ...).
     """
     log = log or (lambda msg: None)
-    if not (isinstance(target_error, (int, float)) and target_error > 0):
-        raise HomofacError(f"target_error must be a positive number (validation nrmse), got {target_error!r}")
-    mapper = mapper or pipeline.default_mapper(target.kind)
     cands = candidates(target.kind, mapper, max_size, parametrizations)
     if not cands:
         raise HomofacError(f"target_error: no candidate texture size up to {max_size} (the smallest tried is {SIZES[0]})")
-    samples = factorize_kwargs.pop("samples", None)
-    if samples is None:
-        samples = pipeline.draw_samples(target, cands[0]["parametrization"], sampling or {}, log)
     if len(samples.val_a) == 0:
         raise HomofacError("target_error needs validation samples (sampling.validation > 0)")
     tried, best = [], None
     for c in cands:
         log(f"target_error {target_error:g}: trying {c['parametrization']} at {c['texture_size']}")
-        fac = pipeline.factorize(_target_for(target, c["parametrization"]), c["parametrization"], mapper=mapper, texture_size=c["texture_size"],
-                                 sampling=sampling, solver=solver, samples=samples, log=None, **factorize_kwargs)
+        fac = fit(_target_for(target, c["parametrization"]), c["parametrization"], c["texture_size"])
         err = float(fac.metrics["validation"]["float"]["nrmse"])
         tried.append({**c, "validation_nrmse": err, "met": err <= target_error})
         if best is None or err < best[1]:
@@ -101,22 +93,19 @@ def choose(
     reason = (f"no candidate up to size {max_size} meets target_error {target_error:g}; the best tried is "
               f"{fac.parametrization} at {fac.texture_size} with validation nrmse {err:.4g}")
     log("warning: " + reason)
-    fac = dataclasses.replace(fac, warnings=tuple(fac.warnings) + (reason,))
+    fac = fac.replace(warnings=tuple(fac.warnings) + (reason,))
     return _record(fac, target_error, tried, reason, met=False)
 
 
 def _target_for(target, name: str):
     """NRHD needs the dominant light direction (thesis eq. 66) in the target's context."""
-    if name != "NRHD" or "dominant" in target.context:
+    if "dominant" not in pz.get(name).context or "dominant" in target.context:
         return target
-    from ..light.environment import dominant_direction
-    from .target import Target
-
     return Target(target.kind, target.fn, target.quantity, {**target.context, "dominant": dominant_direction(target.fn.env)})
 
 
 def _record(fac, target_error, tried, reason, met):
-    return dataclasses.replace(fac, selection={
+    return fac.replace(selection={
         "target_error": float(target_error), "metric": "validation.float.nrmse", "met": met,
         "chosen": {"parametrization": fac.parametrization, "texture_size": fac.texture_size},
         "reason": reason, "tried": tried,

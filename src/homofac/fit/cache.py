@@ -32,9 +32,11 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from .._version import __version__
+from .samples import FIELDS, Samples
+
 #: Bump when the sampling code changes what it produces for the same inputs.
 FORMAT = 1
-FIELDS = ("a", "b", "y", "val_a", "val_b", "val_y")
 
 
 def cache_dir() -> Path:
@@ -53,8 +55,6 @@ def _stable_structure(treedef) -> str | None:
 
 def key(target, sampling: dict, parametrization: str) -> str | None:
     """The cache key (hex sha256) of the samples of ``target`` under ``sampling``, or None (uncacheable)."""
-    from .. import __version__
-
     leaves, treedef = jax.tree_util.tree_flatten(target.fn)
     structure = _stable_structure(treedef)
     if structure is None:
@@ -79,9 +79,7 @@ def key(target, sampling: dict, parametrization: str) -> str | None:
 
 
 def load(k: str):
-    """The cached :class:`~homofac.fit.pipeline.Samples` of key ``k``, or None (missing or unreadable)."""
-    from .pipeline import Samples
-
+    """The cached :class:`~homofac.fit.samples.Samples` of key ``k``, or None (missing or unreadable)."""
     path = cache_dir() / f"{k}.npz"
     try:
         with np.load(path) as z:

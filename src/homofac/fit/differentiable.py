@@ -1,4 +1,4 @@
-"""A pure-JAX factorization, end to end, for gradients (DESIGN.md: "It stays differentiable").
+"""A pure-JAX factorization, end to end, for gradients.
 
 :func:`fit_error` maps (target parameters) -> samples -> log system -> LSMR solve (lineax) ->
 linear textures -> factorized values -> a pinned metric, with no NumPy in between, so
@@ -10,22 +10,23 @@ preconditioning device and does not change the least-squares minimum the gradien
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 import lineax as lx
-import jax
 
+from ..factorization import Factorization
 from ..param import parametrizations as pz
 from . import precision
-from .factorization import evaluate_textures
 from .metrics import metric_arrays
-from .system import apply, augmented_rhs, build_system, make_layout
+from .product import unpack
+from .system import apply, augmented_rhs, build_system, parametrization_layout
 
 
-def solve_textures(target, parametrization: str, mapper: str, size: int, a, b, *, laplacian=1.0, eps=1e-5,
-                   tolerance=1e-8, max_steps=2000):
-    """Linear textures and correction of a factorization of ``target`` on pairs (a, b), in pure JAX."""
+def solve_model(target, parametrization: str, mapper: str, size: int, a, b, *, laplacian=1.0, eps=1e-5,
+                tolerance=1e-8, max_steps=2000) -> Factorization:
+    """The one-term model of a factorization of ``target`` on pairs (a, b), in pure JAX (differentiable)."""
     p = pz.get(parametrization)
-    layout = make_layout(mapper, size, p.T)
+    layout = parametrization_layout(p, mapper, size)
     y = target(a, b)
     sys, alpha = build_system(p, layout, a, b, y, eps=eps, context=target.context)
     lam = jnp.asarray(laplacian, a.dtype)
@@ -33,16 +34,25 @@ def solve_textures(target, parametrization: str, mapper: str, size: int, a, b, *
     op = lx.FunctionLinearOperator(lambda x: apply(sys, lam, x), jax.ShapeDtypeStruct(x0.shape, x0.dtype))
     sol = lx.linear_solve(op, augmented_rhs(sys), lx.LSMR(rtol=tolerance, atol=tolerance, max_steps=max_steps),
                           throw=False)
-    from .pipeline import unpack
-
     textures = precision.exponentiate(unpack(sol.value, layout), alpha, p.J)
-    return tuple(textures), jnp.ones((3,), a.dtype)
+    main = next((t for t in layout.textures if t.mapper != "line"), layout.textures[0])
+    return Factorization.product(target.kind, target.quantity if target.kind == "brdf" else "lighting", p.name,
+                                 main.mapper, main.size, textures, jnp.ones((3,), a.dtype), dict(target.context))
+
+
+def solve_textures(target, parametrization: str, mapper: str, size: int, a, b, **solve_kw):
+    """Linear textures and correction (ones) of :func:`solve_model`."""
+    model = solve_model(target, parametrization, mapper, size, a, b, **solve_kw)
+    return tuple(t.data for t in model.textures), model.terms[0].correction
 
 
 def fit_error(target, parametrization: str, mapper: str, size: int, a, b, val_a, val_b, *, metric: str = "rms",
               **solve_kw):
     """A pinned metric of the factorization of ``target`` on validation pairs: differentiable."""
-    textures, corr = solve_textures(target, parametrization, mapper, size, a, b, **solve_kw)
-    approx = evaluate_textures(parametrization, mapper, textures, corr, val_a, val_b, target.context)
+    model = solve_model(target, parametrization, mapper, size, a, b, **solve_kw)
+    approx = model.evaluate(val_a, val_b)
     exact = target(val_a, val_b)
     return metric_arrays(target.shown(val_a, approx), target.shown(val_a, exact))[metric]
+
+
+__all__ = ["fit_error", "solve_model", "solve_textures"]

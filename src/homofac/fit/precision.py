@@ -15,12 +15,13 @@ The steps follow the thesis' BRDFSeparator (§6.1.8, steps 5 and 7-10):
 * :func:`alpha_split` is the alpha-blending contouring prevention of thesis §4.3.2 (eq. 49-50, 57-58):
   ``t = rgb * alpha`` with ``alpha = clamp(max_c(t_c c_c z))``, so small values are carried by the
   alpha channel that the renderer multiplies in after the scale ``z``.
-* :func:`encode_rgba8` chains prescale, split, alpha and 8-bit rounding into the textures an RGBA8
-  PNG stores, :func:`decode_rgba8` is the decode rule (also written into factorization.json), and
-  :func:`quantize` is the plain 8-bit rounding of normalized textures (no alpha, no prescale).
+* :func:`encode` chains prescale, split, alpha and 8-bit rounding into the textures an RGBA8 PNG
+  stores (:class:`~homofac.factorization.Quantized`, with the pinned decode rule of
+  :mod:`homofac.factorization`), and :func:`quantize` is the plain 8-bit rounding of normalized
+  textures (no alpha, no prescale).
 
-The decode rule of the 8-bit textures (a GPU's texture units interpolate each RGBA channel, the
-shader multiplies; thesis eq. 50)::
+For one product the decode rule is the thesis' (eq. 50; a GPU's texture units interpolate each RGBA
+channel, the shader multiplies)::
 
     value(a, b) = colour * scale * prod_j rgb_k(j)(d_j) * prod_j alpha_k(j)(d_j)
     rgb = R/255, G/255, B/255;  alpha = A/255   (linear values, no sRGB transfer)
@@ -30,18 +31,20 @@ where ``rgb(d)`` and ``alpha(d)`` are bilinear lookups (thesis eq. 33-34) of the
 
 from __future__ import annotations
 
-from typing import NamedTuple, Sequence
+from typing import Sequence
 
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, UInt8
 
 from ..errors import HomofacError
-from ..param.parametrizations import Parametrization
+from ..factorization import Factorization, Quantized, Term
+from ..param import mappers
 
 __all__ = [
-    "Encoded8", "alpha_split", "decode_rgba8", "encode_rgba8", "exponentiate", "normalize", "prescale",
-    "prescale_factors", "quantize", "split_correction", "texel_values", "texture_uses", "LEVELS",
+    "LEVELS", "alpha_split", "decode_rgba8", "encode", "exponentiate", "normalize", "prescale", "prescale_factors",
+    "quantize", "split_correction", "texture_uses",
 ]
 
 #: Largest 8-bit code: a channel value v is stored as round(v * 255).
@@ -54,20 +57,29 @@ def exponentiate(x_textures: list, alpha, n_factors: int) -> list:
     return [jnp.exp(x) * s for x in x_textures]
 
 
-def normalize(param: Parametrization, textures: list, valid: np.ndarray | None = None):
-    """Scale each texture channel to max 1; returns (textures, correction (3,)) (thesis §4.3, step 7).
+def normalize(model: Factorization) -> Factorization:
+    """Scale each texture channel to a maximum |value| of 1 over its valid texels and move the scale into
+    the corrections of the terms that read it (thesis §4.3, step 7): the evaluated sum is unchanged.
 
-    The correction colour is prod_j max(t_k(j)) per channel, so the evaluated product is unchanged.
-    ``valid`` (H, W) restricts the maximum to texels that hold data.
+    Invalid texels (outside :func:`~homofac.param.mappers.valid_mask`) are filled with their nearest valid
+    texel ("dilated"), so a GPU's hardware bilinear filter reads the same values as the pinned lookup.
     """
-    out, corr = [], jnp.ones((3,), textures[0].dtype)
-    for k, t in enumerate(textures):
-        tv = t if valid is None else jnp.where(jnp.asarray(valid)[..., None], t, 0.0)
-        mx = jnp.max(tv.reshape(-1, 3), axis=0)
+    data, scale = [], {}
+    for t in model.textures:
+        d = jnp.asarray(t.data)
+        valid = jnp.asarray(mappers.valid_mask(t.mapper, t.size))[..., None]
+        mx = jnp.max(jnp.where(valid, jnp.abs(d), 0.0).reshape(-1, d.shape[-1]), axis=0)
         mx = jnp.where(mx > 0, mx, 1.0)
-        out.append(tv / mx)
-        corr = corr * mx ** len(param.uses(k))
-    return out, corr
+        data.append(mappers.dilate(t.mapper, t.size, d / mx))
+        scale[t.name] = mx
+    terms = []
+    for term in model.terms:
+        c = jnp.asarray(term.correction)
+        for f in term.factors:
+            c = c * scale[f.texture]
+        terms.append(Term(term.factors, c, term.kind))
+    out = model.replace_data(data)
+    return eqx.tree_at(lambda m: m.terms, out, tuple(terms))
 
 
 def quantize(textures: list, bits: int = 8) -> list:
@@ -79,9 +91,9 @@ def quantize(textures: list, bits: int = 8) -> list:
     return [jnp.round(jnp.clip(t, 0.0, 1.0) * q) / q for t in textures]
 
 
-def texture_uses(param: Parametrization) -> tuple[int, ...]:
-    """f(k) of thesis §4.3.1: how many factors read texture k (PQP: (2, 1))."""
-    return tuple(len(param.uses(k)) for k in range(param.T))
+def texture_uses(model: Factorization) -> tuple[int, ...]:
+    """f(k) of thesis §4.3.1: how many factors read texture k (PQP: (2, 1)), in texture order."""
+    return tuple(model.uses(t.name) for t in model.textures)
 
 
 def split_correction(correction: Float[np.ndarray, "3"]) -> tuple[Float[np.ndarray, "3"], float]:
@@ -126,18 +138,18 @@ def prescale_factors(weights: Sequence[float], uses: Sequence[int]) -> Float[np.
 
 
 def prescale(
-    param: Parametrization,
+    uses: Sequence[int],
     textures: Sequence[Float[Array, "H W 3"]],
     correction: Float[Array, "3"],
     weights: Sequence[float] | None = None,
 ) -> tuple[list, Float[np.ndarray, "3"], Float[np.ndarray, "T+1"]]:
     """Apply thesis eq. 48: ``(s_0 c) prod_j (s_k(j) t_k(j))``; returns (textures, correction, s).
 
-    Without weights (or all equal) every ``s_i`` is 1. Prescaled textures may exceed 1; the 8-bit
-    encoding clamps them (the thesis' compromise between clamped highlights and dark-value precision).
+    ``uses`` is f(k) per texture (:func:`texture_uses`). Without weights (or all equal) every ``s_i`` is
+    1. Prescaled textures may exceed 1; the 8-bit encoding clamps them (the thesis' compromise between
+    clamped highlights and dark-value precision).
     """
-    f = texture_uses(param)
-    s = np.ones(param.T + 1) if weights is None else prescale_factors(weights, f)
+    s = np.ones(len(uses) + 1) if weights is None else prescale_factors(weights, uses)
     out = [np.asarray(t, np.float64) * s[k + 1] for k, t in enumerate(textures)]
     return out, np.asarray(correction, np.float64) * s[0], s
 
@@ -161,86 +173,78 @@ def alpha_split(
     return t / safe[..., None], alpha
 
 
-class Encoded8(NamedTuple):
-    """8-bit RGBA textures and their decode rule (thesis §6.1.8 step 9, ``clampTextureRange``).
+def _positive(model: Factorization) -> bool:
+    return all(float(jnp.min(t.data)) >= 0 for t in model.textures)
 
-    Attributes:
-        rgba: per texture an ``(H, W, 4)`` uint8 array (what the PNG files store).
-        colour: correction colour ``c`` (3,), ``max <= 1`` (float; a vertex colour / uniform).
-        scale: power-of-two scale factor ``z`` (eq. 47).
-        prescale: ``s_0 .. s_T`` of thesis §4.3.1 (already applied to ``colour * scale`` and ``rgba``).
-        alpha: whether the alpha channel carries the eq. 57-58 split (else it is 255 everywhere).
-        clamped: per texture, how many texel channels were clamped to 1 (prescale > 1).
+
+def encode(model: Factorization, *, weights: Sequence[float] | None = None, alpha: bool = True) -> Quantized:
+    """The model's 8-bit RGBA textures and their decode rule (:class:`~homofac.factorization.Quantized`).
+
+    One term with non-negative textures (schema 1's single product): the thesis' encoding, §4.3: 1.
+    prescale with ``weights`` (eq. 48; identity without weights), 2. split the correction into ``colour
+    <= 1`` and a power-of-two ``scale`` (eq. 47), 3. with ``alpha``, split each texture into ``rgb * alpha``
+    (eq. 57-58), 4. round to 8 bits. Alpha is rounded *up* first and the colour is recomputed from the
+    rounded alpha (``rgb = t / alpha_8``), so the alpha's rounding error is carried into the colour
+    channels instead of the product, and ``rgb <= 1`` stays true. Without ``alpha`` the A channel is
+    255 and ``rgb`` the prescaled texture clamped to [0, 1]. The decode rule is then offset 0, scale 1,
+    and the term's 8-bit correction ``colour * scale``.
+
+    Several terms, or textures with negative texels (linear-space fits): per texture and channel the
+    range [min, max] over its texels is mapped to 0 ... 255 (``offset = min`` when negative, else 0;
+    ``scale = max - offset``), non-negative textures keep the alpha split (threshold 1), and each term
+    keeps its float correction.
     """
+    uses = texture_uses(model)
+    data = [np.asarray(t.data, np.float64) for t in model.textures]
+    if len(model.terms) == 1 and _positive(model):
+        tex, corr, s = prescale(uses, data, model.terms[0].correction, weights)
+        colour, z = split_correction(corr)
+        rgba, clamped = [], []
+        for t in tex:
+            q, n = _rgba8(t, colour, z, alpha)
+            rgba.append(q)
+            clamped.append(n)
+        rule = {"encoding": "rgba8", "colour": [float(x) for x in colour], "scale": float(z),
+                "prescale": [float(x) for x in s], "alpha": bool(alpha), "clamped": [int(x) for x in clamped]}
+        ones = tuple(np.ones(3) for _ in tex)
+        return Quantized(tuple(rgba), tuple(np.zeros(3) for _ in tex), ones, tuple(bool(alpha) for _ in tex),
+                         (colour * z,), rule)
+    if weights is not None:
+        raise HomofacError("output.prescale applies to one-term factorizations with non-negative textures only")
+    rgba, offs, scales, alphas = [], [], [], []
+    for t in data:
+        lo = np.min(t.reshape(-1, 3), axis=0)
+        off = np.where(lo < 0, lo, 0.0)
+        hi = np.max(t.reshape(-1, 3), axis=0)
+        sc = np.where(hi - off > 0, hi - off, 1.0)
+        use_alpha = bool(alpha) and bool(np.all(off == 0))
+        q, _ = _rgba8((t - off) / sc, np.ones(3), 1.0, use_alpha)
+        rgba.append(q)
+        offs.append(off)
+        scales.append(sc)
+        alphas.append(use_alpha)
+    rule = {"encoding": "rgba8-affine", "alpha": [bool(a) for a in alphas]}
+    return Quantized(tuple(rgba), tuple(offs), tuple(scales), tuple(alphas),
+                     tuple(np.asarray(term.correction, np.float64) for term in model.terms), rule)
 
-    rgba: tuple
-    colour: np.ndarray
-    scale: float
-    prescale: np.ndarray
-    alpha: bool
-    clamped: tuple = ()
 
-    def decode_rule(self) -> dict:
-        """The JSON-friendly decode rule written beside the PNG entries in factorization.json."""
-        return {
-            "encoding": "rgba8",
-            "value": "colour * scale * prod_j (rgb_k(j) * alpha_k(j)), rgb = RGB/255, alpha = A/255, "
-                     "each channel bilinearly interpolated before the products (thesis eq. 50)",
-            "colour": [float(x) for x in self.colour],
-            "scale": float(self.scale),
-            "prescale": [float(x) for x in self.prescale],
-            "alpha": bool(self.alpha),
-            "transfer": "linear",
-            "clamped": [int(x) for x in self.clamped],
-        }
-
-
-def encode_rgba8(
-    param: Parametrization,
-    textures: Sequence[Float[Array, "H W 3"]],
-    correction: Float[Array, "3"],
-    *,
-    weights: Sequence[float] | None = None,
-    alpha: bool = True,
-) -> Encoded8:
-    """Float textures -> 8-bit RGBA textures + decode constants (thesis §4.3, §4.3.1, §4.3.2).
-
-    1. prescale with ``weights`` (eq. 48; identity without weights), 2. split the correction into
-    ``colour <= 1`` and a power-of-two ``scale`` (eq. 47), 3. with ``alpha``, split each texture into
-    ``rgb * alpha`` (eq. 57-58), 4. round to 8 bits. Alpha is rounded *up* first and the colour is
-    recomputed from the rounded alpha (``rgb = t / alpha_8``), so the alpha's rounding error is carried
-    into the colour channels instead of the product, and ``rgb <= 1`` stays true. Without ``alpha``
-    the A channel is 255 and ``rgb`` is the prescaled texture clamped to [0, 1].
-    """
-    tex, corr, s = prescale(param, textures, correction, weights)
-    colour, scale = split_correction(corr)
-    out, clamped = [], []
-    for t in tex:
-        t = np.clip(t, 0.0, None)
-        clamped.append(int(np.sum(t > 1.0)))
-        t = np.minimum(t, 1.0)
-        if alpha:
-            _, a = alpha_split(t, colour, scale)
-            a8 = np.ceil(a * LEVELS - 1e-9)  # ceil: rgb = t / a8 never exceeds 1
-            a8 = np.where(np.max(t, axis=-1) > 0, np.maximum(a8, 1.0), 0.0)
-            rgb = t * (LEVELS / np.where(a8 > 0, a8, 1.0))[..., None]
-        else:
-            a8 = np.full(t.shape[:-1], LEVELS)
-            rgb = t
-        rgb8 = np.round(np.clip(rgb, 0.0, 1.0) * LEVELS)
-        out.append(np.concatenate([rgb8, a8[..., None]], axis=-1).astype(np.uint8))
-    return Encoded8(tuple(out), colour, scale, s, bool(alpha), tuple(clamped))
+def _rgba8(t: np.ndarray, colour: np.ndarray, z: float, alpha: bool) -> tuple[np.ndarray, int]:
+    """One texture in [0, 1] (clamped above, counted) as RGBA8, with or without the alpha split."""
+    t = np.clip(t, 0.0, None)
+    clamped = int(np.sum(t > 1.0))
+    t = np.minimum(t, 1.0)
+    if alpha:
+        _, a = alpha_split(t, colour, z)
+        a8 = np.ceil(a * LEVELS - 1e-9)  # ceil: rgb = t / a8 never exceeds 1
+        a8 = np.where(np.max(t, axis=-1) > 0, np.maximum(a8, 1.0), 0.0)
+        rgb = t * (LEVELS / np.where(a8 > 0, a8, 1.0))[..., None]
+    else:
+        a8 = np.full(t.shape[:-1], LEVELS)
+        rgb = t
+    rgb8 = np.round(np.clip(rgb, 0.0, 1.0) * LEVELS)
+    return np.concatenate([rgb8, a8[..., None]], axis=-1).astype(np.uint8), clamped
 
 
 def decode_rgba8(rgba: UInt8[np.ndarray, "H W 4"]) -> Float[np.ndarray, "H W 4"]:
     """Channel values of an 8-bit RGBA texture: ``code / 255`` (linear; float32)."""
     return np.asarray(rgba, np.float32) / np.float32(LEVELS)
-
-
-def texel_values(enc: Encoded8) -> list:
-    """Per-texel float textures ``rgb * alpha / s_k`` of an encoding (the correction is ``colour scale s_0``)."""
-    out = []
-    for k, q in enumerate(enc.rgba):
-        d = decode_rgba8(q).astype(np.float64)
-        out.append((d[..., :3] * d[..., 3:] / enc.prescale[k + 1]).astype(np.float32))
-    return out

@@ -46,18 +46,18 @@ def starting_solution(sys: System, layout: Layout, n_factors: int) -> Float[Arra
 
 def _fill(x: np.ndarray, filled: np.ndarray, layout: Layout) -> np.ndarray:
     """Step 9: inverse-distance average of the first filled texel along 8 directions, per face."""
-    h, w = layout.shape
-    s = layout.size
-    nv = layout.n_valid
     out = x.copy()
-    for k in range(layout.n_textures):
+    for tex in layout.textures:
+        h, w = tex.shape
+        s = tex.size
+        sl = slice(tex.offset, tex.offset + tex.n_valid)
         img = np.zeros((h * w, 3))
         ok = np.zeros(h * w, bool)
-        img[layout.texel_of_unknown] = x[k * nv : (k + 1) * nv]
-        ok[layout.texel_of_unknown] = filled[k * nv : (k + 1) * nv]
+        img[tex.texel_of_unknown] = x[sl]
+        ok[tex.texel_of_unknown] = filled[sl]
         img = img.reshape(h, w, 3)
         ok = ok.reshape(h, w)
-        empty = ~ok & layout.valid.reshape(h, w)
+        empty = ~ok & tex.valid.reshape(h, w)
         if not empty.any():
             continue
         rows, cols = np.nonzero(empty)
@@ -79,6 +79,5 @@ def _fill(x: np.ndarray, filled: np.ndarray, layout: Layout) -> np.ndarray:
                 if found.all():
                     break
         vals = np.where(den[:, None] > 0, num / np.maximum(den, 1e-30)[:, None], 0.0)
-        flat = rows * w + cols
-        out[k * nv + layout.unknown_of_texel[flat]] = vals
+        out[tex.offset + tex.unknown_of_texel[rows * w + cols]] = vals
     return out

@@ -23,41 +23,76 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+import scipy.sparse as sp
 from jaxtyping import Array, Float, Int
 
 from ..param import mappers
 from ..param.parametrizations import Parametrization, project
 
 
-class Layout(NamedTuple):
-    """Where each texture's valid texels live in the unknown vector (static, numpy)."""
+class TextureLayout(NamedTuple):
+    """Where one texture's valid texels live in the unknown vector (static, numpy)."""
 
+    name: str
     mapper: str
     size: int
-    shape: tuple[int, int]  # (H, W) of every texture
-    n_textures: int
-    valid: np.ndarray  # (H*W,) bool, same for every texture
-    unknown_of_texel: np.ndarray  # (H*W,) int32: unknown index within a texture or -1
+    shape: tuple[int, int]  # (H, W)
+    valid: np.ndarray  # (H*W,) bool
+    unknown_of_texel: np.ndarray  # (H*W,) int32: unknown index within this texture, or -1
     texel_of_unknown: np.ndarray  # (n_valid,) int32 flat texel index
+    offset: int  # index of this texture's first unknown in the stacked vector (eq. 32)
 
     @property
     def n_valid(self) -> int:
         return int(self.texel_of_unknown.shape[0])
 
+
+class Layout(NamedTuple):
+    """The unknowns of eq. 32: the valid texels of every texture, stacked (each with its own mapper and size)."""
+
+    textures: tuple[TextureLayout, ...]
+
+    @property
+    def n_textures(self) -> int:
+        return len(self.textures)
+
     @property
     def n_unknowns(self) -> int:
-        return self.n_valid * self.n_textures
+        return sum(t.n_valid for t in self.textures)
+
+    def slice(self, k: int) -> slice:
+        t = self.textures[k]
+        return slice(t.offset, t.offset + t.n_valid)
 
 
-def make_layout(mapper: str, size: int, n_textures: int) -> Layout:
-    """The unknown layout for ``n_textures`` textures of one mapper and size."""
+def texture_layout(name: str, mapper: str, size: int, offset: int = 0) -> TextureLayout:
+    """The layout of one texture of ``mapper`` at ``size`` whose unknowns start at ``offset``."""
     m = mappers.get(mapper)
     shape = mappers.texture_shape(m, size)
     valid = np.asarray(mappers.valid_mask(m, size)).reshape(-1)
     texel_of_unknown = np.nonzero(valid)[0].astype(np.int32)
     unknown_of_texel = np.full(valid.shape, -1, np.int32)
     unknown_of_texel[texel_of_unknown] = np.arange(texel_of_unknown.size, dtype=np.int32)
-    return Layout(mapper, size, tuple(shape), n_textures, valid, unknown_of_texel, texel_of_unknown)
+    return TextureLayout(name, mapper, int(size), tuple(shape), valid, unknown_of_texel, texel_of_unknown, int(offset))
+
+
+def make_layout(textures) -> Layout:
+    """The layout of ``textures``: ``(name, mapper, size)`` triples, stacked in order."""
+    out, offset = [], 0
+    for name, mapper, size in textures:
+        t = texture_layout(name, mapper, size, offset)
+        out.append(t)
+        offset += t.n_valid
+    return Layout(tuple(out))
+
+
+def parametrization_layout(param: Parametrization, mapper: str, size: int, line_size: int | None = None) -> Layout:
+    """The layout of a parametrization's textures: direction textures on ``mapper`` at ``size``, scalar ones
+    (read by ``nv``, ``cos_i``, ``cos_o``) on ``line`` at ``line_size`` (default ``size``)."""
+    return make_layout(
+        (name, "line", int(line_size or size)) if param.scalar(k) else (name, mapper, int(size))
+        for k, name in enumerate(param.textures)
+    )
 
 
 class System(NamedTuple):
@@ -74,32 +109,30 @@ def data_rows(
     param: Parametrization, layout: Layout, a: Float[Array, "m 3"], b: Float[Array, "m 3"], context: dict
 ) -> tuple[Int[Array, "m K"], Float[Array, "m K"]]:
     """Columns and bilinear weights of the data rows (eq. 33-35), K = 4 J."""
-    m = mappers.get(layout.mapper)
-    u_of_t = jnp.asarray(layout.unknown_of_texel)
     cols, ws = [], []
     for f, d in zip(param.factors, project(param, a, b, context)):
-        idx, w = mappers.bilinear(m, d, layout.size)
-        unk = u_of_t[idx]
+        tex = layout.textures[f.texture]
+        idx, w = mappers.bilinear(tex.mapper, d, tex.size)
+        unk = jnp.asarray(tex.unknown_of_texel)[idx]
         # A texel outside the valid set has weight 0 by construction of the mapper; guard anyway.
         w = jnp.where(unk >= 0, w, 0.0)
-        cols.append(jnp.where(unk >= 0, unk, 0) + f.texture * layout.n_valid)
+        cols.append(jnp.where(unk >= 0, unk, 0) + tex.offset)
         ws.append(w)
     return jnp.concatenate(cols, axis=-1).astype(jnp.int32), jnp.concatenate(ws, axis=-1)
 
 
 def laplacian_rows(layout: Layout, dtype=jnp.float32) -> tuple[np.ndarray, np.ndarray]:
     """Laplacian rows (eq. 36) for every valid texel of every texture: (cols (n, 5), w (n, 5))."""
-    m = mappers.get(layout.mapper)
-    nb = np.asarray(mappers.neighbours(m, layout.size))[layout.texel_of_unknown]  # (nv, 4) flat or -1
-    nb_unk = np.where(nb >= 0, layout.unknown_of_texel[np.maximum(nb, 0)], -1)
-    has = nb_unk >= 0
-    deg = has.sum(axis=1).astype(np.float64)
-    centre = np.arange(layout.n_valid, dtype=np.int32)[:, None]
-    cols1 = np.concatenate([centre, np.where(has, nb_unk, 0)], axis=1).astype(np.int32)
-    w1 = np.concatenate([deg[:, None], np.where(has, -1.0, 0.0)], axis=1)
-    cols = np.concatenate([cols1 + k * layout.n_valid for k in range(layout.n_textures)], axis=0)
-    w = np.concatenate([w1] * layout.n_textures, axis=0)
-    return cols, w.astype(dtype)
+    cols, ws = [], []
+    for tex in layout.textures:
+        nb = np.asarray(mappers.neighbours(tex.mapper, tex.size))[tex.texel_of_unknown]  # (nv, 4) flat or -1
+        nb_unk = np.where(nb >= 0, tex.unknown_of_texel[np.maximum(nb, 0)], -1)
+        has = nb_unk >= 0
+        deg = has.sum(axis=1).astype(np.float64)
+        centre = np.arange(tex.n_valid, dtype=np.int32)[:, None]
+        cols.append(np.concatenate([centre, np.where(has, nb_unk, 0)], axis=1).astype(np.int32) + tex.offset)
+        ws.append(np.concatenate([deg[:, None], np.where(has, -1.0, 0.0)], axis=1))
+    return np.concatenate(cols, axis=0), np.concatenate(ws, axis=0).astype(dtype)
 
 
 def log_transform(y: Float[Array, "m 3"], alpha: Float[Array, "3"], eps: float) -> Float[Array, "m 3"]:
@@ -145,8 +178,6 @@ def objective(sys: System, lam, x) -> Float[Array, ""]:
 
 def to_scipy(sys: System, lam: float, n_unknowns: int):
     """The augmented matrix of eq. 37 as a scipy CSR matrix (float64), for the reference solvers."""
-    import scipy.sparse as sp
-
     cols = np.asarray(sys.cols)
     w = np.asarray(sys.w, np.float64)
     lc = np.asarray(sys.lap_cols)

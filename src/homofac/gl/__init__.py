@@ -1,11 +1,10 @@
 """homofac.gl: the OpenGL preview of a factorization (moderngl; headless through EGL, or a window).
 
-* :mod:`homofac.gl.glsl`: the GLSL twin of the mappers, projections and bilinear lookups, generated
-  from the data the solver uses (``hf_value(a, b)`` per parametrization).
 * :mod:`homofac.gl.engine`: meshes (sphere, torus, OBJ via trimesh), the orbit camera, the headless
-  render into float targets (:func:`render`) and GPU evaluation at arbitrary pairs (:func:`evaluate`).
+  render into float targets (:func:`render`) and GPU evaluation at arbitrary pairs (:func:`evaluate`),
+  all with the exported shader of :mod:`homofac.shader` (the code a renderer gets);
 * :mod:`homofac.gl.picture`: :func:`preview`, the factorized render beside the exact target and an
-  error heat map with a colour bar, as an image array; :func:`write_preview` writes it as a PNG.
+  error heat map with a colour bar, as an image array; :func:`write_preview` writes it as a PNG;
 * :mod:`homofac.gl.window`: the interactive viewer (moderngl-window, orbit camera).
 
 Importing this package does not import moderngl; rendering does (the ``gl`` extra).
@@ -13,9 +12,8 @@ Importing this package does not import moderngl; rendering does (the ``gl`` extr
 
 from __future__ import annotations
 
-from . import glsl
-from .picture import preview, target_from_config, write_preview
 from .engine import Camera, Frame, Light, Mesh, context, evaluate, load_mesh, render
+from .picture import preview, write_preview
 
-__all__ = ["Camera", "Frame", "Light", "Mesh", "context", "evaluate", "glsl", "load_mesh", "preview", "render",
-           "target_from_config", "write_preview"]
+__all__ = ["Camera", "Frame", "Light", "Mesh", "context", "evaluate", "load_mesh", "preview", "render",
+           "write_preview"]

@@ -13,13 +13,16 @@ All three panels use one exposure and the sRGB curve. The error is per pixel
 
 from __future__ import annotations
 
-import copy
+import sys
 from pathlib import Path
 
+import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Float, UInt8
+from PIL import Image, ImageDraw, ImageFont
 
 from ..errors import HomofacError
+from ..target import evaluate
 from .engine import Camera, Frame, Light, Mesh, render
 
 #: Display value of the background (8-bit, all channels).
@@ -71,47 +74,12 @@ def relative_error(approx: Float[np.ndarray, "N 3"], exact: Float[np.ndarray, "N
     return np.mean(np.abs(approx - exact), axis=-1) / np.maximum(e, tau)
 
 
-def target_from_config(fac, base: str | Path | None = None):
-    """Rebuild the exact target of a factorization from its recorded config (None when there is none).
-
-    The environment is read from the recorded absolute source path when the config's (relative) path
-    cannot be found; ``base`` is the directory relative paths refer to (default: the current one).
-    Raises HomofacError when the config is there but cannot be rebuilt.
-    """
-    from ..fit import config as cfgmod
-
-    if not fac.config:
-        return None
-    data = copy.deepcopy(dict(fac.config))
-    base = Path(base) if base is not None else Path(".")
-    env_info = (fac.target_info or {}).get("environment") or {}
-    env_cfg = (data.get("target") or {}).get("environment")
-    src = env_info.get("source")
-    if isinstance(env_cfg, dict) and isinstance(src, str) and Path(src).is_file():
-        f = env_cfg.get("file", "forest")
-        if not Path(cfgmod.resolve_path(f, base)).exists() and not _bundled(f):
-            env_cfg["file"] = src
-    cfg = cfgmod.parse(data, "factorization.json config")
-    target, _ = cfgmod.build_target(cfg, base)
-    return target
-
-
-def _bundled(name: str) -> bool:
-    from ..light.environment import BUNDLED
-
-    return "/" not in name and Path(name).stem in BUNDLED
-
-
 def exact_values(target, frame: Frame, light: Light = Light()) -> Float[np.ndarray, "N 3"]:
     """The exact target at the frame's covered pixels (same arguments as the shader), as displayed.
 
     Lighting: ``L(v, n)`` (0 where n.v <= 0). BRDF: ``f(wi, wo) cos(theta_i) E`` for the light's
     irradiance E (0 below either horizon).
     """
-    import jax.numpy as jnp
-
-    from ..fit.target import evaluate
-
     a = jnp.asarray(frame.a[frame.mask])
     b = jnp.asarray(frame.b[frame.mask])
     if len(a) == 0:
@@ -131,8 +99,6 @@ def exact_values(target, frame: Frame, light: Light = Light()) -> Float[np.ndarr
 
 
 def _font(size: int):
-    from PIL import ImageFont
-
     try:
         return ImageFont.load_default(size=size)
     except TypeError:  # Pillow < 10.1: the bitmap font only
@@ -147,8 +113,6 @@ def compose(panels: list[tuple[str, np.ndarray]], caption: str, colour_bar: tupl
             ) -> UInt8[np.ndarray, "H W 3"]:
     """Panels side by side under titles, an optional colour bar ``(scale, label)`` after the last one,
     and a caption line; all on the background colour."""
-    from PIL import Image, ImageDraw
-
     size = panels[0][1].shape[0]
     fs = max(10, size // 18)
     font, small = _font(fs), _font(max(9, fs - 2))
@@ -193,11 +157,12 @@ def preview(
     """The preview picture of a factorization: its GL render beside the exact target and the error.
 
     Args:
-        fac: a :class:`~homofac.fit.factorization.Factorization` (lighting: a = n, b = v in the world
-            frame; BRDF: lit by ``light``).
+        fac: a :class:`~homofac.fit.result.Result` (lighting: a = n, b = v in the world frame; BRDF:
+            lit by ``light``).
         target: the exact target (``hf.light.lighting_target(...)`` / ``hf.fit.brdf_target(...)``);
-            default: rebuilt from ``fac.config`` when it has one (:func:`target_from_config`), else only
-            the factorized render is shown.
+            default: the target the result was fitted to (``fac.target``), else only the factorized
+            render is shown (:func:`homofac.app.run.target_from_config` rebuilds the target of a
+            loaded output directory).
         mesh: ``"sphere"``, ``"torus"``, a mesh file (OBJ ...) or a :class:`~homofac.gl.engine.Mesh`.
         size: pixels of each square panel.
         camera: orbit camera (+z up).
@@ -213,7 +178,7 @@ def preview(
         when no headless GL context can be created.
     """
     if target is None:
-        target = target_from_config(fac)
+        target = getattr(fac, "target", None)
     if target is not None and target.kind != fac.kind:
         raise HomofacError(f"target kind {target.kind} does not match the factorization ({fac.kind})")
     name = mesh if isinstance(mesh, str) else "mesh"
@@ -223,7 +188,7 @@ def preview(
     if exposure is None:
         exposure = auto_exposure(exact if exact is not None else approx)
     panels = [("factorized (GL)", to_display(frame.value, frame.mask, exposure))]
-    head = f"{fac.parametrization} on {fac.mapper} {fac.texture_size}, {Path(str(name)).name}"
+    head = f"{fac.parametrization} ({len(fac.model.terms)} term{'s' if len(fac.model.terms) > 1 else ''}) on {fac.mapper} {fac.texture_size}, {Path(str(name)).name}"
     data = {"frame": frame, "exposure": exposure}
     if exact is None:
         img = compose(panels, f"{head}; no exact target to compare with")
@@ -246,8 +211,6 @@ def preview(
 
 def write_preview(fac, path, target=None, **kwargs) -> Path:
     """:func:`preview` written as a PNG file."""
-    from PIL import Image
-
     img = preview(fac, target, **kwargs)
     path = Path(path)
     Image.fromarray(img).save(path, format="PNG")
@@ -255,15 +218,13 @@ def write_preview(fac, path, target=None, **kwargs) -> Path:
 
 
 __all__ = ["auto_exposure", "colormap", "compose", "exact_values", "preview", "relative_error", "safe_writer", "srgb",
-           "target_from_config", "to_display", "write_preview"]
+           "to_display", "write_preview"]
 
 
 def safe_writer(fac, target=None, log=None, **kwargs):
     """A writer ``path -> None`` of preview.png for :func:`homofac.io.output.save` (``extra_files``) that
     never fails: when there is no GL (no EGL, no moderngl) or anything else goes wrong it prints one
     line ``homofac: warning: ...`` on stderr and writes nothing."""
-    import sys
-
     def write(path) -> None:
         if log is not None:
             log("rendering preview.png")

@@ -15,7 +15,7 @@ import warnings
 import numpy as np
 
 from ..errors import HomofacError
-from .engine import Camera, Light, Mesh, load_mesh
+from .engine import Camera, Light, Mesh, Renderer, load_mesh
 
 
 def has_display() -> bool:
@@ -48,7 +48,6 @@ def show(fac, *, mesh: Mesh | str = "sphere", size: int = 640, camera: Camera = 
             import moderngl_window.scene  # noqa: F401 - imports glm
     except ImportError as e:
         raise HomofacError(f"the viewer needs moderngl-window (pip install 'homofac[gl]'): {e}") from None
-    from .engine import Renderer
 
     mesh = load_mesh(mesh) if not isinstance(mesh, Mesh) else mesh
     state = {"camera": camera, "exposure": float(exposure)}

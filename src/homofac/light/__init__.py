@@ -1,27 +1,26 @@
-"""homofac.light: environments (light lists) and the lighting computation L(v, n)."""
+"""homofac.light: environments (light lists) and the lighting computation L(v, n).
+
+* :mod:`.environment`: the :class:`Environment` type (lights with exact solid angles);
+* :mod:`.sources` (files, bundled maps), :mod:`.resample` (lat-long and cube images), :mod:`.synthetic`
+  (analytic skies), :mod:`.lights` (extra lights, culling), built on :mod:`.latlong`, :mod:`.cubemap`,
+  :mod:`.clean` (checks, bad pixels, boost) and :mod:`.geometry` (exact clamped-cosine texel weights);
+* :mod:`.lighting`: L(v, n) of a BRDF under an environment, the target of a lighting factorization.
+"""
 
 from __future__ import annotations
 
-from .environment import (
-    BUNDLED,
-    Environment,
-    bundled,
-    dominant_direction,
-    from_cube,
-    from_latlong,
-    gradient_sky,
-    load_environment,
-    painted_lights,
-    sun_sky,
-    to_cube_image,
-    total_power,
-    uniform,
-    with_lights,
-)
-from .lighting import Lighting, cull_lights, irradiance, lighting, lighting_target
+from .cubemap import to_cube_image
+from .environment import Environment, dominant_direction, luminance, total_power
+from .lighting import Lighting, irradiance, lighting, lighting_target
+from .lights import cull_lights, with_lights
+from .options import BoostOptions, EnvironmentOptions, LightOptions
+from .resample import from_cube, from_latlong
+from .sources import BUNDLED, bundled, environment_from_options, load_environment
+from .synthetic import gradient_sky, painted_lights, sun_sky, uniform
 
 __all__ = [
-    "BUNDLED", "Environment", "Lighting", "bundled", "cull_lights", "dominant_direction", "from_cube",
-    "from_latlong", "gradient_sky", "irradiance", "lighting", "lighting_target", "load_environment",
-    "painted_lights", "sun_sky", "to_cube_image", "total_power", "uniform", "with_lights",
+    "BUNDLED", "BoostOptions", "Environment", "EnvironmentOptions", "LightOptions", "Lighting", "bundled",
+    "cull_lights", "dominant_direction", "environment_from_options", "from_cube", "from_latlong", "gradient_sky",
+    "irradiance", "lighting", "lighting_target", "load_environment", "luminance", "painted_lights", "sun_sky",
+    "to_cube_image", "total_power", "uniform", "with_lights",
 ]

@@ -28,13 +28,13 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from ..param import mappers
+
 
 @functools.lru_cache(maxsize=8)
 def cube_corners(r: int) -> np.ndarray:
     """Corners (6 r^2, 4, 3) of the texels of a face-size-r cube map, row-major over the pinned (r, 6r)
     texture, ordered counter-clockwise as seen from outside the sphere (float64, read-only)."""
-    from ..param import mappers
-
     m = mappers.get("cube")
     i, j = np.meshgrid(np.arange(r), np.arange(6 * r), indexing="ij")  # texel row, column
     face = (j // r).astype(np.int32)

@@ -37,9 +37,10 @@ from jaxtyping import Array, Float
 from .. import sphere
 from ..brdf.core import has_lobes, lobe_colors, lobe_support, lobe_terms
 from ..errors import HomofacError
-from ..fit.target import Target
+from ..target import Target, evaluate
 from .environment import Environment, dominant_direction
-from .geometry import cosine_weights, cube_corners, light_geometry
+from .geometry import cosine_weights, light_geometry
+from .lights import light_corners, light_moments
 
 #: Pairs per inner chunk of the arbitrary-pair path is CHUNK // 4 (B x L x 4 x 3 weight terms live at once).
 CHUNK = 256
@@ -78,30 +79,6 @@ def _specular_sum(brdf, spec, wi, wo, weights, rad):
     if weights is None:
         return jnp.einsum("...kc,kc->...c", f, rad)
     return jnp.einsum("...k,...kc,kc->...c", weights, f, rad)
-
-
-def light_corners(env: Environment) -> Float[Array, "L 4 3"]:
-    """Texel corners of the lights (zeros for delta lights): ``env.corners`` when the environment has
-    them, else the cube texels of ``env.info["resolution"]`` followed by delta lights."""
-    c = getattr(env, "corners", None)
-    if c is not None:
-        return c
-    r = int(env.info.get("resolution", 0))
-    n_tex = 6 * r * r
-    L = env.directions.shape[0]
-    if r <= 0 or n_tex > L:
-        return jnp.zeros((L, 4, 3), env.directions.dtype)
-    return jnp.concatenate([jnp.asarray(cube_corners(r), env.directions.dtype),
-                            jnp.zeros((L - n_tex, 4, 3), env.directions.dtype)])
-
-
-def light_moments(env: Environment):
-    """(moment, sin_radius) of the lights: ``env.moments`` or computed from the corners (concrete only)."""
-    if getattr(env, "moments", None) is not None:
-        return env.moments
-    from .geometry import texel_moments
-
-    return texel_moments(env.directions, env.solid_angle, light_corners(env))
 
 
 def max_visible(env: Environment) -> int:
@@ -325,8 +302,6 @@ def irradiance(env: Environment, n: Float[Array, "N 3"]) -> Float[Array, "N 3"]:
 
 def lighting(brdf, env: Environment, n, v, *, clamp: float | None = None) -> Float[Array, "N 3"]:
     """Exact L(v, n) at arbitrary arrays of normals and views (the ground truth of every metric)."""
-    from ..fit.target import evaluate
-
     n = jnp.asarray(n)
     v = jnp.asarray(v, n.dtype)
     shape = n.shape
@@ -350,28 +325,3 @@ def lighting_target(brdf, env: Environment, *, parametrization: str | None = Non
         ctx["dominant"] = dominant_direction(env)
     return Target("lighting", Lighting(brdf, env, clamp, lobe_tolerance=lobe_tolerance), "lighting", ctx)
 
-
-def cull_lights(env: Environment, tolerance: float) -> tuple[Environment, dict]:
-    """Drop the weakest lights whose summed power is at most ``tolerance`` x the total power.
-
-    Error bound (stated and tested): for any BRDF f and any (n, v), the change of L(v, n) per channel is
-    at most ``max f * dropped_power`` where dropped_power = sum over dropped lights of L_i dw <=
-    tolerance * total power (since max(n.l, 0) <= 1). For a Lambertian BRDF, max f = kd/pi.
-    """
-    if not 0 <= tolerance < 1:
-        raise HomofacError(f"light culling tolerance must be in [0, 1), got {tolerance}")
-    power = np.asarray(env.radiance * env.solid_angle[:, None], np.float64)
-    lum = power.sum(axis=1)
-    order = np.argsort(lum)
-    cum = np.cumsum(lum[order])
-    total = max(float(lum.sum()), 1e-300)
-    n_drop = int(np.searchsorted(cum, tolerance * total, side="right"))
-    keep = np.sort(order[n_drop:])
-    dropped = power[order[:n_drop]].sum(axis=0) if n_drop else np.zeros(3)
-    culled = Environment(
-        directions=env.directions[keep], radiance=env.radiance[keep], solid_angle=env.solid_angle[keep],
-        info={**env.info, "culled_lights": n_drop}, corners=light_corners(env)[keep],
-        moments=tuple(jnp.asarray(a)[keep] for a in light_moments(env)),
-    )
-    return culled, {"dropped": n_drop, "kept": int(keep.size), "dropped_power": dropped.tolist(),
-                    "total_power": power.sum(axis=0).tolist()}

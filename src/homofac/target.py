@@ -1,4 +1,5 @@
-"""Targets: the function of two directions (a, b) that a factorization approximates.
+"""Targets: the function of two directions (a, b) that a factorization approximates (layer L3: plain data
+and pure functions; the lighting computation of :mod:`homofac.light` is one such function).
 
 A target is a pytree (an equinox module) so its parameters -- BRDF parameters, environment pixels --
 can be differentiated. ``kind`` decides the domain of (a, b) (DESIGN.md):
@@ -18,7 +19,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from ..errors import HomofacError
+from .errors import HomofacError
 
 QUANTITIES = ("brdf", "brdf_cos")
 
@@ -56,51 +57,6 @@ def _eval_chunks(fn, a, b):
     return jax.lax.map(lambda ab: fn(ab[0], ab[1]), (a, b))
 
 
-@eqx.filter_jit
-def _eval_groups(fn, normals, views):
-    return fn.grouped(normals, views)
-
-
-def evaluate_grouped(target: Target, grouped) -> Float[Array, "M 3"]:
-    """Values at the valid pairs of a :class:`~homofac.fit.sampling.Grouped` set, in flattened order.
-
-    Uses the target's per-normal fast path (``target.fn.grouped``) when it has one, with the normals
-    split over all devices when there are several (:mod:`homofac.fit.shard`).
-    """
-    if grouped.mask.size == 0 or not grouped.mask.any():
-        return jnp.zeros((0, 3))
-    if hasattr(target.fn, "grouped"):
-        normals, views = jnp.asarray(grouped.normals), jnp.asarray(grouped.views)
-        if getattr(target.fn, "culls_lobes", False):
-            return _culled(target.fn, normals, views)[jnp.asarray(grouped.mask)]
-        if jax.device_count() > 1:
-            from .shard import grouped_sharded
-
-            out = grouped_sharded(target.fn, normals, views)
-        else:
-            out = _eval_groups(target.fn, normals, views)
-        return out[jnp.asarray(grouped.mask)]
-    pairs = grouped.flatten()
-    return evaluate(target, pairs.a, pairs.b)
-
-
-@eqx.filter_jit
-def _eval_groups_culled(fn, normals, views, slots):
-    return fn.grouped_culled(normals, views, slots)
-
-
-def _culled(fn, normals, views):
-    """Lobe-culled values: start from ``fn.lobe_slots()`` lights per cone; when a cone held more, rerun
-    with enough slots (the next multiple of 64), so no light inside a cone is ever left out."""
-    slots = fn.lobe_slots()
-    while True:
-        out, count = _eval_groups_culled(fn, normals, views, slots)
-        count = int(count)
-        if count <= slots:
-            return out
-        slots = 64 * -(-count // 64)
-
-
 def evaluate(fn: Callable, a, b, chunk: int = 4096) -> Float[Array, "N 3"]:
     """Evaluate ``fn(a, b)`` on N pairs in chunks of ``chunk`` rows (bounded memory, one compile)."""
     a = jnp.asarray(a)
@@ -115,3 +71,6 @@ def evaluate(fn: Callable, a, b, chunk: int = 4096) -> Float[Array, "N 3"]:
         b = jnp.concatenate([b, jnp.broadcast_to(b[:1], (pad, 3))])
     out = _eval_chunks(fn, a.reshape(-1, chunk, 3), b.reshape(-1, chunk, 3))
     return out.reshape(-1, 3)[:n]
+
+
+__all__ = ["QUANTITIES", "Target", "brdf_target", "evaluate"]

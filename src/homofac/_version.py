@@ -1,0 +1,3 @@
+"""The version of homofac (written into every factorization.json and shader)."""
+
+__version__ = "0.2.0"

@@ -1,0 +1,187 @@
+"""Memory estimate of a run, and the refusal of configs that would not fit, before any work starts.
+
+:func:`estimate` counts the arrays a run holds at its peak, from the config (and the environment
+file's header) alone, no sampling:
+
+* training pairs M (counted from the sampling grids, valid pairs only) and validation pairs V;
+* samples: a, b, y float32 (36 bytes per pair) plus the flattened grouped arrays (another 36);
+* the system: ELL columns int32 and weights float32 with K = 4 J entries per row (8 K bytes), the
+  log right-hand side (12), the Laplacian rows;
+* the solver's own memory class (``Solver.memory`` of the registry: LSMR's gathered operands, the
+  dense normal matrix of ``direct``, scipy's float64 copies ...);
+* the lighting computation: one lax.map step of at most 2^22 light terms per group, with about 16
+  float32 temporaries each (the lobe form's per-light work), plus the light arrays;
+* the environment image: reading it whole (its header's size x 12 bytes and the reader's
+  temporaries), or a few strips when it is read downsampled (:mod:`homofac.light.sources`);
+* a fixed 1 GB for the JAX/XLA runtime, compilation and compiled code (measured 0.4-0.9 GB).
+
+It aims at the right order of magnitude and errs high (the tests check it against a measured peak).
+:func:`check` refuses a config whose estimate exceeds the limit: ``limits.memory_gb``, or by default
+half of what the process may use -- the smaller of the machine's RAM, ``ulimit -v`` (RLIMIT_AS) and
+the cgroup's ``memory.max`` -- with the estimate in the message.
+"""
+
+from __future__ import annotations
+
+import os
+import resource
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import HomofacError
+from ..fit import solvers
+from ..fit.draw import default_mapper
+from ..io.limits import image_info
+from ..light import bundled
+from ..light.sources import MAX_SOURCE_PIXELS
+from ..param import mappers
+from ..param import parametrizations as pz
+from .config import Config, resolve_path
+
+GB = 1024**3
+RUNTIME_BYTES = int(1.0 * GB)
+
+
+def physical_memory() -> int:
+    """Total RAM in bytes (os.sysconf); 8 GB when it cannot be read."""
+    try:
+        return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+    except (ValueError, OSError, AttributeError):
+        return 8 * GB
+
+
+def _cgroup_limit() -> int | None:
+    """The memory limit of this process's cgroup (v2 ``memory.max``, v1 ``memory.limit_in_bytes``)."""
+    candidates = []
+    try:
+        for line in Path("/proc/self/cgroup").read_text().splitlines():
+            parts = line.split(":", 2)
+            if len(parts) == 3:
+                rel = parts[2].lstrip("/")
+                candidates += [Path("/sys/fs/cgroup") / rel / "memory.max",
+                               Path("/sys/fs/cgroup/memory") / rel / "memory.limit_in_bytes"]
+    except OSError:
+        pass
+    candidates += [Path("/sys/fs/cgroup/memory.max"), Path("/sys/fs/cgroup/memory/memory.limit_in_bytes")]
+    for p in candidates:
+        try:
+            text = p.read_text().strip()
+        except OSError:
+            continue
+        if text and text != "max":
+            try:
+                value = int(text)
+            except ValueError:
+                continue
+            if 0 < value < (1 << 60):
+                return value
+    return None
+
+
+def process_limit() -> int:
+    """What this process may use: the smallest of the RAM, ``ulimit -v`` (RLIMIT_AS) and the cgroup limit."""
+    limits = [physical_memory()]
+    try:
+        soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+        if soft not in (resource.RLIM_INFINITY, -1) and soft > 0:
+            limits.append(int(soft))
+    except (ValueError, OSError):
+        pass
+    cg = _cgroup_limit()
+    if cg is not None:
+        limits.append(cg)
+    return min(limits)
+
+
+def default_limit() -> int:
+    """Half of what the process may use (:func:`process_limit`)."""
+    return process_limit() // 2
+
+
+def _grid_count(mapper: str, size: int, hemisphere: bool) -> int:
+    """Valid directions of a texel grid without building it: area fraction of the mapper's valid texels."""
+    m = mappers.get(mapper)
+    s = min(int(size), 64)  # the fraction is the same at any size; count it on a small table
+    frac = float(np.mean(mappers.valid_mask(m, s)))
+    count = frac * np.prod(mappers.texture_shape(m, int(size)))
+    if hemisphere and m.covers_sphere:
+        count /= 2
+    return int(count)
+
+
+def environment_bytes(cfg: Config, base: Path) -> int:
+    """Peak bytes of reading the environment image (whole, or in strips when it is big); 0 when unknown."""
+    env = cfg.target.environment
+    if cfg.target.kind != "lighting" or env is None:
+        return 0
+    path = Path(resolve_path(env.file, base))
+    if not path.exists():
+        try:
+            path = bundled(env.file)
+        except HomofacError:
+            return 0
+    if path.is_dir() or not path.is_file():
+        return 0
+    try:
+        info = image_info(path)
+    except HomofacError:
+        return 0  # the loader reports the problem with its own message
+    if info.pixels <= MAX_SOURCE_PIXELS:
+        return int(info.whole_read_bytes)
+    return 3 * (8 << 20) + 2 * 12 * MAX_SOURCE_PIXELS  # a few strips, the reduced image and its float64 sums
+
+
+def estimate(cfg: Config, base: Path = Path(".")) -> dict:
+    """Estimated peak bytes of the run a :class:`~homofac.app.config.Config` describes, by part."""
+    kind = cfg.target.kind
+    p = pz.get(cfg.parametrization, kind) if cfg.target_error is None else None
+    j = p.J if p else 4
+    t = p.T if p else 4
+    s = cfg.sampling
+    smapper = s.mapper or default_mapper(kind)
+    if s.kind == "random":
+        m = s.count or s.size**2 * (s.view_size or s.size) ** 2 // 4
+    elif s.kind == "latlong":
+        m = (s.size * 2 * s.size) * ((s.view_size or s.size) * 2 * (s.view_size or s.size)) // (8 if kind == "brdf" else 2)
+    else:
+        hemi = kind == "brdf"
+        m = _grid_count(smapper, s.size, hemi) * _grid_count(smapper, s.view_size or s.size, hemi)
+        m = m if hemi else m // 2
+    v = s.validation
+    mapper = cfg.mapper or default_mapper(kind)
+    n = t * int(np.prod(mappers.texture_shape(mappers.get(mapper), cfg.texture_size)))
+    k = 4 * j
+    parts = {
+        "samples": (m + v) * 72,
+        "system": m * (8 * k + 12) + n * 5 * 8,
+        "solver": solvers.get(cfg.solver.method).memory(m, n, k),
+        "runtime": RUNTIME_BYTES,
+    }
+    if kind == "lighting":
+        res = cfg.target.environment.resolution if cfg.target.environment else 32
+        lights = 6 * res * res + len(cfg.target.environment.lights if cfg.target.environment else [])
+        parts["lighting"] = (1 << 22) * 16 * 4 + lights * 200
+        parts["environment"] = environment_bytes(cfg, base)
+    parts["total"] = sum(parts.values())
+    parts["pairs"] = m
+    parts["unknowns"] = n
+    return parts
+
+
+def check(cfg: Config, base: Path = Path("."), limit_bytes: int | None = None) -> dict:
+    """Refuse (HomofacError, one line) when the estimate exceeds the limit; returns the estimate."""
+    est = estimate(cfg, base)
+    limit = limit_bytes if limit_bytes is not None else default_limit()
+    if est["total"] > limit:
+        env = f", environment image {est.get('environment', 0) / GB:.1f} GB" if est.get("environment") else ""
+        raise HomofacError(
+            f"estimated memory {est['total'] / GB:.1f} GB ({est['pairs']:,} training pairs, {est['unknowns']:,} "
+            f"unknowns{env}) exceeds the limit {limit / GB:.1f} GB (limits.memory_gb, or half of what this process "
+            "may use: RAM, ulimit -v, cgroup); reduce sampling.size, texture_size or target.environment.resolution, "
+            "or raise the limit"
+        )
+    return est
+
+
+__all__ = ["GB", "check", "default_limit", "environment_bytes", "estimate", "physical_memory", "process_limit"]

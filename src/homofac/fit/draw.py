@@ -1,0 +1,78 @@
+"""Drawing samples: the target evaluated on the training pairs and on a seeded validation set.
+
+Sampling (thesis §4.2 / §5.6) dominates a lighting fit; :func:`draw_samples` reads the result from the
+on-disk cache of :mod:`homofac.fit.cache` when the same target was sampled the same way before.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+from ..errors import HomofacError
+from ..options import validate
+from ..target import Target
+from . import cache, sampling
+from .options import SamplingOptions
+from .samples import Samples, evaluate, evaluate_grouped
+
+
+def default_mapper(kind: str) -> str:
+    """parabolic for BRDF targets (hemisphere), dual_paraboloid for lighting (sphere)."""
+    return "parabolic" if kind == "brdf" else "dual_paraboloid"
+
+
+def draw_samples(target: Target, parametrization: str, options: SamplingOptions | dict | None = None,
+                 log: Callable[[str], None] | None = None) -> Samples:
+    """Sample the target on training pairs (thesis §4.2 / §5.6) and on a seeded validation set.
+
+    ``options``: :class:`~homofac.fit.options.SamplingOptions` or a dict of them. With ``cache`` (the
+    default) the samples are read from, or written to, the on-disk cache, keyed by a hash of the target
+    and the sampling settings (and, for BRDF targets, the parametrization, whose texel iterator decides
+    the pairs).
+    """
+    log = log or (lambda msg: None)
+    s = validate(SamplingOptions, options, "sampling")
+    settings = s.model_dump()
+    k = cache.key(target, settings, parametrization) if s.cache else None
+    if k is not None:
+        hit = cache.load(k)
+        if hit is not None:
+            log(f"samples from cache {k[:12]} ({len(hit.a)} training pairs)")
+            return hit
+    samples = _draw(target, parametrization, s, log)
+    if k is not None:
+        cache.store(k, samples)
+    return samples
+
+
+def _draw(target: Target, parametrization: str, s: SamplingOptions, log: Callable) -> Samples:
+    smapper = s.mapper or default_mapper(target.kind)
+    if target.kind == "lighting":
+        # grouped by normal: per-normal work (weights, frames, diffuse, horizon culling) done once
+        groups = sampling.grouped_pairs(s.kind, s.size, mapper=smapper, count=s.count, seed=s.seed,
+                                        view_size=s.view_size)
+        pairs = groups.flatten()
+        if len(pairs) == 0:
+            raise HomofacError("sampling produced no valid direction pairs; increase sampling.size")
+        log(f"sampling {len(pairs)} training pairs ({len(groups.normals)} normals)")
+        y = np.asarray(evaluate_grouped(target, groups))
+        vgroups = sampling.grouped_random(s.validation, s.seed + 1)
+        val = vgroups.flatten()
+        val_y = np.asarray(evaluate_grouped(target, vgroups)) if len(val) else np.zeros((0, 3), np.float32)
+        return Samples(pairs.a, pairs.b, y, val.a, val.b, val_y)
+    pairs = sampling.sample_pairs(
+        target.kind, s.kind, s.size, mapper=smapper, parametrization=parametrization,
+        count=s.count, seed=s.seed, view_size=s.view_size,
+    )
+    if len(pairs) == 0:
+        raise HomofacError("sampling produced no valid direction pairs; increase sampling.size")
+    log(f"sampling {len(pairs)} training pairs")
+    y = np.asarray(evaluate(target, pairs.a, pairs.b))
+    val = sampling.random_pairs(target.kind, s.validation, s.seed + 1)
+    val_y = np.asarray(evaluate(target, val.a, val.b)) if len(val) else np.zeros((0, 3), np.float32)
+    return Samples(pairs.a, pairs.b, y, val.a, val.b, val_y)
+
+
+__all__ = ["default_mapper", "draw_samples"]

@@ -1,0 +1,62 @@
+"""Option models of the fit layer: sampling, solver and the factorization itself.
+
+``hf.fit.factorize(target, "NR", texture_size=32, sampling={...}, solver={...})`` validates its keywords
+with :class:`FitOptions`, the very model the YAML config's top level extends
+(:class:`homofac.app.config.Config`), so a misspelt key or a bad value is refused with the same
+one-line message from the Python API and from the CLI. Allowed names derive from the registries
+(mappers, solvers).
+"""
+
+from __future__ import annotations
+
+from typing import Literal, Optional
+
+from pydantic import Field
+
+from ..options import Options
+from ..param import mappers
+from . import solvers
+
+#: Mapper names, from the registry.
+MapperName = Literal[tuple(mappers.MAPPERS)]  # type: ignore[valid-type]
+#: Texture sizes accepted (a 1024 cube has 6.3M texels per texture: far beyond anything that finishes here).
+MIN_TEXTURE_SIZE, MAX_TEXTURE_SIZE = 4, 1024
+
+
+class SamplingOptions(Options):
+    """``sampling``: the training pairs (thesis §4.2) and the seeded validation set.
+
+    ``kind``: ``texels`` (reverse-projected texel grids of ``mapper``, default parabolic for BRDFs and
+    dual_paraboloid for lighting, of ``size`` and ``view_size``), ``latlong`` (a lat-long grid) or
+    ``random`` (``count`` uniform pairs). ``validation``: the number of random validation pairs (seed
+    ``seed + 1``). ``cache``: reuse the samples of an identical (target, sampling) from disk.
+    """
+
+    kind: Literal["texels", "latlong", "random"] = "texels"
+    size: int = Field(24, ge=2, le=512)
+    view_size: Optional[int] = Field(None, ge=2, le=512)
+    validation: int = Field(20000, ge=0, le=10_000_000)
+    seed: int = Field(0, ge=0, le=2**31 - 2)
+    count: int = Field(0, ge=0, le=100_000_000)
+    mapper: Optional[MapperName] = None
+    cache: bool = True
+
+
+class FitOptions(Options):
+    """What :func:`homofac.fit.factorize` takes besides the target (and the config's top level).
+
+    ``parametrization``: a registered parametrization of the target's kind (``IV``, ``GSHD``, ``PQP`` for
+    BRDFs; ``N``, ``R``, ``NR``, ``NRV``, ``NRHD``, ``NRW`` for lighting). ``mapper``: of the direction
+    textures (default parabolic for BRDFs, dual_paraboloid for lighting). ``texture_size``: S of the
+    mapper. ``target_error``: the validation nrmse to meet (fit/auto.py picks the cheapest candidate).
+    """
+
+    parametrization: str = "NR"
+    mapper: Optional[MapperName] = None
+    texture_size: int = Field(32, ge=MIN_TEXTURE_SIZE, le=MAX_TEXTURE_SIZE)
+    target_error: Optional[float] = Field(None, gt=0, lt=10)
+    sampling: SamplingOptions = Field(default_factory=SamplingOptions)
+    solver: solvers.options_type() = Field(default_factory=lambda: solvers.options())  # type: ignore[valid-type]
+
+
+__all__ = ["FitOptions", "MAX_TEXTURE_SIZE", "MIN_TEXTURE_SIZE", "MapperName", "SamplingOptions"]

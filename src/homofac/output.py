@@ -1,0 +1,646 @@
+"""The pinned output directory: factorization.json (schema 2), ``<name>.exr`` textures, optional files.
+
+Layout (docs/format.md): ``factorization.json``; per texture ``<name>.exr`` (float32 or half RGB,
+linear) and, with ``png``, ``<name>.png`` (8-bit RGBA with the decode rule in the JSON); cube-mapper
+textures also as six face files and one EXR with ``envmap = cube``; ``samples.npz``, ``preview.png``
+and the shaders (``shader.glsl`` ...) when asked. A one-term factorization also writes schema 1's
+top-level keys (``parametrization``, ``mapper``, ``texture_size``, ``factors``, ``correction``,
+``png_decode``), so schema-1 readers keep working; schema-1 directories still load.
+
+What is on disk is not trusted when it is read back (:func:`load`): the document is validated
+(:class:`Document`: types, ranges, every declared size against its mapper), file names must be plain
+names of files inside the directory (no ``..``, no absolute paths, no symlinks leaving it), images are
+read with a memory cap and must have the declared shape, and every problem is one line naming the
+file. Writing is atomic and exclusive: everything goes into a temporary sibling directory that is
+renamed into place only after every file was written, under a lock file beside the directory
+(:class:`OutputLock`, ``.<name>.lock``) that a second run refuses to share; leftovers of a killed run
+(``.<name>.tmp-*``, ``.<name>.old-*``) are cleaned, and a result stranded between the two renames of
+the final swap is put back. A directory homofac did not write is never replaced. Files and folders
+get the modes the umask allows (as any program's output), not the 0600/0700 of temporary files.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import fcntl
+import json
+import math
+import os
+import shutil
+import uuid
+from pathlib import Path
+from typing import Any, Literal, Optional
+
+import numpy as np
+import OpenEXR
+from pydantic import Field, field_validator, model_validator
+
+from ._version import __version__
+from .errors import HomofacError
+from .factorization import Factor, Factorization, Quantized, Term, Texture, check_rgba, decode_texels
+from .fit.result import Result, register_writer
+from .io.exr import read_exr, write_exr
+from .io.files import one_line
+from .io.png import read_png, write_png
+from .options import Options, validate
+from .param import mappers
+from .param import projections as pj
+from .shader import languages
+
+FORMAT = "homofac.factorization"
+SCHEMA_VERSION = 2
+JSON_NAME = "factorization.json"
+#: factorization.json files larger than this are refused before they are parsed.
+MAX_JSON_BYTES = 64 << 20
+#: Cube face file suffixes, in the pinned face order +X, -X, +Y, -Y, +Z, -Z (as homofac.light reads them).
+FACE_NAMES = ("px", "nx", "py", "ny", "pz", "nz")
+#: EXR pixel types of the float textures.
+EXR_TYPES = ("float32", "half")
+#: Largest texture size a loaded document may declare.
+MAX_SIZE = 4096
+
+
+class OutputOptions(Options):
+    """``output``: where and what to write.
+
+    ``png`` writes the 8-bit RGBA textures; ``exr`` is the EXR pixel type (``float32`` or ``half``);
+    ``alpha`` turns the thesis' alpha precision trick (§4.3.2) of the 8-bit textures on or off;
+    ``prescale`` gives the T + 1 weights ``w_0 .. w_T`` of thesis §4.3.1 (correction, then textures);
+    ``preview`` writes preview.png; ``shaders`` the shader files of the listed languages.
+    """
+
+    dir: str = "out"
+    png: bool = False
+    samples: bool = True
+    exr: Literal["float32", "half"] = "float32"
+    alpha: bool = True
+    prescale: Optional[list[float]] = Field(None, min_length=2, max_length=64)
+    preview: bool = True
+    shaders: list[Literal[tuple(languages.LANGUAGES)]] = Field(default_factory=list)  # type: ignore[valid-type]
+
+
+# --------------------------------------------------------------------------------------------------
+# Writing
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def _jsonable(v: Any, bad: list) -> Any:
+    """JSON-friendly values; non-finite floats become null and are counted in ``bad`` (strict JSON)."""
+    if isinstance(v, dict):
+        return {str(k): _jsonable(x, bad) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_jsonable(x, bad) for x in v]
+    if isinstance(v, Path):
+        return str(v)
+    if hasattr(v, "shape") and hasattr(v, "dtype"):
+        a = np.asarray(v)
+        return _jsonable(a.item() if a.ndim == 0 else a.tolist(), bad)
+    if isinstance(v, (bool, np.bool_)):
+        return bool(v)
+    if isinstance(v, (np.integer,)):
+        return int(v)
+    if isinstance(v, (float, np.floating)):
+        f = float(v)
+        if not math.isfinite(f):
+            bad.append(f)
+            return None
+        return f
+    return v
+
+
+def is_homofac_dir(path: Path) -> bool:
+    """True when ``path`` holds a factorization.json written by homofac."""
+    f = Path(path) / JSON_NAME
+    try:
+        if f.stat().st_size > MAX_JSON_BYTES:
+            return False
+        return json.loads(f.read_text()).get("format") == FORMAT
+    except (OSError, ValueError, AttributeError, UnicodeDecodeError, RecursionError):
+        return False
+
+
+def check_output_dir(out_dir) -> Path:
+    """Refuse output paths that are files, foreign non-empty directories, or not writable (before any work)."""
+    out = Path(out_dir)
+    parent = out.parent
+    if parent.exists() and not parent.is_dir():
+        raise HomofacError(f"output path {out}: parent {parent} is not a directory")
+    if out.exists() and not out.is_dir():
+        raise HomofacError(f"output path {out} exists and is not a directory")
+    if out.is_dir() and any(out.iterdir()) and not is_homofac_dir(out):
+        raise HomofacError(f"output directory {out} is not empty and was not written by homofac; refusing to overwrite it")
+    return out
+
+
+def _make_parent(out: Path) -> None:
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise HomofacError(f"output path {out}: cannot create {out.parent}: {one_line(e)}") from None
+    if not os.access(out.parent, os.W_OK | os.X_OK):
+        raise HomofacError(f"output path {out}: directory {out.parent} is not writable")
+
+
+class OutputLock:
+    """Exclusive right to write one output directory: ``flock`` on ``.<name>.lock`` beside it.
+
+    The concurrency rule (docs/format.md): one run writes a directory at a time; a second run that
+    finds the lock held is refused at once (one line, before any work), never blocked and never
+    silently overwriting the first. Taking the lock also cleans what a killed run left behind (its
+    temporary and old directories) and restores a previous result stranded by a kill between the two
+    renames of the final swap. Reentrant within a process (``save`` inside ``run``).
+    """
+
+    _held: dict[str, int] = {}
+
+    def __init__(self, out_dir):
+        self.out = Path(out_dir)
+        self.key = str(self.out.resolve(strict=False))
+        self.fd: int | None = None
+
+    def __enter__(self) -> "OutputLock":
+        if self.key in OutputLock._held:
+            OutputLock._held[self.key] += 1
+            return self
+        _make_parent(self.out)
+        path = self.out.parent / f".{self.out.name}.lock"
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666 & ~_umask())
+        except OSError as e:
+            raise HomofacError(f"output path {self.out}: cannot create the lock file {path}: {one_line(e)}") from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as e:
+            os.close(fd)
+            if e.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                raise HomofacError(f"output directory {self.out} is being written by another homofac run "
+                                   f"(lock {path}); wait for it or choose another --out") from None
+            raise HomofacError(f"output path {self.out}: cannot lock {path}: {one_line(e)}") from None
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()}\n".encode())
+        self.fd = fd
+        OutputLock._held[self.key] = 1
+        recover(self.out)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        n = OutputLock._held.get(self.key, 0) - 1
+        if n > 0:
+            OutputLock._held[self.key] = n
+            return
+        OutputLock._held.pop(self.key, None)
+        if self.fd is not None:
+            fcntl.flock(self.fd, fcntl.LOCK_UN)
+            os.close(self.fd)
+            self.fd = None
+
+
+def recover(out: Path) -> list[str]:
+    """Clean the leftovers of killed runs beside ``out`` (call with its lock held); returns what was done.
+
+    A kill between the two renames of the swap leaves ``out`` missing and the previous result in
+    ``.<name>.old-*``: it is renamed back. Temporary ``.<name>.tmp-*`` directories and remaining old
+    directories are removed.
+    """
+    done = []
+    parent = out.parent
+    if not parent.is_dir():
+        return done
+    olds = sorted(parent.glob(f".{out.name}.old-*"), key=lambda p: p.stat().st_mtime, reverse=True)
+    if not out.exists() and olds and is_homofac_dir(olds[0]):
+        os.replace(olds[0], out)
+        done.append(f"restored {out} from {olds[0].name}")
+        olds = olds[1:]
+    for p in olds + list(parent.glob(f".{out.name}.tmp-*")):
+        shutil.rmtree(p, ignore_errors=True)
+        done.append(f"removed {p.name}")
+    return done
+
+
+def cube_faces(texture: np.ndarray) -> list[np.ndarray]:
+    """The six ``(S, S, C)`` faces of a pinned ``(S, 6S, C)`` cube texture (+X, -X, +Y, -Y, +Z, -Z)."""
+    t = np.asarray(texture)
+    S = t.shape[0]
+    return [t[:, i * S : (i + 1) * S] for i in range(6)]
+
+
+def cube_vertical(texture: np.ndarray) -> np.ndarray:
+    """The OpenEXR cube-map layout ``(6S, S, C)``: the pinned faces stacked top to bottom."""
+    return np.concatenate(cube_faces(texture), axis=0)
+
+
+def shader_files(languages_: list[str], png: bool) -> dict[str, tuple[str, bool]]:
+    """File name -> (language, quantized) of the shaders written for ``languages_`` (8-bit variants with ``png``)."""
+    out = {}
+    for name in languages_:
+        lang = languages.get(name)
+        out[lang.file] = (name, False)
+        if png:
+            stem, ext = lang.file.rsplit(".", 1)
+            out[f"{stem}_8bit.{ext}"] = (name, True)
+    return out
+
+
+def document(fac: Result, *, png: bool = False, exr: str = "float32", encoded: Quantized | None = None,
+             shaders: dict | None = None) -> tuple[dict, list]:
+    """The factorization.json document of a result, and the non-finite values it replaced by null."""
+    if exr not in EXR_TYPES:
+        raise HomofacError(f"output.exr must be one of {', '.join(EXR_TYPES)}, got {exr!r}")
+    model = fac.model
+    enc = encoded if encoded is not None else fac.encoded()
+    textures = []
+    for k, t in enumerate(model.textures):
+        entry = {"name": t.name, "file": f"{t.name}.exr", "mapper": t.mapper, "size": t.size,
+                 "shape": list(t.shape), "uses": model.uses(t.name), "exr_type": exr,
+                 "png_decode": {"offset": enc.offset[k], "scale": enc.scale[k], "alpha": bool(enc.alpha[k])}}
+        if t.mapper == "cube":
+            entry["faces"] = [f"{t.name}_{f}.exr" for f in FACE_NAMES]
+            entry["cube_file"] = f"{t.name}_cube.exr"
+        if png:
+            entry["png"] = f"{t.name}.png"
+            if t.mapper == "cube":
+                entry["png_faces"] = [f"{t.name}_{f}.png" for f in FACE_NAMES]
+        textures.append(entry)
+    terms = [{"kind": term.kind, "correction": term.correction, "png_correction": enc.corrections[i],
+              "factors": [{"projection": f.projection, "texture": f.texture} for f in term.factors]}
+             for i, term in enumerate(model.terms)]
+    doc = {
+        "format": FORMAT,
+        "schema_version": SCHEMA_VERSION,
+        "homofac_version": __version__,
+        "kind": model.kind,
+        "name": model.name,
+        "target": {"kind": model.kind, "quantity": model.quantity, **fac.target_info},
+        "textures": textures,
+        "terms": terms,
+        "png_written": bool(png),
+        "lookups": model.lookups,
+        "context": model.context,
+        "metrics": fac.metrics,
+        "solver": fac.solver,
+        "timings": fac.timings,
+        "counts": fac.counts,
+        "warnings": list(fac.warnings),
+        "config": fac.config,
+        "shaders": sorted(shaders or {}),
+    }
+    if fac.selection is not None:
+        doc["selection"] = fac.selection
+    if len(model.terms) == 1:  # schema 1's keys, for readers of schema 1
+        main = fac._main()
+        doc.update({
+            "parametrization": model.name, "mapper": main.mapper, "texture_size": main.size,
+            "factors": terms[0]["factors"], "correction": model.terms[0].correction,
+            "png_decode": {**enc.rule, "written": bool(png)},
+        })
+    bad: list = []
+    return _jsonable(doc, bad), bad
+
+
+def _write_json(path: Path, doc: dict) -> None:
+    path.write_text(json.dumps(doc, indent=2, allow_nan=False))
+
+
+def save(fac: Result, out_dir, *, samples=None, extra_files: dict | None = None, png: bool = False,
+         exr: str = "float32", shaders=()) -> Path:
+    """Write the output directory atomically (see the module docstring); returns its path.
+
+    Args:
+        fac: the result (:class:`~homofac.fit.result.Result`).
+        out_dir: target directory (created; a previous homofac result there is replaced whole).
+        samples: optional :class:`~homofac.fit.samples.Samples` written as samples.npz.
+        extra_files: ``{file name: callable(path)}`` writers of further files (e.g. a preview).
+        png: also write ``<name>.png``, the 8-bit RGBA textures with their decode rule.
+        exr: ``"float32"`` (bit-exact) or ``"half"`` pixels in the EXR textures.
+        shaders: languages whose shader files to write (``glsl``, ``glsl_es``, ``hlsl``, ``msl``, ``wgsl``).
+
+    Non-finite metrics are written as null with a warning in the document (strict JSON).
+    """
+    shaders = shader_files(list(shaders), png)
+    out = check_output_dir(out_dir)
+    with OutputLock(out):
+        out = check_output_dir(out_dir)
+        tmp = out.parent / f".{out.name}.tmp-{uuid.uuid4().hex[:8]}"
+        try:
+            tmp.mkdir(mode=0o777 & ~_umask())
+            _write_all(fac, tmp, samples, extra_files, png, exr, shaders)
+            _swap_into_place(tmp, out)
+        except OSError as e:
+            shutil.rmtree(tmp, ignore_errors=True)
+            where = f" ({e.filename})" if getattr(e, "filename", None) else ""
+            raise HomofacError(f"cannot write the output directory {out}{where}: {e.strerror or one_line(e)}") from None
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+    return out
+
+
+def _write_all(fac: Result, tmp: Path, samples, extra_files, png: bool, exr: str, shaders: dict) -> None:
+    enc = fac.encoded()
+    doc, bad = document(fac, png=png, exr=exr, encoded=enc, shaders=shaders)
+    if bad:
+        doc["warnings"].append(f"{len(bad)} non-finite metric values were written as null")
+    half = exr == "half"
+    for k, t in enumerate(doc["textures"]):
+        tex = mappers.dilate(t["mapper"], t["size"], np.asarray(fac.model.textures[k].data, np.float32))
+        write_exr(tmp / t["file"], tex, half=half)
+        if "faces" in t:
+            for f, face in zip(t["faces"], cube_faces(tex)):
+                write_exr(tmp / f, face, half=half)
+            write_exr(tmp / t["cube_file"], cube_vertical(tex), half=half, header={"envmap": OpenEXR.ENVMAP_CUBE})
+        if png:
+            info = {"homofac": f"texture {t['name']} of {fac.parametrization}; linear RGBA8, "
+                               f"decode rule in {JSON_NAME} (textures[].png_decode)"}
+            write_png(tmp / t["png"], enc.rgba[k], text=info)
+            for f, face in zip(t.get("png_faces", ()), cube_faces(enc.rgba[k])):
+                write_png(tmp / f, np.ascontiguousarray(face))
+    for name, (lang, quant) in shaders.items():
+        (tmp / name).write_text(fac.shader(lang, quantized=quant))
+    if samples is not None:
+        np.savez(tmp / "samples.npz", **{k: np.asarray(v, np.float32) for k, v in samples._asdict().items()})
+    for name, writer in (extra_files or {}).items():
+        writer(tmp / name)
+    _write_json(tmp / JSON_NAME, doc)
+
+
+def _swap_into_place(tmp: Path, out: Path) -> None:
+    if out.exists():
+        old = out.parent / f".{out.name}.old-{uuid.uuid4().hex[:8]}"
+        os.replace(out, old)
+        try:
+            os.replace(tmp, out)
+        except BaseException:
+            os.replace(old, out)
+            raise
+        shutil.rmtree(old, ignore_errors=True)
+    else:
+        os.replace(tmp, out)
+
+
+# --------------------------------------------------------------------------------------------------
+# Reading: the document's schema, and confined, size-checked files
+
+
+def _plain_name(v: str) -> str:
+    if not isinstance(v, str) or not v or v in (".", "..") or "/" in v or "\\" in v or "\x00" in v:
+        raise ValueError(f"must be a plain file name inside the directory, got {v!r}")
+    return v
+
+
+class PngDecode(Options):
+    offset: list[float] = Field(default_factory=lambda: [0.0, 0.0, 0.0], min_length=3, max_length=3)
+    scale: list[float] = Field(default_factory=lambda: [1.0, 1.0, 1.0], min_length=3, max_length=3)
+    alpha: bool = True
+
+
+class TextureEntry(Options):
+    """One entry of ``textures``."""
+
+    model_config = Options.model_config | {"extra": "ignore"}
+    name: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z_][A-Za-z0-9_]*$")
+    file: str
+    mapper: Optional[str] = None  # schema 1: the top-level mapper
+    size: Optional[int] = Field(None, ge=2, le=MAX_SIZE)
+    shape: Optional[list[int]] = Field(None, min_length=2, max_length=2)
+    png: Optional[str] = None
+    png_decode: Optional[PngDecode] = None
+
+    _name_file = field_validator("file", "png")(classmethod(lambda cls, v: v if v is None else _plain_name(v)))
+
+
+class FactorEntry(Options):
+    model_config = Options.model_config | {"extra": "ignore"}
+    projection: str
+    texture: str
+
+
+class TermEntry(Options):
+    model_config = Options.model_config | {"extra": "ignore"}
+    kind: str = "fitted"
+    correction: list[float] = Field(min_length=3, max_length=3)
+    png_correction: Optional[list[float]] = Field(None, min_length=3, max_length=3)
+    factors: list[FactorEntry] = Field(min_length=1, max_length=64)
+
+
+class Document(Options):
+    """The parts of factorization.json that :func:`load` reads, validated (schema 1 or 2)."""
+
+    model_config = Options.model_config | {"extra": "ignore"}
+    format: Literal["homofac.factorization"]
+    schema_version: int = Field(1, ge=1, le=SCHEMA_VERSION)
+    kind: Literal["brdf", "lighting"]
+    name: Optional[str] = None
+    parametrization: Optional[str] = None
+    mapper: Optional[str] = None
+    texture_size: Optional[int] = Field(None, ge=2, le=MAX_SIZE)
+    textures: list[TextureEntry] = Field(min_length=1, max_length=64)
+    terms: Optional[list[TermEntry]] = Field(None, min_length=1, max_length=64)
+    factors: Optional[list[FactorEntry]] = Field(None, min_length=1, max_length=64)
+    correction: Optional[list[float]] = Field(None, min_length=3, max_length=3)
+    png_decode: Optional[dict] = None
+    target: dict = Field(default_factory=dict)
+    context: dict = Field(default_factory=dict)
+    metrics: dict = Field(default_factory=dict)
+    solver: dict = Field(default_factory=dict)
+    timings: dict = Field(default_factory=dict)
+    counts: dict = Field(default_factory=dict)
+    warnings: list = Field(default_factory=list)
+    config: dict = Field(default_factory=dict)
+    selection: Optional[dict] = None
+
+    @model_validator(mode="after")
+    def _consistent(self):
+        for t in self.textures:
+            mapper = t.mapper or self.mapper
+            size = t.size or self.texture_size
+            if mapper is None or size is None:
+                raise ValueError(f"texture {t.name}: no mapper and size (neither per texture nor at the top level)")
+            if mapper not in mappers.MAPPERS:
+                raise ValueError(f"texture {t.name}: unknown mapper {mapper!r}")
+            shape = list(mappers.texture_shape(mapper, size))
+            if t.shape is not None and list(t.shape) != shape:
+                raise ValueError(f"texture {t.name}: shape {t.shape} does not match mapper {mapper} at size {size} ({shape})")
+        names = [t.name for t in self.textures]
+        if len(set(names)) != len(names):
+            raise ValueError(f"texture names repeat: {names}")
+        terms = self.terms if self.schema_version >= 2 and self.terms else None
+        if terms is None and (self.factors is None or self.correction is None):
+            raise ValueError("neither terms (schema 2) nor factors and correction (schema 1)")
+        for f in [f for term in (terms or []) for f in term.factors] + list(self.factors or []):
+            if f.texture not in names:
+                raise ValueError(f"factor texture {f.texture!r} is not one of {names}")
+            if f.projection not in pj.PROJECTIONS:
+                raise ValueError(f"unknown projection {f.projection!r}")
+        return self
+
+
+def _confined(d: Path, name: str, what: str) -> Path:
+    """``d / name`` after checking it is a regular file inside ``d`` (symlinks may not leave it)."""
+    p = d / _plain_name_or_fail(d, name)
+    try:
+        real, root = p.resolve(strict=True), d.resolve(strict=True)
+    except (OSError, RuntimeError):
+        raise HomofacError(f"{p}: {what} file is missing") from None
+    if root not in real.parents:
+        raise HomofacError(f"{p}: {what} file leads outside the output directory; refusing to read it")
+    if not real.is_file():
+        raise HomofacError(f"{p}: {what} file is not a regular file")
+    return p
+
+
+def _plain_name_or_fail(d: Path, name: str) -> str:
+    try:
+        return _plain_name(name)
+    except ValueError as e:
+        raise HomofacError(f"{d / JSON_NAME}: {e}") from None
+
+
+def read_document(d: Path) -> dict:
+    """The raw factorization.json of ``d`` (strict JSON, size-capped), as a dict."""
+    f = d / JSON_NAME
+    try:
+        size = f.stat().st_size
+    except OSError as e:
+        raise HomofacError(f"{d}: cannot read {JSON_NAME} ({e.strerror or e})") from None
+    if size > MAX_JSON_BYTES:
+        raise HomofacError(f"{f}: {size} bytes; a factorization.json is far smaller (at most {MAX_JSON_BYTES})")
+
+    def no_constants(c):
+        raise ValueError(f"non-standard JSON constant {c}")
+
+    try:
+        doc = json.loads(f.read_bytes().decode("utf-8"), parse_constant=no_constants)
+    except OSError as e:
+        raise HomofacError(f"{d}: cannot read {JSON_NAME} ({e.strerror or e})") from None
+    except UnicodeDecodeError:
+        raise HomofacError(f"{f}: not UTF-8 text") from None
+    except RecursionError:
+        raise HomofacError(f"{f}: nested too deeply") from None
+    except ValueError as e:
+        raise HomofacError(f"{f}: not valid JSON ({one_line(e)})") from None
+    if not isinstance(doc, dict):
+        raise HomofacError(f"{f}: the top level must be a JSON object, got {type(doc).__name__}")
+    if doc.get("format") != FORMAT:
+        raise HomofacError(f"{f}: not a homofac factorization")
+    return doc
+
+
+def load(out_dir, textures: str = "exr", *, max_bytes: int = 1 << 28) -> Result:
+    """Read an output directory back into a :class:`~homofac.fit.result.Result` (schema 1 or 2).
+
+    ``textures="exr"`` (default): the float textures from the EXR files; when PNG files were written
+    they are read too and ``evaluate(a, b, quantized=True)`` decodes exactly those (else the 8-bit
+    encoding is recomputed from the EXR textures with the stored settings). ``textures="png"``: only
+    the 8-bit PNG textures and their decode rule; ``evaluate(a, b)`` then decodes them and the model's
+    texels are their decoded float values. ``max_bytes`` caps each texture read. A missing, truncated,
+    mismatched or misplaced file raises a one-line HomofacError naming it.
+    """
+    if textures not in ("exr", "png"):
+        raise HomofacError(f"load: textures must be 'exr' or 'png', got {textures!r}")
+    d = Path(out_dir)
+    if not d.is_dir():
+        raise HomofacError(f"{d}: no such directory" if not d.exists() else f"{d}: not a directory")
+    raw = read_document(d)
+    doc = validate(Document, raw, str(d / JSON_NAME))
+    specs = [(t, t.mapper or doc.mapper, int(t.size or doc.texture_size)) for t in doc.textures]
+    if doc.schema_version >= 2 and doc.terms:
+        terms_doc = doc.terms
+    else:
+        terms_doc = [TermEntry(kind="fitted", correction=doc.correction, factors=doc.factors)]
+    quantity = doc.target.get("quantity", "lighting" if doc.kind == "lighting" else "brdf")
+    context = {}
+    for k, v in (doc.context or {}).items():
+        a = np.asarray(v, np.float32) if isinstance(v, list) else None
+        if a is None or a.shape != (3,) or not np.all(np.isfinite(a)):
+            raise HomofacError(f"{d / JSON_NAME}: context.{k} must be 3 finite numbers")
+        context[k] = a
+    has_png = all(t.png for t, _, _ in specs)
+    quant = None
+    if textures == "png" or has_png:
+        quant = _read_png(d, doc, raw, specs, terms_doc)
+    if textures == "png":
+        data = decode_texels(quant)
+        terms_doc = [TermEntry(kind=term.kind, correction=list(map(float, c)), factors=term.factors)
+                     for term, c in zip(terms_doc, quant.corrections)]
+    else:
+        data = []
+        for t, mapper, size in specs:
+            a = read_exr(_confined(d, t.file, "texture"), max_bytes=max_bytes)
+            want = tuple(mappers.texture_shape(mapper, size))
+            if a.shape[:2] != want:
+                raise HomofacError(f"{d / t.file}: shape {list(a.shape[:2])} does not match {JSON_NAME} "
+                                   f"({mapper} at size {size}: {list(want)})")
+            data.append(a)
+    try:
+        model = Factorization(
+            doc.kind, quantity,
+            tuple(Texture(t.name, mapper, size, np.asarray(a, np.float32)) for (t, mapper, size), a in zip(specs, data)),
+            tuple(Term(tuple(Factor(f.projection, f.texture) for f in term.factors),
+                       np.asarray(term.correction, np.float32), term.kind) for term in terms_doc),
+            context, doc.name or doc.parametrization or "",
+        )
+    except HomofacError as e:
+        raise HomofacError(f"{d / JSON_NAME}: {e}") from None
+    if quant is not None:
+        check_rgba(quant, model)
+    encoding = {}
+    rule = raw.get("png_decode") if isinstance(raw.get("png_decode"), dict) else None
+    if rule and isinstance(rule.get("prescale"), list) and len(model.terms) == 1:
+        encoding = {"alpha": bool(rule.get("alpha", True))}
+        if any(abs(float(x) - 1.0) > 1e-12 for x in rule["prescale"] if isinstance(x, (int, float))):
+            encoding["weights"] = [float(x) for x in rule["prescale"]]
+    return Result(
+        model, metrics=doc.metrics, solver=doc.solver, timings=doc.timings, counts=doc.counts, config=doc.config,
+        target_info={k: v for k, v in doc.target.items() if k not in ("kind", "quantity")},
+        warnings=tuple(str(w) for w in doc.warnings), encoding=encoding, quantized=quant, selection=doc.selection,
+        source="png" if textures == "png" else "float",
+    )
+
+
+def _read_png(d: Path, doc: Document, raw: dict, specs, terms_doc) -> Quantized:
+    """The 8-bit textures and decode rule a document describes (schema 2 per texture, or schema 1's rule)."""
+    rgba, offs, scales, alphas = [], [], [], []
+    for t, mapper, size in specs:
+        if not t.png:
+            raise HomofacError(f"{d / JSON_NAME}: texture {t.name} has no PNG file (write with output.png: true)")
+        a = read_png(_confined(d, t.png, "PNG texture"))
+        want = tuple(mappers.texture_shape(mapper, size))
+        if a.shape[:2] != want:
+            raise HomofacError(f"{d / t.png}: shape {list(a.shape[:2])} does not match {JSON_NAME} ({list(want)})")
+        rgba.append(a)
+        rule = t.png_decode or PngDecode()
+        offs.append(np.asarray(rule.offset, np.float64))
+        scales.append(np.asarray(rule.scale, np.float64))
+        alphas.append(bool(rule.alpha))
+    if doc.schema_version >= 2 and doc.terms and all(term.png_correction is not None for term in doc.terms):
+        corrections = tuple(np.asarray(term.png_correction, np.float64) for term in doc.terms)
+    else:  # schema 1: colour * scale of the thesis' rule (the prescale is folded into the texels)
+        rule = raw.get("png_decode")
+        try:
+            colour = np.asarray(rule["colour"], np.float64).reshape(3)
+            z = float(rule["scale"])
+            alpha = bool(rule["alpha"])
+        except (KeyError, TypeError, ValueError) as e:
+            raise HomofacError(f"{d / JSON_NAME}: malformed png_decode rule ({one_line(e)})") from None
+        if not (np.all(np.isfinite(colour)) and math.isfinite(z)):
+            raise HomofacError(f"{d / JSON_NAME}: png_decode has non-finite values")
+        corrections = (colour * z,)
+        alphas = [alpha for _ in alphas]
+        if len(terms_doc) != 1:
+            raise HomofacError(f"{d / JSON_NAME}: schema-1 png_decode describes one term, the document has {len(terms_doc)}")
+    rule = raw.get("png_decode") if isinstance(raw.get("png_decode"), dict) else {"encoding": "rgba8-affine"}
+    return Quantized(tuple(rgba), tuple(offs), tuple(scales), tuple(alphas), corrections,
+                     {k: v for k, v in rule.items() if k != "written"})
+
+
+register_writer(save)
+
+__all__ = ["Document", "EXR_TYPES", "FACE_NAMES", "FORMAT", "JSON_NAME", "OutputLock", "OutputOptions", "SCHEMA_VERSION",
+           "check_output_dir", "cube_faces", "cube_vertical", "document", "is_homofac_dir", "load", "recover", "save",
+           "shader_files"]
