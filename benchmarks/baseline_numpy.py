@@ -12,7 +12,14 @@ from __future__ import annotations
 import json
 import time
 
+import equinox as eqx
+import jax.numpy as jnp
 import numpy as np
+
+import homofac as hf
+from homofac.fit import sampling
+from homofac.fit.samples import evaluate_grouped
+from homofac.light.lights import moments_of
 
 
 def frames(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -69,21 +76,13 @@ def _cook_torrance_np(p, wi, wo):
 
 def delta_env(env):
     """The same lights as point lights at their centres (corners 0): homofac then uses max(n.l, 0) dw too."""
-    import equinox as eqx
-    import jax.numpy as jnp
-
-    from homofac.light.environment import _moments
-
     corners = jnp.zeros_like(env.corners)
     env = eqx.tree_at(lambda e: e.corners, env, corners)
-    return eqx.tree_at(lambda e: e.moments, env, _moments(np.asarray(env.directions), np.asarray(env.solid_angle),
+    return eqx.tree_at(lambda e: e.moments, env, moments_of(np.asarray(env.directions), np.asarray(env.solid_angle),
                                                          np.zeros(corners.shape)))
 
 
 def main(slice_pairs: int = 4096) -> dict:
-    import homofac as hf
-    from homofac.fit import sampling
-    from homofac.fit.target import evaluate_grouped
 
     env = hf.light.load_environment("forest", resolution=16)
     brdf = hf.brdf.cook_torrance(kd=(0.05, 0.04, 0.02), ks=1.0, roughness=0.3, f0=(1.0, 0.78, 0.34))

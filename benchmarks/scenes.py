@@ -13,12 +13,15 @@ validation metrics, against the ``direct`` optimum of the same system.
 from __future__ import annotations
 
 import functools
+import os
+import platform
 import time
 
 import jax
 import numpy as np
 
 import homofac as hf
+from baseline_numpy import lighting, numpy_brdf
 from homofac.fit import pipeline
 
 SCENES = {
@@ -98,16 +101,11 @@ def run_case(scene: str, quality: str, solver: str) -> dict:
 
 @functools.lru_cache(maxsize=1)
 def machine() -> str:
-    import os
-    import platform
-
     return f"{platform.machine()} {os.cpu_count()} cores, {platform.python_version()}, jax {jax.__version__}, {jax.default_backend()}"
 
 
 def numpy_baseline(scene: str = "gold_forest", quality: str = "default", slice_pairs: int = 2048) -> dict:
     """The plain NumPy lighting on a slice of the scene's training pairs, extrapolated to all of them."""
-    from baseline_numpy import lighting, numpy_brdf
-
     target, s, st = samples(scene, quality)
     env = target.fn.env
     dirs = np.asarray(env.directions, np.float64)

@@ -66,8 +66,8 @@ for ax, tex, name in zip(np.atleast_1d(axes), fac.textures, ("t1(n)", "t2(r)", "
 print("correction", np.asarray(fac.correction))"""),
     ("md", """## 5. The preview: OpenGL beside the exact lighting
 
-`hf.gl.preview` renders the textures with a shader generated from the same mapper and parametrization
-data the solver uses, computes the exact lighting in JAX for the same pixels, and shows the relative
+`hf.gl.preview` renders the textures with the exported shader (`fac.shader("glsl")`, traced from the
+same mapper and projection records the solver uses), computes the exact lighting in JAX for the same pixels, and shows the relative
 error. It needs an OpenGL context (headless EGL); without one it raises a one-line error."""),
     ("code", """try:
     img, pdata = hf.gl.preview(fac, target, size=96 if QUICK else 256, return_data=True)
@@ -78,8 +78,8 @@ except hf.HomofacError as e:
     print("no preview:", e)"""),
     ("md", """## 6. The metrics, saving and loading
 
-The pinned metric names (DESIGN.md) on training and validation pairs, for the float textures and the
-8-bit ones (the thesis' RMS II). `save` writes the pinned output directory atomically; `hf.io.load`
+The pinned metric names (docs/format.md) on training and validation pairs, for the float textures and
+the 8-bit ones (the thesis' RMS II). `save` writes the pinned output directory atomically; `hf.load`
 reads it back and evaluates the factorization at arbitrary pairs."""),
     ("code", """import tempfile
 rows = [(split, kind, m["nrmse"], m["avg_rel"], m["max_rel"]) for split in fac.metrics
@@ -88,7 +88,7 @@ for r in rows:
     print("{:<10} {:<9} nrmse {:.4f}  avg_rel {:.4f}  max_rel {:.3f}".format(*r))
 out = tempfile.mkdtemp()
 fac.save(out)
-loaded = hf.io.load(out)
+loaded = hf.load(out)
 again = np.asarray(loaded.evaluate(n, v))
 print("reloaded == in memory:", np.allclose(again, np.asarray(fac.evaluate(n, v)), rtol=1e-5))"""),
     ("md", """## 7. A BRDF factorization: f(wi, wo) ≈ p(wi) q(h) p(wo)

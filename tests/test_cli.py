@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import yaml
 
-from homofac.fit.__main__ import main
+from homofac.app.cli import fit_main as main
 
 SMALL_BRDF = {
     "target": {"kind": "brdf", "brdf": {"model": "cook_torrance", "kd": 0.1, "ks": 1.0, "roughness": 0.3,
@@ -81,7 +81,7 @@ def test_brdf_run_writes_pinned_output(tmp_path):
 
 def test_load_reproduces_metrics(tmp_path):
     from homofac.fit.metrics import metrics
-    from homofac.io.output import load
+    from homofac.output import load
 
     cfg = write_config(tmp_path, SMALL_BRDF)
     assert main([str(cfg), "--quiet"]) == 0
@@ -103,7 +103,7 @@ def test_rerun_replaces_previous_result_whole(tmp_path):
 
 BAD = [
     ("malformed yaml", "target: {kind: brdf\n  brdf: [", "malformed YAML"),
-    ("unknown key", nested(SMALL_BRDF, "solver.tolerence", 1e-3), "solver.tolerence"),
+    ("unknown key", nested(SMALL_BRDF, "solver.tolerence", 1e-3), "solver: unknown key tolerence (did you mean tolerance?)"),
     ("wrong type", nested(SMALL_BRDF, "texture_size", "big"), "texture_size"),
     ("unknown model", nested(SMALL_BRDF, "target.brdf.model", "glossy9000"), "glossy9000"),
     ("unknown parametrization", nested(SMALL_BRDF, "parametrization", "XYZ"), "XYZ"),

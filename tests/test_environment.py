@@ -15,10 +15,11 @@ import pytest
 from homofac.errors import HomofacError
 from homofac.io.exr import read_exr, write_exr
 from homofac.io.hdr import write_hdr
-from homofac.light import environment as E
+from homofac import light as E
+from homofac.light.cubemap import cube_texels
+from homofac.light.latlong import latlong_directions, latlong_solid_angles
 from homofac.param import mappers as M
 
-SHARED = Path("/work/shared/data/hdri")
 
 
 def irradiance(env, n):
@@ -37,7 +38,7 @@ def mean_direction(env):
 
 def latlong_energy(img):
     h, w = img.shape[:2]
-    return (np.asarray(img, np.float64) * E.latlong_solid_angles(h, w)[:, None, None]).sum(axis=(0, 1))
+    return (np.asarray(img, np.float64) * latlong_solid_angles(h, w)[:, None, None]).sum(axis=(0, 1))
 
 
 def one_line(excinfo, *needles):
@@ -59,7 +60,7 @@ def angle_deg(a, b):
 
 @pytest.mark.parametrize("r", [2, 7, 32])
 def test_cube_texels_match_the_mapper(r):
-    d, w = E._cube_texels(r)
+    d, w = cube_texels(r)
     m = M.get("cube")
     np.testing.assert_allclose(d, M.texel_directions(m, r).reshape(-1, 3), atol=1e-6)
     np.testing.assert_allclose(w, M.texel_solid_angles(m, r).reshape(-1), rtol=1e-10)
@@ -67,21 +68,23 @@ def test_cube_texels_match_the_mapper(r):
     np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0, atol=1e-12)
 
 
-def test_cube_taps_match_the_mapper():
+def test_numpy_and_jax_bilinear_agree():
+    """The one bilinear lookup gives the same footprint for NumPy (environment resampling) and JAX."""
     rng = np.random.default_rng(0)
     d = rng.normal(size=(2000, 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)
-    i1, w1 = E._cube_taps(9, d)
+    i1, w1 = M.bilinear("cube", d, 9)
     i2, w2 = jax.jit(lambda x: M.bilinear("cube", x, 9))(jnp.asarray(d, jnp.float32))
+    assert isinstance(i1, np.ndarray)
     assert np.array_equal(i1, np.asarray(i2))
     np.testing.assert_allclose(w1, np.asarray(w2), atol=1e-5)
 
 
 def test_latlong_layout_is_pinned():
-    d = E.latlong_directions(4, 8)
+    d = latlong_directions(4, 8)
     th0 = np.pi * 0.5 / 4
     np.testing.assert_allclose(d[0, 0], [np.sin(th0) * np.cos(np.pi / 8), np.sin(th0) * np.sin(np.pi / 8), np.cos(th0)])
-    w = E.latlong_solid_angles(4, 8)
+    w = latlong_solid_angles(4, 8)
     np.testing.assert_allclose(w[0], (2 * np.pi / 8) * (1 - np.cos(np.pi / 4)))
     assert abs(w.sum() * 8 - 4 * np.pi) < 1e-12
 
@@ -196,7 +199,7 @@ def test_synthetic_latlong_energy_is_preserved(h, r):
 def test_resampled_map_approximates_the_source():
     """A smooth map is reproduced texel by texel (not only in total)."""
     h = 128
-    d = E.latlong_directions(h, 2 * h)
+    d = latlong_directions(h, 2 * h)
     img = (1.5 + d[..., 0] + 0.5 * d[..., 2] ** 2)[..., None] * np.array([1.0, 0.5, 0.25])
     env = E.from_latlong(img, 16)
     ld = np.asarray(env.directions, np.float64)
@@ -312,21 +315,16 @@ def test_environment_is_a_differentiable_pytree():
     assert angle_deg(d, [0, 0, 1]) < 1e-3
 
 
-def test_loading_a_full_size_map_is_fast():
-    p = SHARED / "city.exr"
-    if not p.exists():
-        pytest.skip("shared 1024x512 maps not available")
-    E.uniform(1.0, 4)  # JAX initialised
-    t = time.perf_counter()
+def test_loading_a_full_size_map_preserves_energy(tmp_path):
+    """A 1024 x 512 map (the originals' size, made from the bundled one) with negative pixels, as DWAB
+    compression leaves them: clamped, counted, resampled with its energy kept."""
+    small = read_exr(E.bundled("city"))
+    big = np.repeat(np.repeat(small, 4, axis=0), 4, axis=1)
+    big[::97, ::89] = -0.01
+    p = write_exr(tmp_path / "city_1k.exr", big)
     env = E.load_environment(p, 32)
-    cold = time.perf_counter() - t
-    t = time.perf_counter()
-    E.load_environment(SHARED / "interior.exr", 32)
-    warm = time.perf_counter() - t
     assert env.info["source_shape"] == [512, 1024] and env.info["clamped_negative"] > 0
     np.testing.assert_allclose(env.info["energy_after"], env.info["energy_before"], rtol=1e-6)
-    assert cold < 2.5, cold  # typically ~0.4 s (0.1 s warm); generous for a loaded machine
-    assert warm < 1.0, warm
 
 
 def test_hdr_latlong_file(tmp_path):
@@ -378,9 +376,9 @@ def test_cube_map_resampling_preserves_energy(r):
 def test_latlong_and_cube_agree():
     """The same sky loaded as lat-long and as a cube map gives the same lights."""
     h = 64
-    d = E.latlong_directions(h, 2 * h)
+    d = latlong_directions(h, 2 * h)
     ll = np.stack([1 + d[..., 2], 1 + d[..., 0], np.ones(d.shape[:2])], axis=-1)
-    cd, _ = E._cube_texels(32)
+    cd, _ = cube_texels(32)
     cube = np.stack([1 + cd[:, 2], 1 + cd[:, 0], np.ones(len(cd))], axis=-1).reshape(32, 192, 3)
     a, b = E.from_latlong(ll, 8), E.from_cube(cube, 8)
     np.testing.assert_allclose(np.asarray(a.radiance), np.asarray(b.radiance), rtol=0.01, atol=2e-3)

@@ -12,7 +12,6 @@ from homofac.errors import HomofacError
 from homofac.io.exr import envmap_kind, read_exr, read_exr_with_header, write_exr
 from homofac.io.hdr import float_to_rgbe, read_hdr, rgbe_to_float, write_hdr
 
-SHARED = Path("/work/shared/data/hdri/studio.exr")
 BUNDLED_STUDIO = Path(__file__).resolve().parents[1] / "src" / "homofac" / "data" / "hdri" / "studio.exr"
 
 
@@ -85,11 +84,14 @@ def test_exr_channel_layouts(tmp_path):
     assert read_exr(tmp_path / "half.exr").dtype == np.float32
 
 
-def test_exr_reads_the_real_maps():
-    a = read_exr(SHARED)
-    assert a.shape == (512, 1024, 3) and a.dtype == np.float32 and np.isfinite(a).all()
+def test_exr_reads_a_real_map_and_a_full_size_one(tmp_path):
     b = read_exr(BUNDLED_STUDIO)
-    assert b.shape == (128, 256, 3) and b.min() >= 0.0
+    assert b.shape == (128, 256, 3) and b.dtype == np.float32 and b.min() >= 0.0 and np.isfinite(b).all()
+    big = np.repeat(np.repeat(b, 4, axis=0), 4, axis=1)  # 1024 x 512, the size of the original maps
+    p = write_exr(tmp_path / "big.exr", big, half=True, compression="piz")
+    a = read_exr(p)
+    assert a.shape == (512, 1024, 3) and a.dtype == np.float32
+    np.testing.assert_allclose(a, big, rtol=1e-3, atol=1e-6)
 
 
 def test_exr_missing_file(tmp_path):
@@ -108,7 +110,7 @@ def test_exr_not_an_exr(tmp_path):
 
 @pytest.mark.parametrize("fraction", [0.5, 0.9, 0.002])
 def test_exr_truncated_file(tmp_path, fraction):
-    data = SHARED.read_bytes()
+    data = BUNDLED_STUDIO.read_bytes()
     p = tmp_path / "cut.exr"
     p.write_bytes(data[: int(len(data) * fraction)])
     with pytest.raises(HomofacError) as e:

@@ -8,14 +8,19 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from homofac import brdf
+from homofac.errors import HomofacError
+from homofac.factorization import Factorization
 from homofac.fit import metrics as met
 from homofac.fit import pipeline, solvers
-from homofac.fit.factorization import evaluate_textures
+from homofac.fit.options import FitOptions
+from homofac.fit.product import level_sizes
 from homofac.fit.start import starting_solution
-from homofac.fit.system import build_system, make_layout, objective
-from homofac.fit.target import brdf_target
+from homofac.fit.system import build_system, objective, parametrization_layout, to_scipy
+from homofac.options import validate
 from homofac.param import mappers
 from homofac.param import parametrizations as pz
+from homofac.target import brdf_target
 
 
 def smooth_texture(rng, shape, amplitude=0.25, modes=3):
@@ -40,7 +45,10 @@ class TextureBRDF(eqx.Module):
     mapper: str = eqx.field(static=True)
 
     def __call__(self, wi, wo):
-        v = evaluate_textures(self.parametrization, self.mapper, self.textures, jnp.ones(3, wi.dtype), wi, wo)
+        size = self.textures[0].shape[0]
+        model = Factorization.product("brdf", "brdf", self.parametrization, self.mapper, size, self.textures,
+                                      jnp.ones(3, wi.dtype))
+        v = model.evaluate(wi, wo)
         return jnp.where((wi[..., 2:3] > 0) & (wo[..., 2:3] > 0), v, 0.0)
 
 
@@ -64,12 +72,10 @@ def test_synthetic_product_is_recovered(x64, name):
 
 
 def _small_system(x64_dtype=jnp.float64):
-    from homofac import brdf
-
     target = brdf_target(brdf.cook_torrance(kd=0.1, ks=1.0, roughness=0.3, f0=(1.0, 0.78, 0.34)))
     p = pz.get("PQP")
     samples = pipeline.draw_samples(target, "PQP", {"kind": "texels", "size": 8, "validation": 0})
-    layout = make_layout("parabolic", 6, p.T)
+    layout = parametrization_layout(p, "parabolic", 6)
     sys, alpha = build_system(p, layout, jnp.asarray(samples.a, x64_dtype), jnp.asarray(samples.b, x64_dtype),
                               jnp.asarray(samples.y, x64_dtype), eps=1e-5)
     return sys, layout, p
@@ -104,13 +110,13 @@ def test_starting_solution_fills_every_valid_texel():
 def test_start_is_exact_for_single_factor():
     """For one factor and data exactly on texel centres, the averaging start is the answer (thesis §5.4)."""
     p = pz.get("N")
-    layout = make_layout("cube", 4, 1)
+    layout = parametrization_layout(p, "cube", 4)
     dirs = np.asarray(mappers.texel_directions(mappers.get("cube"), 4)).reshape(-1, 3)
     vals = np.exp(np.sin(3 * dirs[:, :1]) + 0.1 * np.arange(3))
     sys, alpha = build_system(p, layout, jnp.asarray(dirs), jnp.asarray(dirs), jnp.asarray(vals, jnp.float32), eps=1e-5)
     x0 = starting_solution(sys, layout, 1)
     want = np.log((vals + 1e-5 * np.asarray(alpha)) / np.asarray(alpha))
-    np.testing.assert_allclose(np.asarray(x0)[layout.unknown_of_texel[np.arange(len(dirs))]], want, atol=1e-5)
+    np.testing.assert_allclose(np.asarray(x0)[layout.textures[0].unknown_of_texel[np.arange(len(dirs))]], want, atol=1e-5)
 
 
 def test_metrics_by_hand():
@@ -148,8 +154,6 @@ def test_zero_values_take_the_bias_path(x64):
 def test_multiresolution_reaches_the_single_level_error():
     """solver.levels = 2 (solve at S/2, upsample through the mapper, refine; thesis §3.1.2) reaches the
     validation error of the single-level solve at S within 2 %, and its first level is really coarse."""
-    from homofac import brdf
-
     target = brdf_target(brdf.cook_torrance(kd=0.1, ks=1.0, roughness=0.3, f0=(1.0, 0.78, 0.34)))
     samples = pipeline.draw_samples(target, "PQP", {"kind": "texels", "size": 16, "validation": 3000, "seed": 2},
                                     log=lambda m: None)
@@ -166,32 +170,31 @@ def test_multiresolution_reaches_the_single_level_error():
 
 
 def test_level_sizes_halve_down_to_four():
-    assert pipeline.level_sizes(32, 3) == [8, 16, 32]
-    assert pipeline.level_sizes(8, 5) == [4, 8]
-    assert pipeline.level_sizes(6, 2) == [6]  # 3 < 4: no coarser level
+    assert level_sizes(32, 3) == [8, 16, 32]
+    assert level_sizes(8, 5) == [4, 8]
+    assert level_sizes(6, 2) == [6]  # 3 < 4: no coarser level
 
 
 def test_solver_names_match_the_config():
-    """solvers.SOLVERS and the config's solver.method choices are the same set."""
-    import typing
-
-    from homofac.fit.config import SolverConfig
-
-    assert set(typing.get_args(SolverConfig.model_fields["method"].annotation)) == set(solvers.SOLVERS)
+    """Every registered solver is a valid solver.method (with its own option model), and nothing else is."""
+    for name, record in solvers.SOLVERS.items():
+        opts = validate(FitOptions, {"solver": {"method": name}}, "").solver
+        assert opts.method == name and isinstance(opts, record.options)
+        assert record.memory(1000, 100, 8) > 0 and record.doc
+    with pytest.raises(HomofacError, match="solver"):
+        validate(FitOptions, {"solver": {"method": "nope"}}, "")
 
 
 def test_column_scaling_is_the_inverse_column_norm():
     """column_scale(A) gives d_j = 1/||A e_j|| of the augmented matrix (data and lambda-Laplacian rows)
     when no row holds a column twice (IV: two textures, four distinct bilinear taps each)."""
-    from homofac import brdf
-
     target = brdf_target(brdf.cook_torrance(kd=0.1, ks=1.0, roughness=0.3, f0=(1.0, 0.78, 0.34)))
     p = pz.get("IV")
     s = pipeline.draw_samples(target, "IV", {"kind": "texels", "size": 8, "validation": 0, "cache": False},
                               log=lambda m: None)
-    layout = make_layout("parabolic", 6, p.T)
+    layout = parametrization_layout(p, "parabolic", 6)
     sys, _ = build_system(p, layout, jnp.asarray(s.a), jnp.asarray(s.b), jnp.asarray(s.y), eps=1e-5)
     d = np.asarray(solvers.column_scale(sys, 0.5))
-    a = solvers.to_scipy(sys, 0.5, layout.n_unknowns)
+    a = to_scipy(sys, 0.5, layout.n_unknowns)
     norms = np.sqrt(np.asarray(a.multiply(a).sum(axis=0))).ravel()
     np.testing.assert_allclose(d, 1 / norms, rtol=1e-5)

@@ -6,7 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from homofac.light.environment import _cube_texels
+from homofac.light.cubemap import cube_texels as _cube_texels
 from homofac.light.geometry import cosine_weights, cube_corners, light_geometry, straddler_count, vector_solid_angle
 
 

@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import os
 import subprocess
@@ -18,10 +17,14 @@ from PIL import Image
 import homofac as hf
 import homofac.gl  # noqa: F401 - hf.gl
 from homofac.errors import HomofacError
-from homofac.gl import glsl, picture
+from homofac.factorization import Factor, Factorization, Term, Texture
+from homofac.fit.result import Result
+from homofac.gl import picture
 from homofac.gl.engine import Camera, Light, load_mesh, render, run_glsl
 from homofac.param import mappers
 from homofac.param import parametrizations as pz
+from homofac.param import projections as pj
+from homofac.shader import LANGUAGES, generate, languages
 
 RNG = np.random.default_rng(7)
 
@@ -41,26 +44,49 @@ def edge_directions() -> np.ndarray:
 
 
 # --------------------------------------------------------------------------------------------------
-# GLSL twins of the Python functions
+# The exported shader's functions, traced from the records, equal the Python functions on the GPU
 
 
-def test_every_mapper_and_projection_has_glsl():
-    assert set(mappers.MAPPERS) <= set(glsl.MAPPER_GLSL)
-    assert set(pz.PROJECTIONS) <= set(glsl.PROJECTION_GLSL)
-    with pytest.raises(HomofacError, match="no GLSL for mapper"):
-        glsl._need({}, "new_map", "mapper")
+@pytest.mark.parametrize("language", sorted(LANGUAGES))
+def test_every_mapper_and_projection_traces_to_every_language(language):
+    """A record whose math cannot be traced (a plugin missing its shader half) fails here."""
+    for name in mappers.MAPPERS:
+        src, _ = generate.mapper_function(languages.get(language), name)
+        assert f"hf_map_{name}" in src
+    for name in pj.PROJECTIONS:
+        src, _ = generate.projection_function(languages.get(language), name, {"dominant": np.array([0.0, 0.0, 1.0])})
+        assert f"hf_proj_{name}" in src
+
+
+def _library(mapper=None, projections=(), context=None):
+    """GLSL of some traced records (with their constant tables), for run_glsl."""
+    lang = languages.GLSL
+    parts, tables = [], {}
+    if mapper is not None:
+        src, tb = generate.mapper_function(lang, mapper)
+        parts.append(src)
+        tables.update(tb)
+    for name in projections:
+        src, tb = generate.projection_function(lang, name, context or {})
+        parts.append(src)
+        tables.update(tb)
+    return "\n".join([languages.table_source(lang, n, v) for n, v in tables.items()] + parts)
 
 
 @pytest.mark.parametrize("name", sorted(mappers.MAPPERS))
 def test_glsl_mapper_equals_python(name):
-    d = np.concatenate([unit(4000), edge_directions()])
-    decl = glsl.library_glsl(name) + (
-        f"\nvec3 f(vec3 d) {{ int face; float u, v; hf_map_{name}(d, face, u, v); return vec3(float(face), u, v); }}"
-    )
-    gpu = run_glsl(decl, "f(a)", d, d)
-    face, u, v = mappers.get(name).to_face_uv(jnp.asarray(d))
-    assert np.array_equal(gpu[:, 0], np.asarray(face, np.float32))
-    np.testing.assert_allclose(gpu[:, 1:], np.stack([u, v], -1), atol=2e-6, rtol=1e-6)
+    m = mappers.get(name)
+    if m.scalar:
+        x = np.concatenate([RNG.uniform(0, 1, 4000), [0.0, 1.0, 0.5]]).astype(np.float32)
+        d = np.stack([x, x, x], axis=-1)
+        gpu = run_glsl(_library(name), f"hf_map_{name}(a.x)", d, d)
+        face, u, v = m.to_face_uv(jnp.asarray(x))
+    else:
+        d = np.concatenate([unit(4000), edge_directions()])
+        gpu = run_glsl(_library(name), f"hf_map_{name}(a)", d, d)
+        face, u, v = m.to_face_uv(jnp.asarray(d))
+    assert np.array_equal(gpu[:, 0], np.broadcast_to(np.asarray(face, np.float32), gpu[:, 0].shape))
+    np.testing.assert_allclose(gpu[:, 1:], np.stack(np.broadcast_arrays(u, v), -1), atol=2e-6, rtol=1e-6)
 
 
 def _pairs(kind: str, n: int):
@@ -72,29 +98,45 @@ def _pairs(kind: str, n: int):
     return a, b
 
 
-@pytest.mark.parametrize("name", sorted(pz.PROJECTIONS))
+@pytest.mark.parametrize("name", sorted(pj.PROJECTIONS))
 def test_glsl_projection_equals_python(name):
-    proj = pz.PROJECTIONS[name]
+    proj = pj.PROJECTIONS[name]
     a, b = _pairs(proj.kind, 4000)
     dominant = np.asarray([0.3, -0.5, 0.81], np.float32)
     dominant /= np.linalg.norm(dominant)
-    gpu = run_glsl(glsl.library_glsl(None, [name]), f"hf_proj_{name}(a, b)", a, b,
-                   uniforms={"u_dominant": tuple(float(x) for x in dominant)})
+    expr = f"vec3(hf_proj_{name}(a, b))" if proj.scalar else f"hf_proj_{name}(a, b)"
+    gpu = run_glsl(_library(projections=[name], context={"dominant": dominant}), expr, a, b)
     cpu = np.asarray(proj.fn(jnp.asarray(a), jnp.asarray(b), {"dominant": jnp.asarray(dominant)}))
+    if proj.scalar:
+        cpu = np.repeat(cpu[:, None], 3, axis=1)
     np.testing.assert_allclose(gpu, cpu, atol=1e-5)  # float32 rounding (GPU FMA, sqrt)
 
 
+def _one_texture(mapper: str, S: int, rng=RNG):
+    """A one-texture, one-factor model on ``mapper`` (dilated, as fitted models are): its value is the lookup."""
+    m = mappers.get(mapper)
+    H, W = mappers.texture_shape(mapper, S)
+    tex = mappers.dilate(mapper, S, rng.uniform(0.1, 1.0, size=(H, W, 3)).astype(np.float32))
+    kind = "lighting" if m.covers_sphere or m.scalar else "brdf"
+    proj = ("nv" if kind == "lighting" else "cos_i") if m.scalar else ("n" if kind == "lighting" else "wi")
+    model = Factorization(kind, "lighting" if kind == "lighting" else "brdf", (Texture("t", mapper, S, jnp.asarray(tex)),),
+                          (Term((Factor(proj, "t"),), jnp.ones(3)),), {}, "lookup")
+    return Result(model), tex
+
+
 @pytest.mark.parametrize("name", sorted(mappers.MAPPERS))
-def test_glsl_lookup_equals_mappers_lookup(name):
-    """Bilinear weights, clamping to the face, invalid corners and the nearest-valid redirect."""
+def test_hardware_filtered_lookup_equals_mappers_lookup(name):
+    """The exported shader reads the texture with linear filtering and clamp to edge at the pinned
+    clamped coordinate: the same value as mappers.lookup, inside and outside the mapped domain."""
     S = 8
-    H, W = mappers.texture_shape(name, S)
-    tex = RNG.uniform(0.1, 1.0, size=(H, W, 3)).astype(np.float32)
-    d = np.concatenate([unit(3000), edge_directions()])  # includes z < 0 for the hemisphere mappers
-    decl = glsl.library_glsl(name) + glsl.lookup_glsl(name, S) + "\nuniform sampler2D u_tex;"
-    gpu = run_glsl(decl, "hf_lookup(u_tex, a)", d, d, textures=[tex],
-                   ints=[("u_nearest", glsl.nearest_table(name, S))], uniforms={"u_tex": 0})
-    cpu = np.asarray(mappers.lookup(name, jnp.asarray(tex), jnp.asarray(d)))
+    fac, tex = _one_texture(name, S)
+    a = np.concatenate([unit(3000), edge_directions()])  # includes z < 0 for the hemisphere mappers
+    b = a.copy()
+    if fac.kind == "brdf" or mappers.get(name).scalar:
+        b = np.tile(np.array([[0.0, 0.0, 1.0]], np.float32), (len(a), 1))
+        a = np.where(np.sum(a * b, axis=1, keepdims=True) < 0, -a, a) if fac.kind == "lighting" else a
+    gpu = hf.gl.evaluate(fac, a, b)
+    cpu = np.asarray(fac.evaluate(a, b))
     np.testing.assert_allclose(gpu, cpu, atol=2e-6)
 
 
@@ -117,7 +159,9 @@ def as_parametrization(fac, name: str):
     """The fitted textures of ``fac`` reused (cyclically) as the textures of parametrization ``name``."""
     T = pz.get(name).T
     tex = tuple(fac.textures[k % len(fac.textures)] for k in range(T))
-    return dataclasses.replace(fac, parametrization=name, textures=tex)
+    model = Factorization.product(fac.kind, fac.quantity, name, fac.mapper, fac.texture_size, tex, fac.correction,
+                                  dict(fac.context))
+    return Result(model)
 
 
 MAX_DIFF: dict = {}
@@ -159,8 +203,7 @@ def test_brdf_render_under_one_light_equals_cpu():
     yy, xx = np.mgrid[0:H, 0:W] / S
     tex = tuple(np.stack([0.5 + 0.4 * np.sin(3 * xx + k), 0.6 + 0.3 * np.cos(2 * yy), 0.4 + 0.2 * xx * yy], -1)
                 .astype(np.float32) for k in range(2))
-    fac = hf.fit.Factorization(kind="brdf", parametrization="PQP", mapper="parabolic", texture_size=S,
-                               textures=tex, correction=jnp.asarray([0.9, 0.8, 0.7]), quantity="brdf")
+    fac = Result(Factorization.product("brdf", "brdf", "PQP", "parabolic", S, tex, jnp.asarray([0.9, 0.8, 0.7])))
     light = Light(direction=(0.3, 0.5, 0.8), irradiance=(2.0, 2.0, 2.0))
     frame = render(fac, "sphere", size=80, light=light)
     m = frame.mask
@@ -170,7 +213,7 @@ def test_brdf_render_under_one_light_equals_cpu():
     assert np.abs(frame.value[m] - cpu).max() <= 1e-5 * cpu.max()
     assert (cpu > 0).mean() > 0.3  # the lit side is visible
     # the preview with the exact BRDF target shows the three panels
-    target = hf.fit.brdf_target(hf.brdf.cook_torrance(kd=0.1, ks=1.0, roughness=0.3, f0=(1.0, 0.78, 0.34)))
+    target = hf.target.brdf_target(hf.brdf.cook_torrance(kd=0.1, ks=1.0, roughness=0.3, f0=(1.0, 0.78, 0.34)))
     img, data = hf.gl.preview(fac, target, size=64, light=light, return_data=True)
     assert img.dtype == np.uint8 and img.shape[1] > 3 * 64 and np.isfinite(data["nrmse"])
 
@@ -188,8 +231,8 @@ def test_preview_exact_panel_is_the_lighting(lighting):
     assert img.shape[0] > 64 and img.shape[1] > 3 * 64
     # background, the object and the colour bar: many colours
     assert len(np.unique(img.reshape(-1, 3), axis=0)) > 500
-    # without a target (and no config to rebuild one): the factorized panel only
-    only = hf.gl.preview(fac, size=64)
+    # without a target: the factorized panel only
+    only = hf.gl.preview(fac.replace(target=None), size=64)
     assert only.shape[1] < img.shape[1]
 
 
@@ -285,7 +328,7 @@ SMALL_BRDF = {
 def test_fit_without_gl_warns_and_skips_the_preview(tmp_path, capsys, monkeypatch):
     import yaml
 
-    from homofac.fit.__main__ import main
+    from homofac.app.cli import fit_main as main
     from homofac.gl import engine as render_mod
 
     cfg = tmp_path / "c.yaml"

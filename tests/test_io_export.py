@@ -11,9 +11,10 @@ import yaml
 
 import homofac as hf
 from homofac.errors import HomofacError
+from homofac.fit.samples import Samples
 from homofac.fit import pipeline, precision
-from homofac.fit.__main__ import main
-from homofac.io import load
+from homofac.app.cli import fit_main as main
+from homofac import load
 from homofac.io.exr import envmap_kind, read_exr, read_exr_with_header
 from homofac.io.png import read_png
 
@@ -62,7 +63,7 @@ def test_png_round_trip_and_decode_rule(brdf_fac, tmp_path):
     enc = fac.encoded()
     rule = doc["png_decode"]
     assert rule["alpha"] is True and rule["written"] is True and rule["transfer"] == "linear"
-    assert rule["scale"] == enc.scale and np.log2(rule["scale"]) == int(np.log2(rule["scale"]))
+    assert rule["scale"] == enc.rule["scale"] and np.log2(rule["scale"]) == int(np.log2(rule["scale"]))
     assert max(rule["colour"]) <= 1.0
     np.testing.assert_allclose(np.asarray(rule["colour"]) * rule["scale"] * rule["prescale"][0],
                                np.asarray(doc["correction"]), rtol=1e-6)
@@ -181,7 +182,7 @@ def test_cli_output_png_half_alpha_prescale(tmp_path):
     target = hf.fit.brdf_target(hf.brdf.cook_torrance(kd=0.1, ks=1.0, roughness=0.3, f0=(1.0, 0.78, 0.34)))
     val = hf.fit.sampling.random_pairs("brdf", 300, 1)
     y = np.asarray(hf.fit.evaluate(target, val.a, val.b))
-    s = pipeline.Samples(val.a, val.b, y, val.a, val.b, y)
+    s = Samples(val.a, val.b, y, val.a, val.b, y)
     m = pipeline.measure(lf, target, s)
     assert m["validation"]["quantized"]["avg_rel"] == pytest.approx(doc["metrics"]["validation"]["quantized"]["avg_rel"], rel=1e-5)
 

@@ -11,8 +11,8 @@ import pytest
 import homofac as hf
 from homofac import sphere
 from homofac.fit import pipeline
-from homofac.fit.target import Target
-from homofac.light import environment as envmod
+from homofac.target import Target
+from homofac import light as envmod
 
 
 def random_pairs(n, seed=0):

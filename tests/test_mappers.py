@@ -34,7 +34,8 @@ def angle(a, b):
 
 
 def test_registry_and_shapes():
-    assert sorted(mp.MAPPERS) == sorted(NAMES)
+    assert sorted(mp.MAPPERS) == sorted(NAMES + ["line"])  # line: the 1D table of scalar factors
+    assert mp.texture_shape("line", 16) == (1, 16) and mp.get("line").scalar
     faces = {"parabolic": 1, "dual_paraboloid": 2, "cube": 6, "octahedral": 1, "hemispherical": 1, "spherical": 1}
     for name, f in faces.items():
         m = mp.get(name)

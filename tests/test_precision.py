@@ -3,18 +3,18 @@
 
 from __future__ import annotations
 
-import dataclasses
-
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import homofac as hf
 from homofac.errors import HomofacError
+from homofac.factorization import Factorization, evaluate_quantized
 from homofac.fit import pipeline, precision
-from homofac.fit.factorization import evaluate_rgba8, evaluate_textures
+from homofac.fit.result import Result
 from homofac.param import mappers
 from homofac.param import parametrizations as pz
+from homofac.param.mappers.geometry import directions64
 
 
 def _random_textures(rng, param, mapper, S, lo=1e-3, hi=5.0):
@@ -24,7 +24,25 @@ def _random_textures(rng, param, mapper, S, lo=1e-3, hi=5.0):
 
 def _centres64(S):
     """float64 texel-centre directions (the public ones are float32: bilinear weights off by ~1e-7)."""
-    return np.asarray(mappers._directions64("parabolic", S))
+    return np.asarray(directions64("parabolic", S))
+
+
+def _model(name, textures, correction=(1.0, 1.0, 1.0)):
+    """The one-term model of a BRDF parametrization on parabolic textures."""
+    S = np.asarray(textures[0]).shape[0]
+    return Factorization.product("brdf", "brdf", name, "parabolic", S, [jnp.asarray(t) for t in textures],
+                                 jnp.asarray(correction))
+
+
+def _decode_unrounded(model, rgba, colour_scale, a, b):
+    """The thesis' decode rule (eq. 50) on float RGBA textures: c * prod_j bilerp(rgb_j) * bilerp(alpha_j)."""
+    out = jnp.broadcast_to(jnp.asarray(colour_scale, a.dtype), a.shape)
+    index = {t.name: k for k, t in enumerate(model.textures)}
+    for f in model.terms[0].factors:
+        d = hf.param.projections.apply(f.projection, a, b, model.context)
+        v = mappers.lookup("parabolic", jnp.asarray(rgba[index[f.texture]], a.dtype), d)
+        out = out * v[..., :3] * v[..., 3:4]
+    return out
 
 
 def _pairs(kind, n, seed):
@@ -35,7 +53,7 @@ def _pairs(kind, n, seed):
 @pytest.mark.parametrize("name", ["PQP", "IV", "NRV"])
 def test_prescale_factors_keep_the_product(name):
     p = pz.get(name)
-    f = precision.texture_uses(p)
+    f = tuple(len(p.uses(k)) for k in range(p.T))
     rng = np.random.default_rng(1)
     for _ in range(5):
         w = np.exp(rng.normal(0, 2, p.T + 1))
@@ -71,18 +89,17 @@ def test_normalize_prescale_alpha_leave_the_float_product_unchanged(x64):
     p = pz.get("PQP")
     raw = _random_textures(rng, p, "parabolic", 8)
     a, b = _pairs("brdf", 400, 3)
-    ref = evaluate_textures("PQP", "parabolic", [jnp.asarray(t) for t in raw], jnp.ones(3), a, b)
-    ref = np.asarray(ref)
+    ref = np.asarray(_model("PQP", raw).evaluate(a, b))
     assert np.all(ref > 0)
 
-    norm, corr = precision.normalize(p, [jnp.asarray(t) for t in raw])
+    model = precision.normalize(_model("PQP", raw))
+    norm, corr = [t.data for t in model.textures], model.terms[0].correction
     assert all(float(jnp.max(t)) == pytest.approx(1.0) for t in norm)
-    v = np.asarray(evaluate_textures("PQP", "parabolic", norm, corr, a, b))
-    np.testing.assert_allclose(v, ref, rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(model.evaluate(a, b)), ref, rtol=1e-6)
 
-    tex, c2, s = precision.prescale(p, norm, corr, weights=[0.1, 3.0, 0.5])
+    tex, c2, s = precision.prescale(precision.texture_uses(model), norm, corr, weights=[0.1, 3.0, 0.5])
     assert not np.allclose(s, 1.0)
-    v = np.asarray(evaluate_textures("PQP", "parabolic", [jnp.asarray(t) for t in tex], jnp.asarray(c2), a, b))
+    v = np.asarray(_model("PQP", tex, c2).evaluate(a, b))
     np.testing.assert_allclose(v, ref, rtol=1e-6)
 
     colour, z = precision.split_correction(c2)
@@ -98,7 +115,8 @@ def test_alpha_split_product_at_texel_centres(x64):
     p = pz.get("IV")
     S = 8
     raw = _random_textures(rng, p, "parabolic", S, lo=1e-4)
-    norm, corr = precision.normalize(p, [jnp.asarray(t) for t in raw])
+    model = precision.normalize(_model("IV", raw))
+    norm, corr = [t.data for t in model.textures], model.terms[0].correction
     colour, z = precision.split_correction(np.asarray(corr))
     rgba = []
     for t in norm:
@@ -109,19 +127,20 @@ def test_alpha_split_product_at_texel_centres(x64):
     ok = mappers.inside_mask("parabolic", S).reshape(-1) & (d[:, 2] > 0.05)
     d = jnp.asarray(d[ok])
     a, b = d, d[::-1]
-    v_float = np.asarray(evaluate_textures("IV", "parabolic", norm, corr, a, b))
-    v_alpha = np.asarray(evaluate_rgba8("IV", "parabolic", tuple(rgba), jnp.asarray(colour * z), a, b))
+    v_float = np.asarray(model.evaluate(a, b))
+    v_alpha = np.asarray(_decode_unrounded(model, rgba, colour * z, a, b))
     np.testing.assert_allclose(v_alpha, v_float, rtol=1e-6)
 
 
-def test_encode_rgba8_is_eight_bit_and_decodes_by_its_rule(x64):
+def test_encode_is_eight_bit_and_decodes_by_its_rule(x64):
     rng = np.random.default_rng(2)
     p = pz.get("IV")
     S = 8
     raw = _random_textures(rng, p, "parabolic", S, lo=1e-3)
-    norm, corr = precision.normalize(p, [jnp.asarray(t) for t in raw])
+    model = precision.normalize(_model("IV", raw))
+    norm = [t.data for t in model.textures]
     for alpha in (False, True):
-        enc = precision.encode_rgba8(p, norm, corr, alpha=alpha)
+        enc = precision.encode(model, alpha=alpha)
         assert all(q.dtype == np.uint8 and q.shape == (S, S, 4) for q in enc.rgba)
         if not alpha:
             assert all(np.all(q[..., 3] == 255) for q in enc.rgba)
@@ -130,9 +149,8 @@ def test_encode_rgba8_is_eight_bit_and_decodes_by_its_rule(x64):
             d = precision.decode_rgba8(q).astype(np.float64)
             err = np.abs(d[..., :3] * d[..., 3:] - np.asarray(t))
             assert err.max() <= 0.5 / 255 + 1e-9
-        # Factorization.evaluate(quantized=True) is the decode rule, recomputed here by hand in numpy
-        fac = hf.fit.Factorization(kind="brdf", parametrization="IV", mapper="parabolic", texture_size=S,
-                                   textures=tuple(norm), correction=corr, encoding={"alpha": alpha})
+        # Result.evaluate(quantized=True) is the decode rule, recomputed here by hand in numpy
+        fac = Result(model, encoding={"alpha": alpha})
         d = _centres64(S)
         ij = np.argwhere(mappers.inside_mask("parabolic", S) & (d[..., 2] > 0.05))
         i0, i1 = ij, ij[::-1]
@@ -141,7 +159,9 @@ def test_encode_rgba8_is_eight_bit_and_decodes_by_its_rule(x64):
         q0, q1 = (np.asarray(q, np.float64) for q in enc.rgba)
         t0 = q0[i0[:, 0], i0[:, 1]]
         t1 = q1[i1[:, 0], i1[:, 1]]
-        want = enc.colour * enc.scale * t0[:, :3] * t0[:, 3:] * t1[:, :3] * t1[:, 3:] / 255.0**4
+        c = np.asarray(enc.rule["colour"]) * enc.rule["scale"]
+        np.testing.assert_allclose(enc.corrections[0], c)
+        want = c * t0[:, :3] * t0[:, 3:] * t1[:, :3] * t1[:, 3:] / 255.0**4
         np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-12)
 
 
@@ -152,8 +172,9 @@ def test_alpha_keeps_relative_precision_of_small_values(x64):
     t = t.reshape(64, 64, 3)
     corr = np.array([12.0, 9.0, 4.0])  # a typical HDR correction: z = 16
     rel = {}
+    model = Factorization.product("brdf", "brdf", "IV", "parabolic", 64, [t, t], corr)
     for alpha in (False, True):
-        enc = precision.encode_rgba8(p, [t, t], corr, alpha=alpha)
+        enc = precision.encode(model, alpha=alpha)
         d = precision.decode_rgba8(enc.rgba[0]).astype(np.float64)
         rel[alpha] = np.mean(np.abs(d[..., :3] * d[..., 3:] - t) / t)
     assert rel[True] < 0.5 * rel[False]
@@ -163,12 +184,11 @@ def test_prescale_clamps_and_is_recorded(x64):
     rng = np.random.default_rng(4)
     p = pz.get("PQP")
     raw = _random_textures(rng, p, "parabolic", 8)
-    norm, corr = precision.normalize(p, [jnp.asarray(t) for t in raw])
-    enc = precision.encode_rgba8(p, norm, corr, weights=[0.01, 1.0, 100.0])
-    assert enc.clamped[1] > 0 and enc.clamped[0] == 0
-    rule = enc.decode_rule()
-    assert rule["prescale"] == pytest.approx(list(enc.prescale)) and rule["alpha"] is True
-    assert rule["scale"] == enc.scale and len(rule["colour"]) == 3
+    enc = precision.encode(precision.normalize(_model("PQP", raw)), weights=[0.01, 1.0, 100.0])
+    rule = enc.rule
+    assert rule["clamped"][1] > 0 and rule["clamped"][0] == 0
+    assert not np.allclose(rule["prescale"], 1.0) and rule["alpha"] is True
+    assert rule["scale"] >= 1 and len(rule["colour"]) == 3
 
 
 @pytest.fixture(scope="module")
@@ -185,7 +205,7 @@ def test_alpha_trick_lowers_eight_bit_error_on_hdr_brdf(gold_pqp):
     assert float(np.max(np.asarray(fac.correction))) > 4  # a high-dynamic-range case: z > 1
     m = {}
     for alpha in (False, True):
-        f = dataclasses.replace(fac, encoding={"alpha": alpha})
+        f = fac.replace(encoding={"alpha": alpha})
         m[alpha] = pipeline.measure(f, target, fac.samples)
     # the metrics stored by factorize are those of the default encoding (alpha on)
     assert fac.metrics["validation"]["quantized"]["avg_rel"] == pytest.approx(m[True]["validation"]["quantized"]["avg_rel"], rel=1e-6)
@@ -203,9 +223,9 @@ def test_alpha_trick_lowers_eight_bit_error_on_hdr_brdf(gold_pqp):
     for t in fac.textures:
         rgb, al = precision.alpha_split(np.asarray(t), colour, z)
         unrounded.append(jnp.asarray(np.concatenate([rgb, al[..., None]], -1), jnp.float32))
-    v_split = np.asarray(evaluate_rgba8("PQP", "parabolic", tuple(unrounded), jnp.asarray(colour * z, jnp.float32), a, b))
+    v_split = np.asarray(_decode_unrounded(fac.model, unrounded, jnp.asarray(colour * z, jnp.float32), a, b))
     v_float = np.asarray(fac.evaluate(a, b))
-    v_q = {al: np.asarray(dataclasses.replace(fac, encoding={"alpha": al}).evaluate(a, b, quantized=True)) for al in (False, True)}
+    v_q = {al: np.asarray(fac.replace(encoding={"alpha": al}).evaluate(a, b, quantized=True)) for al in (False, True)}
     pos = v_float > 1e-3 * v_float.mean()
     cost_alpha = np.mean(np.abs(v_q[True] - v_split)[pos] / v_split[pos])
     cost_plain = np.mean(np.abs(v_q[False] - v_float)[pos] / v_float[pos])
@@ -217,9 +237,8 @@ def test_quantized_differs_from_naive_rounding(gold_pqp):
     _, fac = gold_pqp
     s = fac.samples
     a, b = jnp.asarray(s.val_a[:200]), jnp.asarray(s.val_b[:200])
-    naive = evaluate_textures("PQP", "parabolic", tuple(precision.quantize(list(fac.textures))),
-                              jnp.asarray(fac.correction), a, b)
+    naive = fac.model.replace_data(precision.quantize(list(fac.textures))).evaluate(a, b)
     q = fac.evaluate(a, b, quantized=True)
     assert not np.allclose(np.asarray(q), np.asarray(naive))
-    q_plain = dataclasses.replace(fac, encoding={"alpha": False}).evaluate(a, b, quantized=True)
+    q_plain = fac.replace(encoding={"alpha": False}).evaluate(a, b, quantized=True)
     np.testing.assert_allclose(np.asarray(q_plain), np.asarray(naive), rtol=2e-5, atol=1e-7)

@@ -8,8 +8,10 @@ import numpy as np
 import pytest
 
 import homofac as hf
+from homofac.fit.options import SamplingOptions
 from homofac.fit import cache, pipeline
-from homofac.fit.target import brdf_target
+from homofac.app.run import build_target, run
+from homofac.target import brdf_target
 
 SAMPLING = {"kind": "texels", "size": 6, "validation": 300, "seed": 0}
 
@@ -37,12 +39,12 @@ def test_cache_hit_returns_the_same_samples_and_skips_sampling(cache_dir):
     for x, y in zip(first, again):
         np.testing.assert_array_equal(x, y)
     # a fresh but equal target (same file, same parameters) has the same key
-    assert cache.key(_lighting(), {**pipeline.DEFAULT_SAMPLING, **SAMPLING}, "NR") == cache.key(
-        t, {**pipeline.DEFAULT_SAMPLING, **SAMPLING}, "NR")
+    assert cache.key(_lighting(), SamplingOptions(**SAMPLING).model_dump(), "NR") == cache.key(
+        t, SamplingOptions(**SAMPLING).model_dump(), "NR")
 
 
 def test_cache_is_invalidated_by_every_input(cache_dir):
-    s = {**pipeline.DEFAULT_SAMPLING, **SAMPLING}
+    s = SamplingOptions(**SAMPLING).model_dump()
     env = hf.light.load_environment("forest", resolution=4)
     base = cache.key(_lighting(env=env), s, "NR")
     assert base is not None
@@ -65,9 +67,9 @@ def test_cache_is_invalidated_by_every_input(cache_dir):
 
 def test_uncacheable_targets_and_damaged_entries(cache_dir):
     t = brdf_target(lambda wi, wo: wi * 0 + 1.0)  # a plain function: no stable fingerprint
-    assert cache.key(t, {**pipeline.DEFAULT_SAMPLING, **SAMPLING}, "PQP") is None
+    assert cache.key(t, SamplingOptions(**SAMPLING).model_dump(), "PQP") is None
     lt = _lighting()
-    k = cache.key(lt, {**pipeline.DEFAULT_SAMPLING, **SAMPLING}, "NR")
+    k = cache.key(lt, SamplingOptions(**SAMPLING).model_dump(), "NR")
     cache_dir.mkdir(parents=True)
     (cache_dir / f"{k}.npz").write_bytes(b"not an npz")  # a damaged entry is resampled and replaced whole
     s = pipeline.draw_samples(lt, "NR", SAMPLING, log=lambda m: None)
@@ -97,7 +99,7 @@ def test_target_error_picks_the_cheapest_candidate_that_meets_it(cache_dir):
     # promise on the validation set.
     costs = {}
     for goal in (0.25, 0.13):
-        fac = auto.choose(t, goal, mapper="cube", max_size=16, sampling=sampling, samples=samples)
+        fac = pipeline.factorize(t, target_error=goal, mapper="cube", texture_size=16, sampling=sampling, samples=samples)
         sel = fac.selection
         assert sel["met"], sel
         assert fac.metrics["validation"]["float"]["nrmse"] <= goal
@@ -106,8 +108,7 @@ def test_target_error_picks_the_cheapest_candidate_that_meets_it(cache_dir):
         costs[goal] = sel["tried"][-1]["cost"]
     assert costs[0.13] > costs[0.25]
     # an impossible target returns the best tried, with a warning saying so
-    fac = auto.choose(t, 1e-6, mapper="cube", max_size=8, sampling=sampling, samples=samples,
-                      parametrizations=["N", "NR"])
+    fac = pipeline.factorize(t, target_error=1e-6, mapper="cube", texture_size=8, sampling=sampling, samples=samples)
     assert not fac.selection["met"] and any("no candidate" in w for w in fac.warnings)
     best = min(c["validation_nrmse"] for c in fac.selection["tried"])
     assert fac.metrics["validation"]["float"]["nrmse"] == pytest.approx(best)
@@ -118,7 +119,7 @@ def test_target_error_from_the_cli_records_its_choice(cache_dir, tmp_path):
 
     import yaml
 
-    from homofac.fit.__main__ import main
+    from homofac.app.cli import fit_main as main
 
     cfg = {
         "target": {"kind": "lighting", "brdf": {"model": "lambert", "kd": 0.8},
@@ -175,7 +176,7 @@ def test_sharded_sampling_equals_unsharded(tmp_path):
 def test_light_culling_from_the_config_is_recorded_and_bounded(cache_dir, tmp_path):
     """target.environment.cull drops the weakest lights; factorization.json records what was dropped, and the
     samples differ from the unculled ones by at most max f x dropped power (Lambert: kd/pi)."""
-    from homofac.fit import config as cfgmod
+    from homofac.app import config as cfgmod
 
     def cfg(cull):
         return cfgmod.parse({
@@ -186,8 +187,8 @@ def test_light_culling_from_the_config_is_recorded_and_bounded(cache_dir, tmp_pa
             "output": {"preview": False},
         })
 
-    full, _ = cfgmod.build_target(cfg(None), tmp_path)
-    culled, info = cfgmod.build_target(cfg(1e-3), tmp_path)
+    full, _ = build_target(cfg(None), tmp_path)
+    culled, info = build_target(cfg(1e-3), tmp_path)
     c = info["environment"]["culling"]
     assert c["dropped"] > 0 and c["kept"] == culled.fn.env.directions.shape[0]
     s_full = pipeline.draw_samples(full, "N", {"size": 6, "validation": 300}, log=lambda m: None)
@@ -195,7 +196,7 @@ def test_light_culling_from_the_config_is_recorded_and_bounded(cache_dir, tmp_pa
     bound = 0.8 / np.pi * np.asarray(c["dropped_power"])
     diff = s_full.y - s_cull.y
     assert np.all(diff >= -1e-6) and np.all(diff <= bound + 1e-6)
-    fac, out = cfgmod.run(cfg(1e-3), tmp_path, str(tmp_path / "out"))
+    fac, out = run(cfg(1e-3), tmp_path, str(tmp_path / "out"))
     import json
 
     doc = json.loads((out / "factorization.json").read_text())
@@ -207,7 +208,7 @@ def test_lobe_culling_stays_under_its_bound(model, monkeypatch):
     """Sampling with lobe culling differs from the full sum by at most the stated bound
     delta x sum_m |colour_m| peak_m x E(n), never upwards; too few slots are detected and rerun."""
     from homofac.fit import sampling
-    from homofac.fit.target import evaluate_grouped
+    from homofac.fit.samples import evaluate_grouped
     from homofac.light.lighting import Lighting
 
     env = hf.light.load_environment("studio", resolution=8)

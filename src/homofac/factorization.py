@@ -262,12 +262,14 @@ def evaluate_quantized(model: Factorization, q: Quantized, a, b) -> Float[Array,
     Each RGBA channel is interpolated bilinearly (as texture units do) before decoding, so with the
     alpha trick the product is ``offset + scale * bilerp(rgb) * bilerp(alpha)`` per factor.
     """
-    a = jnp.asarray(a, jnp.float32)
-    b = jnp.asarray(b, a.dtype)
-    channels = tuple(jnp.asarray(np.asarray(r, np.float32) / 255.0) for r in q.rgba)
-    offsets = tuple(jnp.asarray(o, jnp.float32) for o in q.offset)
-    scales = tuple(jnp.asarray(s, jnp.float32) for s in q.scale)
-    corr = tuple(jnp.asarray(c, jnp.float32) for c in q.corrections)
+    a = jnp.asarray(a)
+    dt = a.dtype if jnp.issubdtype(a.dtype, jnp.floating) else jnp.result_type(float)
+    a = a.astype(dt)
+    b = jnp.asarray(b, dt)
+    channels = tuple(jnp.asarray(np.asarray(r, np.float64) / 255.0, dt) for r in q.rgba)
+    offsets = tuple(jnp.asarray(o, dt) for o in q.offset)
+    scales = tuple(jnp.asarray(s, dt) for s in q.scale)
+    corr = tuple(jnp.asarray(c, dt) for c in q.corrections)
     return _evaluate_q(model, channels, offsets, scales, corr, tuple(bool(x) for x in q.alpha), a, b)
 
 

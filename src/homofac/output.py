@@ -152,7 +152,7 @@ class OutputLock:
 
     The concurrency rule (docs/format.md): one run writes a directory at a time; a second run that
     finds the lock held is refused at once (one line, before any work), never blocked and never
-    silently overwriting the first. Taking the lock also cleans what a killed run left behind (its
+    silently overwriting the first. The lock file is removed when the lock is released. Taking the lock also cleans what a killed run left behind (its
     temporary and old directories) and restores a previous result stranded by a kill between the two
     renames of the final swap. Reentrant within a process (``save`` inside ``run``).
     """
@@ -196,6 +196,9 @@ class OutputLock:
             return
         OutputLock._held.pop(self.key, None)
         if self.fd is not None:
+            # unlink while still holding the lock: a run that opened the old file is refused by it, a
+            # later one creates a new file; nothing is left beside the output directory
+            (self.out.parent / f".{self.out.name}.lock").unlink(missing_ok=True)
             fcntl.flock(self.fd, fcntl.LOCK_UN)
             os.close(self.fd)
             self.fd = None

@@ -9,7 +9,7 @@ import pytest
 
 import homofac as hf
 from homofac.fit import pipeline
-from homofac.fit.target import brdf_target
+from homofac.target import brdf_target
 
 SMALL = {"kind": "texels", "size": 6, "validation": 400, "seed": 0, "cache": False}
 

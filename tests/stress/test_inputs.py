@@ -11,10 +11,11 @@ import pytest
 import yaml
 
 from homofac import brdf as B
-from homofac.fit.__main__ import main
+from homofac.app.cli import fit_main as main
 from homofac.io.exr import write_exr
 from homofac.io.hdr import write_hdr
-from homofac.light import environment as E
+from homofac import light as E
+from homofac.light.cubemap import FACE_NAMES
 
 LIGHTING = {
     "target": {"kind": "lighting", "brdf": {"model": "cook_torrance", "kd": 0.05, "ks": 1.0, "roughness": 0.3},
@@ -73,14 +74,14 @@ def _hdr_truncated(d: Path):
 
 def _cube_unequal(d: Path):
     (d / "cube").mkdir()
-    for n in E.FACE_NAMES:
+    for n in FACE_NAMES:
         s = 8 if n != "nz" else 6
         write_exr(d / "cube" / f"{n}.exr", np.ones((s, s, 3), np.float32))
 
 
 def _cube_missing_face(d: Path):
     (d / "cube").mkdir()
-    for n in E.FACE_NAMES[:5]:
+    for n in FACE_NAMES[:5]:
         write_exr(d / "cube" / f"{n}.exr", np.ones((8, 8, 3), np.float32))
 
 

@@ -10,9 +10,9 @@ import time
 
 import yaml
 
-from homofac.fit import budget
-from homofac.fit import config as C
-from homofac.fit.__main__ import main
+from homofac.app import budget
+from homofac.app import config as C
+from homofac.app.cli import fit_main as main
 
 HUGE = {
     "target": {"kind": "lighting", "brdf": {"model": "lambert", "kd": 0.5},
@@ -43,19 +43,19 @@ def test_limit_is_configurable(tmp_path, capsys):
     small["limits"]["memory_gb"] = 4.0
     (tmp_path / "c.yaml").write_text(yaml.safe_dump(small))
     assert main([str(tmp_path / "c.yaml"), "--quiet"]) == 0
-    assert budget.default_limit() == budget.physical_memory() // 2
+    assert budget.default_limit() == budget.process_limit() // 2 <= budget.physical_memory() // 2
 
 
 MEASURE = r"""
 import json, resource, sys
-from homofac.fit import budget, config as C
+from homofac.app import budget, config as C, run as R
 cfg, base = C.load(C.default_config_path())
 d = cfg.model_dump(mode="json")
 d["sampling"].update(size=24, cache=False)
 d["output"].update(preview=False, samples=False)
 cfg = C.parse(d)
 est = budget.estimate(cfg)
-C.run(cfg, base, sys.argv[1])
+R.run(cfg, base, sys.argv[1])
 print(json.dumps({"est": est["total"], "peak": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024}))
 """
 

@@ -12,7 +12,7 @@ import yaml
 
 import homofac as hf
 from homofac.fit import pipeline
-from homofac.fit.target import brdf_target
+from homofac.target import brdf_target
 
 GOLD = dict(kd=(0.05, 0.04, 0.02), ks=1.0, roughness=0.3, f0=(1.0, 0.78, 0.34))
 SMALL = {"kind": "texels", "size": 8, "validation": 500, "seed": 0, "cache": False}
@@ -70,7 +70,7 @@ def test_far_fewer_samples_than_texels():
 
 
 def test_non_convergence_is_reported(tmp_path, capsys):
-    from homofac.fit.__main__ import main
+    from homofac.app.cli import fit_main as main
 
     cfg = {
         "target": {"kind": "brdf", "brdf": {"model": "cook_torrance", "kd": 0.1, "ks": 1.0, "roughness": 0.3}},

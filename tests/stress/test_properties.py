@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 
 import homofac as hf
 from homofac.fit import pipeline
-from homofac.fit.target import brdf_target
+from homofac.target import brdf_target
 from homofac.param import mappers
 
 SETTINGS = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -38,12 +38,19 @@ def directions(draw, hemisphere=False):
 MAPPER_NAMES = sorted(mappers.MAPPERS)
 
 
+def _inputs(m):
+    """What a mapper maps: directions (of its domain), or scalars in [0, 1] for the line mapper."""
+    if m.scalar:
+        return st.floats(0.0, 1.0, allow_nan=False).map(lambda x: np.float64(x))
+    return directions(hemisphere=not m.covers_sphere)
+
+
 @pytest.mark.parametrize("name", MAPPER_NAMES)
 @SETTINGS
 @given(data=st.data())
 def test_mapper_round_trip(name, data):
     m = mappers.get(name)
-    d = data.draw(directions(hemisphere=not m.covers_sphere))
+    d = data.draw(_inputs(m))
     f, u, v = m.to_face_uv(d)
     assert 0 <= int(f) < m.faces and 0 <= float(u) <= 1 and 0 <= float(v) <= 1
     back = np.asarray(m.from_face_uv(f, u, v))
@@ -55,7 +62,7 @@ def test_mapper_round_trip(name, data):
 @given(data=st.data(), size=st.sampled_from([4, 7, 16, 33]))
 def test_bilinear_is_a_partition_of_unity_on_valid_texels(name, data, size):
     m = mappers.get(name)
-    d = data.draw(directions(hemisphere=not m.covers_sphere))
+    d = data.draw(_inputs(m))
     idx, w = mappers.bilinear(m, np.asarray(d, np.float32)[None], size)
     idx, w = np.asarray(idx)[0], np.asarray(w)[0]
     assert abs(w.sum() - 1.0) < 1e-5 and np.all(w >= -1e-7)

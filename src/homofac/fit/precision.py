@@ -204,7 +204,10 @@ def encode(model: Factorization, *, weights: Sequence[float] | None = None, alph
             q, n = _rgba8(t, colour, z, alpha)
             rgba.append(q)
             clamped.append(n)
-        rule = {"encoding": "rgba8", "colour": [float(x) for x in colour], "scale": float(z),
+        rule = {"encoding": "rgba8", "transfer": "linear",
+                "value": "colour * scale * prod_j (rgb_k(j) * alpha_k(j)), rgb = RGB/255, alpha = A/255, "
+                         "each channel bilinearly interpolated before the products (thesis eq. 50)",
+                "colour": [float(x) for x in colour], "scale": float(z),
                 "prescale": [float(x) for x in s], "alpha": bool(alpha), "clamped": [int(x) for x in clamped]}
         ones = tuple(np.ones(3) for _ in tex)
         return Quantized(tuple(rgba), tuple(np.zeros(3) for _ in tex), ones, tuple(bool(alpha) for _ in tex),
@@ -223,7 +226,9 @@ def encode(model: Factorization, *, weights: Sequence[float] | None = None, alph
         offs.append(off)
         scales.append(sc)
         alphas.append(use_alpha)
-    rule = {"encoding": "rgba8-affine", "alpha": [bool(a) for a in alphas]}
+    rule = {"encoding": "rgba8-affine", "transfer": "linear", "alpha": [bool(a) for a in alphas],
+            "value": "sum_terms png_correction * prod_factors (offset + scale * rgb * (alpha if alpha)), "
+                     "rgb = RGB/255, alpha = A/255, each channel bilinearly interpolated first"}
     return Quantized(tuple(rgba), tuple(offs), tuple(scales), tuple(alphas),
                      tuple(np.asarray(term.correction, np.float64) for term in model.terms), rule)
 

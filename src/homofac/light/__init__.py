@@ -9,7 +9,7 @@
 
 from __future__ import annotations
 
-from .cubemap import to_cube_image
+from .cubemap import FACE_NAMES, to_cube_image
 from .environment import Environment, dominant_direction, luminance, total_power
 from .lighting import Lighting, irradiance, lighting, lighting_target
 from .lights import cull_lights, with_lights
@@ -19,7 +19,7 @@ from .sources import BUNDLED, bundled, environment_from_options, load_environmen
 from .synthetic import gradient_sky, painted_lights, sun_sky, uniform
 
 __all__ = [
-    "BUNDLED", "BoostOptions", "Environment", "EnvironmentOptions", "LightOptions", "Lighting", "bundled",
+    "BUNDLED", "BoostOptions", "FACE_NAMES", "Environment", "EnvironmentOptions", "LightOptions", "Lighting", "bundled",
     "cull_lights", "dominant_direction", "environment_from_options", "from_cube", "from_latlong", "gradient_sky",
     "irradiance", "lighting", "lighting_target", "load_environment", "luminance", "painted_lights", "sun_sky",
     "to_cube_image", "total_power", "uniform", "with_lights",

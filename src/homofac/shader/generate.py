@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import sphere
 from .._version import __version__
 from ..errors import HomofacError
 from ..factorization import Factorization, Quantized
@@ -56,6 +57,17 @@ def projection_function(lang: L.Language, name: str, context: dict) -> tuple[str
     if not isinstance(out, Expr):
         raise HomofacError(f"projection {name} did not trace to a shader expression")
     return L.function(lang, f"hf_proj_{name}", [("a", "vec3"), ("b", "vec3")], out, doc=p.doc), L.tables([out])
+
+
+def helper_functions(lang: L.Language) -> list[str]:
+    """``hf_normalize(d)`` and ``hf_local(d, n)`` (d in the frame (t(n), n x t(n), n) of Latta-Kolb eq. 6),
+    traced from :mod:`homofac.sphere`: what a renderer needs to turn world vectors into a BRDF's local frame."""
+    d, n = vec3_input("d"), vec3_input("n")
+    return [
+        L.function(lang, "hf_normalize", [("d", "vec3")], sphere.normalize(d), doc="d / |d|; zero stays zero"),
+        L.function(lang, "hf_local", [("d", "vec3"), ("n", "vec3")], sphere.local(d, n),
+                   doc="d in the local frame (t(n), n x t(n), n), t(n) of Latta-Kolb eq. 6"),
+    ]
 
 
 def _constant(value) -> np.ndarray:
@@ -223,7 +235,7 @@ def source(model: Factorization, language: str = "glsl", *, quantized: Quantized
     if lang.name == "wgsl":
         lines.append(f"const HOMOFAC_Y_UP: bool = {'true' if y_up else 'false'};  // true: (x, y, z)_engine -> (x, -z, y)")
     lines += [L.table_source(lang, n, v) for n, v in tables.items()]
-    lines += decl + samplers + fns + [value, _entry(lang, model)]
+    lines += decl + samplers + helper_functions(lang) + fns + [value, _entry(lang, model)]
     return "\n".join(lines) + "\n"
 
 
