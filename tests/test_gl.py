@@ -25,6 +25,7 @@ from homofac.param import mappers
 from homofac.param import parametrizations as pz
 from homofac.param import projections as pj
 from homofac.shader import LANGUAGES, generate, languages
+from helpers import two_terms
 
 RNG = np.random.default_rng(7)
 
@@ -188,6 +189,21 @@ def test_render_equals_cpu_evaluate(lighting, mapper, param):
     assert diff <= 2, (param, mapper, diff)
     assert np.abs(gl - cpu).max() * exposure <= 2 / 255
     assert np.abs(gl - cpu).max() <= 1e-4 * np.abs(cpu).max()  # in fact to float rounding
+
+
+def test_multi_term_gpu_equals_cpu():
+    """A sum of products (diffuse E(n) + P(r) W(n.v), one 1D texture) on the GPU: float and 8-bit textures."""
+    fac = Result(two_terms())
+    a, b = _pairs("lighting", 4000)
+    cpu = np.asarray(fac.evaluate(a, b))
+    np.testing.assert_allclose(hf.gl.evaluate(fac, a, b), cpu, rtol=1e-5, atol=1e-6)
+    q_cpu = np.asarray(fac.evaluate(a, b, quantized=True))
+    np.testing.assert_allclose(hf.gl.evaluate(fac, a, b, quantized=True), q_cpu, atol=1.5 / 255 * np.abs(q_cpu).max())
+    frame = render(fac, "sphere", size=64)
+    m = frame.mask
+    ref = np.asarray(fac.evaluate(frame.a[m], frame.b[m]))
+    ref = np.where((np.sum(frame.a[m] * frame.b[m], axis=1) > 0)[:, None], ref, 0.0)
+    assert np.abs(frame.value[m] - ref).max() <= 1e-4 * ref.max()
 
 
 def test_gpu_evaluate_equals_cpu(lighting):

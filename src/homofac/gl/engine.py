@@ -267,7 +267,7 @@ def model_textures(ctx, model, quantized: Quantized | None = None) -> list:
     ``quantized``), linear filtering, clamp to edge, no mipmaps, rows in array order."""
     if quantized is None:
         return [_texture(ctx, np.asarray(t.data, np.float32)[..., :3], "f4") for t in model.textures]
-    return [_texture(ctx, np.asarray(r, np.uint8), "u1") for r in quantized.rgba]
+    return [_texture(ctx, np.asarray(r, np.uint8), "f1") for r in quantized.rgba]  # f1: normalized RGBA8
 
 
 def _texture(ctx, a: np.ndarray, dtype: str):

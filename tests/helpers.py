@@ -1,0 +1,36 @@
+"""Hand-built factorizations shared by the tests (made-up smooth textures, known structure)."""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+
+from homofac.factorization import Factor, Factorization, Term, Texture
+from homofac.param import mappers
+
+
+def _smooth(mapper: str, S: int, seed: int, lo=0.2, signed=False) -> np.ndarray:
+    """A smooth positive (or signed) RGB texture: a low-order function of the texel directions."""
+    rng = np.random.default_rng(seed)
+    d = np.asarray(mappers.texel_directions(mapper, S), np.float64)
+    if d.ndim == 2:  # line: scalars
+        d = np.stack([d, d * 0, d * 0], -1)
+    c = rng.normal(size=(3, 3))
+    t = lo + 0.5 * (1 + np.tanh(d @ c))
+    if signed:
+        t = t - 0.6
+    return mappers.dilate(mapper, S, t.astype(np.float32))
+
+
+def two_terms(S: int = 8, signed: bool = False) -> Factorization:
+    """kd/pi E(n) + P(r) W(n.v): the shape of split-sum, with smooth made-up textures."""
+    textures = (
+        Texture("E", "dual_paraboloid", S, jnp.asarray(_smooth("dual_paraboloid", S, 1))),
+        Texture("P", "dual_paraboloid", S, jnp.asarray(_smooth("dual_paraboloid", S, 2, signed=signed))),
+        Texture("W", "line", 16, jnp.asarray(_smooth("line", 16, 3))),
+    )
+    terms = (
+        Term((Factor("n", "E"),), jnp.asarray([0.1, 0.09, 0.08]), "irradiance"),
+        Term((Factor("r", "P"), Factor("nv", "W")), jnp.asarray([1.0, 0.8, 0.4]), "prefiltered"),
+    )
+    return Factorization("lighting", "lighting", textures, terms, {}, "two_terms")
