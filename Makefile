@@ -1,5 +1,6 @@
-# homofac: `make run` runs the default factorization, `make test` runs the test suite.
-# Both create .venv when it is missing and install the package with its dev extra into it.
+# homofac: `make run` runs the default factorization, `make test` the fast test suite, `make test-all`
+# all of it, `make docs` the documentation site. Each creates .venv when it is missing and installs the
+# package with its dev and gl extras into it (and `make test*` the system packages the tests need).
 
 PYTHON ?= python3
 VENV   ?= .venv
@@ -9,7 +10,7 @@ STAMP   = $(VENV)/.homofac-installed
 SYSTEM_PACKAGES = libegl1 libgl1 libgles2
 PYTEST_ARGS ?=
 
-.PHONY: run test install system-packages benchmark clean
+.PHONY: run test test-slow test-all docs install system-packages benchmark clean
 
 $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -29,8 +30,22 @@ system-packages:
 		$$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq $(SYSTEM_PACKAGES); \
 	fi
 
+# Two workers (one per core); a test file's tests stay on one worker so module fixtures are built once.
+XDIST = -n 2 --dist loadfile
+
 test: $(STAMP) system-packages
-	$(PY) -m pytest -q $(PYTEST_ARGS)
+	$(PY) -m pytest -q $(XDIST) -m "not slow" $(PYTEST_ARGS)
+
+# The tests marked slow (stress cases, subprocess CLI runs, the notebook, the docs build ...).
+test-slow: $(STAMP) system-packages
+	$(PY) -m pytest -q $(XDIST) -m slow $(PYTEST_ARGS)
+
+test-all: $(STAMP) system-packages
+	$(PY) -m pytest -q $(XDIST) $(PYTEST_ARGS)
+
+# The documentation site into site/ (warnings are errors).
+docs: $(STAMP)
+	$(PY) -m mkdocs build --strict --site-dir site
 
 # Run time against error (issue 5): HOMOFAC_BENCH_LEVELS=preview,default,high make benchmark for the thesis run.
 benchmark: $(STAMP)
@@ -38,4 +53,4 @@ benchmark: $(STAMP)
 	$(PY) benchmarks/report.py benchmarks/results.json --readme README.md
 
 clean:
-	rm -rf out .pytest_cache
+	rm -rf out site .pytest_cache .cache

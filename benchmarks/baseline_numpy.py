@@ -1,6 +1,6 @@
 """The lighting computation as a user writes it first: plain NumPy, no JAX (the speed baseline).
 
-L(v, n) = sum_k f(l_k, v) L_k max(n . l_k, 0) dw_k (DESIGN.md's pinned sum, with the cosine taken at
+L(v, n) = sum_k f(l_k, v) L_k max(n . l_k, 0) dw_k (docs/conventions.md, the pinned sum, with the cosine taken at
 the texel centre), in the world frame: for each chunk of pairs, the local frame of n, every light
 rotated into it, the BRDF evaluated on a (B, L) grid by the model's formula written in NumPy
 (Cook-Torrance, the same maths as homofac.brdf.analytic), and the weighted sum. ``python benchmarks/baseline_numpy.py``

@@ -53,6 +53,7 @@ def leftovers(tmp_path: Path) -> list[str]:
     return sorted(p.name for p in tmp_path.iterdir() if p.name not in ("c.yaml", "file.txt", "foreign"))
 
 
+@pytest.mark.slow
 def test_brdf_run_writes_pinned_output(tmp_path):
     cfg = write_config(tmp_path, SMALL_BRDF)
     assert main([str(cfg), "--quiet"]) == 0
@@ -178,6 +179,7 @@ def test_help_documents_options():
         assert word in r.stdout
 
 
+@pytest.mark.slow
 def test_default_run_as_a_user_would(tmp_path):
     """`python -m homofac.fit` with no config runs the bundled default and writes a valid directory."""
     env = {**os.environ, "JAX_PLATFORMS": "cpu"}
@@ -187,3 +189,32 @@ def test_default_run_as_a_user_would(tmp_path):
     doc = json.loads((tmp_path / "out" / "factorization.json").read_text())
     assert doc["format"] == "homofac.factorization"
     assert np.isfinite(doc["metrics"]["validation"]["float"]["nrmse"])
+
+
+API_CASES = [
+    ("sampling", {"kind": "texels", "sise": 8}, "sampling: unknown key sise (did you mean size?)"),
+    ("solver", {"methd": "lsmr"}, "solver: unknown key methd (did you mean method?)"),
+    ("solver", {"tolerance": "small"}, "solver.tolerance: Input should be a valid number"),
+    ("solver", {"method": "lsmr", "max_iterations": 1.5}, "solver.max_iterations: Input should be a valid integer"),
+    ("texture_size", 2000, "texture_size: Input should be less than or equal to 1024"),
+    ("mapper", "cubee", "(did you mean cube?)"),
+]
+
+
+@pytest.mark.parametrize("key,value,needle", API_CASES)
+def test_python_api_refuses_exactly_as_the_cli(tmp_path, capsys, key, value, needle):
+    """One validation layer: hf.fit.factorize and the CLI give the same one-line message for the same bad value."""
+    import homofac as hf
+
+    target = hf.fit.brdf_target(hf.brdf.lambert(0.5))
+    with pytest.raises(hf.HomofacError) as e:
+        hf.fit.factorize(target, "PQP", **{key: value})
+    api = str(e.value)
+    assert needle in api
+    cfg = json.loads(json.dumps(SMALL_BRDF))
+    cfg[key] = value
+    path = tmp_path / "c.yaml"
+    path.write_text(yaml.safe_dump(cfg))
+    assert main([str(path), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == f"homofac: error: {path}: {api}"

@@ -52,6 +52,7 @@ class TextureBRDF(eqx.Module):
         return jnp.where((wi[..., 2:3] > 0) & (wo[..., 2:3] > 0), v, 0.0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["PQP", "IV", "GSHD"])
 def test_synthetic_product_is_recovered(x64, name):
     """A BRDF built from smooth textures is recovered by its own parametrization (nrmse < 1e-3)."""
@@ -139,6 +140,7 @@ def test_metrics_are_differentiable():
     assert np.isfinite(float(g)) and float(g) > 0
 
 
+@pytest.mark.slow
 def test_zero_values_take_the_bias_path(x64):
     """Zeros in the target (eq. 26 bias) give finite textures and a finite log system."""
     from homofac import brdf
@@ -151,6 +153,7 @@ def test_zero_values_take_the_bias_path(x64):
     assert np.isfinite(fac.metrics["validation"]["float"]["nrmse"])
 
 
+@pytest.mark.slow
 def test_multiresolution_reaches_the_single_level_error():
     """solver.levels = 2 (solve at S/2, upsample through the mapper, refine; thesis §3.1.2) reaches the
     validation error of the single-level solve at S within 2 %, and its first level is really coarse."""

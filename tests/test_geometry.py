@@ -17,6 +17,7 @@ def normals(count, seed=0):
     return n / np.linalg.norm(n, axis=1, keepdims=True)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("r", [4, 8, 16])
 def test_weights_sum_to_pi_and_match_supersampling(x64, r):
     d, w = _cube_texels(r)

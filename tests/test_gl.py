@@ -180,7 +180,7 @@ def test_render_equals_cpu_evaluate(lighting, mapper, param):
     n, v = frame.a[m], frame.b[m]
     np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1, atol=1e-5)
     cpu = np.asarray(fac.evaluate(n, v))
-    cpu = np.where((np.sum(n * v, axis=1) > 0)[:, None], cpu, 0.0)  # invalid pairs are 0 (DESIGN.md)
+    cpu = np.where((np.sum(n * v, axis=1) > 0)[:, None], cpu, 0.0)  # invalid pairs are 0 (docs/conventions.md)
     gl = frame.value[m]
     exposure = picture.auto_exposure(cpu)
     show = lambda x: np.round(picture.srgb(x * exposure) * 255)  # noqa: E731 - what the PNG shows
@@ -275,24 +275,34 @@ def test_obj_mesh(tmp_path, lighting):
 # CLIs
 
 
-@pytest.fixture(scope="module")
-def default_run(tmp_path_factory):
-    """`python -m homofac.fit --out DIR` as a user would run it (the bundled default)."""
-    out = tmp_path_factory.mktemp("default") / "out"
+def _run(args, out):
     env = {**os.environ, "JAX_PLATFORMS": "cpu"}
-    r = subprocess.run([sys.executable, "-m", "homofac.fit", "--quiet", "--out", str(out)], capture_output=True,
-                       text=True, timeout=600, env=env)
+    r = subprocess.run([sys.executable, "-m", "homofac.fit", "--quiet", "--out", str(out), *args],
+                       capture_output=True, text=True, timeout=600, env=env)
     assert r.returncode == 0, r.stderr
     return out
 
 
-def test_default_run_writes_a_preview(default_run):
-    img = np.asarray(Image.open(default_run / "preview.png").convert("RGB"))
+@pytest.fixture(scope="module")
+def default_run(tmp_path_factory):
+    """`python -m homofac.fit CONFIG --out DIR` as a user would run it, on a small lighting config."""
+    d = tmp_path_factory.mktemp("small")
+    cfg = {"target": {"kind": "lighting", "brdf": {"model": "cook_torrance"}, "environment": {"file": "studio",
+                                                                                           "resolution": 4}},
+           "parametrization": "NR", "texture_size": 8, "sampling": {"size": 6, "validation": 300}}
+    (d / "c.yaml").write_text(json.dumps(cfg))
+    return _run([str(d / "c.yaml")], d / "out")
+
+
+@pytest.mark.slow
+def test_default_run_writes_a_preview(tmp_path):
+    out = _run([], tmp_path / "out")  # the bundled default, as `make run` does
+    img = np.asarray(Image.open(out / "preview.png").convert("RGB"))
     background = (img == picture.BACKGROUND).all(axis=-1)
     assert 1 - background.mean() > 0.2
     assert len(np.unique(img[~background], axis=0)) > 100
     # the preview is no part of the pinned document
-    assert "preview" not in json.loads((default_run / "factorization.json").read_text())
+    assert "preview" not in json.loads((out / "factorization.json").read_text())
 
 
 def test_preview_cli_writes_a_png(default_run, tmp_path, capsys):

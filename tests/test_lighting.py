@@ -82,6 +82,7 @@ def test_diffuse_split_and_grouped_path_match_direct_sum(x64):
     assert np.any(g == 0) and np.any(g > 0)
 
 
+@pytest.mark.slow
 def test_light_resolution_convergence():
     """Exact L(v, n) at light resolutions 16, 32, 64 converges: successive differences shrink."""
     path = hf.light.bundled("forest")
@@ -111,6 +112,7 @@ def test_culling_stays_under_its_bound():
 # --- exact factorization cases -------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_lambert_with_N_is_exact():
     env = hf.light.load_environment(hf.light.bundled("forest"), resolution=16)
     target = hf.light.lighting_target(hf.brdf.lambert(kd=(0.8, 0.6, 0.4)), env)
@@ -151,6 +153,7 @@ GOLD = dict(kd=(0.05, 0.04, 0.02), ks=1.0, roughness=0.3, f0=(1.0, 0.78, 0.34))
 GOLD_BOUNDS = {"NR": 0.52, "NRV": 0.51}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("param", ["NR", "NRV"])
 def test_gold_in_forest_stays_under_measured_bound(param):
     env = hf.light.load_environment("forest", resolution=12)
@@ -162,6 +165,7 @@ def test_gold_in_forest_stays_under_measured_bound(param):
     assert fac.solver["converged"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mapper", ["dual_paraboloid", "cube", "octahedral"])
 def test_nrhd_runs_on_every_sphere_mapper(mapper):
     env = envmod.sun_sky(sun_direction=(0.4, 0.3, 0.85), sun_radiance=30.0, sun_angle_deg=6.0, resolution=8)
@@ -202,6 +206,7 @@ def _grad_setup():
     return err, jnp.asarray(env.radiance, jnp.float64)
 
 
+@pytest.mark.slow
 def test_gradient_wrt_roughness_matches_finite_difference(x64):
     err, rad = _grad_setup()
     g = jax.grad(err, argnums=0)(jnp.float64(0.35), rad)
@@ -211,6 +216,7 @@ def test_gradient_wrt_roughness_matches_finite_difference(x64):
     assert float(g) == pytest.approx(float(fd), rel=1e-4, abs=1e-9)
 
 
+@pytest.mark.slow
 def test_gradient_wrt_environment_pixels_matches_finite_difference(x64):
     err, rad = _grad_setup()
     g = jax.grad(err, argnums=1)(jnp.float64(0.35), rad)
@@ -223,6 +229,7 @@ def test_gradient_wrt_environment_pixels_matches_finite_difference(x64):
         assert float(g[k, c]) == pytest.approx(float(fd), rel=1e-4, abs=1e-9)
 
 
+@pytest.mark.slow
 def test_grouped_path_at_full_size_matches_unfused_reference(x64):
     """Large jitted evaluation (6144 lights, hundreds of views) equals an op-by-op (unfused) float64
     evaluation of the same sum: guards against XLA CPU fusion miscompiles like the one that hit the

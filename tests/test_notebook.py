@@ -29,6 +29,7 @@ def test_notebook_is_committed_without_outputs_and_matches_its_generator():
     assert [c.source for c in mod.build().cells] == [c.source for c in nb.cells]
 
 
+@pytest.mark.slow
 def test_quickstart_notebook_executes(monkeypatch, tmp_path):
     monkeypatch.setenv("HOMOFAC_NOTEBOOK_QUICK", "1")
     monkeypatch.delenv("MPLBACKEND", raising=False)  # ipykernel then picks the inline backend (headless; emits PNGs)

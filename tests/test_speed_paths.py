@@ -76,6 +76,7 @@ def test_uncacheable_targets_and_damaged_entries(cache_dir):
     assert cache.load(k) is not None and len(cache.load(k).a) == len(s.a)
 
 
+@pytest.mark.slow
 def test_refit_from_cache_gives_the_same_factorization(cache_dir):
     t = _lighting()
     f1 = pipeline.factorize(t, "NR", texture_size=8, sampling=SAMPLING)
@@ -85,6 +86,7 @@ def test_refit_from_cache_gives_the_same_factorization(cache_dir):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
+@pytest.mark.slow
 def test_target_error_picks_the_cheapest_candidate_that_meets_it(cache_dir):
     from homofac.fit import auto
 
@@ -152,6 +154,7 @@ print(json.dumps({"devices": jax.device_count()}))
 """
 
 
+@pytest.mark.slow
 def test_sharded_sampling_equals_unsharded(tmp_path):
     """Sampling with the normals split over 2 (forced CPU) devices gives the unsharded values."""
     import json
@@ -173,6 +176,7 @@ def test_sharded_sampling_equals_unsharded(tmp_path):
         np.testing.assert_allclose(out[2][k], out[1][k], rtol=1e-6, atol=1e-7)
 
 
+@pytest.mark.slow
 def test_light_culling_from_the_config_is_recorded_and_bounded(cache_dir, tmp_path):
     """target.environment.cull drops the weakest lights; factorization.json records what was dropped, and the
     samples differ from the unculled ones by at most max f x dropped power (Lambert: kd/pi)."""
@@ -203,6 +207,7 @@ def test_light_culling_from_the_config_is_recorded_and_bounded(cache_dir, tmp_pa
     assert doc["target"]["environment"]["culling"]["dropped"] == c["dropped"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("model", ["phong", "blinn_phong", "modified_phong"])
 def test_lobe_culling_stays_under_its_bound(model, monkeypatch):
     """Sampling with lobe culling differs from the full sum by at most the stated bound

@@ -2,7 +2,7 @@
 and pure functions; the lighting computation of :mod:`homofac.light` is one such function).
 
 A target is a pytree (an equinox module) so its parameters -- BRDF parameters, environment pixels --
-can be differentiated. ``kind`` decides the domain of (a, b) (DESIGN.md):
+can be differentiated. ``kind`` decides the domain of (a, b) (docs/conventions.md):
 
 * ``brdf``: a = wi, b = wo in the local frame; the value is f(wi, wo) (``quantity="brdf"``, as McCool
   does) or f(wi, wo) cos(theta_i) (``quantity="brdf_cos"``). Metrics are always computed on

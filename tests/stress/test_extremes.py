@@ -53,6 +53,7 @@ ENVS = environments()
     hf.brdf.cook_torrance(kd=0.05, ks=1.0, roughness=0.3, f0=(1.0, 0.78, 0.34)),
     hf.brdf.phong(kd=0.0, ks=1.0, exponent=1000.0),  # zero almost everywhere under a single texel
 ], ids=["gold", "phong1000-no-diffuse"])
+@pytest.mark.slow
 def test_lighting_extremes_end_finite(env_name, brdf):
     env = ENVS[env_name]
     target = hf.light.lighting_target(brdf, env)
@@ -75,6 +76,7 @@ def test_sun_dominates_and_stays_finite_in_float32():
     assert np.all(np.isfinite(y)) and y[0].min() > 10 * y[1].max()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("exponent", [1.0, 10.0, 100.0, 1000.0, 10000.0])
 def test_phong_exponents(exponent):
     b = hf.brdf.phong(kd=0.1, ks=0.9, exponent=exponent)
@@ -103,6 +105,7 @@ def test_zero_brdf_values_use_the_epsilon_alpha_path():
     assert_finite(fac)
 
 
+@pytest.mark.slow
 def test_grazing_views_are_finite():
     """n . v -> 0: the exact lighting and the factorization stay finite (and 0 below the horizon)."""
     env = ENVS["uniform sky"]
@@ -118,6 +121,7 @@ def test_grazing_views_are_finite():
     assert np.all(y[eps <= 0] == 0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sign", [1.0, -1.0])
 def test_tangent_singularity_at_plus_minus_x(sign):
     """NRHD (lighting) and GSHD (BRDF) build the tangent t(n) = normalize(x - (x.n) n) (Latta-Kolb eq. 6),

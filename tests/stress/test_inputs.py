@@ -148,6 +148,7 @@ def test_malformed_input_is_one_line_and_writes_nothing(tmp_path, capsys, name, 
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(before + ["c.yaml"])  # no out/, no temp dirs
 
 
+@pytest.mark.slow
 def test_nan_pixels_are_cleaned_with_a_counted_warning(tmp_path, capsys):
     """The documented choice for NaN/Inf pixels: set to 0, counted in a warning and in factorization.json."""
     img = _latlong()

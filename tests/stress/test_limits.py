@@ -8,6 +8,7 @@ import subprocess
 import sys
 import time
 
+import pytest
 import yaml
 
 from homofac.app import budget
@@ -33,6 +34,7 @@ def test_huge_config_is_refused_before_any_work(tmp_path, capsys):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["c.yaml"]
 
 
+@pytest.mark.slow
 def test_limit_is_configurable(tmp_path, capsys):
     small = {**HUGE, "texture_size": 16, "sampling": {"kind": "texels", "size": 8, "validation": 100},
              "target": {**HUGE["target"], "environment": {"file": "forest", "resolution": 4}},
@@ -60,6 +62,7 @@ print(json.dumps({"est": est["total"], "peak": resource.getrusage(resource.RUSAG
 """
 
 
+@pytest.mark.slow
 def test_estimate_is_within_a_factor_of_the_measured_peak(tmp_path):
     """Default config with 24^2 sampling grids. Peak RSS of JAX runs is noisy (compilation): measured
     here 0.55 GB (size 16), 0.97 and 1.38 GB (sizes 32, 24) against estimates 1.3, 1.9 and 1.5 GB.

@@ -31,6 +31,7 @@ def _run(dtype_x64: bool):
         jax.config.update("jax_enable_x64", False)
 
 
+@pytest.mark.slow
 def test_float32_matches_float64():
     """Tolerances, and why: the lighting sum adds ~1000 positive terms of very different size (sun 1e5 x sky);
     float32 (eps 6e-8) accumulates to ~1e-6 relative per sample, asserted 1e-4. The log-space solve is
@@ -47,6 +48,7 @@ def test_float32_matches_float64():
     assert abs(e32 - e64) <= 1e-3 * e64
 
 
+@pytest.mark.slow
 def test_all_samples_on_one_texel():
     """Every training pair the same: the system is one row repeated; the Laplacian and the start fill
     every texel, the result is finite, and the training error there is ~0."""
@@ -60,6 +62,7 @@ def test_all_samples_on_one_texel():
     assert np.isfinite(fac.metrics["validation"]["float"]["nrmse"])
 
 
+@pytest.mark.slow
 def test_far_fewer_samples_than_texels():
     t = brdf_target(hf.brdf.cook_torrance(kd=0.1, ks=1.0, roughness=0.3, f0=(1.0, 0.78, 0.34)))
     fac = pipeline.factorize(t, "PQP", mapper="parabolic", texture_size=32,

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import signal
 import sys
 import time
 from pathlib import Path
@@ -67,7 +68,12 @@ def enable_compilation_cache() -> Path | None:
 
 def run_one_line(body: Callable[[], int], debug: bool, interrupted: str = "homofac: interrupted") -> int:
     """Run a CLI body; every failure becomes one line on stderr (status 2 for HomofacError, 1 for
-    anything unexpected, 130 on Ctrl-C); with ``debug`` the exception propagates with its traceback."""
+    anything unexpected, 130 on Ctrl-C); with ``debug`` the exception propagates with its traceback.
+
+    SIGXFSZ (a file grew past ``ulimit -f``) is ignored so that the write fails with an error the
+    output layer reports (naming the file, nothing replaced) instead of killing the process."""
+    if hasattr(signal, "SIGXFSZ"):
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
     try:
         return body()
     except KeyboardInterrupt:

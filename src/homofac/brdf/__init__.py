@@ -1,6 +1,6 @@
 """homofac.brdf: BRDF models, analytic and measured; pure functions of (wi, wo) in the local frame.
 
-Convention (DESIGN.md, pinned): ``f(wi, wo) -> (..., 3)`` RGB, local frame (z = normal), without the
+Convention (docs/conventions.md, pinned): ``f(wi, wo) -> (..., 3)`` RGB, local frame (z = normal), without the
 cosine factor, exactly 0 where ``wi.z <= 0`` or ``wo.z <= 0``; isotropic.
 
 A model is a :class:`ModelSpec` (data plus a pure function) registered by name in :data:`MODELS`;

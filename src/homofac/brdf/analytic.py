@@ -5,7 +5,7 @@ Every model function ``fn(params, wi, wo)`` gets directions strictly above the h
 cosine factor. Notation: n = (0, 0, 1) the normal, l = wi, v = wo, h = normalize(wi + wo),
 theta_h the angle between n and h, r_i = 2 (n.wi) n - wi the mirror direction of wi.
 
-Parameter names are pinned (DESIGN.md): ``kd`` diffuse colour, ``ks`` specular colour,
+Parameter names are pinned (docs/conventions.md): ``kd`` diffuse colour, ``ks`` specular colour,
 ``roughness`` (Beckmann m / GGX alpha / Ward alpha), ``f0`` RGB reflectance at normal incidence
 (Schlick), ``exponent`` (the Phong family's n).
 """
@@ -266,7 +266,7 @@ Cook & Torrance 1981 (thesis [Cook1981]), with
       (normalised: integral of D cos theta_h over the hemisphere of h is 1);
   G = min(1, 2 (n.h)(n.v) / (v.h), 2 (n.h)(n.l) / (v.h)), the V-cavity masking-shadowing;
   F = F0 + (1 - F0)(1 - v.h)^5, Schlick 1994, RGB F0 = f0.
-The thesis' gold (DESIGN.md config example): kd (0.05, 0.04, 0.02), ks 1, roughness 0.3,
+The thesis' gold (docs/config.md example): kd (0.05, 0.04, 0.02), ks 1, roughness 0.3,
 f0 (1, 0.78, 0.34). The specular term alone reflects at most max(F) <= 1 (V-cavity G is a valid
 masking function, Heitz 2014), so the model conserves energy if kd + ks <= 1."""
 

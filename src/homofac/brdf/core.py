@@ -1,6 +1,6 @@
 """The BRDF registry: a model is data (:class:`ModelSpec`) plus a pure function, registered by name.
 
-Convention (DESIGN.md, pinned): a BRDF is ``f(wi, wo) -> (..., 3)`` RGB in the local frame (z = normal),
+Convention (docs/conventions.md, pinned): a BRDF is ``f(wi, wo) -> (..., 3)`` RGB in the local frame (z = normal),
 *without* the cosine factor, and exactly zero where ``wi.z <= 0`` or ``wo.z <= 0``. Directions are
 ``(..., 3)`` unit vectors; all models here are isotropic.
 
@@ -179,7 +179,7 @@ def _as_float(x: Any) -> Array:
 
 
 # --------------------------------------------------------------------------------------------
-# Validation. Rules are per parameter name (names are pinned across models, DESIGN.md config).
+# Validation. Rules are per parameter name (names are pinned across models, docs/models.md).
 
 #: name -> (kind, lower bound, lower bound inclusive, upper bound or None, description for errors)
 _RULES: dict[str, tuple[str, float | None, bool, float | None, str]] = {

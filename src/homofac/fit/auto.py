@@ -2,7 +2,7 @@
 
 A user often knows the error they can accept, not which parametrization reaches it. :func:`choose`
 fits candidates in order of cost and returns the first whose validation ``nrmse`` (float textures, the
-pinned metric of DESIGN.md) is at most ``target_error``:
+pinned metric of docs/conventions.md) is at most ``target_error``:
 
 * candidates: every parametrization registered for the target's kind on the chosen mapper, at texture
   sizes 8, 16, 32, 64 up to ``max_size``;

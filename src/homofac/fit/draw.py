@@ -37,11 +37,12 @@ def draw_samples(target: Target, parametrization: str, options: SamplingOptions 
     settings = s.model_dump()
     k = cache.key(target, settings, parametrization) if s.cache else None
     if k is not None:
-        hit = cache.load(k)
+        hit = cache.load(k, validation=s.validation)
         if hit is not None:
             log(f"samples from cache {k[:12]} ({len(hit.a)} training pairs)")
             return hit
     samples = _draw(target, parametrization, s, log)
+    samples = Samples(*(np.ascontiguousarray(x, np.float32) for x in samples))
     if k is not None:
         cache.store(k, samples)
     return samples

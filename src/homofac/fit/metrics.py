@@ -1,4 +1,4 @@
-"""Error metrics between an approximation a and the exact values e (DESIGN.md, pinned names).
+"""Error metrics between an approximation a and the exact values e (docs/conventions.md, pinned names).
 
 Each metric is computed per RGB channel over the samples and then averaged over the channels, as
 the thesis reports its tables (§5.7: "all values are the arithmetic averages over the RGB

@@ -8,6 +8,7 @@ a notebook can call the stages one by one and the CLI is just this function driv
 
 from __future__ import annotations
 
+import math
 import time
 from typing import Callable
 
@@ -24,6 +25,23 @@ from .options import FitOptions
 from .product import fit_product
 from .result import Result
 from .samples import Samples, check_values
+
+
+def quality_warnings(metrics: dict) -> list[str]:
+    """Warnings for a result that does not approximate its target: a non-finite metric, or a validation
+    (else training) nrmse above 1 (worse than predicting 0 everywhere), with the figure."""
+    out = []
+    split = "validation" if "validation" in metrics else "train"
+    for kind, m in metrics.get(split, {}).items():
+        bad = [k for k, x in m.items() if not math.isfinite(x)]
+        if bad:
+            out.append(f"{split} {kind} metrics {', '.join(bad)} are not finite: the factorization does not "
+                       "approximate this target (try a larger solver.laplacian, another parametrization or sampling)")
+    nrmse = metrics.get(split, {}).get("float", {}).get("nrmse")
+    if nrmse is not None and math.isfinite(nrmse) and nrmse > 1.0:
+        out.append(f"{split} nrmse {nrmse:.3g} > 1: the factorization is worse than predicting 0 everywhere and "
+                   "does not approximate this target (try another parametrization, a larger texture_size or sampling)")
+    return out
 
 
 def options(parametrization: str = "NR", **kwargs) -> FitOptions:
@@ -90,7 +108,8 @@ def factorize(
         pf = fit_product(tgt, name, mapper, size, samples, opts.solver, log)
         result = Result(pf.model, solver=pf.solver, warnings=pf.warnings, **record)
         log("measuring errors")
-        result = result.replace(metrics=measure(result, tgt, samples, eps=float(opts.solver.epsilon)))
+        mets = measure(result, tgt, samples, eps=float(opts.solver.epsilon))
+        result = result.replace(metrics=mets, warnings=tuple(result.warnings) + tuple(quality_warnings(mets)))
         return result.replace(
             timings={"sample_s": sample_s, "assemble_s": pf.assemble_s, "solve_s": pf.solve_s},
             counts={"train": int(len(samples.a)), "validation": int(len(samples.val_a)),
@@ -105,4 +124,4 @@ def factorize(
     return result.replace(timings={**result.timings, "total_s": time.perf_counter() - t_start}, target=target)
 
 
-__all__ = ["default_mapper", "draw_samples", "factorize", "measure", "options"]
+__all__ = ["default_mapper", "draw_samples", "factorize", "measure", "options", "quality_warnings"]

@@ -6,7 +6,7 @@
 * ``latlong``: a latitude/longitude grid for both directions (thesis §4.2).
 * ``random``: uniformly distributed directions, seeded.
 
-Valid pairs (DESIGN.md): BRDF targets need wi.z > 0 and wo.z > 0; lighting targets need n.v > 0
+Valid pairs (docs/conventions.md): BRDF targets need wi.z > 0 and wo.z > 0; lighting targets need n.v > 0
 (the valid-view filter of thesis §5.6). Invalid pairs are never produced, so they are never evaluated.
 The validation set is always ``random`` with its own seed.
 """

@@ -13,7 +13,7 @@ Rows:
   across face edges so smoothing has no seams).
 
 Both are stored as ELL index/weight arrays (``cols``, ``w``), which a matrix-free operator gathers
-from; this was about 2x faster than BCOO on the target machine (DESIGN.md).
+from; this was about 2x faster than BCOO on the target machine (docs/conventions.md).
 """
 
 from __future__ import annotations

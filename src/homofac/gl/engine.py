@@ -183,7 +183,7 @@ void main() {
     vec3 n = hf_normalize(v_normal);
     vec3 v = hf_normalize(u_eye - v_pos);
     vec3 a = n, b = v;
-    bool ok = dot(n, v) > 0.0;  // pairs with n.v <= 0 are invalid: L = 0 (DESIGN.md)
+    bool ok = dot(n, v) > 0.0;  // pairs with n.v <= 0 are invalid: L = 0 (docs/conventions.md)
     if (u_mode == 1) {
         a = hf_local(u_light, n);
         b = hf_local(v, n);

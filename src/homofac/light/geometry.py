@@ -1,6 +1,6 @@
 """Exact cosine-weighted solid angles of light texels: w_k(n) = integral over texel k of max(n . l, 0) dl.
 
-The pinned lighting sum (DESIGN.md) weights each light texel by ``max(n . l_k, 0) dw_k``; evaluated at
+The pinned lighting sum (docs/conventions.md) weights each light texel by ``max(n . l_k, 0) dw_k``; evaluated at
 the texel centre that is only second-order accurate, and a white Lambertian surface under uniform
 radiance 1 comes out 1 +- 2e-4 at 32^2 x 6 lights. homofac integrates the clamped cosine over each
 texel exactly instead, so that sum_k w_k(n) = pi for every n and the white Lambertian case is exactly

@@ -1,6 +1,6 @@
 """The lighting computation L(v, n) of an isotropic BRDF under an environment (pinned, physical).
 
-DESIGN.md, thesis eq. 61 / Latta-Kolb eq. 6, discretised over the light texels k with their exact
+docs/conventions.md, thesis eq. 61 / Latta-Kolb eq. 6, discretised over the light texels k with their exact
 solid angles (thesis eq. 10, not the eq. 11 approximation):
 
     L(v, n) = sum_k f(w(l_k), w(v)) L_i(l_k) w_k(n),    w_k(n) = integral over texel k of max(n . l, 0) dl
@@ -11,7 +11,7 @@ equal to second order, and exact where the texel-centre form is not: sum_k w_k(n
 Lambertian surface under uniform radiance 1 gives exactly 1). Pairs with n . v <= 0 are invalid (the
 samplers never produce them; here they evaluate to 0).
 
-How it is computed (DESIGN.md "Performance rules of thumb"):
+How it is computed (docs/architecture.md, "Performance"):
 
 * dot products with the lights are matmuls of (B, 3) @ (3, L) arrays, not (B, L, 3) broadcasts;
 * work is chunked with ``lax.map`` so memory stays bounded (never N x L x 3 at once);
