@@ -12,7 +12,9 @@ its shader blocks from one field list. Every generator is a plain function retur
 tests (tests/test_docs.py) import this module and call them.
 
 Generators that run homofac (the example output directory, the shader) do it once per build, in a
-temporary directory, with the sample cache off: a build leaves nothing behind.
+temporary directory, with the sample cache off. Like the CLI they use JAX's persistent compilation
+cache (``~/.cache/homofac/jax``; ``HOMOFAC_JAX_CACHE=0`` turns it off, ``HOMOFAC_JAX_CACHE=DIR`` moves it),
+which makes a second build about 15 s faster.
 """
 
 from __future__ import annotations
@@ -42,18 +44,18 @@ from pydantic.fields import FieldInfo
 from pydantic_core import PydanticUndefined
 
 import homofac
-from homofac import brdf
+from homofac import baselines, brdf
+from homofac.errors import HomofacError
+from homofac.options import validate
 from homofac.app import cli
 from homofac.app import config as config_mod
 from homofac.app.run import run
 from homofac.brdf import core as brdf_core
 from homofac.fit import options as fit_options
-from homofac.factorization import Factor, Factorization, Term, Texture
-from homofac.fit import measure, precision, solvers
-from homofac.fit.result import Result
+from homofac.fit import pipeline as fit_pipeline
+from homofac.fit import solvers
 from homofac.light import options as light_options
-from homofac.light import irradiance
-from homofac.output import OutputOptions, document
+from homofac.output import OutputOptions
 from homofac.param import mappers, parametrizations, projections
 from homofac.shader import languages
 
@@ -194,6 +196,28 @@ def solvers_table() -> str:
     return table(["method", "doc", "option model", "options", "option fields"], rows)
 
 
+def baselines_table() -> str:
+    """The baselines (``homofac.baselines.BASELINES``): computed, not fitted, into the same model."""
+    rows = []
+    for name, b in baselines.BASELINES.items():
+        fields = ", ".join(code(f) for f in b.options.model_fields)
+        rows.append([code(name), rst_to_md(b.doc), code(b.options.__name__), fields or "-"])
+    return table(["parametrization", "doc", "option model (`baseline`)", "option fields"], rows)
+
+
+def baseline_options_section() -> str:
+    """The ``baseline`` section: the option model of each baseline."""
+    out = ["## `baseline` {#baseline-options}\n",
+           "Options of a baseline `parametrization` (computed, not fitted; [Baselines](architecture.md#baselines)), "
+           "validated by that baseline's option model. Refused with any other parametrization.\n"]
+    for name, b in baselines.BASELINES.items():
+        out.append(f"### `{name}` {{#baseline-{name.replace('_', '-')}}}\n")
+        out.append(f"Model: `{b.options.__module__}.{b.options.__name__}`. {rst_to_md(first_paragraph(b.options.__doc__))}\n")
+        out.append(model_table(b.options, "baseline", {}))
+        out.append("")
+    return "\n".join(out)
+
+
 def languages_table() -> str:
     """The shading languages (``homofac.shader.languages.LANGUAGES``)."""
     rows = []
@@ -201,6 +225,73 @@ def languages_table() -> str:
         stem, ext = lang.file.rsplit(".", 1)
         rows.append([code(name), lang.title, code(lang.file), code(f"{stem}_8bit.{ext}")])
     return table(["name", "language", "file", "8-bit variant (with output.png)"], rows)
+
+
+# --------------------------------------------------------------------------------------------------
+# Layers (pyproject.toml, [tool.importlinter]) and validation
+
+
+#: The layer names the docs use (L0 ... L7) for the packages of the import-linter contract.
+LAYER_NAMES = {
+    "homofac.app": "L7", "homofac.output": "L6", "homofac.gl": "L6", "homofac.fit": "L5", "homofac.light": "L4",
+    "homofac.shader": "L4", "homofac.target": "L3", "homofac.factorization": "L3", "homofac.brdf": "L2",
+    "homofac.param": "L2", "homofac.io": "L1", "homofac.baselines": "L5 (below fit)", "homofac.sphere": "L0", "homofac.options": "L0",
+    "homofac.errors": "L0 (bottom)", "homofac._version": "L0 (bottom)",
+}
+
+
+def layer_contract() -> list[list[str]]:
+    """The layers of the import-linter contract in pyproject.toml, top first; each a list of modules."""
+    import tomllib  # noqa: PLC0415 - Python >= 3.11; only this generator reads pyproject.toml
+
+    data = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    contract = next(c for c in data["tool"]["importlinter"]["contracts"] if c["type"] == "layers")
+    return [[m.strip() for m in layer.split("|")] for layer in contract["layers"]]
+
+
+def _summary(module: str) -> str:
+    doc = first_paragraph(importlib.import_module(module).__doc__)
+    doc = re.sub(r"^homofac\.[a-z_.]+:\s*", "", doc)
+    return rst_to_md(doc)
+
+
+def layers_table() -> str:
+    """One row per module of the layer contract, top layer first."""
+    rows = []
+    for layer in layer_contract():
+        for k, module in enumerate(layer):
+            rows.append([LAYER_NAMES.get(module, "") if k == 0 else "", code(module),
+                         ", ".join(code(m) for m in layer if m != module) or "-", _summary(module)])
+    return table(["layer", "module", "sibling (no imports either way)", "what it holds"], rows)
+
+
+def _config(**keys) -> Callable[[], Any]:
+    return lambda: config_mod.parse({"target": {"brdf": {"model": "ggx"}}, **keys})
+
+
+#: Inputs the validation examples refuse: (what, the call that refuses it).
+VALIDATION_EXAMPLES: list[tuple[str, Callable[[], Any]]] = [
+    ("config: a key misspelt", _config(sampling={"sise": 8})),
+    ("Python API: the same key", lambda: validate(fit_options.SamplingOptions, {"sise": 8}, "sampling")),
+    ("config: a value out of range", _config(texture_size=2)),
+    ("config: a BRDF parameter's rule", lambda: config_mod.parse({"target": {"brdf": {"model": "ggx", "roughness": 0}}})),
+    ("config: an unknown solver", _config(solver={"method": "gmres"})),
+    ("config: a string where a number belongs", _config(solver={"tolerance": "small"})),
+    ("Python API: `factorize(..., texture_size=1.5)`", lambda: fit_pipeline.options("NR", texture_size=1.5)),
+]
+
+
+def validation_examples() -> str:
+    """The one-line messages homofac gives for a few bad inputs (computed, not copied)."""
+    rows = []
+    for what, call in VALIDATION_EXAMPLES:
+        try:
+            call()
+            msg = "(accepted)"
+        except HomofacError as e:
+            msg = str(e)
+        rows.append([what, code(msg)])
+    return table(["input", "message"], rows)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -218,7 +309,8 @@ def model_parameters(name: str) -> list[list[str]]:
     if spec.schema is not None:  # the config takes other parameters than Python (merl: file, not table)
         for pname, (typ, default) in spec.schema.items():
             d = "required" if default is ... else code(yaml_value(default))
-            rows.append([code(pname), d, getattr(typ, "__name__", str(typ)), "config and `make(..., file=)`"])
+            value = "a string (a file path, relative to the config file)" if typ is str else getattr(typ, "__name__", str(typ))
+            rows.append([code(pname), d, value, "the config; Python: `make(..., file=)`"])
     for pname, default in spec.defaults.items():
         kind, _, _, _, rule = brdf_core._rule_for(pname, default)
         d = "required" if default is None else code(yaml_value(_plain(default)))
@@ -233,12 +325,20 @@ def _plain(v: Any) -> Any:
     return v
 
 
+def _title(doc: str) -> str:
+    """The model's name from the first line of its doc: ``Name: formula`` or ``Name (source).``"""
+    head = inspect.cleandoc(doc or "").split("\n", 1)[0]
+    if ":" in head:
+        return head.split(":", 1)[0].strip()
+    return head.split(" (", 1)[0].rstrip(".").strip()
+
+
 def models_summary() -> str:
     """One line per registered BRDF model."""
     rows = []
     for name, spec in brdf.MODELS.items():
         params = list(spec.schema) if spec.schema is not None else list(spec.defaults)
-        rows.append([f"[{code(name)}](#{name})", first_paragraph(spec.doc).split(":", 1)[0],
+        rows.append([f"[{code(name)}](#{name})", _title(spec.doc),
                      ", ".join(code(p) for p in params), "yes" if spec.reciprocal else "no",
                      spec.energy_conserving or "none guaranteed"])
     return table(["model", "name", "parameters", "reciprocal", "energy conserved if"], rows)
@@ -264,13 +364,25 @@ def models_page() -> str:
             f"- **Energy conservation** (directional albedo <= 1 for every view): "
             + (code(spec.energy_conserving) if spec.energy_conserving else "not guaranteed by any condition on the parameters") + ".",
             f"- **Lobe form** (kd/pi + sum of scalar lobes times RGB colours, one matmul per lobe in the lighting sum): "
-            f"{'yes, ' + str(_lobe_count(name)) + ' lobe(s)' if spec.lobes is not None else 'no (evaluated in RGB per light)'}.",
+            f"{_lobes_text(name)}.",
             f"- **Lobe culling** (`target.lobe_cull`): {'supported' if spec.support is not None else 'not supported (ignored)'}.",
+            f"- **Split-sum baseline** (needs a microfacet distribution): "
+            f"{'supported' if getattr(spec, 'microfacet', None) is not None else 'refused'}.",
             f"- Python: `hf.brdf.make({name!r}, ...)`" + (f" or `hf.brdf.{name}(...)`" if hasattr(brdf, name) else "") + ".",
         ]
         out.append("\n".join(facts))
         out.append("")
     return "\n".join(out)
+
+
+def _lobes_text(name: str) -> str:
+    spec = brdf.MODELS[name]
+    if spec.lobes is None:
+        return "no (evaluated in RGB per light)"
+    count = _lobe_count(name)
+    if count == 0:
+        return "yes, no lobe: only kd/pi E(n), no per-light evaluation"
+    return f"yes, {count} lobe{'s' if count > 1 else ''}"
 
 
 def _lobe_count(name: str) -> int:
@@ -323,7 +435,13 @@ def type_text(ann: Any, links: dict) -> str:
 
 def constraint_text(info: FieldInfo) -> str:
     parts = []
+    lengths = {type(m).__name__: m for m in info.metadata if isinstance(m, (annotated_types.MinLen, annotated_types.MaxLen))}
+    if len(lengths) == 2 and lengths["MinLen"].min_length == lengths["MaxLen"].max_length:
+        parts.append(f"length {lengths['MinLen'].min_length}")
     for m in info.metadata:
+        if parts and isinstance(m, (annotated_types.MinLen, annotated_types.MaxLen)) and len(lengths) == 2 and \
+                lengths["MinLen"].min_length == lengths["MaxLen"].max_length:
+            continue
         if isinstance(m, annotated_types.Ge):
             parts.append(f">= {m.ge}")
         elif isinstance(m, annotated_types.Gt):
@@ -343,7 +461,9 @@ def constraint_text(info: FieldInfo) -> str:
 
 #: Notes for fields that carry no pydantic ``description`` (the description wins when there is one).
 NOTES = {
-    "Config.parametrization": "a registered parametrization of the target's kind ([table](architecture.md#parametrizations))",
+    "Config.parametrization": "a registered parametrization of the target's kind ([table](architecture.md#parametrizations)), "
+                              "or a [baseline](architecture.md#baselines)",
+    "Config.baseline": "options of a baseline parametrization ([below](#baseline-options)); null: its defaults",
     "Config.mapper": "mapper of the direction textures; null: parabolic (BRDF) or dual_paraboloid (lighting). "
                      "`line` is refused here (it is the mapper of scalar factors)",
     "Config.texture_size": "S of the mapper: textures are (S, S), (S, 2S) dual_paraboloid, (S, 6S) cube",
@@ -381,7 +501,7 @@ NOTES = {
     "LightOptions.type": "`directional`, or `point` (treated as directional: the environment is distant)",
     "LightOptions.direction": "direction towards the light, world frame (+z up)",
     "LightOptions.position": "point lights: position; irradiance = intensity / |position|^2",
-    "LightOptions.irradiance": "irradiance at the surface (a number or [r, g, b])",
+    "LightOptions.irradiance": "irradiance at a surface facing the light (a number or [r, g, b]); null: 1",
     "LightOptions.intensity": "point lights: intensity (a number or [r, g, b])",
     "OutputOptions.dir": "output directory, relative to the config file (the CLI's --out overrides it)",
     "OutputOptions.png": "also write the 8-bit RGBA textures `<name>.png` with their decode rule",
@@ -392,6 +512,14 @@ NOTES = {
                               "one-term factorizations with non-negative textures only",
     "OutputOptions.preview": "write `preview.png` (needs OpenGL through EGL; skipped with a warning otherwise)",
     "OutputOptions.shaders": "shader files to write ([languages](shaders.md))",
+    "Config.analysis": "record Mahajan et al.'s in-out analysis of the target in factorization.json (`analysis`); null: off",
+    "AnalysisOptions.pair": "grid the target on (n, r) or (n, v)",
+    "AnalysisOptions.mapper": "mapper whose texel centres are the grid",
+    "AnalysisOptions.size": "S of that mapper",
+    "SplitSumOptions.irradiance": "E(n) exactly (the clamped-cosine texel integrals) or from 9 spherical-harmonic coefficients",
+    "SplitSumOptions.weighting": "P(r) weights the NDF by max(r.l, 0) (`karis`) or not (`plain`)",
+    "SplitSumOptions.line_size": "texels of the 1D W(n.v) texture (the DFG table)",
+    "KautzMcCoolOptions.slices": "view-elevation slices: 1 is the single 2D lobe, K > 1 gives K terms",
     "LimitsOptions.memory_gb": "refuse configs whose estimated peak memory exceeds this; null: half of what "
                                "the process may use (RAM, ulimit -v, cgroup memory.max)",
 }
@@ -422,40 +550,70 @@ def model_table(model: type[pydantic.BaseModel], key: str, links: dict, notes_fo
     return table(["key", "type", "default", "constraints", "description"], rows)
 
 
-#: The sections of the config reference: (model, config key, heading).
-def config_sections() -> list[tuple[type, str, str]]:
-    return [
-        (config_mod.Config, "", "Top level"),
-        (config_mod.TargetOptions, "target", "target"),
-        (light_options.EnvironmentOptions, "target.environment", "target.environment"),
-        (light_options.BoostOptions, "target.environment.boost", "target.environment.boost"),
-        (light_options.LightOptions, "target.environment.lights[]", "target.environment.lights"),
-        (fit_options.SamplingOptions, "sampling", "sampling"),
-        (solvers.SolverOptions, "solver", "solver"),
-        (OutputOptions, "output", "output"),
-        (config_mod.LimitsOptions, "limits", "limits"),
-    ]
+def _models_in(annotation: Any) -> list[type[pydantic.BaseModel]]:
+    """The pydantic models inside an annotation (``Optional[M]``, ``list[M]``, unions, ``Annotated``)."""
+    out, stack = [], [annotation]
+    while stack:
+        a = stack.pop(0)
+        if isinstance(a, type) and issubclass(a, pydantic.BaseModel):
+            out.append(a)
+            continue
+        stack.extend(typing.get_args(a))
+    return out
+
+
+def _is_list(annotation: Any) -> bool:
+    if typing.get_origin(annotation) in (list, tuple):
+        return True
+    return any(_is_list(a) for a in typing.get_args(annotation) if a is not type(None))
+
+
+def config_sections() -> list[tuple[type, str]]:
+    """Every option model of the config with its key, walked from ``Config`` depth first in field order.
+
+    A union of solver option models is documented once as their common base ``SolverOptions`` (plus the
+    per-method table); the BRDF models' union is the [Models](models.md) page.
+    """
+    out: list[tuple[type, str]] = []
+
+    def visit(model: type, key: str) -> None:
+        if any(m is model for m, _ in out):
+            return
+        out.append((model, key))
+        for name, info in model.model_fields.items():
+            sub = f"{key}.{name}" if key else name
+            models = _models_in(info.annotation)
+            if _is_list(info.annotation):
+                sub += "[]"
+            if len(models) == 1:
+                visit(models[0], sub)
+            elif models and all(issubclass(m, solvers.SolverOptions) for m in models):
+                visit(solvers.SolverOptions, sub)
+
+    visit(config_mod.Config, "")
+    return out
 
 
 def config_models() -> list[type]:
     """Every option model the config reference documents (the tests check them all)."""
-    return [m for m, _, _ in config_sections()] + [s.options for s in solvers.SOLVERS.values()]
+    return [m for m, _ in config_sections()] + [s.options for s in solvers.SOLVERS.values()] + \
+        [b.options for b in baselines.BASELINES.values()]
 
 
 def config_reference() -> str:
     """The config reference: one table per option model the config is assembled from."""
-    links = {m: (key or "top level") for m, key, _ in config_sections()}
+    sections = config_sections()
+    links = {m: (key or "top level") for m, key in sections}
     out = []
-    for model, key, heading in config_sections():
-        out.append(f"## `{heading}` {{#{_anchor(model)}}}\n" if key else f"## {heading} {{#{_anchor(model)}}}\n")
+    for model, key in sections:
+        out.append(f"## `{key}` {{#{_anchor(model)}}}\n" if key else f"## Top level {{#{_anchor(model)}}}\n")
         out.append(f"Model: `{model.__module__}.{model.__name__}`. {rst_to_md(first_paragraph(model.__doc__))}\n")
-        notes = ("Config",) if model is config_mod.Config else ()
-        if model is config_mod.Config:
-            notes = ("Config", "FitOptions")
+        notes = ("Config", "FitOptions") if model is config_mod.Config else ()
         out.append(model_table(model, key, links, notes))
         out.append("")
         if model is solvers.SolverOptions:
             out.append(solver_options_section())
+    out.append(baseline_options_section())
     return "\n".join(out)
 
 
@@ -543,8 +701,9 @@ def example() -> dict:
     """Run the example config through :func:`homofac.app.run.run` (as the CLI does) and read back what it wrote.
 
     Returns ``{"doc": factorization.json, "files": [(name, bytes)], "shader": shader.glsl,
-    "two_terms": the schema-2 document of a two-term model made from it}``.
+    "two_terms": the document of the split-sum baseline of the same target (several terms)}``.
     """
+    cli.enable_compilation_cache()  # as the CLI does: ~/.cache/homofac/jax, HOMOFAC_JAX_CACHE=0 turns it off
     with tempfile.TemporaryDirectory(prefix="homofac-docs-") as tmp:
         base = Path(tmp)
         cfg = config_mod.parse(EXAMPLE_CONFIG, "docs example")
@@ -552,28 +711,36 @@ def example() -> dict:
         doc = json.loads((out / "factorization.json").read_text())
         files = sorted((p.name, p.stat().st_size) for p in out.iterdir())
         shader = (out / "shader.glsl").read_text()
-        # Schema 2 with two terms: the diffuse term kd/pi E(n) computed exactly, plus a product fitted
-        # to the rest (the specular part, kd = 0) -- the same target, split in two terms.
-        target = fac.target
-        spec_cfg = json.loads(json.dumps(EXAMPLE_CONFIG))
-        spec_cfg["target"]["brdf"]["kd"] = 0.0
-        spec_cfg["output"] = {"png": True, "samples": False, "preview": False}
-        spec, _ = run(config_mod.parse(spec_cfg, "docs example"), base, str(base / "spec"), preview=False)
-        S = cfg.texture_size
-        dirs = np.asarray(mappers.texel_directions("dual_paraboloid", S), np.float32)
-        e = np.asarray(irradiance(target.fn.env, jnp.asarray(dirs.reshape(-1, 3)))).reshape(dirs.shape)
-        e = mappers.dilate("dual_paraboloid", S, e.astype(np.float32))
-        kd = np.asarray(cfg.target.brdf.kd, np.float64) / np.pi
-        model = Factorization(
-            "lighting", "lighting",
-            (Texture("E", "dual_paraboloid", S, jnp.asarray(e)),) + spec.model.textures,
-            (Term((Factor("n", "E"),), jnp.asarray(kd, jnp.float32), "irradiance"),) + spec.model.terms,
-            {}, "diffuse_exact+NR",
-        )
-        two = Result(precision.normalize(model), solver=spec.solver)
-        two = two.replace(metrics=measure(two, target, fac.samples))
-        two_doc, _ = document(two, png=True)
+        # Schema 2 with several terms: the split-sum baseline of the same target, with the Python API.
+        split = homofac.fit.factorize(fac.target, "split_sum", mapper=cfg.mapper, texture_size=cfg.texture_size,
+                                      samples=fac.samples)
+        split_out = split.save(base / "split_sum", png=True)
+        two_doc = json.loads((split_out / "factorization.json").read_text())
     return {"doc": doc, "files": files, "shader": shader, "two_terms": two_doc}
+
+
+def compact_json(v: Any, indent: int = 0, width: int = 100, prefix: int = 0) -> str:
+    """JSON with short lists and objects on one line (what a person reads), otherwise indented by 2.
+
+    ``prefix`` is the width of what precedes the value on its line (a key).
+    """
+    flat = json.dumps(v)
+    if indent + prefix + len(flat) <= width or not isinstance(v, (dict, list)) or not v:
+        return flat
+    pad, inner = " " * indent, " " * (indent + 2)
+    if isinstance(v, dict):
+        items = [f"{inner}{json.dumps(k)}: {compact_json(x, indent + 2, width, len(json.dumps(k)) + 2)}"
+                 for k, x in v.items()]
+        return "{\n" + ",\n".join(items) + "\n" + pad + "}"
+    items = [inner + compact_json(x, indent + 2, width) for x in v]
+    return "[\n" + ",\n".join(items) + "\n" + pad + "]"
+
+
+def _display(doc: dict) -> dict:
+    """A document as the docs show it: floats to 6 digits, the machine's absolute paths shortened."""
+    text = json.dumps(_rounded(doc))
+    text = re.sub(r'"[^"]*?/(homofac/data/[^"]*)"', r'".../\1"', text)
+    return json.loads(text)
 
 
 def _rounded(v: Any, digits: int = 6) -> Any:
@@ -588,15 +755,16 @@ def _rounded(v: Any, digits: int = 6) -> Any:
 
 def example_json() -> str:
     """The example's factorization.json, whole (floats rounded to 6 digits for reading)."""
-    return fenced(json.dumps(_rounded(example()["doc"]), indent=2), "json")
+    return fenced(compact_json(_display(example()["doc"])), "json")
 
 
 def example_two_terms() -> str:
-    """The keys of a two-term document that differ from the one-term example."""
-    d = _rounded(example()["two_terms"])
+    """The keys of a several-term document that differ from the one-term example."""
+    d = _display(example()["two_terms"])
     short = {k: d[k] for k in ("format", "schema_version", "kind", "name", "textures", "terms", "lookups")}
     short["metrics"] = {"validation": {"float": d["metrics"]["validation"]["float"]}}
-    return fenced(json.dumps(short, indent=2), "json")
+    short["solver"] = d["solver"]
+    return fenced(compact_json(short), "json")
 
 
 def example_files() -> str:
@@ -767,6 +935,9 @@ GENERATORS: dict[str, Callable[..., str]] = {
     "parametrizations": parametrizations_table,
     "solvers": solvers_table,
     "languages": languages_table,
+    "baselines": baselines_table,
+    "layers": layers_table,
+    "validation_examples": validation_examples,
     "models_summary": models_summary,
     "models": models_page,
     "config": config_reference,
@@ -797,5 +968,33 @@ def expand(markdown: str, where: str = "") -> str:
     return MARKER.sub(one, markdown)
 
 
+def format_keys() -> set[str]:
+    """The keys format.md must document: those the example documents contain and those load() reads."""
+    from homofac import output  # noqa: PLC0415
+
+    keys: set[str] = set()
+    for doc in (example()["doc"], example()["two_terms"]):
+        keys |= set(doc)
+        for part in ("textures", "terms"):
+            for entry in doc[part]:
+                keys |= set(entry)
+        for term in doc["terms"]:
+            for factor in term["factors"]:
+                keys |= set(factor)
+    for model in (output.Document, output.TextureEntry, output.TermEntry, output.FactorEntry, output.PngDecode):
+        keys |= set(model.model_fields)
+    return keys
+
+
+def undocumented_keys(markdown: str) -> list[str]:
+    """Keys of factorization.json that a page does not mention as ``key``."""
+    return sorted(k for k in format_keys() if f"`{k}`" not in markdown)
+
+
 def on_page_markdown(markdown: str, page, config, files) -> str:  # noqa: ARG001 - the mkdocs hook signature
-    return expand(markdown, page.file.src_path)
+    out = expand(markdown, page.file.src_path)
+    if page.file.src_path == "format.md":
+        missing = undocumented_keys(out)
+        if missing:
+            log.warning("format.md: factorization.json keys not documented: %s", ", ".join(missing))
+    return out

@@ -295,6 +295,8 @@ def document(fac: Result, *, png: bool = False, exr: str = "float32", encoded: Q
     }
     if fac.selection is not None:
         doc["selection"] = fac.selection
+    if fac.analysis is not None:
+        doc["analysis"] = fac.analysis
     if len(model.terms) == 1:  # schema 1's keys, for readers of schema 1
         main = fac._main()
         doc.update({
@@ -456,6 +458,7 @@ class Document(Options):
     warnings: list = Field(default_factory=list)
     config: dict = Field(default_factory=dict)
     selection: Optional[dict] = None
+    analysis: Optional[dict] = None
 
     @model_validator(mode="after")
     def _consistent(self):
@@ -602,6 +605,7 @@ def load(out_dir, textures: str = "exr", *, max_bytes: int = 1 << 28) -> Result:
         model, metrics=doc.metrics, solver=doc.solver, timings=doc.timings, counts=doc.counts, config=doc.config,
         target_info={k: v for k, v in doc.target.items() if k not in ("kind", "quantity")},
         warnings=tuple(str(w) for w in doc.warnings), encoding=encoding, quantized=quant, selection=doc.selection,
+        analysis=doc.analysis,
         source="png" if textures == "png" else "float",
     )
 

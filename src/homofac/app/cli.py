@@ -21,7 +21,7 @@ import yaml
 from PIL import Image
 from rich.console import Console
 
-from .. import gl
+from .. import baselines, gl
 from ..errors import HomofacError
 from ..fit import solvers
 from ..gl.picture import auto_exposure
@@ -107,7 +107,9 @@ config keys (docs/config.md; unknown keys are errors):
   target:          kind (brdf | lighting), brdf {{model, ...its parameters}} (docs/models.md),
                    environment {{file ({' | '.join(BUNDLED)} | a file), resolution, boost, lights, cull}},
                    quantity (brdf | brdf_cos; brdf only), clamp, lobe_cull
-  parametrization: {brdfs} (brdf); {lighting} (lighting)
+  parametrization: {brdfs} (brdf); {lighting} (lighting); baselines: {' | '.join(baselines.BASELINES)}
+  baseline:        options of a baseline (split_sum: irradiance, weighting, line_size; kautz_mccool: slices)
+  analysis:        {{pair: nr | nv, mapper, size}}: Mahajan's in-out analysis of the target, recorded
   mapper:          {maps}
   texture_size:    S of the mapper (4 ... 1024)
   sampling:        {{kind: texels | latlong | random, size, view_size, validation, seed, count, mapper, cache}}
@@ -171,6 +173,11 @@ def _fit(args) -> int:
         f"validation nrmse {val.get('nrmse', float('nan')):.4g} avg_rel {val.get('avg_rel', float('nan')):.4g}, "
         f"{how}, {time.perf_counter() - t0:.1f} s"
     )
+    if fac.analysis is not None:
+        a = fac.analysis
+        ranks = ", ".join(f"{t}: K = {k}" for t, k in a["rank_for"].items())
+        print(f"in-out analysis ({a['pair']}) on {a['mapper']} {a['size']}: rank-1 error {a['error'][1]:.3g}; "
+              f"terms for error {ranks}")
     for w in fac.warnings:
         print(f"homofac: warning: {w}", file=sys.stderr)
     return 0

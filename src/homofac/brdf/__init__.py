@@ -15,7 +15,7 @@ Submodules: ``core`` (registry, BRDF, make, validation), ``analytic`` (models wi
 sources), ``measured`` (MERL files, lookup, tabulation), ``integrate`` (directional albedo).
 """
 
-from .core import BRDF, MODELS, ModelSpec, check_value, evaluate, from_config, make, options_model, options_union, register
+from .core import BRDF, MODELS, Microfacet, ModelSpec, check_value, evaluate, from_config, make, options_model, options_union, register
 from .analytic import blinn_phong, cook_torrance, ggx, lambert, modified_phong, phong, ward
 from .measured import (
     MERL_DIMS,
@@ -36,6 +36,7 @@ __all__ = [
     "MERL_DIMS",
     "MERL_SCALE",
     "MODELS",
+    "Microfacet",
     "ModelSpec",
     "albedo",
     "blinn_phong",

@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .core import COS_EPS, BRDF, ModelSpec, make, register
+from .core import COS_EPS, BRDF, Microfacet, ModelSpec, make, register
 
 PI = jnp.pi
 #: Floor for cos(theta_h) in microfacet distributions: below it the distributions are 0 anyway
@@ -171,6 +171,21 @@ def _schlick_colors(p: Params) -> tuple[Array, Array]:
     return (p["ks"] * p["f0"], p["ks"] * (1.0 - p["f0"]))
 
 
+def beckmann(p: Params, nh: Array) -> Array:
+    """Beckmann D = exp(-tan^2 theta_h / m^2) / (pi m^2 cos^4 theta_h), m = roughness (normalized)."""
+    m2 = p["roughness"] ** 2
+    c = jnp.maximum(nh, NH_EPS)
+    c2 = c * c
+    return jnp.exp(-(1.0 - c2) / (c2 * m2)) / (PI * m2 * c2 * c2)
+
+
+def ggx_ndf(p: Params, nh: Array) -> Array:
+    """GGX D = alpha^2 / (pi ((n.h)^2 (alpha^2 - 1) + 1)^2), alpha = roughness (normalized)."""
+    a2 = p["roughness"] ** 2
+    c = jnp.clip(nh, 0.0, 1.0)
+    return a2 / (PI * (c * c * (a2 - 1.0) + 1.0) ** 2)
+
+
 def _cook_torrance_lobes(p: Params, wi: Comp, wo: Comp) -> tuple[Array, Array]:
     """(a, a (1 - v.h)^5) with a = D G / (4 (n.l)(n.v)): f = kd/pi + ks F0 a + ks (1 - F0) a (1 - v.h)^5."""
     _, nl, nv, nh, vh, tan2_h = _microfacet_angles(wi, wo)
@@ -303,10 +318,12 @@ register(ModelSpec("blinn_phong", _blinn_phong, BLINN_PHONG_DEFAULTS, True, "kd 
                    lobes=_blinn_phong_lobes, support=_blinn_phong_support, colors=_ks))
 register(
     ModelSpec("cook_torrance", _cook_torrance, COOK_TORRANCE_DEFAULTS, True, "kd + ks <= 1 (f0 <= 1)", COOK_TORRANCE_DOC,
-              lobes=_cook_torrance_lobes, colors=_schlick_colors)
+              lobes=_cook_torrance_lobes, colors=_schlick_colors,
+              microfacet=Microfacet(beckmann, "Beckmann, m = roughness"))
 )
 register(ModelSpec("ggx", _ggx, GGX_DEFAULTS, True, "kd + ks <= 1 (f0 <= 1)", GGX_DOC,
-                   lobes=_ggx_lobes, colors=_schlick_colors))
+                   lobes=_ggx_lobes, colors=_schlick_colors,
+                   microfacet=Microfacet(ggx_ndf, "GGX / Trowbridge-Reitz, alpha = roughness")))
 register(ModelSpec("ward", _ward, WARD_DEFAULTS, True, "", WARD_DOC, lobes=_ward_lobes, colors=_ks))
 
 

@@ -55,8 +55,8 @@ class ModelSpec(NamedTuple):
         schema: optional ``{name: (python type, default)}`` of the parameters a *config* gives, when they
             differ from ``defaults`` (``merl`` takes ``file`` in a config, ``table`` in Python); the
             option model of :func:`options_model` is derived from it (or from ``defaults``).
-        microfacet: optional description of the model's microfacet distribution, for the split-sum
-            baseline (:mod:`homofac.baselines.split_sum`); None for models without one.
+        microfacet: optional :class:`Microfacet` (the model's NDF), for the split-sum baseline
+            (:mod:`homofac.baselines.split_sum`); None for models without one.
     """
 
     name: str
@@ -70,7 +70,21 @@ class ModelSpec(NamedTuple):
     colors: Callable[[dict[str, Array]], tuple[Array, ...]] | None = None
     support: Callable[[dict[str, Array], float], tuple[Array, tuple[Array, ...]]] | None = None
     schema: dict[str, tuple[Any, Any]] | None = None
-    microfacet: Any = None
+    microfacet: "Microfacet | None" = None
+
+
+class Microfacet(NamedTuple):
+    """The microfacet distribution of a model, for the split-sum baseline (Karis 2013).
+
+    ``ndf(params, cos_h) -> D``: the normal distribution function, normalized so that the integral of
+    D cos(theta_h) over the hemisphere of h is 1 (the model's own D, with its roughness convention).
+    ``fresnel``: the model's Fresnel is Schlick's F0 + (1 - F0)(1 - v.h)^5 with ``f0`` and ``ks`` params,
+    so its specular albedo splits into F0 A + B (the "DFG" table).
+    """
+
+    ndf: Callable[[dict[str, Array], Array], Array]
+    doc: str
+    fresnel: str = "schlick"
 
 
 #: All registered models by name.

@@ -42,13 +42,24 @@ class SamplingOptions(Options):
     cache: bool = True
 
 
+class AnalysisOptions(Options):
+    """``analysis``: Mahajan et al. 2008's in-out analysis of the target (homofac.baselines.svd), recorded
+    beside the result: the rank-K error curve of the target gridded on (n, r) or (n, v)."""
+
+    pair: Literal["nr", "nv"] = "nr"
+    mapper: Literal["dual_paraboloid", "cube", "octahedral"] = "dual_paraboloid"
+    size: int = Field(12, ge=4, le=32)
+
+
 class FitOptions(Options):
     """What :func:`homofac.fit.factorize` takes besides the target (and the config's top level).
 
     ``parametrization``: a registered parametrization of the target's kind (``IV``, ``GSHD``, ``PQP`` for
-    BRDFs; ``N``, ``R``, ``NR``, ``NRV``, ``NRHD``, ``NRW`` for lighting). ``mapper``: of the direction
-    textures (default parabolic for BRDFs, dual_paraboloid for lighting). ``texture_size``: S of the
-    mapper. ``target_error``: the validation nrmse to meet (fit/auto.py picks the cheapest candidate).
+    BRDFs; ``N``, ``R``, ``NR``, ``NRV``, ``NRHD``, ``NRW`` for lighting), or a baseline (``split_sum``,
+    ``kautz_mccool``; options in ``baseline``). ``mapper``: of the direction textures (default parabolic
+    for BRDFs, dual_paraboloid for lighting). ``texture_size``: S of the mapper. ``target_error``: the
+    validation nrmse to meet (fit/auto.py picks the cheapest candidate). ``analysis``: record the
+    in-out analysis of the target.
     """
 
     parametrization: str = "NR"
@@ -57,6 +68,8 @@ class FitOptions(Options):
     target_error: Optional[float] = Field(None, gt=0, lt=10)
     sampling: SamplingOptions = Field(default_factory=SamplingOptions)
     solver: solvers.options_type() = Field(default_factory=lambda: solvers.options())  # type: ignore[valid-type]
+    baseline: Optional[dict] = None  # validated by the chosen baseline's option model (homofac.baselines)
+    analysis: Optional[AnalysisOptions] = None
 
 
-__all__ = ["FitOptions", "MAX_TEXTURE_SIZE", "MIN_TEXTURE_SIZE", "MapperName", "SamplingOptions"]
+__all__ = ["AnalysisOptions", "FitOptions", "MAX_TEXTURE_SIZE", "MIN_TEXTURE_SIZE", "MapperName", "SamplingOptions"]

@@ -14,6 +14,7 @@ from typing import Callable
 
 import numpy as np
 
+from .. import baselines
 from ..errors import HomofacError
 from ..options import validate
 from ..param import parametrizations as pz
@@ -59,6 +60,8 @@ def factorize(
     sampling: dict | None = None,
     solver: dict | None = None,
     target_error: float | None = None,
+    baseline: dict | None = None,
+    analysis: dict | None = None,
     samples: Samples | None = None,
     config: dict | None = None,
     target_info: dict | None = None,
@@ -79,6 +82,9 @@ def factorize(
             ``epsilon``, ``levels``), validated by the method's own option model.
         target_error: fit candidates cheapest first and keep the first whose validation nrmse meets it
             (:mod:`homofac.fit.auto`); ``parametrization`` and ``texture_size`` are then the limits.
+        baseline: options of a baseline ``parametrization`` (``split_sum``: irradiance, weighting,
+            line_size; ``kautz_mccool``: slices, line_size), validated by its option model.
+        analysis: ``{pair, mapper, size}`` of Mahajan's in-out analysis, recorded in ``fac.analysis``.
         samples: precomputed :class:`~homofac.fit.samples.Samples` (skip sampling, e.g. to compare solvers).
         config: the resolved config to record in the result.
         target_info: description of the target to record.
@@ -91,12 +97,16 @@ def factorize(
     log = log or (lambda msg: None)
     t_start = time.perf_counter()
     opts = options(parametrization, mapper=mapper, texture_size=texture_size, sampling=sampling, solver=solver,
-                   target_error=target_error)
+                   target_error=target_error, baseline=baseline, analysis=analysis)
     if not isinstance(target, Target):
         raise HomofacError(f"factorize needs a homofac Target (brdf_target or lighting_target), got {type(target).__name__}")
     mapper = opts.mapper or default_mapper(target.kind)
-    if opts.target_error is None:
+    is_baseline = opts.parametrization in baselines.BASELINES
+    if opts.target_error is None and not is_baseline:
         pz.get(opts.parametrization, target.kind)
+    if opts.baseline is not None and not is_baseline:
+        raise HomofacError(f"baseline: options are for a baseline parametrization ({', '.join(baselines.BASELINES)}), "
+                           f"not {opts.parametrization}")
     t0 = time.perf_counter()
     if samples is None:
         samples = draw_samples(target, opts.parametrization, opts.sampling, log)
@@ -119,9 +129,32 @@ def factorize(
     if opts.target_error is not None:
         result = auto.choose(target, opts.target_error, fit, samples, mapper=mapper, max_size=opts.texture_size,
                              log=log)
+    elif is_baseline:
+        result = _baseline(target, opts, mapper, samples, record, log)
+        result = result.replace(timings={"sample_s": sample_s, **result.timings})
     else:
         result = fit(target, opts.parametrization, opts.texture_size)
+    if opts.analysis is not None:
+        a = opts.analysis
+        log(f"in-out analysis ({a.pair}) on {a.mapper} {a.size}")
+        result = result.replace(analysis=baselines.analyse(target, a.pair, a.mapper, a.size).record())
     return result.replace(timings={**result.timings, "total_s": time.perf_counter() - t_start}, target=target)
+
+
+def _baseline(target: Target, opts: FitOptions, mapper: str, samples: Samples, record: dict, log) -> Result:
+    """A baseline's model (computed, not fitted) with the same metrics and record as a fit."""
+    log(f"computing the {opts.parametrization} baseline ({mapper} {opts.texture_size})")
+    t0 = time.perf_counter()
+    model = baselines.build(opts.parametrization, target, mapper, opts.texture_size, opts.baseline)
+    build_s = time.perf_counter() - t0
+    result = Result(model, solver={"method": opts.parametrization, "iterations": 0, "converged": True,
+                                   "options": validate(baselines.get(opts.parametrization).options,
+                                                       opts.baseline, "baseline").model_dump()}, **record)
+    mets = measure(result, target, samples, eps=float(opts.solver.epsilon))
+    return result.replace(metrics=mets, warnings=tuple(quality_warnings(mets)),
+                          timings={"build_s": build_s, "assemble_s": 0.0, "solve_s": 0.0},
+                          counts={"train": int(len(samples.a)), "validation": int(len(samples.val_a)),
+                                  "unknowns": 0, "lights": int(getattr(target.fn, "n_lights", 0))})
 
 
 __all__ = ["default_mapper", "draw_samples", "factorize", "measure", "options", "quality_warnings"]

@@ -56,6 +56,7 @@ class Result:
     selection: dict | None = None  # target_error: the candidates tried and why this one (fit/auto.py)
     state: Any = None  # what a refit reuses (fit/refit.py): layout, sample directions, solver state
     target: Any = None  # the exact target it was fitted to, when known (not saved; the preview compares to it)
+    analysis: dict | None = None  # Mahajan's in-out analysis of the target, when asked (baselines.svd)
 
     # --- the model's view ---------------------------------------------------------------------------
     @property

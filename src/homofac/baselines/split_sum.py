@@ -1,0 +1,130 @@
+"""``split_sum``: the split-sum approximation every engine ships (Karis 2013; Filament), as two terms.
+
+    L(v, n) ~ kd/pi E(n)  +  P(r) W(n.v)                                    (3 texture lookups)
+
+* E(n): the irradiance at each texel centre of the mapper, exactly (the clamped-cosine texel
+  integrals of :mod:`homofac.light.geometry`), or from the 9 spherical-harmonic coefficients of the
+  environment (``irradiance: sh9``, Ramamoorthi & Hanrahan 2001);
+* P(r): the environment prefiltered with the material's own NDF under Karis' assumption n = v = r:
+  ``P(r) = sum_k L_k D(h_k) max(r.l_k, 0) dw_k / sum_k D(h_k) max(r.l_k, 0) dw_k`` with
+  ``h_k = normalize(r + l_k)``, ``cos theta_h = r.h_k = sqrt((1 + r.l_k) / 2)`` -- the expected value
+  of Karis' importance-sampled estimator; ``weighting: plain`` drops the ``max(r.l, 0)`` factor;
+* W(x) = ks (F0 A(x) + B(x)): the "DFG" table integrated for the model's own D, G and Schlick
+  Fresnel: ``A + B`` and ``B`` are the directional albedos of the specular lobe (kd = 0, ks = 1) with
+  F0 = 1 and F0 = 0 at the view cosine x (:func:`homofac.brdf.albedo`), stored as a ``line`` texture.
+
+Under a constant environment P = 1 and the split sum is exact (W is the directional albedo); in the
+mirror limit at n = v it is exact too. Models without a microfacet NDF (``ModelSpec.microfacet``:
+Lambert, the Phong family, Ward, MERL) are refused.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import ClassVar, Literal
+
+import jax.numpy as jnp
+import numpy as np
+from pydantic import Field
+
+from ..brdf import MODELS
+from ..errors import HomofacError
+from ..factorization import Factor, Factorization, Term, Texture
+from ..light import Environment
+from ..options import Options
+from ..param import mappers
+from .base import Baseline, centres, directional_albedo, irradiance_map, light_sums, lighting_parts
+
+
+class SplitSumOptions(Options):
+    """Options of ``split_sum``: how E and P are computed, and the size of the DFG line texture."""
+
+    TAG: ClassVar[str] = "split_sum"
+    irradiance: Literal["exact", "sh9"] = "exact"
+    weighting: Literal["karis", "plain"] = "karis"
+    line_size: int = Field(32, ge=2, le=4096)
+
+
+@functools.lru_cache(maxsize=None)
+def _weight(ndf, weighting: str):
+    """The prefilter weight ``w(params, r.l)`` of an NDF (one function object per pair: compiled once)."""
+
+    def weight(p, c):
+        d = ndf(p, jnp.sqrt(jnp.clip((1.0 + c) / 2.0, 0.0, 1.0)))
+        return d * (jnp.maximum(c, 0.0) if weighting == "karis" else (c > 0).astype(c.dtype))
+
+    return weight
+
+
+def prefilter(ndf, params, env: Environment, dirs: np.ndarray, weighting: str = "karis") -> np.ndarray:
+    """P at directions ``dirs`` (J, 3): the NDF-weighted average of the lights (see the module docstring)."""
+    num, den = light_sums(_weight(ndf, weighting), params, dirs, env)
+    num, den = np.asarray(num, np.float64), np.asarray(den, np.float64)
+    return np.where(den[:, None] > 0, num / np.maximum(den, 1e-300)[:, None], 0.0)
+
+
+# Real spherical harmonics Y_lm (l <= 2) and the cosine lobe's convolution factors (Ramamoorthi & Hanrahan 2001).
+_SH_A = np.array([np.pi, 2 * np.pi / 3, 2 * np.pi / 3, 2 * np.pi / 3] + [np.pi / 4] * 5)
+
+
+def sh9_basis(d: np.ndarray) -> np.ndarray:
+    """The 9 real SH basis functions at unit directions ``d`` (N, 3) -> (N, 9)."""
+    x, y, z = d[:, 0], d[:, 1], d[:, 2]
+    return np.stack([
+        0.282095 * np.ones_like(x), 0.488603 * y, 0.488603 * z, 0.488603 * x,
+        1.092548 * x * y, 1.092548 * y * z, 0.315392 * (3 * z * z - 1), 1.092548 * x * z, 0.546274 * (x * x - y * y),
+    ], axis=-1)
+
+
+def sh9_irradiance(env: Environment, dirs: np.ndarray) -> np.ndarray:
+    """E(n) from the environment's 9 SH coefficients: ``sum_lm A_l L_lm Y_lm(n)`` (N, 3)."""
+    ld = np.asarray(env.directions, np.float64)
+    power = np.asarray(env.radiance, np.float64) * np.asarray(env.solid_angle, np.float64)[:, None]
+    coeffs = sh9_basis(ld).T @ power  # (9, 3): L_lm
+    return sh9_basis(np.asarray(dirs, np.float64)) @ (_SH_A[:, None] * coeffs)
+
+
+def dfg(brdf, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(A, B)`` (RGB each, (N, 3)): directional albedos of the specular lobe with F0 = 1 minus F0 = 0, and F0 = 0."""
+    ab = directional_albedo(brdf, x, kd=0.0, ks=1.0, f0=1.0)
+    b = directional_albedo(brdf, x, kd=0.0, ks=1.0, f0=0.0)
+    return ab - b, b
+
+
+def build(target, mapper: str, texture_size: int, options: SplitSumOptions) -> Factorization:
+    """The split-sum model of a lighting target (see the module docstring)."""
+    brdf, env = lighting_parts(target, "split_sum")
+    spec = MODELS[brdf.model]
+    if spec.microfacet is None:
+        raise HomofacError(f"split_sum needs a microfacet model with an NDF ("
+                           f"{', '.join(n for n, m in MODELS.items() if m.microfacet is not None)}); "
+                           f"{brdf.model} has none (use kautz_mccool, which works for any isotropic BRDF)")
+    S = int(texture_size)
+    shape = mappers.texture_shape(mapper, S)
+    d = centres(mapper, S)
+    if options.irradiance == "exact":
+        e = irradiance_map(env, mapper, S)
+    else:
+        e = sh9_irradiance(env, d).reshape(shape + (3,))
+    p = prefilter(spec.microfacet.ndf, brdf.params, env, d, options.weighting).reshape(shape + (3,))
+    n = int(options.line_size)
+    x = (np.arange(n) + 0.5) / n
+    a, b = dfg(brdf, x)
+    ks, f0 = np.asarray(brdf.params["ks"], np.float64), np.asarray(brdf.params["f0"], np.float64)
+    w = (ks * (f0 * a + b)).reshape(1, n, 3)
+    kd = np.asarray(brdf.params["kd"], np.float64)
+    textures = (
+        Texture("E", mapper, S, jnp.asarray(mappers.dilate(mapper, S, e.astype(np.float32)))),
+        Texture("P", mapper, S, jnp.asarray(mappers.dilate(mapper, S, p.astype(np.float32)))),
+        Texture("W", "line", n, jnp.asarray(w.astype(np.float32))),
+    )
+    terms = (
+        Term((Factor("n", "E"),), jnp.asarray(kd / np.pi, jnp.float32), "irradiance"),
+        Term((Factor("r", "P"), Factor("nv", "W")), jnp.ones(3, jnp.float32), "prefiltered"),
+    )
+    return Factorization("lighting", "lighting", textures, terms, {}, "split_sum")
+
+
+BASELINE = Baseline("split_sum", SplitSumOptions, build, __doc__.split("\n")[0])
+
+__all__ = ["BASELINE", "SplitSumOptions", "build", "dfg", "prefilter", "sh9_basis", "sh9_irradiance"]
