@@ -1,6 +1,6 @@
 """mkdocs hooks: the reference tables of the docs, generated from homofac's registries at build time.
 
-A page asks for generated text with a marker comment on a line of its own::
+A page asks for generated text with a marker comment::
 
     <!-- homofac:mappers -->
     <!-- homofac:api homofac.fit -->
@@ -14,7 +14,7 @@ tests (tests/test_docs.py) import this module and call them.
 Generators that run homofac (the example output directory, the shader) do it once per build, in a
 temporary directory, with the sample cache off. Like the CLI they use JAX's persistent compilation
 cache (``~/.cache/homofac/jax``; ``HOMOFAC_JAX_CACHE=0`` turns it off, ``HOMOFAC_JAX_CACHE=DIR`` moves it),
-which makes a second build about 15 s faster.
+which makes a second build about 10 s faster.
 """
 
 from __future__ import annotations
@@ -29,15 +29,17 @@ import os
 import pkgutil
 import re
 import tempfile
-import textwrap
 import types
 import typing
 from pathlib import Path
 from typing import Any, Callable
 
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10
+    tomllib = None
+
 import annotated_types
-import jax.numpy as jnp
-import numpy as np
 import pydantic
 import yaml
 from pydantic.fields import FieldInfo
@@ -54,8 +56,6 @@ from homofac.brdf import core as brdf_core
 from homofac.fit import options as fit_options
 from homofac.fit import pipeline as fit_pipeline
 from homofac.fit import solvers
-from homofac.light import options as light_options
-from homofac.output import OutputOptions
 from homofac.param import mappers, parametrizations, projections
 from homofac.shader import languages
 
@@ -242,11 +242,14 @@ LAYER_NAMES = {
 
 def layer_contract() -> list[list[str]]:
     """The layers of the import-linter contract in pyproject.toml, top first; each a list of modules."""
-    import tomllib  # noqa: PLC0415 - Python >= 3.11; only this generator reads pyproject.toml
-
-    data = tomllib.loads((ROOT / "pyproject.toml").read_text())
-    contract = next(c for c in data["tool"]["importlinter"]["contracts"] if c["type"] == "layers")
-    return [[m.strip() for m in layer.split("|")] for layer in contract["layers"]]
+    text = (ROOT / "pyproject.toml").read_text()
+    if tomllib is not None:
+        contract = next(c for c in tomllib.loads(text)["tool"]["importlinter"]["contracts"] if c["type"] == "layers")
+        layers = contract["layers"]
+    else:  # Python 3.10: the one list this needs, read directly
+        block = re.search(r'type\s*=\s*"layers"\s*\nlayers\s*=\s*\[(.*?)\]', text, re.S).group(1)
+        layers = re.findall(r'"([^"]+)"', block)
+    return [[m.strip() for m in layer.split("|")] for layer in layers]
 
 
 def _summary(module: str) -> str:
@@ -314,7 +317,7 @@ def model_parameters(name: str) -> list[list[str]]:
     for pname, default in spec.defaults.items():
         kind, _, _, _, rule = brdf_core._rule_for(pname, default)
         d = "required" if default is None else code(yaml_value(_plain(default)))
-        where = "Python only (`make`, `merl(table=)`)" if spec.schema is not None else "config and Python"
+        where = f"Python only (`make({name!r}, {pname}=...)`)" if spec.schema is not None else "config and Python"
         rows.append([code(pname), d, _kind_text(kind), rule + ("" if spec.schema is None else f"; {where}")])
     return rows
 
@@ -414,12 +417,13 @@ def type_text(ann: Any, links: dict) -> str:
     if origin in (typing.Union, types.UnionType):
         members = [a for a in args if a is not type(None)]
         models = [typing.get_args(a)[0] if typing.get_origin(a) is typing.Annotated else a for a in members]
-        if models and all(isinstance(m, type) and issubclass(m, pydantic.BaseModel) for m in models) and len(models) > 2:
-            kind = "one of the solver option models" if all(issubclass(m, solvers.SolverOptions) for m in models) \
-                else "one of the BRDF models' option models"
-            target = "solver-options" if "solver" in kind else "models.md"
-            link = f"[{kind}](#{target})" if target != "models.md" else f"[{kind}](models.md)"
-            text = link
+        def every(base: type) -> bool:
+            return bool(models) and all(isinstance(m, type) and issubclass(m, base) for m in models)
+
+        if every(solvers.SolverOptions):
+            text = "[one of the solver option models](#solver-options), by `method`"
+        elif every(brdf_core.BRDFOptionsBase):
+            text = "[one of the BRDF models' option models](models.md), by `model`"
         else:
             text = " or ".join(type_text(a, links) for a in members)
         return text + (" or null" if type(None) in args else "")
@@ -881,16 +885,18 @@ def _directive(module: str, root: bool, members: list[str] | None) -> str:
     return f"::: {module}\n" + "\n".join(opts) + "\n"
 
 
-def api(package: str) -> str:
+def api(package: str, mode: str = "page") -> str:
     """An API page: every module of a package with its docstring and public members (``__all__``).
 
     A package shows its docstring and a table of what it re-exports (linked to where each name is
     documented); each module shows its docstring and members, so every object is documented once.
+    ``mode``: ``page`` (the package is the page's subject: no heading of its own) or ``section`` (one
+    of several packages on a page: it gets a heading like its submodules).
     """
     out = []
     for k, name in enumerate([package] + submodules(package)):
         is_package = hasattr(importlib.import_module(name), "__path__")
-        out.append(_directive(name, root=k == 0, members=own_names(name) if is_package else None))
+        out.append(_directive(name, root=k == 0 and mode == "page", members=own_names(name) if is_package else None))
         if is_package:
             out.append(exports_table(name))
     return "\n".join(out)

@@ -74,16 +74,19 @@ def _angle3(a, b):
     return jnp.arctan2(jnp.sqrt(_dot3(c, c)), _dot3(a, b))
 
 
-def _clipped(n: Float[Array, "B 3"], p: Float[Array, "4 3 B K"]) -> Float[Array, "B K"]:
+def _clipped(n: Float[Array, "B 3"], p: Float[Array, "4 3 B K"], moment: bool = False):
     """Exact integral of max(n . l, 0) over spherical quads (corners CCW from outside), per row.
 
     Corners come as structure of arrays ``p[i][c]`` of shape (B, K), so every operation below is an
-    elementwise op on contiguous (B, K) arrays.
+    elementwise op on contiguous (B, K) arrays. With ``moment`` also the vector moment of the visible
+    part, ``m = 1/2 sum_i theta_i u_i + 1/2 phi n`` (Arvo; the horizon arc's axis is n), whose direction
+    is the centroid of the visible part of the texel: returns ``(w, (mx, my, mz))``.
     """
     nv = tuple(n[:, c][:, None] for c in range(3))  # (B, 1) each
     pts = [tuple(p[i, c] for c in range(3)) for i in range(4)]
     s = [_dot3(nv, q) for q in pts]
     total = 0.0
+    mom = (0.0, 0.0, 0.0)
     x_out = (0.0, 0.0, 0.0)
     x_in = (0.0, 0.0, 0.0)
     mixed = False
@@ -103,11 +106,16 @@ def _clipped(n: Float[Array, "B 3"], p: Float[Array, "4 3 B K"]) -> Float[Array,
         neg_c = tuple(-ck for ck in c)
         theta_vis = jnp.where(va & vb, theta, jnp.where(ex, _angle3(a, c), jnp.where(en, _angle3(neg_c, b), 0.0)))
         total = total + 0.5 * theta_vis * nu
+        if moment:
+            mom = tuple(mk + 0.5 * theta_vis * ck * inv for mk, ck in zip(mom, cr))
         x_out = tuple(xo + jnp.where(ex, ck, 0.0) for xo, ck in zip(x_out, c))
         x_in = tuple(xi + jnp.where(en, -ck, 0.0) for xi, ck in zip(x_in, c))
         mixed = mixed | ex
-    horizon = 0.5 * jnp.arctan2(_dot3(nv, _cross(x_out, x_in)), _dot3(x_out, x_in))
-    return jnp.maximum(total + jnp.where(mixed, horizon, 0.0), 0.0)
+    horizon = jnp.where(mixed, 0.5 * jnp.arctan2(_dot3(nv, _cross(x_out, x_in)), _dot3(x_out, x_in)), 0.0)
+    w = jnp.maximum(total + horizon, 0.0)
+    if not moment:
+        return w
+    return w, tuple(mk + horizon * nk for mk, nk in zip(mom, nv))
 
 
 class LightGeometry(NamedTuple):
@@ -158,13 +166,19 @@ def light_geometry(directions, solid_angle, corners, resolution: int, moments=No
                          jnp.transpose(corners, (1, 2, 0)), k)
 
 
-def cosine_weights(n: Float[Array, "B 3"], geom: LightGeometry, *, select: bool = False) -> Float[Array, "B L"]:
+def cosine_weights(n: Float[Array, "B 3"], geom: LightGeometry, *, select: bool = False, centroids: bool = False):
     """w_k(n) = integral over light k of max(n . l, 0) dl, exactly (see the module docstring).
 
     With ``select``, texels entirely above (below) the horizon of n get n . m_k (0) from one matmul and
     only the few that can straddle the horizon (|n . l_k| <= sin of their radius) are clipped exactly,
     as a gathered subset of ``geom.max_straddlers`` lights per row; without it every texel is clipped
     (the clip of an unclipped texel is n . m_k). Delta lights get max(n . l_k, 0) dw_k.
+
+    With ``centroids`` (needs ``select``) it returns ``(w, (idx, c))``: for the straddling texels of each
+    row, their indices ``idx`` (B, K; unused slots hold L, out of range) and the unit centroid directions
+    ``c`` (B, K, 3) of their visible parts, where the lighting computation evaluates the BRDF (a BRDF
+    growing like 1/cos at the horizon, as Cook-Torrance's V-cavity lobe, evaluated at a centre below or
+    just above the horizon makes the texel sum converge only linearly in the texel size).
     """
     dtype = n.dtype
     m = geom.moment.astype(dtype)
@@ -175,14 +189,21 @@ def cosine_weights(n: Float[Array, "B 3"], geom: LightGeometry, *, select: bool 
         return jnp.where(geom.sin_radius[None] < 0, base, exact)
     # Compact the texels that may straddle the horizon into K slots per row (cumsum, no sort).
     k = geom.max_straddlers
+    L = base.shape[1]
     near = (jnp.abs(n @ geom.centre.astype(dtype).T) <= geom.sin_radius.astype(dtype)[None]) & (geom.sin_radius[None] >= 0)
     slot = jnp.where(near, jnp.cumsum(near, axis=1) - 1, k)  # (B, L); k = "no slot"
     rows = jnp.arange(n.shape[0])[:, None]
     idx = jnp.full((n.shape[0], k), 0, jnp.int32).at[rows, slot].set(
-        jnp.broadcast_to(jnp.arange(base.shape[1], dtype=jnp.int32), base.shape), mode="drop")
+        jnp.broadcast_to(jnp.arange(L, dtype=jnp.int32), base.shape), mode="drop")
     used = jnp.zeros((n.shape[0], k), bool).at[rows, slot].set(True, mode="drop")
-    exact = _clipped(n, corners[:, :, idx])  # (B, K)
-    return base.at[rows, jnp.where(used, idx, base.shape[1])].set(exact, mode="drop")
+    if not centroids:
+        exact = _clipped(n, corners[:, :, idx])  # (B, K)
+        return base.at[rows, jnp.where(used, idx, L)].set(exact, mode="drop")
+    exact, mom = _clipped(n, corners[:, :, idx], moment=True)
+    c = jnp.stack(mom, axis=-1)
+    c = c / jnp.maximum(jnp.linalg.norm(c, axis=-1, keepdims=True), 1e-30)
+    sidx = jnp.where(used & (exact > 0), idx, L)
+    return base.at[rows, jnp.where(used, idx, L)].set(exact, mode="drop"), (sidx, c)
 
 
 def straddler_count(n: Float[Array, "B 3"], geom: LightGeometry) -> Float[Array, "B"]:
