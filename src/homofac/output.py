@@ -302,8 +302,9 @@ def document(fac: Result, *, png: bool = False, exr: str = "float32", encoded: Q
         doc.update({
             "parametrization": model.name, "mapper": main.mapper, "texture_size": main.size,
             "factors": terms[0]["factors"], "correction": model.terms[0].correction,
-            "png_decode": {**enc.rule, "written": bool(png)},
         })
+        if enc.rule.get("encoding") == "rgba8":  # the thesis' rule; affine (signed) textures have no schema-1 form
+            doc["png_decode"] = {**enc.rule, "written": bool(png)}
     bad: list = []
     return _jsonable(doc, bad), bad
 

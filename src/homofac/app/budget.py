@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import baselines
 from ..errors import HomofacError
 from ..fit import solvers
 from ..fit.draw import default_mapper
@@ -135,9 +136,12 @@ def environment_bytes(cfg: Config, base: Path) -> int:
 def estimate(cfg: Config, base: Path = Path(".")) -> dict:
     """Estimated peak bytes of the run a :class:`~homofac.app.config.Config` describes, by part."""
     kind = cfg.target.kind
-    p = pz.get(cfg.parametrization, kind) if cfg.target_error is None else None
-    j = p.J if p else 4
-    t = p.T if p else 4
+    if cfg.parametrization in baselines.BASELINES:  # computed, not fitted: 3 textures, no system
+        p, j, t = None, 3, 3
+    else:
+        p = pz.get(cfg.parametrization, kind) if cfg.target_error is None else None
+        j = p.J if p else 4
+        t = p.T if p else 4
     s = cfg.sampling
     smapper = s.mapper or default_mapper(kind)
     if s.kind == "random":

@@ -13,12 +13,16 @@ from typing import Literal, Optional
 
 from pydantic import Field
 
+from .. import baselines
 from ..options import Options
 from ..param import mappers
+from ..param import parametrizations as pz
 from . import solvers
 
-#: Mapper names, from the registry.
-MapperName = Literal[tuple(mappers.MAPPERS)]  # type: ignore[valid-type]
+#: Direction mapper names, from the registry (the scalar ``line`` mapper is for 1D factors only).
+MapperName = Literal[tuple(n for n, m in mappers.MAPPERS.items() if not m.scalar)]  # type: ignore[valid-type]
+#: Everything ``parametrization`` may name: the registered parametrizations and the baselines.
+ParametrizationName = Literal[tuple(pz.PARAMETRIZATIONS) + tuple(baselines.BASELINES)]  # type: ignore[valid-type]
 #: Texture sizes accepted (a 1024 cube has 6.3M texels per texture: far beyond anything that finishes here).
 MIN_TEXTURE_SIZE, MAX_TEXTURE_SIZE = 4, 1024
 
@@ -62,7 +66,7 @@ class FitOptions(Options):
     in-out analysis of the target.
     """
 
-    parametrization: str = "NR"
+    parametrization: ParametrizationName = "NR"
     mapper: Optional[MapperName] = None
     texture_size: int = Field(32, ge=MIN_TEXTURE_SIZE, le=MAX_TEXTURE_SIZE)
     target_error: Optional[float] = Field(None, gt=0, lt=10)

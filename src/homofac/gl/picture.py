@@ -13,7 +13,6 @@ All three panels use one exposure and the sRGB curve. The error is per pixel
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import jax.numpy as jnp
@@ -217,22 +216,5 @@ def write_preview(fac, path, target=None, **kwargs) -> Path:
     return path
 
 
-__all__ = ["auto_exposure", "colormap", "compose", "exact_values", "preview", "relative_error", "safe_writer", "srgb",
+__all__ = ["auto_exposure", "colormap", "compose", "exact_values", "preview", "relative_error", "srgb",
            "to_display", "write_preview"]
-
-
-def safe_writer(fac, target=None, log=None, **kwargs):
-    """A writer ``path -> None`` of preview.png for :func:`homofac.io.output.save` (``extra_files``) that
-    never fails: when there is no GL (no EGL, no moderngl) or anything else goes wrong it prints one
-    line ``homofac: warning: ...`` on stderr and writes nothing."""
-    def write(path) -> None:
-        if log is not None:
-            log("rendering preview.png")
-        try:
-            write_preview(fac, path, target, **kwargs)
-        except Exception as e:  # noqa: BLE001 - a preview never fails the fit
-            Path(path).unlink(missing_ok=True)
-            msg = " ".join(str(e).split()) or type(e).__name__
-            print(f"homofac: warning: preview.png skipped: {msg[:300]}", file=sys.stderr)
-
-    return write

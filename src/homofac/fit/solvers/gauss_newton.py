@@ -2,7 +2,7 @@
 
 Matrix-free (the Jacobian is a JVP). The log-space system is linear, so it converges in one or two
 steps; it is the path through which ``jax.grad`` through a solve goes, and the same solver refines
-the nonlinear linear-space objective of sums of products (:mod:`homofac.fit.linear`).
+the nonlinear linear-space objective of sums of products (:mod:`homofac.fit.sums`).
 """
 
 from __future__ import annotations
