@@ -74,22 +74,28 @@ def _constant(value) -> np.ndarray:
     return np.asarray(value, np.float64).reshape(3)
 
 
-def _value_graph(model: Factorization, quantized: Quantized | None) -> Expr:
-    """The traced ``homofac_value(a, b)``: the sum of the terms' products of texture reads."""
+def _term_graphs(model: Factorization, quantized: Quantized | None) -> list[Expr]:
+    """The traced terms of ``homofac_value(a, b)``: per term its correction times its texture reads."""
     a, b = vec3_input("a"), vec3_input("b")
     proj_type = {name: ("float" if pj.get(name).scalar else "vec3") for term in model.terms for name in
                  (f.projection for f in term.factors)}
     projected = {name: _call(f"hf_proj_{name}", a, b, type=t) for name, t in proj_type.items()}
-    reads = {}
-    for k, tex in enumerate(model.textures):
-        reads[tex.name] = (k, tex)
-    total = None
+    reads = {tex.name: (k, tex) for k, tex in enumerate(model.textures)}
+    out = []
     for t_index, term in enumerate(model.terms):
         corr = quantized.corrections[t_index] if quantized is not None else term.correction
         value = Expr.const(_constant(corr), "vec3")
         for f in term.factors:
             k, tex = reads[f.texture]
             value = value * _fetch(tex, projected[f.projection], quantized, k)
+        out.append(value)
+    return out
+
+
+def _value_graph(model: Factorization, quantized: Quantized | None) -> Expr:
+    """The traced ``homofac_value(a, b)``: the sum of the terms' products of texture reads."""
+    total = None
+    for value in _term_graphs(model, quantized):
         total = value if total is None else total + value
     return total
 
@@ -108,12 +114,11 @@ def _fetch(tex, d: Expr, quantized: Quantized | None, k: int) -> Expr:
     rgb = _call(f"hf_sample_{tex.name}", tu, tv, type="vec3")
     if quantized is None:
         return rgb
-    offset = Expr.const(_constant(quantized.offset[k]), "vec3")
-    scale = Expr.const(_constant(quantized.scale[k]), "vec3")
     if quantized.alpha[k]:
-        alpha = _call(f"hf_sample_alpha_{tex.name}", tu, tv, type="float")
-        return offset + scale * (rgb * alpha)
-    return offset + scale * rgb
+        rgb = rgb * _call(f"hf_sample_alpha_{tex.name}", tu, tv, type="float")
+    offset, scale = _constant(quantized.offset[k]), _constant(quantized.scale[k])
+    value = rgb if np.all(scale == 1.0) else Expr.const(scale, "vec3") * rgb
+    return value if np.all(offset == 0.0) else Expr.const(offset, "vec3") + value
 
 
 # --------------------------------------------------------------------------------------------------
@@ -127,7 +132,10 @@ def _resources(lang: L.Language, model: Factorization, quantized: bool) -> tuple
     for k, tex in enumerate(model.textures):
         n = f"hf_{tex.name}"
         if lang.name in ("glsl", "glsl_es"):
-            decl.append(f"uniform sampler2D {n};  // {tex.name}: {tex.mapper} {tex.size}, linear, clamp to edge, no mipmaps")
+            # highp: GLSL ES fragment shaders default to lowp samplers (8-bit results on some mobile GPUs)
+            prec = "highp " if lang.name == "glsl_es" else ""
+            decl.append(f"uniform {prec}sampler2D {n};  // {tex.name}: {tex.mapper} {tex.size}, linear, clamp to edge, "
+                        "no mipmaps")
             fns.append(f"vec3 hf_sample_{tex.name}(float u, float v) {{ return textureLod({n}, vec2(u, v), 0.0).rgb; }}")
             if quantized:
                 fns.append(f"float hf_sample_alpha_{tex.name}(float u, float v) {{ return textureLod({n}, vec2(u, v), 0.0).a; }}")
@@ -139,10 +147,10 @@ def _resources(lang: L.Language, model: Factorization, quantized: bool) -> tuple
                 fns.append(f"float hf_sample_alpha_{tex.name}(float u, float v) {{ return {n}.SampleLevel({n}_sampler, float2(u, v), 0).a; }}")
         elif lang.name == "msl":
             fns.append(f"float3 hf_sample_{tex.name}(thread const HomofacTextures& hf, float u, float v) "
-                       f"{{ return hf.{n}.sample(hf_sampler, float2(u, v), level(0.0)).rgb; }}")
+                       f"{{ return hf.{n}.sample(hf_sampler, float2(u, v), level(0.0f)).rgb; }}")
             if quantized:
                 fns.append(f"float hf_sample_alpha_{tex.name}(thread const HomofacTextures& hf, float u, float v) "
-                           f"{{ return hf.{n}.sample(hf_sampler, float2(u, v), level(0.0)).a; }}")
+                           f"{{ return hf.{n}.sample(hf_sampler, float2(u, v), level(0.0f)).a; }}")
         elif lang.name == "wgsl":
             decl.append(f"@group(0) @binding({2 * k}) var {n}: texture_2d<f32>;  // {tex.name}: {tex.mapper} {tex.size}")
             decl.append(f"@group(0) @binding({2 * k + 1}) var {n}_sampler: sampler;  // linear, clamp to edge")
@@ -161,35 +169,55 @@ def _resources(lang: L.Language, model: Factorization, quantized: bool) -> tuple
 
 
 def _msl_thread_textures(src: str, model: Factorization) -> str:
-    """MSL has no global textures: thread the ``HomofacTextures`` argument through the value function."""
-    src = src.replace("homofac_value(float3 a, float3 b)", "homofac_value(float3 a, float3 b, thread const HomofacTextures& hf)")
+    """MSL has no global textures: thread the ``HomofacTextures`` argument through the functions that read them."""
+    for fn in ("homofac_value", "homofac_term", *(f"homofac_term_{k}" for k in range(len(model.terms)))):
+        for params in ("float3 a, float3 b", "int k, float3 a, float3 b"):
+            src = src.replace(f"{fn}({params})", f"{fn}({params}, thread const HomofacTextures& hf)")
     for tex in model.textures:
         src = src.replace(f"hf_sample_{tex.name}(", f"hf_sample_{tex.name}(hf, ")
         src = src.replace(f"hf_sample_alpha_{tex.name}(", f"hf_sample_alpha_{tex.name}(hf, ")
     return src
 
 
-def _entry(lang: L.Language, model: Factorization) -> str:
+def _dispatch(lang: L.Language, model: Factorization) -> str:
+    """``homofac_term(int k, a, b)``: term ``k`` of ``homofac_value`` (0 for k outside 0 .. terms-1)."""
+    v3, i = lang.type("vec3"), lang.type("int")
+    zero = lang.literal((0.0, 0.0, 0.0), "vec3")
+    hf = ", hf" if lang.name == "msl" else ""
+    body = "".join(f"    if (k == {k}) {{ return homofac_term_{k}(a, b{hf}); }}\n" for k in range(len(model.terms)))
+    doc = "  // term k of homofac_value (their sum); 0 outside 0 .. HOMOFAC_TERMS - 1"
+    return (lang.signature("homofac_term", [("k", i), ("a", v3), ("b", v3)], v3) + " {" + doc + "\n"
+            + body + f"    return {zero};\n}}")
+
+
+def _entry(lang: L.Language, model: Factorization, term: bool = False) -> str:
+    """The pinned entry point (``homofac_radiance`` / ``homofac_brdf``): the engine frame (``HOMOFAC_Y_UP``)
+    and the validity test around ``homofac_value``; with ``term`` its per-term twin ``<entry>_term(k, a, b)``."""
     name, a, b = ENTRY[model.kind]
     v3 = lang.type("vec3")
-    valid = f"dot({a}, {b}) > 0.0" if model.kind == "lighting" else f"{a}.z > 0.0 && {b}.z > 0.0"
+    z = lang.literal(0.0, "float")
+    valid = f"dot({a}, {b}) > {z}" if model.kind == "lighting" else f"{a}.z > {z} && {b}.z > {z}"
     msl = lang.name == "msl"
     extra = ", thread const HomofacTextures& hf" if msl else ""
-    call = f"homofac_value({a}, {b}{', hf' if msl else ''})"
+    k_arg = "k, " if term else ""
+    call = f"{'homofac_term' if term else 'homofac_value'}({k_arg}{a}, {b}{', hf' if msl else ''})"
     zero = lang.literal((0.0, 0.0, 0.0), "vec3")
+    fname = f"{name}_term" if term else name
     if lang.name == "wgsl":
+        k_param = "k: i32, " if term else ""
         swz = (f"    var {a}w = {a}_in;\n    var {b}w = {b}_in;\n"
                f"    if (HOMOFAC_Y_UP) {{ {a}w = vec3<f32>({a}_in.x, -{a}_in.z, {a}_in.y); "
                f"{b}w = vec3<f32>({b}_in.x, -{b}_in.z, {b}_in.y); }}\n") if model.kind == "lighting" else (
                f"    let {a}w = {a}_in;\n    let {b}w = {b}_in;\n")
-        return (f"fn {name}({a}_in: {v3}, {b}_in: {v3}) -> {v3} {{\n{swz}"
+        return (f"fn {fname}({k_param}{a}_in: {v3}, {b}_in: {v3}) -> {v3} {{\n{swz}"
                 f"    let {a} = {a}w;\n    let {b} = {b}w;\n"
                 f"    return select({zero}, {call}, {valid});\n}}")
     swz = ""
     if model.kind == "lighting":
         swz = (f"#ifdef HOMOFAC_Y_UP\n    {a} = {v3}({a}.x, -{a}.z, {a}.y);\n    {b} = {v3}({b}.x, -{b}.z, {b}.y);\n"
                "#endif\n")
-    return (f"{v3} {name}({v3} {a}, {v3} {b}{extra}) {{\n{swz}"
+    k_param = "int k, " if term else ""
+    return (f"{v3} {fname}({k_param}{v3} {a}, {v3} {b}{extra}) {{\n{swz}"
             f"    return ({valid}) ? {call} : {zero};\n}}")
 
 
@@ -216,10 +244,16 @@ def source(model: Factorization, language: str = "glsl", *, quantized: Quantized
         fns.append(src)
         tables.update(tb)
     decl, samplers = _resources(lang, model, q)
-    value = L.function(lang, "homofac_value", [("a", "vec3"), ("b", "vec3")], _value_graph(model, quantized),
+    vec3_ab = [("a", "vec3"), ("b", "vec3")]
+    value = L.function(lang, "homofac_value", vec3_ab, _value_graph(model, quantized),
                        doc=f"{model.name}: {len(model.terms)} term(s), {model.lookups} lookups")
+    terms = [L.function(lang, f"homofac_term_{k}", vec3_ab, g,
+                        doc=f"term {k} ({model.terms[k].kind}): " + " * ".join(
+                            ["correction"] + [f"{f.texture}({f.projection})" for f in model.terms[k].factors]))
+             for k, g in enumerate(_term_graphs(model, quantized))]
+    functions = "\n".join([value, *terms, _dispatch(lang, model)])
     if lang.name == "msl":
-        value = _msl_thread_textures(value, model)
+        functions = _msl_thread_textures(functions, model)
     lines = [
         f"// homofac {__version__}: {model.kind} factorization {model.name!r}, {len(model.terms)} term(s), "
         f"{model.lookups} texture lookups, {'8-bit PNG' if q else 'float EXR'} textures.",
@@ -234,8 +268,9 @@ def source(model: Factorization, language: str = "glsl", *, quantized: Quantized
         lines.append("#define HOMOFAC_Y_UP")
     if lang.name == "wgsl":
         lines.append(f"const HOMOFAC_Y_UP: bool = {'true' if y_up else 'false'};  // true: (x, y, z)_engine -> (x, -z, y)")
+    lines.append(lang.constant(lang.type("int"), "HOMOFAC_TERMS", str(len(model.terms))) + "  // terms of homofac_value")
     lines += [L.table_source(lang, n, v) for n, v in tables.items()]
-    lines += decl + samplers + helper_functions(lang) + fns + [value, _entry(lang, model)]
+    lines += decl + samplers + helper_functions(lang) + fns + [functions, _entry(lang, model), _entry(lang, model, term=True)]
     return "\n".join(lines) + "\n"
 
 

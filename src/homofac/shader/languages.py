@@ -17,8 +17,9 @@ from ..errors import HomofacError
 from .symbolic import Expr
 
 
-def float_literal(x: float) -> str:
-    """The shortest decimal that reads back as the same float32, always with a '.' or an exponent."""
+def float_literal(x: float, suffix: str = "") -> str:
+    """The shortest decimal that reads back as the same float32, always with a '.' or an exponent, and
+    ``suffix`` (``f`` in MSL, where an unsuffixed literal is a C++ double)."""
     f = np.float32(x)
     if not np.isfinite(f):
         raise HomofacError(f"non-finite constant {x!r} in shader code")
@@ -28,6 +29,7 @@ def float_literal(x: float) -> str:
         s = f"{mant}.0e{exp}"
     elif "." not in s and "e" not in s:
         s += ".0"
+    s += suffix
     return f"({s})" if s.startswith("-") else s
 
 
@@ -51,6 +53,7 @@ class Language:
         f"const {t} {n}[{len(rows)}] = {t}[{len(rows)}]({', '.join(rows)});")
     #: uniform-free constants at file scope: ``const T name = value;``
     constant: Callable[[str, str, str], str] = lambda t, n, e: f"const {t} {n} = {e};"
+    float_suffix: str = ""  # of float literals (MSL: "f", so that no expression is a double)
 
     def type(self, t: str) -> str:
         return self.types[t]
@@ -60,9 +63,9 @@ class Language:
 
     def literal(self, value, t: str) -> str:
         if t == "vec3":
-            return self.vec3(*(float_literal(v) for v in value))
+            return self.vec3(*(float_literal(v, self.float_suffix) for v in value))
         if t == "float":
-            return float_literal(value)
+            return float_literal(value, self.float_suffix)
         if t == "int":
             return f"({int(value)})" if int(value) < 0 else str(int(value))
         return "true" if value else "false"
@@ -101,6 +104,7 @@ MSL = Language(
     header="#include <metal_stdlib>\nusing namespace metal;",
     table=lambda t, n, rows: f"constant {t} {n}[{len(rows)}] = {{{', '.join(rows)}}};",
     constant=lambda t, n, e: f"constant {t} {n} = {e};",
+    float_suffix="f",
 )
 WGSL = Language(
     "wgsl", "WGSL", "shader.wgsl",
