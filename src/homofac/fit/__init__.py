@@ -4,23 +4,26 @@
 record); each stage is a module of its own so a notebook can stop anywhere: :mod:`.sampling` (direction
 pairs), :mod:`.draw` (samples, cached), :mod:`.system` (eq. 30-37), :mod:`.start` (§3.1.2),
 :mod:`.solvers` (one record per solver), :mod:`.product` (one product in log space),
-:mod:`.precision` (8-bit), :mod:`.metrics`, :mod:`.auto` (target_error), :mod:`.differentiable`.
+:mod:`.precision` (8-bit), :mod:`.metrics`, :mod:`.auto` (target_error), :mod:`.differentiable`;
+sums of products in linear space: :mod:`.structures` (terms, diffuse, nv_factor), :mod:`.sums` (the fit
+and the choice within ``max_lookups``), :mod:`.als` (grid ALS), :mod:`.refine` (Levenberg-Marquardt).
 """
 
 from __future__ import annotations
 
 from ..target import Target, brdf_target, evaluate
-from . import metrics, precision, sampling, solvers, system
+from . import als, metrics, precision, refine, sampling, solvers, structures, sums, system
 from .draw import draw_samples
 from .metrics import measure
-from .options import FitOptions, SamplingOptions
+from .options import FitOptions, LinearOptions, SamplingOptions
 from .pipeline import factorize
 from .result import Result
 from .samples import Samples, evaluate_grouped
 from .solvers import SolveResult, SolverOptions, solve
+from .structures import Structure
 
 __all__ = [
-    "FitOptions", "Result", "SamplingOptions", "Samples", "SolveResult", "SolverOptions", "Target", "brdf_target",
+    "FitOptions", "LinearOptions", "Result", "SamplingOptions", "Structure", "als", "refine", "structures", "sums", "Samples", "SolveResult", "SolverOptions", "Target", "brdf_target",
     "draw_samples", "evaluate", "evaluate_grouped", "factorize", "measure", "metrics", "precision", "sampling",
     "solve", "solvers", "system",
 ]

@@ -31,12 +31,16 @@ class SamplingOptions(Options):
     """``sampling``: the training pairs (thesis §4.2) and the seeded validation set.
 
     ``kind``: ``texels`` (reverse-projected texel grids of ``mapper``, default parabolic for BRDFs and
-    dual_paraboloid for lighting, of ``size`` and ``view_size``), ``latlong`` (a lat-long grid) or
-    ``random`` (``count`` uniform pairs). ``validation``: the number of random validation pairs (seed
-    ``seed + 1``). ``cache``: reuse the samples of an identical (target, sampling) from disk.
+    dual_paraboloid for lighting, of ``size`` and ``view_size``), ``latlong`` (a lat-long grid),
+    ``random`` (``count`` uniform pairs) or ``grid`` (lighting: ``count`` pairs, default 300000, of texel
+    centres (n, r) of the fitted textures' own grid, drawn by solid angle, so alternating least squares
+    decouples per texel; :func:`homofac.fit.sampling.grouped_grid`). ``auto`` (the default) is ``grid``
+    for linear-space sums of lighting products and ``texels`` otherwise. ``validation``: the number of
+    random validation pairs (seed ``seed + 1``). ``cache``: reuse the samples of an identical (target,
+    sampling) from disk.
     """
 
-    kind: Literal["texels", "latlong", "random"] = "texels"
+    kind: Literal["auto", "texels", "latlong", "random", "grid"] = "auto"
     size: int = Field(24, ge=2, le=512)
     view_size: Optional[int] = Field(None, ge=2, le=512)
     validation: int = Field(20000, ge=0, le=10_000_000)
@@ -55,6 +59,33 @@ class AnalysisOptions(Options):
     size: int = Field(12, ge=4, le=32)
 
 
+class LinearOptions(Options):
+    """``linear``: the linear-space fit of sums of products (:mod:`homofac.fit.sums`), the objective a GPU
+    sees: ``sum_i ||(model(a_i, b_i) - y_i) / sigma||^2`` plus first-difference smoothing of every texture.
+
+    ``method``: ``als`` (exact block alternating least squares on ``grid`` samples, per-texel K x K
+    solves; :mod:`homofac.fit.als`), ``levenberg_marquardt`` / ``gauss_newton`` (matrix-free, LSMR
+    inner solves, any parametrization and sampling; :mod:`homofac.fit.refine`), or ``auto`` (als when
+    the samples are grid-aligned, else levenberg_marquardt). ``backend``: ``optimistix`` (core) or
+    ``jaxopt`` (the optional extra ``homofac[jaxopt]``; unmaintained upstream, for comparisons).
+    ``iterations``: ALS sweeps or outer LM / GN steps; ``inner_iterations``: LSMR steps per LM / GN step.
+    ``laplacian``: the smoothing weight lambda, scaled by samples per texel (mu = lambda N / texels).
+    ``start``: ``split_sum`` (term 1 = the split sum; microfacet lighting targets), ``product`` (term 1
+    = the log-space product of the parametrization) or ``auto`` (split_sum where it exists).
+    """
+
+    method: Literal["auto", "als", "levenberg_marquardt", "gauss_newton"] = "auto"
+    backend: Literal["optimistix", "jaxopt"] = "optimistix"
+    iterations: int = Field(30, ge=1, le=100_000)
+    inner_iterations: int = Field(100, ge=1, le=100_000)
+    laplacian: float = Field(1e-2, ge=0, allow_inf_nan=False)
+    start: Literal["auto", "split_sum", "product"] = "auto"
+
+
+#: Largest number of fitted terms accepted (the packed shaders and the ALS blocks grow as K^2).
+MAX_TERMS = 32
+
+
 class FitOptions(Options):
     """What :func:`homofac.fit.factorize` takes besides the target (and the config's top level).
 
@@ -64,6 +95,13 @@ class FitOptions(Options):
     for BRDFs, dual_paraboloid for lighting). ``texture_size``: S of the mapper. ``target_error``: the
     validation nrmse to meet (fit/auto.py picks the cheapest candidate). ``analysis``: record the
     in-out analysis of the target.
+
+    Sums of products (schema 2, docs/format.md), fitted in linear space with ``linear``: ``terms`` K
+    products of the parametrization, ``diffuse`` ``exact`` (the computed term kd/pi E(n); the products
+    fit the rest) or ``fitted`` (an n-only texture started from it), ``nv_factor`` (a 1D ``line`` texture
+    w(n.v) in each product; for BRDFs w(cos_i) w(cos_o)), ``max_lookups`` (homofac chooses the structure
+    within that many texture lookups per pixel, by validation error; :mod:`homofac.fit.structures`),
+    ``reflection`` (lighting: one more fitted term, an r-only texture).
     """
 
     parametrization: ParametrizationName = "NR"
@@ -74,6 +112,18 @@ class FitOptions(Options):
     solver: solvers.options_type() = Field(default_factory=lambda: solvers.options())  # type: ignore[valid-type]
     baseline: Optional[dict] = None  # validated by the chosen baseline's option model (homofac.baselines)
     analysis: Optional[AnalysisOptions] = None
+    terms: int = Field(1, ge=1, le=MAX_TERMS)
+    diffuse: Optional[Literal["exact", "fitted"]] = None
+    nv_factor: bool = False
+    reflection: bool = False
+    max_lookups: Optional[int] = Field(None, ge=1, le=256)
+    linear: Optional[LinearOptions] = None
+
+    @property
+    def is_sum(self) -> bool:
+        """True when the fit is a linear-space sum of products rather than today's log-space product."""
+        return (self.terms > 1 or self.diffuse is not None or self.nv_factor or self.reflection
+                or self.max_lookups is not None or self.linear is not None)
 
 
-__all__ = ["AnalysisOptions", "FitOptions", "MAX_TEXTURE_SIZE", "MIN_TEXTURE_SIZE", "MapperName", "SamplingOptions"]
+__all__ = ["AnalysisOptions", "FitOptions", "LinearOptions", "MAX_TERMS", "MAX_TEXTURE_SIZE", "MIN_TEXTURE_SIZE", "MapperName", "SamplingOptions"]

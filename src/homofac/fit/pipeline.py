@@ -19,13 +19,18 @@ from ..errors import HomofacError
 from ..options import validate
 from ..param import parametrizations as pz
 from ..target import Target
-from . import auto
+from . import auto, structures, sums
 from .draw import default_mapper, draw_samples
 from .metrics import measure
-from .options import FitOptions
+from .options import FitOptions, LinearOptions, SamplingOptions
 from .product import fit_product
 from .result import Result
 from .samples import Samples, check_values
+from .structures import Structure
+
+
+#: The lookup budget of ``target_error`` with sum keys but no ``max_lookups``.
+DEFAULT_MAX_LOOKUPS = 16
 
 
 def quality_warnings(metrics: dict) -> list[str]:
@@ -60,6 +65,12 @@ def factorize(
     sampling: dict | None = None,
     solver: dict | None = None,
     target_error: float | None = None,
+    terms: int | None = None,
+    diffuse: str | None = None,
+    nv_factor: bool | None = None,
+    reflection: bool | None = None,
+    max_lookups: int | None = None,
+    linear: dict | None = None,
     baseline: dict | None = None,
     analysis: dict | None = None,
     samples: Samples | None = None,
@@ -81,7 +92,16 @@ def factorize(
         solver: solver options as a dict (``method``, ``tolerance``, ``max_iterations``, ``laplacian``,
             ``epsilon``, ``levels``), validated by the method's own option model.
         target_error: fit candidates cheapest first and keep the first whose validation nrmse meets it
-            (:mod:`homofac.fit.auto`); ``parametrization`` and ``texture_size`` are then the limits.
+            (:mod:`homofac.fit.auto`); ``parametrization`` and ``texture_size`` are then the limits. With
+            the sum keys below, the candidates are structures within ``max_lookups`` (default 16).
+        terms: K products of ``parametrization`` summed, fitted in linear space (:mod:`homofac.fit.sums`).
+        diffuse: ``exact`` (the computed term kd/pi E(n), the products fit the rest) or ``fitted``.
+        nv_factor: a 1D ``line`` texture w(n.v) in each product (BRDF: w(cos_i) w(cos_o)).
+        reflection: one more fitted term, an r-only texture (lighting).
+        max_lookups: choose the structure (terms, nv_factor, diffuse) within this many texture lookups
+            per pixel by validation error (:func:`homofac.fit.sums.choose`).
+        linear: :class:`~homofac.fit.options.LinearOptions` of the linear-space fit as a dict
+            (``method``, ``backend``, ``iterations``, ``laplacian``, ``start``).
         baseline: options of a baseline ``parametrization`` (``split_sum``: irradiance, weighting,
             line_size; ``kautz_mccool``: slices, line_size), validated by its option model.
         analysis: ``{pair, mapper, size}`` of Mahajan's in-out analysis, recorded in ``fac.analysis``.
@@ -97,7 +117,9 @@ def factorize(
     log = log or (lambda msg: None)
     t_start = time.perf_counter()
     opts = options(parametrization, mapper=mapper, texture_size=texture_size, sampling=sampling, solver=solver,
-                   target_error=target_error, baseline=baseline, analysis=analysis)
+                   target_error=target_error, baseline=baseline, analysis=analysis, terms=terms, diffuse=diffuse,
+                   nv_factor=nv_factor, reflection=reflection, max_lookups=max_lookups,
+                   linear=linear)
     if not isinstance(target, Target):
         raise HomofacError(f"factorize needs a homofac Target (brdf_target or lighting_target), got {type(target).__name__}")
     mapper = opts.mapper or default_mapper(target.kind)
@@ -107,9 +129,14 @@ def factorize(
     if opts.baseline is not None and not is_baseline:
         raise HomofacError(f"baseline: options are for a baseline parametrization ({', '.join(baselines.BASELINES)}), "
                            f"not {opts.parametrization}")
+    if opts.is_sum and is_baseline:
+        raise HomofacError(f"terms, diffuse, nv_factor, max_lookups and linear shape fitted sums; "
+                           f"{opts.parametrization} is a baseline (computed, not fitted)")
+    if opts.is_sum:
+        pz.get(opts.parametrization, target.kind)
     t0 = time.perf_counter()
     if samples is None:
-        samples = draw_samples(target, opts.parametrization, opts.sampling, log)
+        samples = draw_samples(target, opts.parametrization, resolve_sampling(opts, target.kind, mapper), log)
     sample_s = time.perf_counter() - t0
     check_values(np.asarray(samples.y), "training")
     record = {"config": config or {}, "target_info": target_info or {}, "samples": samples if keep_samples else None}
@@ -126,7 +153,9 @@ def factorize(
                     "unknowns": int(pf.layout.n_unknowns), "lights": int(getattr(tgt.fn, "n_lights", 0))},
         )
 
-    if opts.target_error is not None:
+    if opts.is_sum:
+        result = _sums(target, opts, mapper, samples, record, sample_s, log)
+    elif opts.target_error is not None:
         result = auto.choose(target, opts.target_error, fit, samples, mapper=mapper, max_size=opts.texture_size,
                              log=log)
     elif is_baseline:
@@ -139,6 +168,49 @@ def factorize(
         log(f"in-out analysis ({a.pair}) on {a.mapper} {a.size}")
         result = result.replace(analysis=baselines.analyse(target, a.pair, a.mapper, a.size).record())
     return result.replace(timings={**result.timings, "total_s": time.perf_counter() - t_start}, target=target)
+
+
+def resolve_sampling(opts: FitOptions, kind: str, mapper: str) -> SamplingOptions:
+    """``sampling.kind: auto`` resolved (grid for linear-space sums of lighting products, else texels);
+    grid samples always lie on the fitted textures' own grid (``mapper``, ``texture_size``)."""
+    s = opts.sampling
+    k = s.kind
+    if k == "auto":
+        k = "grid" if opts.is_sum and kind == "lighting" else "texels"
+    if k == "grid":
+        return s.model_copy(update={"kind": "grid", "size": int(opts.texture_size), "mapper": mapper, "view_size": None})
+    return s.model_copy(update={"kind": k})
+
+
+def _sums(target: Target, opts: FitOptions, mapper: str, samples: Samples, record: dict, sample_s: float,
+          log) -> Result:
+    """A linear-space sum of products: the structure of the options, or the one chosen within a budget."""
+    lin = opts.linear or LinearOptions()
+    eps = float(opts.solver.epsilon)
+
+    def fit(structure: Structure) -> Result:
+        sf = sums.fit_sum(target, structure, mapper, opts.texture_size, samples, lin, log)
+        result = Result(sf.model, solver=sf.solver, warnings=sf.warnings, **record)
+        log("measuring errors")
+        mets = measure(result, target, samples, eps=eps)
+        return result.replace(
+            metrics=mets, warnings=tuple(result.warnings) + tuple(quality_warnings(mets)),
+            timings={"sample_s": sample_s, "assemble_s": sf.assemble_s, "solve_s": sf.solve_s},
+            counts={"train": int(len(samples.a)), "validation": int(len(samples.val_a)), "unknowns": sf.unknowns,
+                    "lights": int(getattr(target.fn, "n_lights", 0)), "lookups": int(sf.model.lookups)},
+        )
+
+    if opts.max_lookups is None and opts.target_error is None:
+        return fit(Structure(opts.parametrization, opts.terms, opts.diffuse, opts.nv_factor, opts.reflection))
+    if len(samples.val_a) == 0:
+        raise HomofacError("max_lookups and target_error choose by validation error: sampling.validation must be > 0")
+    budget = opts.max_lookups or DEFAULT_MAX_LOOKUPS
+    has_d = sums.has_diffuse(target)
+    pick = structures.ladder if opts.target_error is not None else structures.candidates
+    cands = pick(target.kind, budget, parametrization=opts.parametrization, has_diffuse=has_d)
+    if opts.diffuse is not None:  # a diffuse term asked for explicitly constrains the search
+        cands = [c for c in cands if c.diffuse == opts.diffuse] or cands
+    return sums.choose(fit, cands, target_error=opts.target_error, max_lookups=budget, log=log)
 
 
 def _baseline(target: Target, opts: FitOptions, mapper: str, samples: Samples, record: dict, log) -> Result:
@@ -157,4 +229,5 @@ def _baseline(target: Target, opts: FitOptions, mapper: str, samples: Samples, r
                                   "unknowns": 0, "lights": int(getattr(target.fn, "n_lights", 0))})
 
 
-__all__ = ["default_mapper", "draw_samples", "factorize", "measure", "options", "quality_warnings"]
+__all__ = ["DEFAULT_MAX_LOOKUPS", "default_mapper", "draw_samples", "factorize", "measure", "options",
+           "quality_warnings", "resolve_sampling"]

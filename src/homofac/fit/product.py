@@ -12,6 +12,7 @@ import time
 from typing import Callable, NamedTuple
 
 import jax.numpy as jnp
+import numpy as np
 
 from ..errors import HomofacError
 from ..factorization import Factorization
@@ -81,6 +82,14 @@ def upsample(coarse: Layout, x, fine: Layout):
     return jnp.concatenate(out, axis=0)
 
 
+def zeros_rule(target: Target, solver: SolverOptions) -> str:
+    """``solver.zeros`` resolved: ``auto`` ignores zero samples of measured (merl) BRDFs, biases otherwise."""
+    rule = getattr(solver, "zeros", "auto")
+    if rule != "auto":
+        return rule
+    return "ignore" if target.kind == "brdf" and getattr(target.fn, "model", None) == "merl" else "bias"
+
+
 def fit_product(
     target: Target,
     parametrization: str,
@@ -95,7 +104,17 @@ def fit_product(
     p = pz.get(parametrization, target.kind)
     check_mapper(target.kind, mapper)
     dtype = jnp.result_type(float)
-    a, b, y = (jnp.asarray(v, dtype) for v in (samples.a, samples.b, samples.y))
+    a, b, y = (np.asarray(v) for v in (samples.a, samples.b, samples.y))
+    ignored = 0
+    if zeros_rule(target, solver) == "ignore":
+        # Measured BRDFs hold zeros (missing or clipped data): in log space one zero pulls the textures
+        # toward log(eps) (eq. 26); leaving such samples out removes that bias and the eps parameter.
+        keep = np.all(y > 0, axis=1)
+        ignored = int(np.size(keep) - np.count_nonzero(keep))
+        if not keep.any():
+            raise HomofacError("solver.zeros: ignore left no training sample with all channels > 0")
+        a, b, y = a[keep], b[keep], y[keep]
+    a, b, y = (jnp.asarray(v, dtype) for v in (a, b, y))
     x0 = layout = res = None
     assemble_s = solve_s = 0.0
     iterations = 0
@@ -110,7 +129,7 @@ def fit_product(
         sys, alpha = build_system(p, layout, a, b, y, eps=float(solver.epsilon), context=target.context)
         x0 = starting_solution(sys, layout, p.J) if coarse is None else upsample(coarse[0], coarse[1], layout)
         assemble_s += time.perf_counter() - t0
-        log(f"solving with {solver.method} ({layout.n_unknowns} unknowns x 3 channels, {len(samples.a)} rows)")
+        log(f"solving with {solver.method} ({layout.n_unknowns} unknowns x 3 channels, {len(a)} rows)")
         res = solvers.solve(sys, x0, solver)
         solve_s += res.seconds
         iterations += res.iterations
@@ -124,7 +143,7 @@ def fit_product(
         "method": res.method, "iterations": iterations, "converged": not warnings, "levels": sizes,
         "residual": res.residual, "objective": res.objective, "tolerance": float(solver.tolerance),
         "max_iterations": int(solver.max_iterations), "laplacian": float(solver.laplacian),
-        "epsilon": float(solver.epsilon),
+        "epsilon": float(solver.epsilon), "zeros": zeros_rule(target, solver), "ignored_samples": ignored,
     }
     return ProductFit(model, record, assemble_s, solve_s, tuple(warnings), layout)
 
@@ -141,4 +160,4 @@ def _model(target: Target, p: pz.Parametrization, layout: Layout, res: SolveResu
     return precision.normalize(model)
 
 
-__all__ = ["ProductFit", "check_mapper", "fit_product", "level_sizes", "unpack", "upsample"]
+__all__ = ["ProductFit", "check_mapper", "fit_product", "level_sizes", "unpack", "upsample", "zeros_rule"]

@@ -118,7 +118,10 @@ def sample_pairs(
     """
     hemi = kind == "brdf"
     view_size = view_size or size
-    if sampling_kind == "texels":
+    if sampling_kind == "grid":
+        raise HomofacError("sampling.kind: grid pairs texel centres of n and r, for lighting targets; "
+                           "BRDF targets use texels, latlong or random")
+    if sampling_kind in ("texels", "auto"):
         m = mappers.get(mapper)
         if not m.covers_sphere and not hemi:
             raise HomofacError(f"sampling.mapper {mapper} covers only a hemisphere; lighting needs a sphere mapper")
@@ -189,7 +192,9 @@ def grouped_pairs(sampling_kind: str, size: int, *, mapper: str, count: int = 0,
                   view_size: int | None = None) -> Grouped:
     """Lighting training pairs grouped by normal (same pairs as :func:`sample_pairs`)."""
     view_size = view_size or size
-    if sampling_kind == "texels":
+    if sampling_kind == "grid":
+        return grouped_grid(mapper, size, count, seed)
+    if sampling_kind in ("texels", "auto"):
         m = mappers.get(mapper)
         if not m.covers_sphere:
             raise HomofacError(f"sampling.mapper {mapper} covers only a hemisphere; lighting needs a sphere mapper")
@@ -198,7 +203,7 @@ def grouped_pairs(sampling_kind: str, size: int, *, mapper: str, count: int = 0,
         return group_product(latlong_directions(size, False), latlong_directions(view_size, False))
     if sampling_kind == "random":
         return grouped_random(count or size * size * view_size * view_size // 4, seed)
-    raise HomofacError(f"sampling.kind must be texels, latlong or random, got {sampling_kind!r}")
+    raise HomofacError(f"sampling.kind must be texels, latlong, random or grid, got {sampling_kind!r}")
 
 
 def grouped_random(count: int, seed: int) -> Grouped:
@@ -215,3 +220,57 @@ def grouped_random(count: int, seed: int) -> Grouped:
     v = np.where(flip[..., None], -v, v)
     mask = (np.arange(g * p) < count).reshape(g, p) & (np.sum(v * n[:, None, :], axis=-1) > MIN_COS)
     return Grouped(n.astype(np.float32), v.astype(np.float32), mask)
+
+
+#: Training pairs of the ``grid`` design when ``sampling.count`` is 0: environments with a sun or small
+#: lamps need about this many (100k left glints unresolved; benchmarks/accuracy.py).
+GRID_COUNT = 300_000
+
+
+def grid_texel_pairs(mapper: str, size: int, count: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """``count`` pairs ``(a, b)`` of flat texel indices of a ``size`` grid of ``mapper``: texel centres
+    inside the domain, drawn with probability proportional to the texel solid angles and kept when
+    ``n_a . r_b > MIN_COS``, so ``(n, r)`` (and hence ``(n, v)``) follow the validation distribution."""
+    m = mappers.get(mapper)
+    dirs = np.asarray(mappers.texel_directions(m, size), np.float64).reshape(-1, 3)
+    inside = np.asarray(mappers.inside_mask(m, size)).reshape(-1)
+    omega = np.asarray(mappers.texel_solid_angles(m, size), np.float64).reshape(-1)
+    idx = np.nonzero(inside & (omega > 0))[0]
+    pr = omega[idx] / omega[idx].sum()
+    rng = np.random.default_rng(seed)
+    out_a, out_b, have = [], [], 0
+    while have < count:  # rejection rounds (about 2), vectorised
+        k = 2 * (count - have) + 64
+        a = idx[rng.choice(len(idx), size=k, p=pr)]
+        b = idx[rng.choice(len(idx), size=k, p=pr)]
+        keep = np.sum(dirs[a] * dirs[b], axis=-1) > MIN_COS
+        out_a.append(a[keep])
+        out_b.append(b[keep])
+        have += int(keep.sum())
+    return np.concatenate(out_a)[:count], np.concatenate(out_b)[:count]
+
+
+def grouped_grid(mapper: str, size: int, count: int, seed: int) -> Grouped:
+    """Lighting pairs of the ``grid`` design, grouped by normal: ``n`` and the mirror direction
+    ``r = 2 (n.v) n - v`` are texel centres of the fitted textures' own grid, so every ``n``- and
+    ``r``-lookup of a training pair reads exactly one texel and alternating least squares decouples
+    per texel (:mod:`homofac.fit.als`); ``v = 2 (n.r) n - r``."""
+    if not mappers.get(mapper).covers_sphere:
+        raise HomofacError(f"grid sampling on {mapper}: lighting needs a sphere mapper")
+    a, b = grid_texel_pairs(mapper, size, count or GRID_COUNT, seed)
+    dirs = np.asarray(mappers.texel_directions(mapper, size), np.float64).reshape(-1, 3)
+    order = np.argsort(a, kind="stable")
+    a, b = a[order], b[order]
+    groups, start, counts = np.unique(a, return_index=True, return_counts=True)
+    n = dirs[groups]
+    p = int(counts.max())
+    slot = np.arange(len(a)) - np.repeat(start, counts)
+    g_of = np.repeat(np.arange(len(groups)), counts)
+    r = dirs[b]
+    nn = dirs[a]
+    v = _normalize(2 * np.sum(nn * r, -1, keepdims=True) * nn - r)
+    views = np.broadcast_to(n[:, None, :], (len(groups), p, 3)).copy()
+    mask = np.zeros((len(groups), p), bool)
+    views[g_of, slot] = v
+    mask[g_of, slot] = True
+    return Grouped(n.astype(np.float32), views.astype(np.float32), mask)

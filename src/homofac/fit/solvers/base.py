@@ -12,7 +12,7 @@ summed over the RGB channels, from a starting solution ``x0``.
 
 from __future__ import annotations
 
-from typing import Callable, ClassVar, NamedTuple
+from typing import Callable, ClassVar, Literal, NamedTuple
 
 import jax.numpy as jnp
 from pydantic import Field
@@ -36,6 +36,9 @@ class SolverOptions(Options):
     laplacian: float = Field(1.0, ge=0, allow_inf_nan=False, description="Laplacian weight lambda (eq. 37)")
     epsilon: float = Field(1e-5, gt=0, lt=1, description="log bias eps of eq. 26")
     levels: int = Field(1, ge=1, le=8, description="multi-resolution levels (thesis §3.1.2)")
+    zeros: Literal["auto", "bias", "ignore"] = Field(
+        "auto", description="samples with a zero (or negative) channel: bias (log(y + eps alpha), eq. 26) or "
+        "ignore (left out of the log system); auto ignores them for measured (merl) BRDFs")
 
 
 class SolveResult(NamedTuple):

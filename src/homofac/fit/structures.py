@@ -1,0 +1,166 @@
+"""The structure of a sum of products: which terms, factors and textures (docs/format.md, schema 2).
+
+A :class:`Structure` is the pinned config of a sum (``terms: K``, ``diffuse: exact | fitted``,
+``nv_factor``) over a parametrization (the product each fitted term repeats):
+
+    value(a, b) = [diffuse term] + sum_{t < K} prod_(factors of the parametrization) t_(k, t)(pi_j(a, b))
+                                               [* w_t(n.v)]
+
+* lighting: the diffuse term is ``kd/pi E(n)`` on an ``n`` texture ``E`` (``exact``: the irradiance at
+  the texel centres, not fitted; ``fitted``: a free n-only texture started from it);
+* BRDF: the diffuse term is the constant ``kd/pi`` (no lookup) for ``quantity: brdf`` and
+  ``kd/pi cos(theta_i)`` (a ``line`` texture of ``cos_i`` holding x) for ``brdf_cos``;
+* ``nv_factor``: each fitted term also reads a ``line`` texture ``w_t`` at ``nv`` (lighting) or at
+  ``cos_i`` and ``cos_o`` (BRDF, the same texture twice: reciprocal for PQP);
+* ``reflection`` (lighting): one more fitted term, an r-only texture ``R`` (one lookup). Within a lookup
+  budget it is worth more than an n.v-only or n-only term (gold under lamps: 0.83 -> 0.78 of
+  split-sum at 8 lookups).
+
+:func:`skeleton` turns a structure into the textures (names, mappers, sizes) and terms of a
+:class:`~homofac.factorization.Factorization`; :func:`candidates` lists the structures within a
+lookup budget for ``max_lookups``.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+from ..errors import HomofacError
+from ..param import parametrizations as pz
+from ..param import projections as pj
+
+#: The line texture read by ``nv_factor`` (and by a BRDF ``brdf_cos`` diffuse term).
+LINE_SIZE = 32
+
+
+class TextureSpec(NamedTuple):
+    """A texture of the skeleton: name, mapper, size, and the role its unknowns play."""
+
+    name: str
+    mapper: str
+    size: int
+    role: str  # "diffuse" (exact, computed), "diffuse_fitted", "factor", "nv", "cos" (identity line)
+
+
+class TermSpec(NamedTuple):
+    """A term of the skeleton: its factors as (projection, texture name) and its kind."""
+
+    factors: tuple[tuple[str, str], ...]
+    kind: str  # "irradiance" | "diffuse" | "fitted"
+    fitted: bool  # its textures are unknowns of the linear-space fit
+
+
+class Structure(NamedTuple):
+    """A sum of products: ``terms`` products of ``parametrization`` plus an optional diffuse term."""
+
+    parametrization: str
+    terms: int = 1
+    diffuse: str | None = None  # None | "exact" | "fitted"
+    nv_factor: bool = False
+    reflection: bool = False  # lighting: one more term, a fitted r-only texture q(r) (one lookup)
+
+    def label(self) -> str:
+        d = {None: "", "exact": "E+", "fitted": "E'+"}[self.diffuse]
+        w = "W" if self.nv_factor and not _has_nv(self.parametrization) else ""
+        return f"{d}{self.parametrization}{w} x{self.terms}{'+R' if self.reflection else ''}"
+
+    def record(self) -> dict:
+        return {"parametrization": self.parametrization, "terms": int(self.terms), "diffuse": self.diffuse,
+                "nv_factor": bool(self.nv_factor or _has_nv(self.parametrization)), "reflection": bool(self.reflection)}
+
+
+def _has_nv(parametrization: str) -> bool:
+    return any(pj.get(f.projection).scalar for f in pz.get(parametrization).factors)
+
+
+def skeleton(structure: Structure, kind: str, quantity: str, mapper: str, size: int,
+             line_size: int = LINE_SIZE) -> tuple[tuple[TextureSpec, ...], tuple[TermSpec, ...]]:
+    """Textures and terms of ``structure`` (see the module docstring); texture names carry the term
+    index when there is more than one term (``n0, r0, w0, n1, ...``)."""
+    p = pz.get(structure.parametrization, kind)
+    textures: list[TextureSpec] = []
+    terms: list[TermSpec] = []
+    if structure.diffuse is not None:
+        fitted = structure.diffuse == "fitted"
+        if kind == "lighting":
+            textures.append(TextureSpec("E", mapper, size, "diffuse_fitted" if fitted else "diffuse"))
+            terms.append(TermSpec((("n", "E"),), "fitted" if fitted else "irradiance", fitted))
+        elif quantity == "brdf_cos":
+            textures.append(TextureSpec("C", "line", line_size, "cos"))
+            terms.append(TermSpec((("cos_i", "C"),), "diffuse", False))
+        else:
+            terms.append(TermSpec((), "diffuse", False))
+    many = structure.terms > 1
+    for t in range(structure.terms):
+        suffix = str(t) if many else ""
+        names = [f"{name}{suffix}" for name in p.textures]
+        for k, name in enumerate(names):
+            textures.append(TextureSpec(name, "line" if p.scalar(k) else mapper,
+                                        line_size if p.scalar(k) else size, "factor"))
+        factors = [(f.projection, names[f.texture]) for f in p.factors]
+        if structure.nv_factor and not _has_nv(p.name):
+            w = f"w{suffix}"
+            textures.append(TextureSpec(w, "line", line_size, "nv"))
+            factors += [("nv", w)] if kind == "lighting" else [("cos_i", w), ("cos_o", w)]
+        terms.append(TermSpec(tuple(factors), "fitted", True))
+    if structure.reflection:
+        if kind != "lighting":
+            raise HomofacError("reflection: the r-only term is for lighting targets")
+        textures.append(TextureSpec("R", mapper, size, "reflection"))
+        terms.append(TermSpec((("r", "R"),), "fitted", True))
+    return tuple(textures), tuple(terms)
+
+
+def lookups(structure: Structure, kind: str, quantity: str = "lighting") -> int:
+    """Texture lookups per pixel: one per factor of every term (the count of docs/format.md)."""
+    _, terms = skeleton(structure, kind, quantity, "dual_paraboloid" if kind == "lighting" else "parabolic", 8)
+    return sum(len(t.factors) for t in terms)
+
+
+def candidates(kind: str, max_lookups: int, *, parametrization: str | None = None, has_diffuse: bool = True,
+               max_terms: int = 16) -> list[Structure]:
+    """The structures worth fitting within ``max_lookups`` texture lookups, cheapest first.
+
+    For each variant (with and without ``nv_factor``; the diffuse term exact or fitted when the material
+    has one, lighting only) the one with the most terms that fits: more terms never fit worse, so
+    smaller K of the same variant are not tried. ``parametrization`` defaults to NR (lighting) and PQP
+    (BRDF). :func:`homofac.fit.sums.choose` fits them and keeps the best on the validation pairs.
+    """
+    return _sorted(_variants(kind, max_lookups, parametrization, has_diffuse, max_terms, largest=True))
+
+
+def ladder(kind: str, max_lookups: int, *, parametrization: str | None = None, has_diffuse: bool = True,
+           max_terms: int = 16) -> list[Structure]:
+    """Every structure within ``max_lookups``, cheapest first (``target_error``: the first that meets it)."""
+    return _sorted(_variants(kind, max_lookups, parametrization, has_diffuse, max_terms, largest=False))
+
+
+def _variants(kind, max_lookups, parametrization, has_diffuse, max_terms, largest):
+    if max_lookups < 1:
+        raise HomofacError(f"max_lookups must be at least 1, got {max_lookups}")
+    base = parametrization or ("NR" if kind == "lighting" else "PQP")
+    pz.get(base, kind)
+    if not has_diffuse:
+        diffuses: tuple = (None,)
+    else:
+        diffuses = ("exact", "fitted") if kind == "lighting" else ("exact",)
+    out = []
+    for nv in (True, False) if not _has_nv(base) else (False,):
+        for d in diffuses:
+            fits = [Structure(base, k, d, nv) for k in range(1, max_terms + 1)
+                    if lookups(Structure(base, k, d, nv), kind) <= max_lookups]
+            if kind == "lighting" and fits and lookups(fits[-1]._replace(reflection=True), kind) <= max_lookups:
+                fits.append(fits[-1]._replace(reflection=True))  # a lookup left over: the r-only term
+            out += fits[-1:] if largest else fits
+    if not out:
+        smallest = lookups(Structure(base, 1, diffuses[0], False), kind)
+        raise HomofacError(f"max_lookups {max_lookups}: no structure of {base} fits (the smallest needs {smallest})")
+    return out
+
+
+def _sorted(structures):
+    return sorted(structures, key=lambda s: (lookups(s, "lighting" if pz.get(s.parametrization).kind == "lighting"
+                                                       else "brdf"), s.terms, not s.nv_factor, str(s.diffuse)))
+
+
+__all__ = ["LINE_SIZE", "Structure", "TermSpec", "TextureSpec", "candidates", "ladder", "lookups", "skeleton"]

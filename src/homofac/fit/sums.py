@@ -1,0 +1,458 @@
+"""Sums of products fitted in linear space: ``terms``, ``diffuse``, ``nv_factor`` (issue 13, schema 2).
+
+One product p(n) q(r) cannot hold a sum such as diffuse + specular; a renderer evaluates
+
+    L(v, n) ~ kd/pi E(n) + sum_t p_t(n) q_t(r) w_t(n.v)
+
+just as cheaply (one lookup per factor). :func:`fit_sum` fits such a :class:`~homofac.fit.structures.Structure`
+to the training samples in *linear* space (the objective the GPU sees, in units of the RMS sigma_c of
+what the terms fit, with first-difference smoothing of every texture):
+
+1. the fixed terms are computed, not fitted: ``diffuse: exact`` is kd/pi times the irradiance E(n) at
+   the texel centres (:func:`homofac.baselines.base.irradiance_map`); the fitted terms approximate
+   ``y - fixed``;
+2. a start: term 1 = the split sum's P(r) W(n.v) (``start: split_sum``, microfacet lighting targets)
+   or the log-space product of the parametrization (``start: product``, :func:`homofac.fit.product.fit_product`);
+   further terms start at p = 1 + (a smooth function of n), q = 0, w = 1, which breaks their symmetry;
+3. a refinement: exact block ALS on grid samples (:mod:`homofac.fit.als`, the default for lighting)
+   or matrix-free Levenberg-Marquardt / Gauss-Newton (:mod:`homofac.fit.refine`, any parametrization
+   and sampling, optimistix or jaxopt).
+
+With ``terms: 1`` and no diffuse term this is the linear-space refinement of today's single product.
+:func:`choose` fits the candidate structures of a lookup budget (``max_lookups``) or a ``target_error``
+and keeps the best on the validation pairs.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Callable, NamedTuple
+
+import jax.numpy as jnp
+import numpy as np
+
+from ..baselines import split_sum as ss
+from ..baselines.base import centres, irradiance_map
+from ..brdf import BRDF, MODELS
+from ..errors import HomofacError
+from ..factorization import Factor, Factorization, Term, Texture
+from ..light import Lighting
+from ..param import mappers
+from ..param.projections import apply as project
+from ..target import Target
+from . import als, precision, refine, solvers
+from .options import LinearOptions
+from .product import fit_product
+from .samples import Samples
+from .structures import LINE_SIZE, Structure, TermSpec, TextureSpec, skeleton
+from .system import TextureLayout, texture_layout
+
+
+class SumFit(NamedTuple):
+    """A fitted sum and how the fit went (the run record's ``solver`` entry and timings)."""
+
+    model: Factorization
+    solver: dict
+    assemble_s: float
+    solve_s: float
+    warnings: tuple
+    unknowns: int
+
+
+# ------------------------------------------------------------------------------------------------
+# the parts of the target a structure needs
+
+
+def diffuse_albedo(target: Target) -> np.ndarray | None:
+    """kd (3,) of the target's BRDF, or None when the model has no ``kd`` parameter."""
+    brdf = target.fn.brdf if target.kind == "lighting" and isinstance(target.fn, Lighting) else target.fn
+    if not isinstance(brdf, BRDF) or "kd" not in brdf.params:
+        return None
+    return np.broadcast_to(np.asarray(brdf.params["kd"], np.float64), (3,)).copy()
+
+
+def has_diffuse(target: Target) -> bool:
+    kd = diffuse_albedo(target)
+    return kd is not None and bool(np.any(kd > 0))
+
+
+def _quantity(target: Target) -> str:
+    return target.quantity if target.kind == "brdf" else "lighting"
+
+
+def _fixed_texture(spec: TextureSpec, target: Target) -> np.ndarray:
+    """Texels of a computed texture: the exact irradiance E(n), or the identity line of cos_i."""
+    if spec.role in ("diffuse", "diffuse_fitted"):
+        if not isinstance(target.fn, Lighting) or target.fn.clamp is not None:
+            raise HomofacError("diffuse: the irradiance term needs an unclamped lighting target")
+        return irradiance_map(target.fn.env, spec.mapper, spec.size).astype(np.float32)
+    if spec.role == "cos":
+        return ((np.arange(spec.size) + 0.5) / spec.size).reshape(1, spec.size, 1).repeat(3, -1).astype(np.float32)
+    raise HomofacError(f"texture {spec.name} is fitted, not computed")
+
+
+def _fixed_correction(target: Target, term: TermSpec) -> np.ndarray:
+    kd = diffuse_albedo(target)
+    if kd is None:
+        raise HomofacError("diffuse: the model has no kd parameter (measured and Phong-lobe-only models); "
+                           "leave diffuse out")
+    return (kd / np.pi).astype(np.float32)
+
+
+# ------------------------------------------------------------------------------------------------
+# starting solutions (in units of sigma)
+
+
+def _basis(d: np.ndarray, t: int) -> np.ndarray:
+    """A smooth, distinct start for the first factor of extra term t: 1 + (z, x, y, z^2 - 1/3, ...)."""
+    if d.ndim == 1 or d.shape[-1] != 3:
+        return np.ones(d.shape[0])
+    x, y, z = d[:, 0], d[:, 1], d[:, 2]
+    fs = [z, x, y, z * z - 1 / 3, x * z, y * z, x * y, x * x - y * y]
+    return 1.0 + fs[(t - 1) % len(fs)]
+
+
+def _directions(layout: TextureLayout) -> np.ndarray:
+    """Texel-centre directions (n_valid, 3), or scalars (n_valid,) for a line texture."""
+    d = np.asarray(mappers.texel_directions(layout.mapper, layout.size), np.float64)
+    d = d.reshape(-1, 3) if d.ndim == 3 else d.reshape(-1)
+    return d[layout.texel_of_unknown]
+
+
+def _lookup_at(data, src_mapper: str, dst: TextureLayout) -> np.ndarray:
+    """A texture's values at the texel centres of another layout (same mapper kind), (n_valid, 3)."""
+    return np.asarray(mappers.lookup(src_mapper, jnp.asarray(data, jnp.float32),
+                                     jnp.asarray(_directions(dst), jnp.float32)), np.float64)
+
+
+def _split_sum_start(target, first: TermSpec, layouts, sigma) -> dict:
+    """Term 1 = the split sum's P(r) W(n.v) / sigma (p = 1); a missing w is folded into q by its mean."""
+    brdf, env = target.fn.brdf, target.fn.env
+    micro = MODELS[brdf.model].microfacet
+    x = (np.arange(LINE_SIZE) + 0.5) / LINE_SIZE
+    a, b = ss.dfg(brdf, x)
+    ks, f0 = np.asarray(brdf.params["ks"], np.float64), np.asarray(brdf.params["f0"], np.float64)
+    w_line = ks * (f0 * a + b)  # (S_w, 3)
+    has_w = any(proj == "nv" for proj, _ in first.factors)
+    out = {}
+    for proj, name in first.factors:
+        lay = layouts[name]
+        if proj == "nv":
+            out[name] = np.stack([np.interp(_directions(lay), x, w_line[:, c]) for c in range(3)], -1)
+        elif proj == "r":
+            p = ss.prefilter(micro.ndf, brdf.params, env, _directions(lay).astype(np.float32))
+            out[name] = p * (1.0 if has_w else np.mean(w_line, axis=0)) / sigma
+        else:
+            out[name] = np.ones((lay.n_valid, 3))
+    return out
+
+
+def _product_start(target, structure, first: TermSpec, layouts, samples, y_fit, sigma, mapper, size, log) -> dict:
+    """Term 1 = the log-space product of the parametrization fitted to max(y - fixed, 0), in sigma units."""
+    sub = Samples(samples.a, samples.b, np.maximum(y_fit, 0.0).astype(np.float32), samples.val_a[:0],
+                  samples.val_b[:0], samples.val_y[:0])
+    m = fit_product(target, structure.parametrization, mapper, size, sub, _log_solver(), log).model
+    own = m.terms[0]
+    J = len(own.factors)
+    c = np.asarray(own.correction, np.float64) / sigma
+    rename = {}
+    for (proj, tex), f in zip(first.factors, own.factors):
+        rename.setdefault(f.texture, tex)
+    out = {}
+    for t in m.textures:
+        name = rename[t.name]
+        uses = m.uses(t.name)
+        out[name] = _lookup_at(t.data, t.mapper, layouts[name]) * c ** (uses / J)
+    for proj, tex in first.factors:  # the nv factor the parametrization lacks starts at 1
+        out.setdefault(tex, np.ones((layouts[tex].n_valid, 3)))
+    return out
+
+
+def _log_solver():
+    return solvers.options({"method": "lsmr", "zeros": "ignore"})
+
+
+def start(target: Target, structure: Structure, terms, layouts, samples, y_fit, sigma, rule: str, mapper: str,
+          size: int, log) -> tuple[dict, str]:
+    """Starting texels (valid unknowns, sigma units) of every fitted texture, and the rule used."""
+    if rule == "auto":
+        rule = "split_sum" if _split_sum_possible(target, structure) else "product"
+    products = [t for t in terms if t.fitted and not _is_diffuse(t) and not _is_reflection(t)]
+    if rule == "split_sum":
+        if not _split_sum_possible(target, structure):
+            raise HomofacError("linear.start: split_sum needs a lighting target of a microfacet model "
+                               "(cook_torrance, ggx) and a parametrization with an r factor")
+        out = _split_sum_start(target, products[0], layouts, sigma)
+    else:
+        out = _product_start(target, structure, products[0], layouts, samples, y_fit, sigma, mapper, size, log)
+    kd = diffuse_albedo(target)
+    for t, term in enumerate(products[1:], start=1):
+        # an extra term: the first texture smooth and distinct per term, the second 0, the rest 1
+        for pos, name in enumerate(dict.fromkeys(tex for _, tex in term.factors)):
+            lay = layouts[name]
+            if pos == 0:
+                out[name] = np.repeat(_basis(_directions(lay), t)[:, None], 3, -1)
+            else:
+                out[name] = np.zeros((lay.n_valid, 3)) if pos == 1 else np.ones((lay.n_valid, 3))
+    for term in terms:
+        if _is_reflection(term):  # the r-only term starts at 0: it fits what the products leave
+            out[term.factors[0][1]] = np.zeros((layouts[term.factors[0][1]].n_valid, 3))
+        if term.fitted and _is_diffuse(term):
+            name = term.factors[0][1]
+            spec = TextureSpec(name, layouts[name].mapper, layouts[name].size, "diffuse_fitted")
+            out[name] = _fixed_texture(spec, target).reshape(-1, 3)[layouts[name].texel_of_unknown] * (kd / np.pi) / sigma
+    return out, rule
+
+
+def _is_diffuse(term: TermSpec) -> bool:
+    return len(term.factors) == 1 and term.factors[0] == ("n", "E")
+
+
+def _is_reflection(term: TermSpec) -> bool:
+    return len(term.factors) == 1 and term.factors[0] == ("r", "R")
+
+
+def _split_sum_possible(target, structure) -> bool:
+    return (target.kind == "lighting" and isinstance(target.fn, Lighting) and isinstance(target.fn.brdf, BRDF)
+            and MODELS[target.fn.brdf.model].microfacet is not None and target.fn.clamp is None
+            and structure.parametrization in ("NR", "NRW", "NRV"))
+
+
+# ------------------------------------------------------------------------------------------------
+# the fit
+
+
+def fit_sum(target: Target, structure: Structure, mapper: str, size: int, samples: Samples,
+            options: LinearOptions | None = None, log: Callable[[str], None] | None = None) -> SumFit:
+    """Fit ``structure`` to the training samples in linear space (see the module docstring)."""
+    log = log or (lambda msg: None)
+    opts = options or LinearOptions()
+    t0 = time.perf_counter()
+    quantity = _quantity(target)
+    specs, terms = skeleton(structure, target.kind, quantity, mapper, size)
+    if structure.diffuse is not None and diffuse_albedo(target) is None:
+        _fixed_correction(target, terms[0])
+    a, b, y = (np.asarray(v, np.float32) for v in (samples.a, samples.b, samples.y))
+    fixed_specs = [s for s in specs if s.role in ("diffuse", "cos")]
+    fixed_data = {s.name: _fixed_texture(s, target) for s in fixed_specs}
+    fixed_terms = [t for t in terms if not t.fitted]
+    base = np.zeros_like(y)
+    if fixed_terms:
+        base = np.asarray(_model(target, structure, specs, terms, fixed_data, {}, sigma=np.ones(3), only_fixed=True)
+                          .evaluate(a, b), np.float32)
+    y_fit = y - base
+    sigma = np.sqrt(np.mean(y_fit.astype(np.float64) ** 2, axis=0))
+    sigma = np.where(sigma > 0, sigma, 1.0)
+    fitted_specs = [s for s in specs if s.role not in ("diffuse", "cos")]
+    layouts = {s.name: texture_layout(s.name, s.mapper, s.size) for s in fitted_specs}
+    x0, rule = start(target, structure, terms, layouts, samples, y_fit, sigma, opts.start, mapper, size, log)
+    method = opts.method
+    grid = _grid_indices(target, structure, specs, layouts, a, b) if method in ("auto", "als") else None
+    if method == "als" and grid is None:
+        raise HomofacError("linear.method: als needs lighting NR / NRW products on grid samples "
+                           "(sampling.kind: grid on the textures' own mapper and size)")
+    if method == "auto":
+        method = "als" if grid is not None else "levenberg_marquardt"
+    assemble_s = time.perf_counter() - t0
+    fitted_terms = [t for t in terms if t.fitted]
+    log(f"fitting {structure.label()} in linear space with {method} ({sum(l.n_valid for l in layouts.values())} "
+        f"unknowns x 3 channels, {len(a)} samples, start {rule})")
+    t1 = time.perf_counter()
+    if method == "als":
+        X, steps, hist = _fit_als(structure, specs, fitted_terms, layouts, x0, grid, a, b, y_fit / sigma, opts)
+        converged = True
+        backend = "homofac"
+    else:
+        X, steps, converged, hist = _fit_lm(target, fitted_specs, fitted_terms, layouts, x0, a, b, y_fit / sigma, opts,
+                                            method)
+        backend = opts.backend
+    solve_s = time.perf_counter() - t1
+    bad = [n for n, x in X.items() if not np.all(np.isfinite(x))]
+    if bad:
+        raise HomofacError(f"the linear-space fit produced non-finite texels in {', '.join(bad)}; "
+                           "try a larger linear.laplacian")
+    model = _model(target, structure, specs, terms, fixed_data, {n: X[n] for n in X}, sigma=sigma, layouts=layouts)
+    warnings = [] if converged else [f"linear {method} stopped after {steps} steps without meeting its tolerance"]
+    record = {
+        "method": method, "backend": backend, "iterations": int(steps), "converged": bool(converged),
+        "start": rule, "laplacian": float(opts.laplacian), "structure": structure.record(),
+        "lookups": int(model.lookups), "objective": float(hist[-1]) if len(hist) else None,
+        "objective_start": float(hist[0]) if len(hist) else None, "sigma": [float(s) for s in sigma],
+    }
+    return SumFit(model, record, assemble_s, solve_s, tuple(warnings), int(sum(l.n_valid for l in layouts.values())))
+
+
+def _grid_indices(target, structure, specs, layouts, a, b):
+    """Unknown indices of the n and r texel each sample reads, when the samples are grid-aligned."""
+    if target.kind != "lighting" or structure.parametrization not in ("NR", "NRW"):
+        return None
+    dirs = [s for s in specs if s.role in ("factor", "diffuse_fitted", "reflection") and s.mapper != "line"]
+    if not dirs:
+        return None
+    lay = layouts[dirs[0].name]
+    if any((layouts[s.name].mapper, layouts[s.name].size) != (lay.mapper, lay.size) for s in dirs):
+        return None
+    r = 2 * np.sum(a * b, -1, keepdims=True) * a - b
+    ia = als.single_texel(lay.mapper, lay.size, a, lay.unknown_of_texel)
+    ib = als.single_texel(lay.mapper, lay.size, r, lay.unknown_of_texel) if ia is not None else None
+    if ia is None or ib is None:
+        return None
+    return ia, ib, lay
+
+
+def _fit_als(structure, specs, fitted_terms, layouts, x0, grid, a, b, y, opts: LinearOptions):
+    ia, ib, lay = grid
+    n = lay.n_valid
+    flags_p, flags_q, flags_w, names = [], [], [], []
+    for term in fitted_terms:
+        roles = {f[0]: f[1] for f in term.factors}
+        flags_p.append("n" in roles)
+        flags_q.append("r" in roles)
+        flags_w.append("nv" in roles)
+        names.append((roles.get("n"), roles.get("r"), roles.get("nv")))
+    K = len(fitted_terms)
+    P = np.ones((K, n, 3))
+    Q = np.ones((K, n, 3))
+    W = np.ones((K, LINE_SIZE, 3))
+    for t, (pn, qn, wn) in enumerate(names):
+        if pn:
+            P[t] = x0[pn]
+        if qn:
+            Q[t] = x0[qn]
+        if wn:
+            W[t] = x0[wn]
+    nb = np.asarray(mappers.neighbours(lay.mapper, lay.size))[lay.texel_of_unknown]
+    nb_unk = np.where(nb >= 0, lay.unknown_of_texel[np.maximum(nb, 0)], -1)
+    nv = np.clip(np.sum(a * b, -1), 0.0, 1.0)
+    vi, vw = als.line_footprint(jnp.asarray(nv, jnp.float32), LINE_SIZE)
+    data = als.GridData(jnp.asarray(ia), jnp.asarray(ib), jnp.asarray(vi, jnp.int32), jnp.asarray(vw, jnp.float32),
+                        jnp.asarray(y, jnp.float32), jnp.asarray(np.maximum(nb_unk, 0), jnp.int32),
+                        jnp.asarray(nb_unk >= 0, jnp.float32))
+    flags = als.Flags(tuple(flags_p), tuple(flags_q), tuple(flags_w))
+    P, Q, W, hist = als.run(jnp.asarray(P, jnp.float32), jnp.asarray(Q, jnp.float32), jnp.asarray(W, jnp.float32),
+                            data, jnp.float32(opts.laplacian), flags=flags, sweeps=int(opts.iterations))
+    P, Q, W, hist = (np.asarray(v) for v in (P, Q, W, hist))
+    X = {}
+    for t, (pn, qn, wn) in enumerate(names):
+        if pn:
+            X[pn] = P[t]
+        if qn:
+            X[qn] = Q[t]
+        if wn:
+            X[wn] = W[t]
+    return X, int(opts.iterations), hist
+
+
+def _fit_lm(target, fitted_specs, fitted_terms, layouts, x0, a, b, y, opts: LinearOptions, method: str):
+    names = [s.name for s in fitted_specs]
+    index = {n: k for k, n in enumerate(names)}
+    lookups, which, terms = [], [], []
+    aj, bj = jnp.asarray(a), jnp.asarray(b)
+    for term in fitted_terms:
+        ks = []
+        for proj, tex in term.factors:
+            lay = layouts[tex]
+            d = project(proj, aj, bj, target.context)
+            idx, w = mappers.bilinear(lay.mapper, d, lay.size)
+            unk = jnp.asarray(lay.unknown_of_texel)[idx]
+            lookups.append(refine.Lookup(jnp.where(unk >= 0, unk, 0).astype(jnp.int32), jnp.where(unk >= 0, w, 0.0)))
+            which.append(index[tex])
+            ks.append(index[tex])
+        terms.append(tuple(ks))
+    sizes = tuple(layouts[n].n_valid for n in names)
+    N = len(a)
+    edges = []
+    for n in names:
+        lay = layouts[n]
+        nb = np.asarray(mappers.neighbours(lay.mapper, lay.size))[lay.texel_of_unknown]
+        nb_unk = np.where(nb >= 0, lay.unknown_of_texel[np.maximum(nb, 0)], -1)
+        edges.append(jnp.asarray(refine.edges_of(nb_unk)))
+    mu = tuple(jnp.float32(opts.laplacian * N / s) for s in sizes)
+    scales = refine.column_scales(lookups, tuple(which), sizes)
+    prob = refine.Problem(tuple(lookups), jnp.asarray(y, jnp.float32), tuple(edges), mu, scales)
+    X0 = tuple(jnp.asarray(x0[n], jnp.float32) for n in names)
+    start_obj = float(refine.objective(X0, prob, tuple(terms)))
+    X, steps, ok = refine.solve(X0, prob, tuple(terms), method=method, backend=opts.backend,
+                                iterations=int(opts.iterations), inner=int(opts.inner_iterations))
+    end_obj = float(refine.objective(X, prob, tuple(terms)))
+    return {n: np.asarray(x) for n, x in zip(names, X)}, steps, ok, np.array([start_obj, end_obj])
+
+
+def _model(target, structure, specs, terms, fixed_data, fitted, *, sigma, layouts=None, only_fixed=False):
+    """The Factorization of a skeleton: computed textures as they are, fitted ones from their unknowns."""
+    textures, out_terms = [], []
+    for s in specs:
+        if s.name in fixed_data:
+            data = fixed_data[s.name]
+        elif only_fixed:
+            continue
+        else:
+            lay = layouts[s.name]
+            h, w = lay.shape
+            flat = np.zeros((h * w, 3), np.float32)
+            flat[lay.texel_of_unknown] = fitted[s.name]
+            data = flat.reshape(h, w, 3)
+        textures.append(Texture(s.name, s.mapper, s.size, jnp.asarray(data, jnp.float32)))
+    for term in terms:
+        if only_fixed and term.fitted:
+            continue
+        corr = np.asarray(sigma, np.float32) if term.fitted else _fixed_correction(target, term)
+        out_terms.append(Term(tuple(Factor(p, t) for p, t in term.factors), jnp.asarray(corr, jnp.float32), term.kind))
+    if only_fixed and not out_terms:
+        out_terms = [Term((), jnp.zeros(3, jnp.float32), "fixed")]
+    model = Factorization(target.kind, _quantity(target), tuple(textures), tuple(out_terms), dict(target.context),
+                          structure.label())
+    return model if only_fixed else precision.normalize(model)
+
+
+
+
+# ------------------------------------------------------------------------------------------------
+# choosing the structure (max_lookups, target_error)
+
+
+def choose(fit: Callable, structures: list, *, target_error: float | None, max_lookups: int | None,
+           analysis: dict | None = None, log: Callable[[str], None] | None = None):
+    """Fit ``structures`` (cheapest first) with ``fit(structure) -> Result`` and keep one.
+
+    With ``target_error``: the first whose validation nrmse meets it (else the best, with a warning);
+    otherwise (``max_lookups`` alone) the one with the lowest validation nrmse. The choice, every
+    candidate's error and lookups, and the analysis that bounded it are recorded as ``selection``.
+    """
+    log = log or (lambda msg: None)
+    tried, best = [], None
+    for s in structures:
+        log(f"structure {s.label()}: fitting")
+        res = fit(s)
+        err = float(res.metrics["validation"]["float"]["nrmse"])
+        met = target_error is not None and err <= target_error
+        tried.append({**s.record(), "label": s.label(), "lookups": int(res.model.lookups), "validation_nrmse": err,
+                      "fit_s": float(res.timings.get("solve_s", 0.0)), "met": met})
+        log(f"structure {s.label()}: {res.model.lookups} lookups, validation nrmse {err:.4g}")
+        if best is None or err < best[1]:
+            best = (res, err, s)
+        if met:
+            reason = f"{s.label()} is the cheapest structure with validation nrmse {err:.4g} <= {target_error:g}"
+            return _selected(res, tried, reason, target_error, max_lookups, True, analysis)
+    res, err, s = best
+    if target_error is not None:
+        reason = (f"no structure within {max_lookups} lookups meets target_error {target_error:g}; the best is "
+                  f"{s.label()} with validation nrmse {err:.4g}")
+        log("warning: " + reason)
+        res = res.replace(warnings=tuple(res.warnings) + (reason,))
+        return _selected(res, tried, reason, target_error, max_lookups, False, analysis)
+    reason = f"{s.label()} has the lowest validation nrmse ({err:.4g}) within {max_lookups} lookups"
+    log(reason)
+    return _selected(res, tried, reason, target_error, max_lookups, True, analysis)
+
+
+def _selected(res, tried, reason, target_error, max_lookups, met, analysis):
+    return res.replace(selection={
+        "target_error": None if target_error is None else float(target_error), "max_lookups": max_lookups,
+        "metric": "validation.float.nrmse", "met": met, "chosen": tried[-1] if met and target_error is not None
+        else min(tried, key=lambda t: t["validation_nrmse"]), "reason": reason, "tried": tried,
+        **({"analysis": analysis} if analysis else {}),
+    })
+
+
+__all__ = ["SumFit", "choose", "diffuse_albedo", "fit_sum", "has_diffuse", "start"]

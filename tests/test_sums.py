@@ -1,0 +1,199 @@
+"""Sums of products in linear space (issue 13): structures, grid ALS, Levenberg-Marquardt, the choice
+within a lookup budget, the exact diffuse term, and the config keys ``terms``, ``diffuse``, ``nv_factor``,
+``max_lookups``."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import homofac as hf
+from homofac.errors import HomofacError
+from homofac.fit import sampling, structures, sums
+from homofac.fit.options import LinearOptions
+from homofac.fit.samples import Samples, evaluate_grouped
+from homofac.fit.structures import Structure
+from homofac.light.sources import bundled
+from homofac.target import Target
+from helpers import nrw_sum
+
+S = 8
+
+
+def _nrmse(pred, y):
+    pred, y = np.asarray(pred, np.float64), np.asarray(y, np.float64)
+    return float(np.mean(np.linalg.norm(pred - y, axis=0) / np.linalg.norm(y, axis=0)))
+
+
+def _model_target(model) -> Target:
+    return Target("lighting", lambda n, v: model.evaluate(n, v), "lighting")
+
+
+def _samples(target, kind="grid", count=6000, seed=0, validation=2000):
+    if kind == "grid":
+        g = sampling.grouped_grid("dual_paraboloid", S, count, seed)
+    else:
+        g = sampling.grouped_random(count, seed)
+    p = g.flatten()
+    vg = sampling.grouped_random(validation, seed + 1)
+    v = vg.flatten()
+    y = np.asarray(target(p.a, p.b), np.float32)
+    vy = np.asarray(target(v.a, v.b), np.float32)
+    return Samples(p.a, p.b, y, v.a, v.b, vy)
+
+
+@pytest.fixture(scope="module")
+def exact_sum():
+    model = nrw_sum(2, S)
+    target = _model_target(model)
+    return model, target, _samples(target)
+
+
+def test_skeleton_names_lookups_and_labels():
+    tex, terms = structures.skeleton(Structure("NR", 2, "exact", True), "lighting", "lighting", "dual_paraboloid", 16)
+    assert [t.name for t in tex] == ["E", "n0", "r0", "w0", "n1", "r1", "w1"]
+    assert [len(t.factors) for t in terms] == [1, 3, 3]
+    assert terms[0].kind == "irradiance" and not terms[0].fitted
+    assert structures.lookups(Structure("NR", 1, "exact", True), "lighting") == 4  # the issue's count
+    assert structures.lookups(Structure("NR", 2, "exact", True), "lighting") == 7
+    assert structures.lookups(Structure("NR", 2, "fitted", True, True), "lighting") == 8
+    # BRDF: PQP with w(cos_i) w(cos_o) and the constant diffuse term (no lookup)
+    tex, terms = structures.skeleton(Structure("PQP", 2, "exact", True), "brdf", "brdf", "parabolic", 16)
+    assert terms[0].factors == () and [f[0] for f in terms[1].factors] == ["wi", "h", "wo", "cos_i", "cos_o"]
+
+
+def test_candidates_fit_the_budget_cheapest_first():
+    for budget in (4, 8, 16):
+        c = structures.candidates("lighting", budget)
+        n = [structures.lookups(s, "lighting") for s in c]
+        assert c and max(n) <= budget and n == sorted(n)
+        assert any(s.nv_factor for s in c)
+    assert structures.candidates("lighting", 4, has_diffuse=False)[0].diffuse is None
+    with pytest.raises(HomofacError, match="max_lookups 1"):
+        structures.candidates("lighting", 1)
+
+
+def test_grid_samples_hit_one_texel_each():
+    g = sampling.grouped_grid("dual_paraboloid", S, 5000, 3)
+    p = g.flatten()
+    assert len(p) == 5000 and np.all(np.sum(p.a * p.b, -1) > 0)
+    from homofac.fit.system import texture_layout
+    lay = texture_layout("n", "dual_paraboloid", S)
+    r = 2 * np.sum(p.a * p.b, -1, keepdims=True) * p.a - p.b
+    from homofac.fit import als
+    assert als.single_texel("dual_paraboloid", S, p.a, lay.unknown_of_texel) is not None
+    assert als.single_texel("dual_paraboloid", S, r, lay.unknown_of_texel) is not None
+    # random pairs are not grid-aligned
+    q = sampling.grouped_random(500, 1).flatten()
+    assert als.single_texel("dual_paraboloid", S, q.a, lay.unknown_of_texel) is None
+
+
+def test_als_recovers_an_exact_sum_of_two_products(exact_sum):
+    model, target, s = exact_sum
+    one = sums.fit_sum(target, Structure("NR", 1, None, True), "dual_paraboloid", S, s,
+                       LinearOptions(iterations=40, laplacian=1e-4))
+    two = sums.fit_sum(target, Structure("NR", 2, None, True), "dual_paraboloid", S, s,
+                       LinearOptions(iterations=60, laplacian=1e-4, start="product"))
+    assert two.solver["method"] == "als"
+    e1 = _nrmse(one.model.evaluate(s.val_a, s.val_b), s.val_y)
+    e2 = _nrmse(two.model.evaluate(s.val_a, s.val_b), s.val_y)
+    assert e2 < 0.02, e2  # the target is exactly of this structure
+    assert e2 < 0.5 * e1
+    assert two.model.lookups == 6 and len(two.model.terms) == 2
+
+
+def test_levenberg_marquardt_matches_on_random_samples(exact_sum):
+    model, target, _ = exact_sum
+    s = _samples(target, kind="random", count=6000)
+    fit = sums.fit_sum(target, Structure("NR", 1, None, True), "dual_paraboloid", S, s,
+                       LinearOptions(method="levenberg_marquardt", iterations=15, laplacian=1e-4, start="product"))
+    assert fit.solver["method"] == "levenberg_marquardt"
+    assert fit.solver["objective"] < fit.solver["objective_start"]
+    with pytest.raises(HomofacError, match="grid samples"):
+        sums.fit_sum(target, Structure("NR", 1, None, True), "dual_paraboloid", S, s, LinearOptions(method="als"))
+
+
+def test_jaxopt_backend_reaches_a_comparable_objective(exact_sum):
+    pytest.importorskip("jaxopt")
+    model, target, s = exact_sum
+    kw = dict(method="levenberg_marquardt", iterations=10, laplacian=1e-3, start="product")
+    a = sums.fit_sum(target, Structure("NR", 1, None, True), "dual_paraboloid", S, s, LinearOptions(**kw))
+    b = sums.fit_sum(target, Structure("NR", 1, None, True), "dual_paraboloid", S, s,
+                     LinearOptions(backend="jaxopt", **kw))
+    assert b.solver["backend"] == "jaxopt"
+    assert b.solver["objective"] < b.solver["objective_start"]
+    assert b.solver["objective"] < 1.5 * a.solver["objective"] + 1e-3 * a.solver["objective_start"]
+
+
+@pytest.fixture(scope="module")
+def plastic():
+    env = hf.light.load_environment(str(bundled("forest")), resolution=8)
+    brdf = hf.brdf.cook_torrance(kd=(0.3, 0.25, 0.2), ks=1.0, roughness=0.6, f0=0.04)
+    target = hf.light.lighting_target(brdf, env)
+    g = sampling.grouped_grid("dual_paraboloid", S, 8000, 0)
+    p = g.flatten()
+    vg = sampling.grouped_random(3000, 1)
+    v = vg.flatten()
+    s = Samples(p.a, p.b, np.asarray(evaluate_grouped(target, g)), v.a, v.b, np.asarray(evaluate_grouped(target, vg)))
+    return target, s
+
+
+def test_exact_diffuse_term_is_the_irradiance(plastic):
+    target, s = plastic
+    fit = sums.fit_sum(target, Structure("NR", 1, "exact", True), "dual_paraboloid", S, s, LinearOptions(iterations=10))
+    m = fit.model
+    assert m.terms[0].kind == "irradiance" and [f.texture for f in m.terms[0].factors] == ["E"]
+    e = hf.baselines.base.irradiance_map(target.fn.env, "dual_paraboloid", S)
+    d0 = np.asarray(m.term_values(s.a[:50], s.b[:50])[0])
+    kd = np.array([0.3, 0.25, 0.2])
+    # grid normals are texel centres: the term is kd/pi E at that texel, exactly
+    from homofac.param import mappers
+    idx, w = mappers.bilinear("dual_paraboloid", s.a[:50], S)
+    e_at = np.asarray(e).reshape(-1, 3)[np.asarray(idx)[np.arange(50), np.argmax(np.asarray(w), 1)]]
+    np.testing.assert_allclose(d0, kd / np.pi * e_at, rtol=1e-4, atol=1e-6)
+
+
+def test_more_structure_fits_better_and_beats_one_product(plastic):
+    target, s = plastic
+    errs = {}
+    for st in (Structure("NR", 1, None, False), Structure("NR", 1, "exact", True), Structure("NR", 2, "fitted", True)):
+        f = sums.fit_sum(target, st, "dual_paraboloid", S, s, LinearOptions(iterations=20))
+        errs[st.label()] = _nrmse(f.model.evaluate(s.a, s.b), s.y)
+    assert errs["E+NRW x1"] < errs["NR x1"]
+    assert errs["E'+NRW x2"] < errs["E+NRW x1"]
+
+
+def test_factorize_keys_validate_and_record(plastic, tmp_path):
+    target, s = plastic
+    fac = hf.fit.factorize(target, "NR", texture_size=S, terms=2, diffuse="exact", nv_factor=True, samples=s,
+                           linear={"iterations": 5})
+    assert fac.model.lookups == 7 and fac.solver["structure"]["terms"] == 2
+    assert fac.metrics["validation"]["float"]["nrmse"] < 1
+    fac.save(tmp_path / "out")
+    back = hf.output.load(tmp_path / "out")
+    np.testing.assert_allclose(np.asarray(back.evaluate(s.val_a[:200], s.val_b[:200])),
+                               np.asarray(fac.evaluate(s.val_a[:200], s.val_b[:200])), rtol=2e-5, atol=1e-6)
+    for bad, msg in [({"terms": 0}, "terms"), ({"diffuse": "approx"}, "diffuse"), ({"max_lookups": 0}, "max_lookups"),
+                     ({"linear": {"method": "adam"}}, "linear.method"), ({"linear": {"sweeps": 3}}, "sweeps")]:
+        with pytest.raises(HomofacError, match=msg):
+            hf.fit.factorize(target, "NR", texture_size=S, samples=s, **bad)
+    with pytest.raises(HomofacError, match="baseline"):
+        hf.fit.factorize(target, "split_sum", texture_size=S, samples=s, terms=2)
+
+
+def test_max_lookups_picks_within_the_budget(plastic):
+    target, s = plastic
+    fac = hf.fit.factorize(target, "NR", texture_size=S, max_lookups=5, samples=s, linear={"iterations": 5})
+    sel = fac.selection
+    assert fac.model.lookups <= 5 and sel["max_lookups"] == 5
+    errs = [t["validation_nrmse"] for t in sel["tried"]]
+    assert fac.metrics["validation"]["float"]["nrmse"] == pytest.approx(min(errs))
+    assert all(t["lookups"] <= 5 for t in sel["tried"]) and len(sel["tried"]) >= 2
+
+
+def test_diffuse_needs_a_kd(plastic):
+    target, s = plastic
+    brdf = hf.brdf.phong(exponent=20.0, ks=1.0, kd=0.0)
+    t2 = hf.light.lighting_target(brdf, target.fn.env)
+    fac = hf.fit.factorize(t2, "NR", texture_size=S, terms=1, nv_factor=True, samples=s, linear={"iterations": 3})
+    assert fac.solver["start"] == "product"  # no microfacet NDF: the log-space product starts it
