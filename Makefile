@@ -6,8 +6,11 @@ PYTHON ?= python3
 VENV   ?= .venv
 PY      = $(VENV)/bin/python
 STAMP   = $(VENV)/.homofac-installed
-# Debian packages the headless OpenGL preview needs (EGL through Mesa llvmpipe).
-SYSTEM_PACKAGES = libegl1 libgl1 libgles2
+# Debian packages the tests need: the headless OpenGL preview (EGL through Mesa llvmpipe); the shader
+# compilers (glslangValidator, spirv-val, spirv-cross; clang++ for the MSL check); lavapipe (Vulkan on the
+# CPU) for wgpu's WGSL check; headless Chromium and its WebDriver for the WebGL2 viewer test.
+SYSTEM_PACKAGES = libegl1 libgl1 libgles2 glslang-tools spirv-tools spirv-cross clang mesa-vulkan-drivers \
+	chromium chromium-driver
 PYTEST_ARGS ?=
 
 .PHONY: run test test-slow test-all docs install system-packages benchmark clean
@@ -23,11 +26,14 @@ install: $(STAMP)
 run: $(STAMP)
 	$(PY) -m homofac.fit --out out
 
-# Installs the system libraries the GL tests need when they are missing (root or sudo).
+# Installs the SYSTEM_PACKAGES that are missing (root or sudo); nothing when all are there.
 system-packages:
-	@if ! /sbin/ldconfig -p 2>/dev/null | grep -q 'libEGL.so.1'; then \
+	@MISSING=$$(for p in $(SYSTEM_PACKAGES); do \
+		dpkg-query -W -f='$${Status}' $$p 2>/dev/null | grep -q 'install ok installed' || echo $$p; done); \
+	if [ -n "$$MISSING" ]; then \
+		echo "installing system packages:" $$MISSING; \
 		SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
-		$$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq $(SYSTEM_PACKAGES); \
+		$$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq $$MISSING; \
 	fi
 
 # Two workers (one per core); a test file's tests stay on one worker so module fixtures are built once.

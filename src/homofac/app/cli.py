@@ -1,6 +1,6 @@
-"""The command-line tools: ``python -m homofac.fit`` and ``python -m homofac.preview``.
+"""The command-line tools: ``python -m homofac.fit``, ``python -m homofac.preview`` and ``python -m homofac.view``.
 
-Both share one-line errors (status 2 for bad input, 1 for an unexpected failure, 130 on Ctrl-C;
+They share one-line errors (status 2 for bad input, 1 for an unexpected failure, 130 on Ctrl-C;
 ``--debug`` shows the traceback) and JAX's persistent compilation cache: profiling the default fit
 showed about 60 % of its run in XLA compilation (about 100 programs), so the second run of a config
 (or of any config with the same shapes) skips most of it (:func:`enable_compilation_cache`).
@@ -34,6 +34,7 @@ from ..param import parametrizations as pz
 from ..shader import LANGUAGES
 from . import config as cfgmod
 from .run import run, target_from_config
+from .view import write_viewer
 
 
 # --------------------------------------------------------------------------------------------------
@@ -259,5 +260,65 @@ def _preview(args) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------------------------------
+# python -m homofac.view
+
+
+def view_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="python -m homofac.view",
+        description="Write a self-contained WebGL2 viewer (one HTML file, textures embedded) of a factorization: "
+                    "the material on a sphere and a torus under an orbit camera, the exact lighting beside it, "
+                    "per-term toggles, an error heat map and exposure.",
+        epilog="exit status: 0 success, 2 bad input (one line on stderr), 1 unexpected failure.",
+    )
+    p.add_argument("out_dir", metavar="OUT_DIR", help="output directory written by python -m homofac.fit")
+    p.add_argument("--html", metavar="FILE.html", help="page to write (default: OUT_DIR/viewer.html)")
+    p.add_argument("--size", type=int, default=256, help="pixels of each panel (default 256)")
+    p.add_argument("--azimuth", type=float, default=30.0, help="reference camera azimuth in degrees (+z up)")
+    p.add_argument("--elevation", type=float, default=20.0, help="reference camera elevation in degrees")
+    p.add_argument("--exposure", type=float, help="initial linear scale before the sRGB curve (default: automatic)")
+    p.add_argument("--error-scale", type=float, help="relative error at the top of the heat map's colour bar")
+    p.add_argument("--debug", action="store_true", help="show full tracebacks on errors")
+    return p
+
+
+def view_main(argv: list[str] | None = None) -> int:
+    args = view_parser().parse_args(argv)
+    enable_compilation_cache()
+    return run_one_line(lambda: _view(args), args.debug)
+
+
+def _view(args) -> int:
+    d = Path(args.out_dir)
+    if not d.is_dir():
+        raise HomofacError(f"{d}: no such directory" if not d.exists() else f"{d}: not a directory")
+    if not is_homofac_dir(d):
+        raise HomofacError(f"{d} is not a homofac output directory (no valid {JSON_NAME})")
+    if not 16 <= args.size <= 1024:
+        raise HomofacError(f"--size must be in 16 ... 1024, got {args.size}")
+    for name in ("exposure", "error_scale"):
+        v = getattr(args, name)
+        if v is not None and not (v > 0 and v < float("inf")):
+            raise HomofacError(f"--{name.replace('_', '-')} must be a positive number, got {v}")
+    out = Path(args.html) if args.html else d / "viewer.html"
+    if out.is_dir():
+        raise HomofacError(f"--html {out}: is a directory")
+    if not out.parent.is_dir():
+        raise HomofacError(f"--html {out}: directory {out.parent} does not exist")
+    fac = load(d)
+    target = None
+    try:
+        target = target_from_config(fac, base=d)
+    except HomofacError as e:
+        print(f"homofac: warning: cannot rebuild the exact target ({e}); the page shows the factorization only",
+              file=sys.stderr)
+    camera = gl.Camera(azimuth=args.azimuth, elevation=args.elevation)
+    write_viewer(fac, out, target, size=args.size, camera=camera, exposure=args.exposure, error_scale=args.error_scale)
+    print(f"wrote {out}: {fac.parametrization} ({len(fac.model.terms)} term(s)), {out.stat().st_size / 1e6:.1f} MB, "
+          f"{'with' if target is not None else 'without'} the exact lighting")
+    return 0
+
+
 __all__ = ["compilation_cache_dir", "enable_compilation_cache", "fit_main", "fit_parser", "preview_main",
-           "preview_parser", "run_one_line"]
+           "preview_parser", "run_one_line", "view_main", "view_parser"]
