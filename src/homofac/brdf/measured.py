@@ -15,7 +15,8 @@ end of each cell). This module interpolates trilinearly in u instead of truncati
 borders in theta_half and theta_diff, periodic in phi_diff. :func:`tabulate_merl` samples at the
 same grid points, so a table written from a smooth model reads back within interpolation error.
 
-Negative entries are holes (unmeasured configurations): the lookup reads them as 0;
+Negative entries are holes (unmeasured configurations): the interpolation leaves them out and
+renormalizes the measured corners' weights; only a lookup with no measured corner reads 0.
 :func:`count_holes` reports how many grid cells have one.
 """
 
@@ -168,7 +169,10 @@ def from_half_diff(theta_h: Array, theta_d: Array, phi_d: Array) -> tuple[Array,
 
 
 def _merl_fn(p: dict[str, Array], wi: Array, wo: Array) -> Array:
-    table = jnp.maximum(p["table"], 0.0)  # holes read as 0
+    """Trilinear lookup over the *measured* corners: holes (negative entries) get weight 0 and the other
+    corners' weights are renormalized, so a hole costs nothing where a neighbour was measured; a lookup
+    whose eight corners are all holes reads 0."""
+    table = p["table"]
     nh, nd, npd = table.shape[:3]
     th, td, pd = half_diff_angles(wi, wo)
     uh = jnp.clip(jnp.sqrt(jnp.clip(th / _HALF_PI, 0.0, 1.0)) * nh, 0.0, nh - 1)
@@ -183,17 +187,16 @@ def _merl_fn(p: dict[str, Array], wi: Array, wo: Array) -> Array:
     td_ = (ud - idd)[..., None]
     tp_ = (up - fp)[..., None]
     flat = table.reshape(-1, 3)
-
-    def at(a, b, c):
-        return jnp.take(flat, (a * nd + b) * npd + c, axis=0)
-
-    c00 = at(ih, idd, ip0) * (1 - tp_) + at(ih, idd, ip1) * tp_
-    c01 = at(ih, idd + 1, ip0) * (1 - tp_) + at(ih, idd + 1, ip1) * tp_
-    c10 = at(ih + 1, idd, ip0) * (1 - tp_) + at(ih + 1, idd, ip1) * tp_
-    c11 = at(ih + 1, idd + 1, ip0) * (1 - tp_) + at(ih + 1, idd + 1, ip1) * tp_
-    c0 = c00 * (1 - td_) + c01 * td_
-    c1 = c10 * (1 - td_) + c11 * td_
-    return c0 * (1 - th_) + c1 * th_
+    num = 0.0
+    den = 0.0
+    for a, wa in ((ih, 1 - th_), (ih + 1, th_)):
+        for b, wb in ((idd, 1 - td_), (idd + 1, td_)):
+            for c, wc in ((ip0, 1 - tp_), (ip1, tp_)):
+                v = jnp.take(flat, (a * nd + b) * npd + c, axis=0)
+                w = wa * wb * wc * (v >= 0)
+                num = num + w * jnp.maximum(v, 0.0)
+                den = den + w
+    return jnp.where(den > 0, num / jnp.where(den > 0, den, 1.0), 0.0)
 
 
 def _prepare(params: dict[str, Any]) -> dict[str, Any]:
@@ -216,8 +219,8 @@ def _prepare(params: dict[str, Any]) -> dict[str, Any]:
 MERL_DOC = """Measured BRDF in the MERL format (Matusik et al. 2003, "A data-driven reflectance model").
 
 A (90, 90, 180, 3) table over Rusinkiewicz half/difference angles (theta_h non-linear, theta_d,
-phi_d mod pi), trilinearly interpolated (clamped in theta, periodic in phi_d); negative entries
-(holes) read as 0. Parameter: table (a pytree leaf, traced under jit), or file= at construction."""
+phi_d mod pi), trilinearly interpolated (clamped in theta, periodic in phi_d) over the measured
+corners: negative entries (holes) are left out, a lookup with no measured corner reads 0. Parameter: table (a pytree leaf, traced under jit), or file= at construction."""
 
 register(ModelSpec("merl", _merl_fn, {"table": None}, True, "", MERL_DOC, prepare=_prepare,
                    schema={"file": (str, ...)}))
