@@ -549,7 +549,7 @@ def test_hlsl_through_spirv_equals_cpu(name, quantized, tmp_path):
     glsl = run([tool("spirv-cross"), spv, "--version", "330", "--no-es"]).stdout
     names = {}
     for t in [*(f"hf_{t.name}" for t in fac.model.textures), "hf_pairs_a", "hf_pairs_b"]:
-        found = re.findall(rf"uniform sampler2D (SPIRV_Cross_Combined{t}(?:{t}_sampler|SPIRV_Cross_DummySampler));", glsl)
+        found = re.findall(rf"uniform sampler2D (SPIRV_Cross_Combined{t}(?:sampler_{t}|SPIRV_Cross_DummySampler));", glsl)
         assert len(found) == 1, (t, glsl[:1500])
         names[t] = found[0]
     a, b = pairs(fac.kind, N_PAIRS)
@@ -629,10 +629,10 @@ def test_msl_runs_on_the_cpu_and_equals_cpu(name, quantized, tmp_path):
     check(name, "msl", fac, a, b, out, quantized, rgba8=False)  # the shim filters exactly
 
 
-def run_wgsl(wgpu_device, fac, a, b, quantized: bool) -> np.ndarray:
+def run_wgsl(wgpu_device, fac, a, b, quantized: bool, source: str | None = None) -> np.ndarray:
     """The WGSL compute main over the pairs on the wgpu device (lavapipe): (N, 3)."""
     wgpu, device, f32_filterable = wgpu_device
-    module = device.create_shader_module(code=wrapped(fac, "wgsl", quantized))
+    module = device.create_shader_module(code=source or wrapped(fac, "wgsl", quantized))
     pipeline = device.create_compute_pipeline(layout="auto", compute={"module": module, "entry_point": "main"})
     sampler = device.create_sampler(mag_filter="linear", min_filter="linear", mipmap_filter="nearest",
                                     address_mode_u="clamp-to-edge", address_mode_v="clamp-to-edge")
@@ -731,6 +731,24 @@ def test_y_up_define_swizzles_into_homofacs_frame():
     gpu = engine.run_glsl(lib, "homofac_radiance(a, b)", up(a), up(b), textures=_bound(fac))
     np.testing.assert_allclose(gpu, np.asarray(fac.evaluate(a, b)), rtol=1e-5, atol=1e-6)
     assert "const HOMOFAC_Y_UP: bool = true;" in fac.shader("wgsl", y_up=True)
+
+
+@pytest.mark.parametrize("language", ["glsl", "wgsl"])
+def test_flip_v_reads_textures_stored_bottom_up(language, wgpu_device):
+    """HOMOFAC_FLIP_V: the textures uploaded with their rows reversed (as Unity stores them) give the same value."""
+    fac = case("cube-3")
+    a, b = pairs("lighting", 2000)
+    flipped = Result(fac.model.replace_data([np.asarray(t.data)[::-1] for t in fac.model.textures]))
+    if language == "glsl":
+        lib = generate.source(fac.model, "glsl", flip_v=True)
+        assert "#define HOMOFAC_FLIP_V" in lib
+        gpu = engine.run_glsl(lib, "homofac_radiance(a, b)", a, b, textures=_bound(flipped))
+    else:
+        src = generate.source(fac.model, "wgsl", flip_v=True) + WGSL_MAIN.format(entry="homofac_radiance")
+        assert "const HOMOFAC_FLIP_V: bool = true;" in src
+        fake = Result(fac.model.replace_data([np.asarray(t.data)[::-1] for t in fac.model.textures]))
+        gpu = run_wgsl(wgpu_device, fake, a, b, False, source=src)
+    np.testing.assert_allclose(gpu, np.asarray(fac.evaluate(a, b)), rtol=1e-5, atol=1e-6)
 
 
 def test_save_writes_every_shader_beside_the_textures(tmp_path):

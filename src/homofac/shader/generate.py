@@ -13,7 +13,11 @@ function syntax are written per language (:mod:`homofac.shader.languages`). The 
   (float RGB, or the 8-bit ``<name>.png`` for the quantized variant), sampled with linear filtering,
   clamp to edge, no mipmaps, rows in file order (row 0 = first row = texture coordinate v = 0);
 * ``HOMOFAC_Y_UP`` (a define in GLSL, HLSL, MSL; a constant in WGSL) maps a right-handed y-up engine
-  frame (three.js, Godot, glTF) to homofac's: ``(x, y, z) -> (x, -z, y)``.
+  frame (three.js, Godot, glTF) to homofac's: ``(x, y, z) -> (x, -z, y)``;
+* ``HOMOFAC_FLIP_V`` (same forms) reads ``1 - v`` for engines that store an image's first row at
+  ``v = 1`` (Unity's texture importer);
+* per term: ``homofac_term(int k, a, b)`` (term k of ``homofac_value``, 0 outside 0 .. HOMOFAC_TERMS - 1)
+  and ``homofac_radiance_term`` / ``homofac_brdf_term(int k, ...)``, the entry point's twin.
 
 The texture coordinate of a lookup is the pinned continuous coordinate clamped to the face (thesis
 eq. 33-34, :func:`homofac.param.mappers.bilinear`) plus half a texel, so the hardware's bilinear filter
@@ -136,29 +140,38 @@ def _resources(lang: L.Language, model: Factorization, quantized: bool) -> tuple
             prec = "highp " if lang.name == "glsl_es" else ""
             decl.append(f"uniform {prec}sampler2D {n};  // {tex.name}: {tex.mapper} {tex.size}, linear, clamp to edge, "
                         "no mipmaps")
-            fns.append(f"vec3 hf_sample_{tex.name}(float u, float v) {{ return textureLod({n}, vec2(u, v), 0.0).rgb; }}")
+            fns.append(f"vec3 hf_sample_{tex.name}(float u, float v) {{ return textureLod({n}, vec2(u, hf_flip_v(v)), 0.0).rgb; }}")
             if quantized:
-                fns.append(f"float hf_sample_alpha_{tex.name}(float u, float v) {{ return textureLod({n}, vec2(u, v), 0.0).a; }}")
+                fns.append(f"float hf_sample_alpha_{tex.name}(float u, float v) {{ return textureLod({n}, vec2(u, hf_flip_v(v)), 0.0).a; }}")
         elif lang.name == "hlsl":
             decl.append(f"Texture2D<float4> {n};  // {tex.name}: {tex.mapper} {tex.size}")
-            decl.append(f"SamplerState {n}_sampler;  // linear, clamp to edge, no mipmaps")
-            fns.append(f"float3 hf_sample_{tex.name}(float u, float v) {{ return {n}.SampleLevel({n}_sampler, float2(u, v), 0).rgb; }}")
+            # sampler_<texture>: Unity's convention (the texture's own filter and wrap settings)
+            decl.append(f"SamplerState sampler_{n};  // linear, clamp to edge, no mipmaps")
+            fns.append(f"float3 hf_sample_{tex.name}(float u, float v) {{ "
+                       f"return {n}.SampleLevel(sampler_{n}, float2(u, hf_flip_v(v)), 0).rgb; }}")
             if quantized:
-                fns.append(f"float hf_sample_alpha_{tex.name}(float u, float v) {{ return {n}.SampleLevel({n}_sampler, float2(u, v), 0).a; }}")
+                fns.append(f"float hf_sample_alpha_{tex.name}(float u, float v) {{ "
+                           f"return {n}.SampleLevel(sampler_{n}, float2(u, hf_flip_v(v)), 0).a; }}")
         elif lang.name == "msl":
             fns.append(f"float3 hf_sample_{tex.name}(thread const HomofacTextures& hf, float u, float v) "
-                       f"{{ return hf.{n}.sample(hf_sampler, float2(u, v), level(0.0f)).rgb; }}")
+                       f"{{ return hf.{n}.sample(hf_sampler, float2(u, hf_flip_v(v)), level(0.0f)).rgb; }}")
             if quantized:
                 fns.append(f"float hf_sample_alpha_{tex.name}(thread const HomofacTextures& hf, float u, float v) "
-                           f"{{ return hf.{n}.sample(hf_sampler, float2(u, v), level(0.0f)).a; }}")
+                           f"{{ return hf.{n}.sample(hf_sampler, float2(u, hf_flip_v(v)), level(0.0f)).a; }}")
         elif lang.name == "wgsl":
             decl.append(f"@group(0) @binding({2 * k}) var {n}: texture_2d<f32>;  // {tex.name}: {tex.mapper} {tex.size}")
             decl.append(f"@group(0) @binding({2 * k + 1}) var {n}_sampler: sampler;  // linear, clamp to edge")
             fns.append(f"fn hf_sample_{tex.name}(u: f32, v: f32) -> {v3} {{ "
-                       f"return textureSampleLevel({n}, {n}_sampler, vec2<f32>(u, v), 0.0).rgb; }}")
+                       f"return textureSampleLevel({n}, {n}_sampler, vec2<f32>(u, hf_flip_v(v)), 0.0).rgb; }}")
             if quantized:
                 fns.append(f"fn hf_sample_alpha_{tex.name}(u: f32, v: f32) -> f32 {{ "
-                           f"return textureSampleLevel({n}, {n}_sampler, vec2<f32>(u, v), 0.0).a; }}")
+                           f"return textureSampleLevel({n}, {n}_sampler, vec2<f32>(u, hf_flip_v(v)), 0.0).a; }}")
+    if lang.name == "wgsl":
+        fns.insert(0, "fn hf_flip_v(v: f32) -> f32 { return select(v, 1.0 - v, HOMOFAC_FLIP_V); }")
+    else:
+        one = lang.literal(1.0, "float")
+        fns.insert(0, "#ifdef HOMOFAC_FLIP_V  // the engine stores the file's first row at v = 1 (Unity ...)\n"
+                   f"float hf_flip_v(float v) {{ return {one} - v; }}\n#else\nfloat hf_flip_v(float v) {{ return v; }}\n#endif")
     if lang.name == "msl":
         members = "\n".join(f"    texture2d<float> hf_{t.name} [[id({k})]];" for k, t in enumerate(model.textures))
         decl.append("struct HomofacTextures {  // an argument buffer, or fill it from the entry point's arguments\n"
@@ -222,11 +235,13 @@ def _entry(lang: L.Language, model: Factorization, term: bool = False) -> str:
 
 
 def source(model: Factorization, language: str = "glsl", *, quantized: Quantized | None = None,
-           y_up: bool = False) -> str:
+           y_up: bool = False, flip_v: bool = False) -> str:
     """The complete shader source of ``model`` in ``language`` (see the module docstring).
 
     ``quantized``: generate the 8-bit variant, reading the PNG textures with their decode rule.
     ``y_up``: bake ``HOMOFAC_Y_UP`` in (a define / constant that is otherwise off).
+    ``flip_v``: bake ``HOMOFAC_FLIP_V`` in: the textures are stored with the file's first row at v = 1
+    (Unity's importer; image loaders that flip), so every read uses ``1 - v``.
     The source has no ``#version`` line and no entry point: include it after your own (the tests
     compile it that way with glslangValidator).
     """
@@ -266,8 +281,11 @@ def source(model: Factorization, language: str = "glsl", *, quantized: Quantized
         lines.append(lang.header)
     if y_up and lang.name != "wgsl":
         lines.append("#define HOMOFAC_Y_UP")
+    if flip_v and lang.name != "wgsl":
+        lines.append("#define HOMOFAC_FLIP_V")
     if lang.name == "wgsl":
         lines.append(f"const HOMOFAC_Y_UP: bool = {'true' if y_up else 'false'};  // true: (x, y, z)_engine -> (x, -z, y)")
+        lines.append(f"const HOMOFAC_FLIP_V: bool = {'true' if flip_v else 'false'};  // true: textures stored bottom-up")
     lines.append(lang.constant(lang.type("int"), "HOMOFAC_TERMS", str(len(model.terms))) + "  // terms of homofac_value")
     lines += [L.table_source(lang, n, v) for n, v in tables.items()]
     lines += decl + samplers + helper_functions(lang) + fns + [functions, _entry(lang, model), _entry(lang, model, term=True)]
