@@ -18,7 +18,7 @@ PYTEST_ARGS ?=
 $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e ".[dev,gl]"
+	$(PY) -m pip install --quiet -e ".[dev,gl,jaxopt]"
 	@touch $(STAMP)
 
 install: $(STAMP)

@@ -16,16 +16,31 @@ from pathlib import Path
 START, END = "<!-- bench:start -->", "<!-- bench:end -->"
 
 
-def records(path: Path) -> tuple[list[dict], list[dict], dict]:
+def records(path: Path) -> tuple[list[dict], list[dict], list[dict], dict]:
+    """(scene cases, NumPy baselines, sums-of-products records, machine info) of a pytest-benchmark JSON."""
     doc = json.loads(path.read_text())
-    cases, baselines = [], []
+    cases, baselines, sums = [], [], []
     for b in doc["benchmarks"]:
         r = b.get("extra_info", {})
         if r.get("solver") == "numpy-baseline":
             baselines.append(r)
+        elif r.get("kind") == "sums":
+            sums.append(r)
         elif "val_nrmse" in r:
             cases.append(r)
-    return cases, baselines, doc.get("machine_info", {})
+    return cases, baselines, sums, doc.get("machine_info", {})
+
+
+def sums_table(rows: list[dict]) -> str:
+    """Fit time and validation nrmse of the linear-space sums (issue 13)."""
+    if not rows:
+        return ""
+    lines = ["| sum of products (gold / forest) | lookups | method | backend | samples | fit s warm (first) | val nrmse |",
+             "|---|---:|---|---|---:|---:|---:|"]
+    for r in rows:
+        lines.append(f"| {r['case']} | {r['lookups']} | {r['method']} ({r['iterations']}) | {r['backend']} | "
+                     f"{r['samples']:,} | {r['fit_s']:.2f} ({r['fit_first_s']:.1f}) | {r['val_nrmse']:.4f} |")
+    return "\n".join(lines)
 
 
 def run_time(r: dict) -> float:
@@ -107,11 +122,13 @@ def main(argv=None) -> None:
     p.add_argument("--readme", help="README.md to update between the bench markers")
     args = p.parse_args(argv)
     path = Path(args.json)
-    cases, baselines, _ = records(path)
+    cases, baselines, sums, _ = records(path)
     if not cases:
         raise SystemExit(f"{path}: no benchmark records")
     machine = cases[0].get("machine", "")
     md = f"Machine: {machine}.\n\n" + table(cases, baselines) + "\n"
+    if sums:
+        md += "\n" + sums_table(sums) + "\n"
     (path.parent / "results.md").write_text(md)
     plot(cases, path.parent / "pareto.png", machine)
     if args.readme:

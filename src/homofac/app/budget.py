@@ -31,7 +31,8 @@ import numpy as np
 
 from .. import baselines
 from ..errors import HomofacError
-from ..fit import solvers
+from ..fit import als, solvers
+from ..fit.sampling import GRID_COUNT
 from ..fit.draw import default_mapper
 from ..io.limits import image_info
 from ..light import bundled
@@ -144,7 +145,10 @@ def estimate(cfg: Config, base: Path = Path(".")) -> dict:
         t = p.T if p else 4
     s = cfg.sampling
     smapper = s.mapper or default_mapper(kind)
-    if s.kind == "random":
+    grid = s.kind == "grid" or (s.kind == "auto" and cfg.is_sum and kind == "lighting")
+    if grid:
+        m = s.count or GRID_COUNT
+    elif s.kind == "random":
         m = s.count or s.size**2 * (s.view_size or s.size) ** 2 // 4
     elif s.kind == "latlong":
         m = (s.size * 2 * s.size) * ((s.view_size or s.size) * 2 * (s.view_size or s.size)) // (8 if kind == "brdf" else 2)
@@ -162,6 +166,8 @@ def estimate(cfg: Config, base: Path = Path(".")) -> dict:
         "solver": solvers.get(cfg.solver.method).memory(m, n, k),
         "runtime": RUNTIME_BYTES,
     }
+    if cfg.is_sum:
+        parts["system"], parts["solver"] = _sum_bytes(cfg, m, mapper, grid and kind == "lighting")
     if kind == "lighting":
         res = cfg.target.environment.resolution if cfg.target.environment else 32
         lights = 6 * res * res + len(cfg.target.environment.lights if cfg.target.environment else [])
@@ -171,6 +177,21 @@ def estimate(cfg: Config, base: Path = Path(".")) -> dict:
     parts["pairs"] = m
     parts["unknowns"] = n
     return parts
+
+
+def _sum_bytes(cfg: Config, m: int, mapper: str, als_path: bool) -> tuple[int, int]:
+    """(data, solver) bytes of a linear-space sum (homofac.fit.sums): the largest structure it may fit."""
+    terms = cfg.terms if cfg.max_lookups is None else max(1, cfg.max_lookups // 2)
+    factors = terms * (4 if cfg.nv_factor or cfg.max_lookups is not None else 3) + 2
+    texels = int(np.prod(mappers.texture_shape(mappers.get(mapper), cfg.texture_size)))
+    n = factors * texels
+    if als_path:  # per-sample factor values and the chunked normal equations (homofac.fit.als)
+        data = m * (16 + 12 + 12) + 6 * terms * m * 12
+        solver = 2 * als.CHUNK_BYTES + texels * 3 * terms * terms * 4 * 4 + (32 * terms) ** 2 * 3 * 8
+        return data, solver
+    data = m * factors * 32 + m * 12  # ELL footprints of every factor, the targets
+    solver = 12 * (m * 3 + n * 3 * 5) * 4 + 3 * factors * m * 12  # LSMR vectors, JVP / VJP temporaries
+    return data, solver
 
 
 def check(cfg: Config, base: Path = Path("."), limit_bytes: int | None = None) -> dict:

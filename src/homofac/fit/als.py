@@ -91,11 +91,39 @@ def predict(P, Q, W, d: GridData, flags: Flags) -> Float[Array, "N 3"]:
     return jnp.sum(_factor(P, d.a, flags.p) * _factor(Q, d.b, flags.q) * _wv(W, d, flags), axis=0)
 
 
+#: Bytes of the per-sample outer products one chunk of a block may hold (bounded memory at any K).
+CHUNK_BYTES = 1 << 27
+
+
+def _chunked(fn, args: tuple, n: int, per_sample: int):
+    """``sum over chunks of fn(*chunk_args)`` along the sample axis (axis 0 of every arg), in chunks
+    that keep ``per_sample`` floats per sample within :data:`CHUNK_BYTES`; padding rows are zero."""
+    chunk = int(max(1024, min(n, CHUNK_BYTES // (4 * max(per_sample, 1)))))
+    if chunk >= n:
+        return fn(*args)
+    pad = (-n) % chunk
+    padded = tuple(jnp.concatenate([a, jnp.zeros((pad,) + a.shape[1:], a.dtype)]) for a in args)
+    shaped = tuple(a.reshape((-1, chunk) + a.shape[1:]) for a in padded)
+    first = jax.eval_shape(fn, *(a[0] for a in shaped))
+    init = jax.tree_util.tree_map(lambda x: jnp.zeros(x.shape, x.dtype), first)
+
+    def step(acc, xs):
+        return jax.tree_util.tree_map(jnp.add, acc, fn(*xs)), None
+
+    out, _ = jax.lax.scan(step, init, shaped)
+    return out
+
+
 def _texel_block(X, c, idx, y, d: GridData, mu, jacobi: int, ridge: float = 1e-6):
     """Solve for X (K, n, 3) given coefficients c (K, N, 3) of the samples falling in texel ``idx``."""
     K, n = X.shape[0], X.shape[1]
-    G = jax.ops.segment_sum(jnp.einsum("tnc,snc->ncts", c, c), idx, num_segments=n)  # (n, 3, K, K)
-    h = jax.ops.segment_sum(jnp.einsum("tnc,nc->nct", c, y), idx, num_segments=n)  # (n, 3, K)
+
+    def normal(c, idx, y):  # c (N, K, 3) sample-major for chunking
+        G = jax.ops.segment_sum(jnp.einsum("ntc,nsc->ncts", c, c), idx, num_segments=n)  # (n, 3, K, K)
+        h = jax.ops.segment_sum(jnp.einsum("ntc,nc->nct", c, y), idx, num_segments=n)  # (n, 3, K)
+        return G, h
+
+    G, h = _chunked(normal, (jnp.moveaxis(c, 0, 1), idx, y), y.shape[0], 3 * K * K)
     deg = jnp.sum(d.nbm, axis=1)
     tr = jnp.trace(G, axis1=-2, axis2=-1)[..., None, None] / K
     A = G + (mu * deg[:, None, None, None] + ridge * tr + 1e-9) * jnp.eye(K, dtype=X.dtype)
@@ -113,14 +141,19 @@ def _w_block(pq, W, d: GridData, flags: Flags, y, mu_w, ridge: float = 1e-6):
     """Dense normal equations of the line unknowns (K S_w per channel) given p q at the samples."""
     K, Sw = W.shape[0], W.shape[1]
     M = K * Sw
-    N = y.shape[0]
     use = jnp.asarray(flags.w, W.dtype)
-    cols = (jnp.arange(K)[None, :, None] * Sw + d.vi[:, None, :]).reshape(N, 2 * K)
-    coef = (pq.transpose(1, 0, 2)[:, :, None, :] * d.vw[:, None, :, None] * use[None, :, None, None]).reshape(N, 2 * K, 3)
-    flat = (cols[:, :, None] * M + cols[:, None, :]).reshape(-1)
-    G = jax.ops.segment_sum((coef[:, :, None, :] * coef[:, None, :, :]).reshape(-1, 3), flat, num_segments=M * M)
+
+    def normal(pq, vi, vw, y):  # pq (N, K, 3) sample-major for chunking
+        N = y.shape[0]
+        cols = (jnp.arange(K)[None, :, None] * Sw + vi[:, None, :]).reshape(N, 2 * K)
+        coef = (pq[:, :, None, :] * vw[:, None, :, None] * use[None, :, None, None]).reshape(N, 2 * K, 3)
+        flat = (cols[:, :, None] * M + cols[:, None, :]).reshape(-1)
+        G = jax.ops.segment_sum((coef[:, :, None, :] * coef[:, None, :, :]).reshape(-1, 3), flat, num_segments=M * M)
+        h = jax.ops.segment_sum((coef * y[:, None, :]).reshape(-1, 3), cols.reshape(-1), num_segments=M)
+        return G, h
+
+    G, h = _chunked(normal, (jnp.moveaxis(pq, 0, 1), d.vi, d.vw, y), y.shape[0], 12 * K * K + 6 * K)
     G = jnp.moveaxis(G.reshape(M, M, 3), -1, 0)
-    h = jax.ops.segment_sum((coef * y[:, None, :]).reshape(-1, 3), cols.reshape(-1), num_segments=M)
     diff = np.diff(np.eye(Sw), axis=0)
     lap = jnp.asarray(np.kron(np.eye(K), diff.T @ diff), W.dtype)
     G = G + mu_w * lap[None]
