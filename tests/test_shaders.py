@@ -764,3 +764,134 @@ def test_save_writes_every_shader_beside_the_textures(tmp_path):
     assert (Path(out) / "shader_8bit.metal").read_text() == loaded.shader("msl", quantized=True)
     for t in fac.model.textures:
         assert f"uniform highp sampler2D hf_{t.name};" in (Path(out) / "shader_es.glsl").read_text()
+
+
+# --------------------------------------------------------------------------------------------------
+# The engine recipes (docs/recipes/): their code, extracted from the pages, compiles and runs
+
+RECIPES = Path(__file__).resolve().parents[1] / "docs" / "recipes"
+
+
+def recipe(page: str, name: str) -> str:
+    """The fenced code block after ``<!-- recipe: name -->`` in ``docs/recipes/<page>``."""
+    text = (RECIPES / page).read_text()
+    m = re.search(rf"<!-- recipe: {re.escape(name)} -->\s*```[a-z]*\n(.*?)\n```", text, re.S)
+    assert m, f"{page}: no code block marked {name}"
+    return m.group(1)
+
+
+#: What three.js (r15x-r17x) puts before a ShaderMaterial's code with glslVersion: THREE.GLSL3 and
+#: defines {HOMOFAC_Y_UP: ""}: its built-in uniforms and attributes (an emulation; three.js is not run).
+THREE_VERTEX_PREFIX = """#version 300 es
+#define attribute in
+#define varying out
+#define texture2D texture
+precision highp float;
+precision highp int;
+precision highp sampler2D;
+#define HOMOFAC_Y_UP 
+uniform mat4 modelMatrix;
+uniform mat4 modelViewMatrix;
+uniform mat4 projectionMatrix;
+uniform mat4 viewMatrix;
+uniform mat3 normalMatrix;
+uniform vec3 cameraPosition;
+uniform bool isOrthographic;
+in vec3 position;
+in vec3 normal;
+in vec2 uv;
+"""
+THREE_FRAGMENT_PREFIX = """#version 300 es
+#define varying in
+layout(location = 0) out highp vec4 pc_fragColor;
+#define gl_FragColor pc_fragColor
+#define texture2D texture
+precision highp float;
+precision highp int;
+precision highp sampler2D;
+#define HOMOFAC_Y_UP 
+uniform mat4 viewMatrix;
+uniform vec3 cameraPosition;
+uniform bool isOrthographic;
+"""
+
+
+def test_threejs_recipe_parses_and_its_shaders_compile(tmp_path):
+    js = recipe("threejs.md", "threejs-js")
+    node = shutil.which("node")
+    if node is None:
+        pytest.fail("node is not installed") if os.environ.get("CI") else pytest.skip("node is not installed")
+    (tmp_path / "recipe.mjs").write_text(js)
+    run([node, "--check", tmp_path / "recipe.mjs"])
+    vertex = re.search(r"const VERTEX = `(.*?)`;", js, re.S).group(1)
+    main = re.search(r"const FRAGMENT_MAIN = `(.*?)`;", js, re.S).group(1)
+    main = "\n".join(line for line in main.splitlines() if not line.strip().startswith("#include <"))
+    exe = tool("glslangValidator")
+    (tmp_path / "v.vert").write_text(THREE_VERTEX_PREFIX + vertex)
+    run([exe, "-S", "vert", tmp_path / "v.vert"])
+    for name in ("dual_paraboloid-3", "cube-1"):
+        for q in (False, True):
+            (tmp_path / "f.frag").write_text(THREE_FRAGMENT_PREFIX + case(name).shader("glsl_es", quantized=q) + main)
+            run([exe, "-S", "frag", tmp_path / "f.frag"])
+
+
+UNITY_PS = """
+#include "HomofacUnity.hlsl"
+Texture2D<float4> hf_pairs_a;
+Texture2D<float4> hf_pairs_b;
+float4 ps_main(float4 pos : SV_Position) : SV_Target {
+    int3 p = int3(int(pos.x), int(pos.y), 0);
+    float3 radiance;
+    HomofacRadiance_float(hf_pairs_a.Load(p).xyz, hf_pairs_b.Load(p).xyz, radiance);
+    return float4(radiance, 1.0);
+}
+"""
+
+
+@pytest.mark.parametrize("name", ["octahedral-3", "line-1"])
+def test_unity_recipe_compiles_and_runs_through_spirv(name, tmp_path):
+    """HomofacUnity.hlsl + shader.hlsl compile (glslang HLSL); run through SPIR-V -> GLSL with Unity's
+    left-handed y-up vectors and textures stored bottom-up, it equals fac.evaluate."""
+    fac = case(name)
+    (tmp_path / "HomofacUnity.hlsl").write_text(recipe("unity.md", "unity-hlsl"))
+    (tmp_path / "shader.hlsl").write_text(fac.shader("hlsl"))
+    (tmp_path / "ps.hlsl").write_text(UNITY_PS)
+    spv = tmp_path / "ps.spv"
+    run([tool("glslangValidator"), "-D", "-e", "ps_main", "-S", "frag", "-V", "-I" + str(tmp_path), "-o", spv,
+         tmp_path / "ps.hlsl"])
+    run([tool("spirv-val"), spv])
+    glsl = run([tool("spirv-cross"), spv, "--version", "330", "--no-es"]).stdout
+    names = {}
+    for t in [*(f"hf_{t.name}" for t in fac.model.textures), "hf_pairs_a", "hf_pairs_b"]:
+        found = re.findall(rf"uniform sampler2D (SPIRV_Cross_Combined{t}(?:sampler_{t}|SPIRV_Cross_DummySampler));", glsl)
+        assert len(found) == 1, (t, glsl[:1500])
+        names[t] = found[0]
+    a, b = pairs(fac.kind, N_PAIRS)
+    unity = lambda d: d[:, [0, 2, 1]]  # noqa: E731 - homofac (x, y, z) is Unity's (x, z, y)
+    stored = Result(fac.model.replace_data([np.asarray(t.data)[::-1] for t in fac.model.textures]))  # bottom-up
+    gpu = render_pairs(glsl, stored, unity(a), unity(b), False, names)
+    check(name, "unity", fac, a, b, gpu, False)
+
+
+def test_opengl_recipe_program_renders_the_factorization(tmp_path):
+    """docs/recipes/opengl.md's complete program, run on a saved output directory: its sphere.png equals
+    fac.evaluate at the normals it ray-casts (within 2/255 after its gamma curve)."""
+    fac = case("cube-3")
+    out = fac.save(tmp_path / "out", shaders=["glsl"])
+    (tmp_path / "render_sphere.py").write_text(recipe("opengl.md", "opengl-python"))
+    size = 64
+    r = run([sys.executable, tmp_path / "render_sphere.py", out, size, 1.0], cwd=tmp_path)
+    assert "wrote sphere.png" in r.stdout
+    from PIL import Image
+
+    img = np.asarray(Image.open(tmp_path / "sphere.png").convert("RGB")).astype(int)
+    c = (np.arange(size) + 0.5) / size * 2 - 1
+    x, y = np.meshgrid(c, -c)  # rows top to bottom
+    r2 = x * x + y * y
+    inside = r2 < 0.97
+    n = np.stack([np.sqrt(np.clip(1 - r2, 0, 1)), x, y], -1)[inside].astype(np.float32)
+    v = np.tile(np.asarray([[1.0, 0.0, 0.0]], np.float32), (len(n), 1))
+    want = np.round(np.clip(np.asarray(fac.evaluate(n, v)), 0, 1) ** (1 / 2.2) * 255)
+    diff = np.abs(img[inside] - want).max()
+    assert diff <= 2, diff
+    assert (img[r2 > 1.03] == 0).all()
