@@ -123,14 +123,15 @@ def main(argv=None) -> None:
     args = p.parse_args(argv)
     path = Path(args.json)
     cases, baselines, sums, _ = records(path)
-    if not cases:
+    if not cases and not sums:
         raise SystemExit(f"{path}: no benchmark records")
-    machine = cases[0].get("machine", "")
-    md = f"Machine: {machine}.\n\n" + table(cases, baselines) + "\n"
+    machine = (cases or sums)[0].get("machine", "")
+    md = f"Machine: {machine}.\n\n" + (table(cases, baselines) + "\n" if cases else "")
     if sums:
         md += "\n" + sums_table(sums) + "\n"
     (path.parent / "results.md").write_text(md)
-    plot(cases, path.parent / "pareto.png", machine)
+    if cases:
+        plot(cases, path.parent / "pareto.png", machine)
     if args.readme:
         readme = Path(args.readme)
         text = readme.read_text()

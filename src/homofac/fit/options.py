@@ -101,7 +101,8 @@ class FitOptions(Options):
     fit the rest) or ``fitted`` (an n-only texture started from it), ``nv_factor`` (a 1D ``line`` texture
     w(n.v) in each product; for BRDFs w(cos_i) w(cos_o)), ``max_lookups`` (homofac chooses the structure
     within that many texture lookups per pixel, by validation error; :mod:`homofac.fit.structures`),
-    ``reflection`` (lighting: one more fitted term, an r-only texture).
+    ``reflection`` (lighting: one more fitted term, an r-only texture), ``prefiltered`` (lighting: the split
+    sum's P(r) W(n.v) computed and kept; the products fit corrections to it).
     """
 
     parametrization: ParametrizationName = "NR"
@@ -116,6 +117,7 @@ class FitOptions(Options):
     diffuse: Optional[Literal["exact", "fitted"]] = None
     nv_factor: bool = False
     reflection: bool = False
+    prefiltered: bool = False
     max_lookups: Optional[int] = Field(None, ge=1, le=256)
     linear: Optional[LinearOptions] = None
 
@@ -123,7 +125,7 @@ class FitOptions(Options):
     def is_sum(self) -> bool:
         """True when the fit is a linear-space sum of products rather than today's log-space product."""
         return (self.terms > 1 or self.diffuse is not None or self.nv_factor or self.reflection
-                or self.max_lookups is not None or self.linear is not None)
+                or self.prefiltered or self.max_lookups is not None or self.linear is not None)
 
 
 __all__ = ["AnalysisOptions", "FitOptions", "LinearOptions", "MAX_TERMS", "MAX_TEXTURE_SIZE", "MIN_TEXTURE_SIZE", "MapperName", "SamplingOptions"]

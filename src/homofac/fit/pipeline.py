@@ -69,6 +69,7 @@ def factorize(
     diffuse: str | None = None,
     nv_factor: bool | None = None,
     reflection: bool | None = None,
+    prefiltered: bool | None = None,
     max_lookups: int | None = None,
     linear: dict | None = None,
     baseline: dict | None = None,
@@ -98,6 +99,7 @@ def factorize(
         diffuse: ``exact`` (the computed term kd/pi E(n), the products fit the rest) or ``fitted``.
         nv_factor: a 1D ``line`` texture w(n.v) in each product (BRDF: w(cos_i) w(cos_o)).
         reflection: one more fitted term, an r-only texture (lighting).
+        prefiltered: keep the split sum's P(r) W(n.v) (computed) and fit corrections to it (lighting).
         max_lookups: choose the structure (terms, nv_factor, diffuse) within this many texture lookups
             per pixel by validation error (:func:`homofac.fit.sums.choose`).
         linear: :class:`~homofac.fit.options.LinearOptions` of the linear-space fit as a dict
@@ -118,7 +120,7 @@ def factorize(
     t_start = time.perf_counter()
     opts = options(parametrization, mapper=mapper, texture_size=texture_size, sampling=sampling, solver=solver,
                    target_error=target_error, baseline=baseline, analysis=analysis, terms=terms, diffuse=diffuse,
-                   nv_factor=nv_factor, reflection=reflection, max_lookups=max_lookups,
+                   nv_factor=nv_factor, reflection=reflection, prefiltered=prefiltered, max_lookups=max_lookups,
                    linear=linear)
     if not isinstance(target, Target):
         raise HomofacError(f"factorize needs a homofac Target (brdf_target or lighting_target), got {type(target).__name__}")
@@ -201,7 +203,8 @@ def _sums(target: Target, opts: FitOptions, mapper: str, samples: Samples, recor
         )
 
     if opts.max_lookups is None and opts.target_error is None:
-        return fit(Structure(opts.parametrization, opts.terms, opts.diffuse, opts.nv_factor, opts.reflection))
+        return fit(Structure(opts.parametrization, opts.terms, opts.diffuse, opts.nv_factor, opts.reflection,
+                                   opts.prefiltered))
     if len(samples.val_a) == 0:
         raise HomofacError("max_lookups and target_error choose by validation error: sampling.validation must be > 0")
     budget = opts.max_lookups or DEFAULT_MAX_LOOKUPS

@@ -32,6 +32,10 @@ from jaxtyping import Array, Float, Int
 from ..errors import HomofacError
 
 
+#: Largest Jacobian jaxopt's LevenbergMarquardt may materialize (it computes diag(J^T J) from it).
+JAXOPT_LM_BYTES = 4 << 30
+
+
 class Lookup(NamedTuple):
     """One factor at the samples: which unknown texture it reads and the footprint (static index k)."""
 
@@ -107,6 +111,14 @@ def _jaxopt(X0, prob: Problem, *, terms, method: str, iterations: int, inner: in
         raise HomofacError("linear.backend: jaxopt needs the optional extra: pip install 'homofac[jaxopt]'") from None
     Z0 = tuple(x / s[:, None] for x, s in zip(X0, prob.scales))
     flat0, unravel = ravel_pytree(Z0)
+    if method == "levenberg_marquardt":
+        rows = prob.y.size + sum(3 * e.shape[0] for e in prob.edges)
+        need = 4 * flat0.size * rows
+        if need > JAXOPT_LM_BYTES:
+            raise HomofacError(
+                f"linear.backend: jaxopt's LevenbergMarquardt forms diag(J^T J) from the whole Jacobian "
+                f"({need / 2**30:.1f} GiB for {flat0.size:,} unknowns x {rows:,} residuals); use backend "
+                "optimistix, method gauss_newton, or fewer samples")
 
     def fun(flat, prob):
         r = residuals(unravel(flat), prob, terms)
@@ -117,7 +129,7 @@ def _jaxopt(X0, prob: Problem, *, terms, method: str, iterations: int, inner: in
         return jax.scipy.sparse.linalg.cg(op, b, x0=init, maxiter=inner)[0]
 
     if method == "gauss_newton":
-        solver = jaxopt.GaussNewton(fun, maxiter=iterations, tol=1e-7, solver=cg, jit=True)
+        solver = jaxopt.GaussNewton(fun, maxiter=iterations, tol=1e-7, jit=True)  # its own matrix-free CG
     else:
         solver = jaxopt.LevenbergMarquardt(fun, maxiter=iterations, tol=1e-7, materialize_jac=False, solver=cg,
                                           jit=True)

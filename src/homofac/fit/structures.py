@@ -14,7 +14,10 @@ A :class:`Structure` is the pinned config of a sum (``terms: K``, ``diffuse: exa
   ``cos_i`` and ``cos_o`` (BRDF, the same texture twice: reciprocal for PQP);
 * ``reflection`` (lighting): one more fitted term, an r-only texture ``R`` (one lookup). Within a lookup
   budget it is worth more than an n.v-only or n-only term (gold under lamps: 0.83 -> 0.78 of
-  split-sum at 8 lookups).
+  split-sum at 8 lookups);
+* ``prefiltered`` (lighting): the split sum's specular term P(r) W(n.v) (Karis 2013, the model's own
+  NDF and DFG; :mod:`homofac.baselines.split_sum`) is computed and kept, and the fitted terms are
+  corrections to the split sum: the structure whose frontal error stays at split-sum's.
 
 :func:`skeleton` turns a structure into the textures (names, mappers, sizes) and terms of a
 :class:`~homofac.factorization.Factorization`; :func:`candidates` lists the structures within a
@@ -58,15 +61,17 @@ class Structure(NamedTuple):
     diffuse: str | None = None  # None | "exact" | "fitted"
     nv_factor: bool = False
     reflection: bool = False  # lighting: one more term, a fitted r-only texture q(r) (one lookup)
+    prefiltered: bool = False  # lighting: the split sum's P(r) W(n.v) computed, not fitted (two lookups)
 
     def label(self) -> str:
-        d = {None: "", "exact": "E+", "fitted": "E'+"}[self.diffuse]
+        d = {None: "", "exact": "E+", "fitted": "E'+"}[self.diffuse] + ("SS+" if self.prefiltered else "")
         w = "W" if self.nv_factor and not _has_nv(self.parametrization) else ""
         return f"{d}{self.parametrization}{w} x{self.terms}{'+R' if self.reflection else ''}"
 
     def record(self) -> dict:
         return {"parametrization": self.parametrization, "terms": int(self.terms), "diffuse": self.diffuse,
-                "nv_factor": bool(self.nv_factor or _has_nv(self.parametrization)), "reflection": bool(self.reflection)}
+                "nv_factor": bool(self.nv_factor or _has_nv(self.parametrization)), "reflection": bool(self.reflection),
+                "prefiltered": bool(self.prefiltered)}
 
 
 def _has_nv(parametrization: str) -> bool:
@@ -90,6 +95,11 @@ def skeleton(structure: Structure, kind: str, quantity: str, mapper: str, size: 
             terms.append(TermSpec((("cos_i", "C"),), "diffuse", False))
         else:
             terms.append(TermSpec((), "diffuse", False))
+    if structure.prefiltered:
+        if kind != "lighting":
+            raise HomofacError("prefiltered: the split sum's specular term is for lighting targets")
+        textures += [TextureSpec("P", mapper, size, "prefiltered"), TextureSpec("W", "line", line_size, "dfg")]
+        terms.append(TermSpec((("r", "P"), ("nv", "W")), "prefiltered", False))
     many = structure.terms > 1
     for t in range(structure.terms):
         suffix = str(t) if many else ""
@@ -121,9 +131,10 @@ def candidates(kind: str, max_lookups: int, *, parametrization: str | None = Non
                max_terms: int = 16) -> list[Structure]:
     """The structures worth fitting within ``max_lookups`` texture lookups, cheapest first.
 
-    For each variant (with and without ``nv_factor``; the diffuse term exact or fitted when the material
-    has one, lighting only) the one with the most terms that fits: more terms never fit worse, so
-    smaller K of the same variant are not tried. ``parametrization`` defaults to NR (lighting) and PQP
+    For each variant (the split sum computed or not; lighting) the one with the most terms that fits,
+    with the n.v factor and, when the material has a diffuse part, a fitted diffuse texture: more terms,
+    a free diffuse texture and w(n.v) never fit worse, so the smaller variants are not tried; a lookup
+    left over goes to the r-only term. ``parametrization`` defaults to NR (lighting) and PQP
     (BRDF). :func:`homofac.fit.sums.choose` fits them and keeps the best on the validation pairs.
     """
     return _sorted(_variants(kind, max_lookups, parametrization, has_diffuse, max_terms, largest=True))
@@ -140,18 +151,20 @@ def _variants(kind, max_lookups, parametrization, has_diffuse, max_terms, larges
         raise HomofacError(f"max_lookups must be at least 1, got {max_lookups}")
     base = parametrization or ("NR" if kind == "lighting" else "PQP")
     pz.get(base, kind)
+    prefs = (False, True) if kind == "lighting" and base == "NR" else (False,)
+    # A fitted diffuse texture can do all the exact one does (it starts there), and the n.v factor is
+    # worth more than a whole term (issue 13): the other variants are not tried.
     if not has_diffuse:
         diffuses: tuple = (None,)
     else:
-        diffuses = ("exact", "fitted") if kind == "lighting" else ("exact",)
+        diffuses = ("fitted",) if kind == "lighting" else ("exact",)
     out = []
-    for nv in (True, False) if not _has_nv(base) else (False,):
-        for d in diffuses:
-            fits = [Structure(base, k, d, nv) for k in range(1, max_terms + 1)
-                    if lookups(Structure(base, k, d, nv), kind) <= max_lookups]
-            if kind == "lighting" and fits and lookups(fits[-1]._replace(reflection=True), kind) <= max_lookups:
-                fits.append(fits[-1]._replace(reflection=True))  # a lookup left over: the r-only term
-            out += fits[-1:] if largest else fits
+    for nv, d, pre in ((not _has_nv(base), d, pre) for d in diffuses for pre in prefs):
+        fits = [Structure(base, k, d, nv, False, pre) for k in range(1, max_terms + 1)
+                if lookups(Structure(base, k, d, nv, False, pre), kind) <= max_lookups]
+        if kind == "lighting" and fits and lookups(fits[-1]._replace(reflection=True), kind) <= max_lookups:
+            fits.append(fits[-1]._replace(reflection=True))  # a lookup left over: the r-only term
+        out += fits[-1:] if largest else fits
     if not out:
         smallest = lookups(Structure(base, 1, diffuses[0], False), kind)
         raise HomofacError(f"max_lookups {max_lookups}: no structure of {base} fits (the smallest needs {smallest})")

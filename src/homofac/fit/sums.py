@@ -48,6 +48,10 @@ from .structures import LINE_SIZE, Structure, TermSpec, TextureSpec, skeleton
 from .system import TextureLayout, texture_layout
 
 
+#: Texture roles that are computed (not unknowns of the fit).
+FIXED_ROLES = ("diffuse", "cos", "prefiltered", "dfg")
+
+
 class SumFit(NamedTuple):
     """A fitted sum and how the fit went (the run record's ``solver`` entry and timings)."""
 
@@ -86,12 +90,31 @@ def _fixed_texture(spec: TextureSpec, target: Target) -> np.ndarray:
         if not isinstance(target.fn, Lighting) or target.fn.clamp is not None:
             raise HomofacError("diffuse: the irradiance term needs an unclamped lighting target")
         return irradiance_map(target.fn.env, spec.mapper, spec.size).astype(np.float32)
+    if spec.role in ("prefiltered", "dfg"):
+        return _split_sum_textures(target, spec)
     if spec.role == "cos":
         return ((np.arange(spec.size) + 0.5) / spec.size).reshape(1, spec.size, 1).repeat(3, -1).astype(np.float32)
     raise HomofacError(f"texture {spec.name} is fitted, not computed")
 
 
+def _split_sum_textures(target: Target, spec: TextureSpec) -> np.ndarray:
+    """The split sum's P (prefiltered environment) or W (ks (F0 A + B)) at the texel centres."""
+    if not _split_sum_possible(target, Structure("NR")):
+        raise HomofacError("prefiltered: the split sum needs a lighting target of a microfacet model (cook_torrance, ggx)")
+    brdf, env = target.fn.brdf, target.fn.env
+    if spec.role == "prefiltered":
+        d = centres(spec.mapper, spec.size)
+        p = ss.prefilter(MODELS[brdf.model].microfacet.ndf, brdf.params, env, d)
+        return p.reshape(mappers.texture_shape(spec.mapper, spec.size) + (3,)).astype(np.float32)
+    x = (np.arange(spec.size) + 0.5) / spec.size
+    a, b = ss.dfg(brdf, x)
+    ks, f0 = np.asarray(brdf.params["ks"], np.float64), np.asarray(brdf.params["f0"], np.float64)
+    return (ks * (f0 * a + b)).reshape(1, spec.size, 3).astype(np.float32)
+
+
 def _fixed_correction(target: Target, term: TermSpec) -> np.ndarray:
+    if term.kind == "prefiltered":
+        return np.ones(3, np.float32)
     kd = diffuse_albedo(target)
     if kd is None:
         raise HomofacError("diffuse: the model has no kd parameter (measured and Phong-lobe-only models); "
@@ -178,15 +201,21 @@ def start(target: Target, structure: Structure, terms, layouts, samples, y_fit, 
     if rule == "auto":
         rule = "split_sum" if _split_sum_possible(target, structure) else "product"
     products = [t for t in terms if t.fitted and not _is_diffuse(t) and not _is_reflection(t)]
-    if rule == "split_sum":
+    if structure.prefiltered:  # the split sum is kept: every product is a correction, started as extra terms
+        rule = "split_sum"
+        out = {}
+        extra = products
+    elif rule == "split_sum":
         if not _split_sum_possible(target, structure):
             raise HomofacError("linear.start: split_sum needs a lighting target of a microfacet model "
                                "(cook_torrance, ggx) and a parametrization with an r factor")
         out = _split_sum_start(target, products[0], layouts, sigma)
     else:
         out = _product_start(target, structure, products[0], layouts, samples, y_fit, sigma, mapper, size, log)
+    if not structure.prefiltered:
+        extra = products[1:]
     kd = diffuse_albedo(target)
-    for t, term in enumerate(products[1:], start=1):
+    for t, term in enumerate(extra, start=1):
         # an extra term: the first texture smooth and distinct per term, the second 0, the rest 1
         for pos, name in enumerate(dict.fromkeys(tex for _, tex in term.factors)):
             lay = layouts[name]
@@ -233,7 +262,7 @@ def fit_sum(target: Target, structure: Structure, mapper: str, size: int, sample
     if structure.diffuse is not None and diffuse_albedo(target) is None:
         _fixed_correction(target, terms[0])
     a, b, y = (np.asarray(v, np.float32) for v in (samples.a, samples.b, samples.y))
-    fixed_specs = [s for s in specs if s.role in ("diffuse", "cos")]
+    fixed_specs = [s for s in specs if s.role in FIXED_ROLES]
     fixed_data = {s.name: _fixed_texture(s, target) for s in fixed_specs}
     fixed_terms = [t for t in terms if not t.fitted]
     base = np.zeros_like(y)
@@ -243,7 +272,7 @@ def fit_sum(target: Target, structure: Structure, mapper: str, size: int, sample
     y_fit = y - base
     sigma = np.sqrt(np.mean(y_fit.astype(np.float64) ** 2, axis=0))
     sigma = np.where(sigma > 0, sigma, 1.0)
-    fitted_specs = [s for s in specs if s.role not in ("diffuse", "cos")]
+    fitted_specs = [s for s in specs if s.role not in FIXED_ROLES]
     layouts = {s.name: texture_layout(s.name, s.mapper, s.size) for s in fitted_specs}
     x0, rule = start(target, structure, terms, layouts, samples, y_fit, sigma, opts.start, mapper, size, log)
     method = opts.method
