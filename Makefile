@@ -8,9 +8,10 @@ PY      = $(VENV)/bin/python
 STAMP   = $(VENV)/.homofac-installed
 # Debian packages the tests need: the headless OpenGL preview (EGL through Mesa llvmpipe); the shader
 # compilers (glslangValidator, spirv-val, spirv-cross; clang++ for the MSL check); lavapipe (Vulkan on the
-# CPU) for wgpu's WGSL check; headless Chromium and its WebDriver for the WebGL2 viewer test.
+# CPU) for wgpu's WGSL check; headless Chromium and its WebDriver for the WebGL2 viewer test; node
+# (node --check of the three.js recipe).
 SYSTEM_PACKAGES = libegl1 libgl1 libgles2 glslang-tools spirv-tools spirv-cross clang mesa-vulkan-drivers \
-	chromium chromium-driver
+	chromium chromium-driver nodejs
 PYTEST_ARGS ?=
 
 .PHONY: run test test-slow test-all docs install system-packages benchmark clean
