@@ -676,6 +676,11 @@ def cli_preview() -> str:
     return fenced("$ python -m homofac.preview --help\n" + _help(cli.preview_parser()), "text")
 
 
+def cli_view() -> str:
+    """``python -m homofac.view --help``."""
+    return fenced("$ python -m homofac.view --help\n" + _help(cli.view_parser()), "text")
+
+
 def version() -> str:
     return homofac.__version__
 
@@ -951,6 +956,7 @@ GENERATORS: dict[str, Callable[..., str]] = {
     "default_config": default_config,
     "cli_fit": cli_fit,
     "cli_preview": cli_preview,
+    "cli_view": cli_view,
     "version": version,
     "example_config": example_config,
     "example_json": example_json,

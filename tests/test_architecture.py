@@ -162,7 +162,11 @@ def test_language_records_are_complete(name):
 
 def test_the_config_takes_exactly_the_registered_names():
     """The config's allowed values derive from the registries: every registered name is accepted."""
-    for name in mappers.MAPPERS:
-        assert validate(SamplingOptions, {"mapper": name}, "sampling").mapper == name
+    for name, m in mappers.MAPPERS.items():
+        if m.scalar:  # the 1D line mapper holds scalar factors: never a sampling grid of directions
+            with pytest.raises(Exception, match="sampling.mapper"):
+                validate(SamplingOptions, {"mapper": name}, "sampling")
+        else:
+            assert validate(SamplingOptions, {"mapper": name}, "sampling").mapper == name
     with pytest.raises(Exception, match="mapper"):
         validate(SamplingOptions, {"mapper": "nope"}, "sampling")

@@ -138,7 +138,9 @@ def test_hardware_filtered_lookup_equals_mappers_lookup(name):
         a = np.where(np.sum(a * b, axis=1, keepdims=True) < 0, -a, a) if fac.kind == "lighting" else a
     gpu = hf.gl.evaluate(fac, a, b)
     cpu = np.asarray(fac.evaluate(a, b))
-    np.testing.assert_allclose(gpu, cpu, atol=2e-6)
+    # float32 texel coordinates differ by ~1e-7 relative between the GPU and XLA; over a texel whose
+    # values change by O(1) that is ~1e-6 in value (measured up to 2.2e-6); a wrong lookup is O(0.1)
+    np.testing.assert_allclose(gpu, cpu, atol=1e-5)
 
 
 # --------------------------------------------------------------------------------------------------

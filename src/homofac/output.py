@@ -563,7 +563,8 @@ def load(out_dir, textures: str = "exr", *, max_bytes: int = 1 << 28) -> Result:
     quantity = doc.target.get("quantity", "lighting" if doc.kind == "lighting" else "brdf")
     context = {}
     for k, v in (doc.context or {}).items():
-        a = np.asarray(v, np.float32) if isinstance(v, list) else None
+        numeric = isinstance(v, list) and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)
+        a = np.asarray(v, np.float32) if numeric else None
         if a is None or a.shape != (3,) or not np.all(np.isfinite(a)):
             raise HomofacError(f"{d / JSON_NAME}: context.{k} must be 3 finite numbers")
         context[k] = a

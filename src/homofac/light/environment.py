@@ -1,7 +1,7 @@
 """The environment type: a list of lights for the lighting computation, and what derives from it.
 
 An :class:`Environment` is the light list of the pinned lighting computation (docs/conventions.md,
-thesis eq. 10): unit directions ``l_k``, RGB radiance ``L_k`` and the exact solid angle ``dw_k`` of each
+Latta & Kolb 2002 eq. 10): unit directions ``l_k``, RGB radiance ``L_k`` and the exact solid angle ``dw_k`` of each
 light, so that ``radiance * solid_angle`` is the power term of ``L(v, n) = sum_k f L_k max(n.l_k, 0) dw_k``.
 The lights are the texels of a cube map of face size ``resolution`` (``6 r^2`` lights, pinned cube
 layout of :mod:`homofac.param.mappers`: texel ``k`` is the row-major index into the ``(r, 6r)``

@@ -1,7 +1,7 @@
 """The lighting computation L(v, n) of an isotropic BRDF under an environment (pinned, physical).
 
 docs/conventions.md, thesis eq. 61 / Latta-Kolb eq. 6, discretised over the light texels k with their exact
-solid angles (thesis eq. 10, not the eq. 11 approximation):
+solid angles (Latta & Kolb 2002 eq. 10, not the eq. 11 approximation):
 
     L(v, n) = sum_k f(w(l_k), w(v)) L_i(l_k) w_k(n),    w_k(n) = integral over texel k of max(n . l, 0) dl
 
@@ -322,12 +322,13 @@ def irradiance(env: Environment, n: Float[Array, "N 3"]) -> Float[Array, "N 3"]:
     return Lighting(None, env)._weights(n) @ env.radiance.astype(n.dtype)
 
 
-def lighting(brdf, env: Environment, n, v, *, clamp: float | None = None) -> Float[Array, "N 3"]:
-    """Exact L(v, n) at arbitrary arrays of normals and views (the ground truth of every metric)."""
+def lighting(brdf, env: Environment, n, v, *, clamp: float | None = None, horizon: str = "centroid") -> Float[Array, "N 3"]:
+    """Exact L(v, n) at arbitrary arrays of normals and views (the ground truth of every metric);
+    ``horizon``: where f is evaluated for texels straddling n's horizon (see :class:`Lighting`)."""
     n = jnp.asarray(n)
     v = jnp.asarray(v, n.dtype)
     shape = n.shape
-    out = evaluate(Lighting(brdf, env, clamp), n.reshape(-1, 3), v.reshape(-1, 3))
+    out = evaluate(Lighting(brdf, env, clamp, horizon=horizon), n.reshape(-1, 3), v.reshape(-1, 3))
     return out.reshape(shape)
 
 
