@@ -61,7 +61,6 @@ METHODS = {
     "NRW": {"parametrization": "NRW"},
     "E+NRW": {"parametrization": "NR", "diffuse": "exact", "nv_factor": True, "sampling": GRID},
     "E'+NRW": {"parametrization": "NR", "diffuse": "fitted", "nv_factor": True, "sampling": GRID},
-    "E+NR x2": {"parametrization": "NR", "terms": 2, "diffuse": "exact", "sampling": GRID},
     "E'+NRW x2+R": {"parametrization": "NR", "terms": 2, "diffuse": "fitted", "nv_factor": True, "reflection": True,
                     "sampling": GRID},
     "E'+SS+NRW+R": {"parametrization": "NR", "diffuse": "fitted", "nv_factor": True, "prefiltered": True,

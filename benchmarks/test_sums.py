@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 import homofac as hf
+from scenes import machine
 from homofac.fit import sums
 from homofac.fit.options import LinearOptions
 from homofac.fit.samples import Samples
@@ -31,8 +32,9 @@ CASES = {
     "E+NRW x5 (16)": (Structure("NR", 5, "exact", True), {}),
     "E+NRW x1 LM optimistix": (Structure("NR", 1, "exact", True), {"method": "levenberg_marquardt", "iterations": 20}),
     "E+NRW x1 GN optimistix": (Structure("NR", 1, "exact", True), {"method": "gauss_newton", "iterations": 20}),
-    "E+NRW x1 GN jaxopt": (Structure("NR", 1, "exact", True),
-                           {"method": "gauss_newton", "iterations": 20, "backend": "jaxopt"}),
+    "E+NRW x1 GN optimistix (5k)": (Structure("NR", 1, "exact", True), {"method": "gauss_newton", "iterations": 20}),
+    "E+NRW x1 GN jaxopt (5k)": (Structure("NR", 1, "exact", True),
+                                {"method": "gauss_newton", "iterations": 20, "backend": "jaxopt"}),
     "E+NRW x1 LM optimistix (5k)": (Structure("NR", 1, "exact", True),
                                     {"method": "levenberg_marquardt", "iterations": 20}),
     "E+NRW x1 LM jaxopt (5k)": (Structure("NR", 1, "exact", True),
@@ -73,7 +75,8 @@ def test_sum_fit(benchmark, case):
     record = {"kind": "sums", "case": case, "structure": structure.label(), "lookups": fit.model.lookups,
               "method": fit.solver["method"], "backend": fit.solver["backend"], "iterations": fit.solver["iterations"],
               "samples": int(len(s.a)), "sample_s": sample_s, "fit_first_s": times[0], "fit_s": times[1],
-              "solve_s": fit.solve_s, "val_nrmse": nrmse, "objective": fit.solver["objective"]}
+              "solve_s": fit.solve_s, "val_nrmse": nrmse, "objective": fit.solver["objective"],
+              "machine": machine()}
     benchmark.pedantic(lambda: None, rounds=1, iterations=1)
     benchmark.extra_info.update(record)
     assert np.isfinite(nrmse)
