@@ -7,16 +7,20 @@ pairs), :mod:`.draw` (samples, cached), :mod:`.system` (eq. 30-37), :mod:`.start
 :mod:`.precision` (8-bit), :mod:`.metrics`, :mod:`.auto` (target_error), :mod:`.differentiable`;
 sums of products in linear space: :mod:`.structures` (terms, diffuse, nv_factor), :mod:`.sums` (the fit
 and the choice within ``max_lookups``), :mod:`.als` (grid ALS), :mod:`.refine` (Levenberg-Marquardt).
+Solve once, reuse: :func:`refit` (:mod:`.refit`; a new environment or material on a fit's layout, what
+it reuses in :mod:`.state`, the light transport in :mod:`.transport`).
 """
 
 from __future__ import annotations
 
 from ..target import Target, brdf_target, evaluate
-from . import als, metrics, precision, refine, sampling, solvers, structures, sums, system
+from . import als, metrics, precision, refine, sampling, solvers, structures, sums, system, transport
 from .draw import draw_samples
 from .metrics import measure
 from .options import FitOptions, LinearOptions, SamplingOptions
 from .pipeline import factorize
+from .refit import prepare as prepare_refit
+from .refit import refit
 from .result import Result
 from .samples import Samples, evaluate_grouped
 from .solvers import SolveResult, SolverOptions, solve
@@ -25,5 +29,5 @@ from .structures import Structure
 __all__ = [
     "FitOptions", "LinearOptions", "Result", "SamplingOptions", "Structure", "als", "refine", "structures", "sums", "Samples", "SolveResult", "SolverOptions", "Target", "brdf_target",
     "draw_samples", "evaluate", "evaluate_grouped", "factorize", "measure", "metrics", "precision", "sampling",
-    "solve", "solvers", "system",
+    "prepare_refit", "refit", "solve", "solvers", "system", "transport",
 ]

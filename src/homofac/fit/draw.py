@@ -48,32 +48,37 @@ def draw_samples(target: Target, parametrization: str, options: SamplingOptions 
     return samples
 
 
-def _draw(target: Target, parametrization: str, s: SamplingOptions, log: Callable) -> Samples:
-    smapper = s.mapper or default_mapper(target.kind)
-    if target.kind == "lighting":
+def draw_pairs(kind: str, parametrization: str, s: SamplingOptions, mapper: str | None = None):
+    """The direction pairs of a sampling, without values: ``(train, validation, groups, val_groups)``
+    (:class:`~homofac.fit.sampling.Pairs`; for lighting targets also the pairs grouped by normal, whose
+    flattening they are). Deterministic: the same settings give the same pairs (refits rely on it)."""
+    smapper = s.mapper or mapper or default_mapper(kind)
+    if kind == "lighting":
         # grouped by normal: per-normal work (weights, frames, diffuse, horizon culling) done once
         groups = sampling.grouped_pairs(s.kind, s.size, mapper=smapper, count=s.count, seed=s.seed,
                                         view_size=s.view_size)
-        pairs = groups.flatten()
-        if len(pairs) == 0:
-            raise HomofacError("sampling produced no valid direction pairs; increase sampling.size")
-        log(f"sampling {len(pairs)} training pairs ({len(groups.normals)} normals)")
-        y = np.asarray(evaluate_grouped(target, groups))
         vgroups = sampling.grouped_random(s.validation, s.seed + 1)
-        val = vgroups.flatten()
-        val_y = np.asarray(evaluate_grouped(target, vgroups)) if len(val) else np.zeros((0, 3), np.float32)
-        return Samples(pairs.a, pairs.b, y, val.a, val.b, val_y)
+        return groups.flatten(), vgroups.flatten(), groups, vgroups
     pairs = sampling.sample_pairs(
-        target.kind, s.kind, s.size, mapper=smapper, parametrization=parametrization,
+        kind, s.kind, s.size, mapper=smapper, parametrization=parametrization,
         count=s.count, seed=s.seed, view_size=s.view_size,
     )
+    return pairs, sampling.random_pairs(kind, s.validation, s.seed + 1), None, None
+
+
+def _draw(target: Target, parametrization: str, s: SamplingOptions, log: Callable) -> Samples:
+    pairs, val, groups, vgroups = draw_pairs(target.kind, parametrization, s)
     if len(pairs) == 0:
         raise HomofacError("sampling produced no valid direction pairs; increase sampling.size")
+    if groups is not None:
+        log(f"sampling {len(pairs)} training pairs ({len(groups.normals)} normals)")
+        y = np.asarray(evaluate_grouped(target, groups))
+        val_y = np.asarray(evaluate_grouped(target, vgroups)) if len(val) else np.zeros((0, 3), np.float32)
+        return Samples(pairs.a, pairs.b, y, val.a, val.b, val_y)
     log(f"sampling {len(pairs)} training pairs")
     y = np.asarray(evaluate(target, pairs.a, pairs.b))
-    val = sampling.random_pairs(target.kind, s.validation, s.seed + 1)
     val_y = np.asarray(evaluate(target, val.a, val.b)) if len(val) else np.zeros((0, 3), np.float32)
     return Samples(pairs.a, pairs.b, y, val.a, val.b, val_y)
 
 
-__all__ = ["default_mapper", "draw_samples"]
+__all__ = ["default_mapper", "draw_pairs", "draw_samples"]

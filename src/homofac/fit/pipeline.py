@@ -22,10 +22,11 @@ from ..target import Target
 from . import auto, structures, sums
 from .draw import default_mapper, draw_samples
 from .metrics import measure
-from .options import FitOptions, LinearOptions, SamplingOptions
+from .options import AnalysisOptions, FitOptions, LinearOptions, SamplingOptions
 from .product import fit_product
 from .result import Result
 from .samples import Samples, check_values
+from .state import from_fit
 from .structures import Structure
 
 
@@ -165,11 +166,13 @@ def factorize(
         result = result.replace(timings={"sample_s": sample_s, **result.timings})
     else:
         result = fit(target, opts.parametrization, opts.texture_size)
-    if opts.analysis is not None:
+    if opts.analysis is not None and result.analysis is None:
         a = opts.analysis
         log(f"in-out analysis ({a.pair}) on {a.mapper} {a.size}")
         result = result.replace(analysis=baselines.analyse(target, a.pair, a.mapper, a.size).record())
-    return result.replace(timings={**result.timings, "total_s": time.perf_counter() - t_start}, target=target)
+    state = from_fit(opts, target.kind, samples, result, mapper)  # what hf.fit.refit reuses (fit/refit.py)
+    return result.replace(timings={**result.timings, "total_s": time.perf_counter() - t_start}, target=target,
+                          state=state)
 
 
 def resolve_sampling(opts: FitOptions, kind: str, mapper: str) -> SamplingOptions:
@@ -213,7 +216,15 @@ def _sums(target: Target, opts: FitOptions, mapper: str, samples: Samples, recor
     cands = pick(target.kind, budget, parametrization=opts.parametrization, has_diffuse=has_d)
     if opts.diffuse is not None:  # a diffuse term asked for explicitly constrains the search
         cands = [c for c in cands if c.diffuse == opts.diffuse] or cands
-    return sums.choose(fit, cands, target_error=opts.target_error, max_lookups=budget, log=log)
+    analysis = None
+    if target.kind == "lighting":
+        # Mahajan et al. 2008: the rank-K error of the gridded target bounds what K products p(n) q(r)
+        # can reach; the products with w(n.v) need fewer. Recorded beside the choice (and printed).
+        a = opts.analysis or AnalysisOptions()
+        log(f"in-out analysis ({a.pair}) on {a.mapper} {a.size}")
+        analysis = baselines.analyse(target, a.pair, a.mapper, a.size).record()
+    result = sums.choose(fit, cands, target_error=opts.target_error, max_lookups=budget, log=log)
+    return result if analysis is None else result.replace(analysis=analysis)
 
 
 def _baseline(target: Target, opts: FitOptions, mapper: str, samples: Samples, record: dict, log) -> Result:

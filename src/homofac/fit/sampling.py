@@ -274,3 +274,26 @@ def grouped_grid(mapper: str, size: int, count: int, seed: int) -> Grouped:
     views[g_of, slot] = v
     mask[g_of, slot] = True
     return Grouped(n.astype(np.float32), views.astype(np.float32), mask)
+
+
+def regroup(a: np.ndarray, b: np.ndarray) -> Grouped:
+    """Flat lighting pairs (normal-major, as :meth:`Grouped.flatten` writes them) grouped again by normal:
+    each run of consecutive equal normals is one group, so ``regroup(*g.flatten())`` holds the pairs of
+    ``g`` in the same order (what a refit reuses of a run's samples, whatever produced them)."""
+    a = np.asarray(a, np.float32)
+    b = np.asarray(b, np.float32)
+    m = int(a.shape[0])
+    if m == 0:
+        return Grouped(np.zeros((0, 3), np.float32), np.zeros((0, 1, 3), np.float32), np.zeros((0, 1), bool))
+    start = np.concatenate([[True], np.any(a[1:] != a[:-1], axis=1)])
+    group = np.cumsum(start) - 1  # group index of every pair
+    first = np.nonzero(start)[0]
+    counts = np.diff(np.append(first, m))
+    slot = np.arange(m) - first[group]
+    g, p = len(first), int(counts.max())
+    normals = a[first]
+    views = np.broadcast_to(normals[:, None, :], (g, p, 3)).copy()  # padding: v = n (valid, never read)
+    mask = np.zeros((g, p), bool)
+    views[group, slot] = b
+    mask[group, slot] = True
+    return Grouped(normals, views, mask)

@@ -233,6 +233,30 @@ def start(target: Target, structure: Structure, terms, layouts, samples, y_fit, 
     return out, rule
 
 
+def warm_start(previous: Factorization, terms, layouts, sigma) -> dict:
+    """Starting texels (valid unknowns, sigma units) from a previous model of the same skeleton: each
+    fitted texture's texels, with its term's correction / sigma folded into one texture of the term
+    (one read once when there is one, else spread over the reads), so the start reproduces ``previous``."""
+    prev = list(previous.terms)
+    if len(prev) != len(terms) or any(tuple((f.projection, f.texture) for f in pt.factors) != t.factors
+                                      for pt, t in zip(prev, terms)):
+        raise HomofacError("refit: the previous model's terms are not those of this structure")
+    out = {}
+    for pt, term in zip(prev, terms):
+        if not term.fitted:
+            continue
+        names = [tex for _, tex in term.factors]
+        once = [n for n in dict.fromkeys(names) if names.count(n) == 1]
+        scaled = once[0] if once else names[0]
+        c = np.asarray(pt.correction, np.float64) / sigma
+        for name in dict.fromkeys(names):
+            lay = layouts[name]
+            x = np.asarray(previous.texture(name).data, np.float64).reshape(-1, 3)[lay.texel_of_unknown]
+            k = names.count(name)
+            out[name] = x * (np.sign(c) * np.abs(c) ** (1.0 / k) if name == scaled else 1.0)
+    return out
+
+
 def _is_diffuse(term: TermSpec) -> bool:
     return len(term.factors) == 1 and term.factors[0] == ("n", "E")
 
@@ -252,8 +276,13 @@ def _split_sum_possible(target, structure) -> bool:
 
 
 def fit_sum(target: Target, structure: Structure, mapper: str, size: int, samples: Samples,
-            options: LinearOptions | None = None, log: Callable[[str], None] | None = None) -> SumFit:
-    """Fit ``structure`` to the training samples in linear space (see the module docstring)."""
+            options: LinearOptions | None = None, log: Callable[[str], None] | None = None,
+            previous: Factorization | None = None) -> SumFit:
+    """Fit ``structure`` to the training samples in linear space (see the module docstring).
+
+    ``previous``: a model of the same structure (a refit, :mod:`homofac.fit.refit`): the fitted textures
+    start from its texels (:func:`warm_start`) instead of step 2's start.
+    """
     log = log or (lambda msg: None)
     opts = options or LinearOptions()
     t0 = time.perf_counter()
@@ -274,7 +303,10 @@ def fit_sum(target: Target, structure: Structure, mapper: str, size: int, sample
     sigma = np.where(sigma > 0, sigma, 1.0)
     fitted_specs = [s for s in specs if s.role not in FIXED_ROLES]
     layouts = {s.name: texture_layout(s.name, s.mapper, s.size) for s in fitted_specs}
-    x0, rule = start(target, structure, terms, layouts, samples, y_fit, sigma, opts.start, mapper, size, log)
+    if previous is not None:
+        x0, rule = warm_start(previous, terms, layouts, sigma), "previous"
+    else:
+        x0, rule = start(target, structure, terms, layouts, samples, y_fit, sigma, opts.start, mapper, size, log)
     method = opts.method
     grid = _grid_indices(target, structure, specs, layouts, a, b) if method in ("auto", "als") else None
     if method == "als" and grid is None:
@@ -484,4 +516,4 @@ def _selected(res, tried, reason, target_error, max_lookups, met, analysis):
     })
 
 
-__all__ = ["SumFit", "choose", "diffuse_albedo", "fit_sum", "has_diffuse", "start"]
+__all__ = ["SumFit", "choose", "diffuse_albedo", "fit_sum", "has_diffuse", "start", "warm_start"]

@@ -2,7 +2,7 @@
 
 * :mod:`.environment`: the :class:`Environment` type (lights with exact solid angles);
 * :mod:`.sources` (files, bundled maps), :mod:`.resample` (lat-long and cube images), :mod:`.synthetic`
-  (analytic skies), :mod:`.lights` (extra lights, culling), built on :mod:`.latlong`, :mod:`.cubemap`,
+  (analytic skies), :mod:`.sky` (the Preetham daylight sky and a moving sun), :mod:`.lights` (extra lights, culling), built on :mod:`.latlong`, :mod:`.cubemap`,
   :mod:`.clean` (checks, bad pixels, boost) and :mod:`.geometry` (exact clamped-cosine texel weights);
 * :mod:`.lighting`: L(v, n) of a BRDF under an environment, the target of a lighting factorization.
 """
@@ -17,10 +17,11 @@ from .options import BoostOptions, EnvironmentOptions, LightOptions
 from .resample import from_cube, from_latlong
 from .sources import BUNDLED, bundled, environment_from_options, load_environment
 from .synthetic import gradient_sky, painted_lights, sun_sky, uniform
+from .sky import preetham_sky, sun_direction, time_of_day
 
 __all__ = [
     "BUNDLED", "BoostOptions", "FACE_NAMES", "Environment", "EnvironmentOptions", "LightOptions", "Lighting", "bundled",
     "cull_lights", "dominant_direction", "environment_from_options", "from_cube", "from_latlong", "gradient_sky",
-    "irradiance", "lighting", "lighting_target", "load_environment", "luminance", "painted_lights", "sun_sky",
-    "to_cube_image", "total_power", "uniform", "with_lights",
+    "irradiance", "lighting", "lighting_target", "load_environment", "luminance", "painted_lights", "preetham_sky",
+    "sun_direction", "sun_sky", "time_of_day", "to_cube_image", "total_power", "uniform", "with_lights",
 ]
