@@ -8,7 +8,7 @@ pairs), :mod:`.draw` (samples, cached), :mod:`.system` (eq. 30-37), :mod:`.start
 sums of products in linear space: :mod:`.structures` (terms, diffuse, nv_factor), :mod:`.sums` (the fit
 and the choice within ``max_lookups``), :mod:`.als` (grid ALS), :mod:`.refine` (Levenberg-Marquardt).
 Solve once, reuse: :func:`refit` (:mod:`.refit`; a new environment or material on a fit's layout, what
-it reuses in :mod:`.state`, the light transport in :mod:`.transport`).
+it reuses in :mod:`.state`, the light transport in :mod:`.transport`), :func:`factorize_many` (:mod:`.many`: one layout, many targets).
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from .draw import draw_samples
 from .metrics import measure
 from .options import FitOptions, LinearOptions, SamplingOptions
 from .pipeline import factorize
+from .many import factorize_many
 from .refit import prepare as prepare_refit
 from .refit import refit
 from .result import Result
@@ -28,6 +29,6 @@ from .structures import Structure
 
 __all__ = [
     "FitOptions", "LinearOptions", "Result", "SamplingOptions", "Structure", "als", "refine", "structures", "sums", "Samples", "SolveResult", "SolverOptions", "Target", "brdf_target",
-    "draw_samples", "evaluate", "evaluate_grouped", "factorize", "measure", "metrics", "precision", "sampling",
+    "draw_samples", "evaluate", "evaluate_grouped", "factorize", "factorize_many", "measure", "metrics", "precision", "sampling",
     "prepare_refit", "refit", "solve", "solvers", "system", "transport",
 ]

@@ -48,11 +48,11 @@ def draw_samples(target: Target, parametrization: str, options: SamplingOptions 
     return samples
 
 
-def draw_pairs(kind: str, parametrization: str, s: SamplingOptions, mapper: str | None = None):
+def draw_pairs(kind: str, parametrization: str, s: SamplingOptions):
     """The direction pairs of a sampling, without values: ``(train, validation, groups, val_groups)``
     (:class:`~homofac.fit.sampling.Pairs`; for lighting targets also the pairs grouped by normal, whose
     flattening they are). Deterministic: the same settings give the same pairs (refits rely on it)."""
-    smapper = s.mapper or mapper or default_mapper(kind)
+    smapper = s.mapper or default_mapper(kind)
     if kind == "lighting":
         # grouped by normal: per-normal work (weights, frames, diffuse, horizon culling) done once
         groups = sampling.grouped_pairs(s.kind, s.size, mapper=smapper, count=s.count, seed=s.seed,

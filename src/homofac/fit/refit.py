@@ -175,7 +175,7 @@ def values(state: RefitState, target: Target, *, previous: Target | None = None,
 # products: the fixed system, its factored normal equations
 
 
-def _layout(state: RefitState) -> tuple[pz.Parametrization, Layout]:
+def layout_of(state: RefitState) -> tuple[pz.Parametrization, Layout]:
     p = pz.get(state.parametrization, state.kind)
     return p, parametrization_layout(p, state.mapper, state.texture_size)
 
@@ -183,7 +183,7 @@ def _layout(state: RefitState) -> tuple[pz.Parametrization, Layout]:
 def system_rows(state: RefitState, target: Target) -> System:
     """The ELL rows of eq. 37 at the state's training directions (built once, kept in the state)."""
     if "system" not in state.cache:
-        p, layout = _layout(state)
+        p, layout = layout_of(state)
         ones = np.ones((len(state.train), 3), np.float32)
         sys, _ = build_system(p, layout, state.train.a, state.train.b, ones, eps=1e-5, context=target.context)
         state.cache["system"] = sys
@@ -196,6 +196,13 @@ def data_matrix(sys: System, n: int) -> sp.csr_matrix:
     m, k = cols.shape
     return sp.csr_matrix((np.asarray(sys.w, np.float64).ravel(), (np.repeat(np.arange(m), k), cols.ravel())),
                          shape=(m, n))
+
+
+def laplacian_matrix(sys: System, lam: float, n: int) -> sp.csr_matrix:
+    """The lambda-weighted Laplacian rows of eq. 37 as a scipy CSR matrix (float64)."""
+    lc, lw = np.asarray(sys.lap_cols), np.asarray(sys.lap_w, np.float64) * lam
+    return sp.csr_matrix((lw.ravel(), (np.repeat(np.arange(lc.shape[0]), lc.shape[1]), lc.ravel())),
+                         shape=(lc.shape[0], n))
 
 
 def gauge_basis(layout: Layout, p: pz.Parametrization) -> np.ndarray:
@@ -212,23 +219,24 @@ def gauge_basis(layout: Layout, p: pz.Parametrization) -> np.ndarray:
     return np.linalg.qr(d)[0] if d.shape[1] else d
 
 
-def normal_equations(state: RefitState, sys: System, lam: float, layout: Layout, p: pz.Parametrization):
+def normal_equations(state: RefitState, sys: System, lam: float, layout: Layout, p: pz.Parametrization,
+                     prefer: str = "inverse"):
     """The normal equations of eq. 37, ``A^T A + lambda^2 L^T L``, made definite by a penalty on the gauge
     directions (:func:`gauge_basis`; it picks the solution without gauge component and leaves the
-    model unchanged), inverted (float32, up to :data:`INVERSE_MAX_UNKNOWNS`) or Cholesky-factored
-    (float64) once and kept in the state."""
-    key = ("normal", float(lam))
+    model unchanged), inverted (float32, up to :data:`INVERSE_MAX_UNKNOWNS`: one matrix-vector product
+    per refit) or Cholesky-factored (float64; ``prefer="cholesky"``: cheaper to build, best for many
+    right-hand sides at once) once and kept in the state."""
+    n = layout.n_unknowns
+    how = "inverse" if prefer == "inverse" and n <= INVERSE_MAX_UNKNOWNS else "cholesky"
+    key = ("normal", float(lam), how)
     if key not in state.cache:
-        n = layout.n_unknowns
         a_data = data_matrix(sys, n)
-        lc, lw = np.asarray(sys.lap_cols), np.asarray(sys.lap_w, np.float64) * lam
-        lap = sp.csr_matrix((lw.ravel(), (np.repeat(np.arange(lc.shape[0]), lc.shape[1]), lc.ravel())),
-                            shape=(lc.shape[0], n))
+        lap = laplacian_matrix(sys, lam, n)
         ata = (a_data.T @ a_data + lap.T @ lap).toarray()
         g = gauge_basis(layout, p)
         ata += max(float(np.mean(np.diag(ata))), 1e-30) * (g @ g.T)
         ata[np.diag_indices_from(ata)] += 1e-12 * max(float(np.mean(np.diag(ata))), 1e-30)
-        if n <= INVERSE_MAX_UNKNOWNS:
+        if how == "inverse":
             c, info = sla.lapack.dpotrf(ata, lower=True)
             inv, info2 = sla.lapack.dpotri(c, lower=True) if info == 0 else (None, info)
             if info2 != 0:
@@ -264,7 +272,7 @@ def log_start(model: Factorization, layout: Layout, p: pz.Parametrization, alpha
     return np.concatenate(out, axis=0)
 
 
-def _product_model(target: Target, p: pz.Parametrization, layout: Layout, x, alpha) -> Factorization:
+def product_model(target: Target, p: pz.Parametrization, layout: Layout, x, alpha) -> Factorization:
     textures = precision.exponentiate(unpack(jnp.asarray(x, jnp.float32), layout), jnp.asarray(alpha), p.J)
     main = next((t for t in layout.textures if not mappers.get(t.mapper).scalar), layout.textures[0])
     line = next((t.size for t in layout.textures if mappers.get(t.mapper).scalar), None)
@@ -276,7 +284,7 @@ def _product_model(target: Target, p: pz.Parametrization, layout: Layout, x, alp
 
 def refit_product(state: RefitState, fac: Result, target: Target, y: np.ndarray, log) -> tuple[Factorization, dict, float]:
     """The log-space product of the state's layout for values ``y`` (see the module doc, 2.)."""
-    p, layout = _layout(state)
+    p, layout = layout_of(state)
     opts = state.options.solver
     sys = system_rows(state, target)
     n = layout.n_unknowns
@@ -318,7 +326,7 @@ def refit_product(state: RefitState, fac: Result, target: Target, y: np.ndarray,
               "method": method, "iterations": int(iterations), "converged": bool(converged), "refit": True,
               "objective": obj, "residual": float(np.sqrt(obj / bnorm2)) if bnorm2 > 0 else float(np.sqrt(obj)),
               "ignored_samples": int(np.size(keep) - np.count_nonzero(keep))}
-    return _product_model(target, p, layout, x, alpha), record, solve_s
+    return product_model(target, p, layout, x, alpha), record, solve_s
 
 
 def _log_rhs(y, keep, eps):
@@ -334,7 +342,7 @@ def _log_rhs(y, keep, eps):
 
 def refit(fac: Result, environment: Environment | None = None, brdf: BRDF | None = None, *,
           target: Target | None = None, transport: bool | None = None, linear: dict | None = None,
-          start: str = "previous",
+          start: str = "previous", samples=None,
           config: dict | None = None, target_info: dict | None = None, keep_samples: bool | None = None,
           log: Callable[[str], None] | None = None) -> Result:
     """The factorization of a new environment and / or BRDF on ``fac``'s layout, with its metrics.
@@ -355,6 +363,8 @@ def refit(fac: Result, environment: Environment | None = None, brdf: BRDF | None
             a full run (often a lower training objective; docs/refit.md).
         config, target_info: what to record in the result (default: the previous ones).
         keep_samples: keep the new samples on the result (default: when ``fac`` kept them).
+        samples: the new target's values at the state's directions, computed already
+            (:class:`~homofac.fit.samples.Samples`; :func:`homofac.fit.many.factorize_many` shares them).
         log: progress callback.
 
     Returns a new :class:`Result` (model, metrics, solver record, timings ``sample_s``, ``solve_s``,
@@ -371,9 +381,13 @@ def refit(fac: Result, environment: Environment | None = None, brdf: BRDF | None
         raise HomofacError(f"refit: start must be previous or fresh, got {start!r}")
     opts = state.options
     t0 = time.perf_counter()
-    y, val_y = values(state, tgt, previous=fac.target, use_transport=transport, log=log)
+    if samples is None:
+        y, val_y = values(state, tgt, previous=fac.target, use_transport=transport, log=log)
+        samples = state.samples(y, val_y)
+    elif len(samples.a) != len(state.train) or len(samples.val_a) != len(state.validation):
+        raise HomofacError("refit: samples= must hold values at the state's training and validation directions")
+    y, val_y = np.asarray(samples.y), np.asarray(samples.val_y)
     check_values(y, "training")
-    samples = state.samples(y, val_y)
     sample_s = time.perf_counter() - t0
     log(f"refitting {state.mode} {state.parametrization} on {len(y)} training pairs")
     if state.mode == "product":
@@ -395,7 +409,7 @@ def refit(fac: Result, environment: Environment | None = None, brdf: BRDF | None
                     target_info=fac.target_info if target_info is None else target_info, encoding=fac.encoding,
                     state=state, target=tgt,
                     samples=samples if (fac.samples is not None if keep_samples is None else keep_samples) else None)
-    mets = _measure(state, result, tgt, samples, eps=float(opts.solver.epsilon))
+    mets = measure_on(state, result, tgt, samples, eps=float(opts.solver.epsilon))
     if state.scene is not None:
         mets = {**mets, "scene": state.scene.metrics(result, tgt)}
     measure_s = time.perf_counter() - t1
@@ -408,7 +422,7 @@ def refit(fac: Result, environment: Environment | None = None, brdf: BRDF | None
     )
 
 
-def _measure(state: RefitState, result: Result, target: Target, samples, eps: float) -> dict:
+def measure_on(state: RefitState, result: Result, target: Target, samples, eps: float) -> dict:
     """The pinned metrics (:func:`homofac.fit.metrics.measure`) from footprints kept in the state."""
     keys = footprints.lookup_keys(result.model)
     key = ("footprints", keys, tuple(sorted((k, np.asarray(v).tobytes()) for k, v in result.model.context.items())))
@@ -435,6 +449,6 @@ def prepare(fac: Result, options: FitOptions | dict | None = None) -> Result:
     return fac.replace(state=state)
 
 
-__all__ = ["CHOLESKY_MAX_UNKNOWNS", "INVERSE_MAX_UNKNOWNS", "TRANSPORT_BYTES", "data_matrix", "gauge_basis", "log_start",
-           "new_target", "normal_equations",
+__all__ = ["CHOLESKY_MAX_UNKNOWNS", "INVERSE_MAX_UNKNOWNS", "TRANSPORT_BYTES", "data_matrix", "gauge_basis", "laplacian_matrix", "layout_of", "log_start",
+           "measure_on", "new_target", "normal_equations", "product_model",
            "prepare", "refit", "refit_product", "system_rows", "values"]

@@ -92,6 +92,21 @@ def from_fit(opts: FitOptions, kind: str, samples: Samples, result, mapper: str,
     return RefitState(opts, kind, mode, name, mapper, size, train, val, groups, val_groups, structure, scene)
 
 
+def from_layout(opts: FitOptions, kind: str, samples: Samples, mapper: str) -> RefitState:
+    """The state of the layout ``opts`` describes (no fit yet: products, sums and baselines of fixed
+    structure), on the directions of ``samples``."""
+    mode = _mode(opts)
+    structure = (Structure(opts.parametrization, opts.terms, opts.diffuse, opts.nv_factor, opts.reflection,
+                           opts.prefiltered) if mode == "sum" else None)
+    train = sampling.Pairs(np.asarray(samples.a, np.float32), np.asarray(samples.b, np.float32))
+    val = sampling.Pairs(np.asarray(samples.val_a, np.float32), np.asarray(samples.val_b, np.float32))
+    groups = val_groups = None
+    if kind == "lighting":
+        groups, val_groups = sampling.regroup(train.a, train.b), sampling.regroup(val.a, val.b)
+    return RefitState(opts, kind, mode, opts.parametrization, mapper, int(opts.texture_size), train, val, groups,
+                      val_groups, structure)
+
+
 def from_options(opts: FitOptions, kind: str, result, mapper: str, sampling_options: SamplingOptions) -> RefitState:
     """The state of a result read back from disk: its directions drawn again from ``sampling_options``
     (the resolved sampling of the recorded config) and its layout from the model."""
@@ -103,7 +118,7 @@ def from_options(opts: FitOptions, kind: str, result, mapper: str, sampling_opti
         raise HomofacError(f"refit: the saved model {result.model.name!r} is not a parametrization")
     name = structure.parametrization if structure is not None else (
         opts.parametrization if mode == "baseline" else result.model.name)
-    train, val, groups, vgroups = draw_pairs(kind, name, sampling_options, mapper)
+    train, val, groups, vgroups = draw_pairs(kind, name, sampling_options)
     if len(train) == 0:
         raise HomofacError("refit: the recorded sampling produces no training pairs")
     if groups is not None:  # the pairs exactly as the fit had them (normal-major)
@@ -112,4 +127,4 @@ def from_options(opts: FitOptions, kind: str, result, mapper: str, sampling_opti
                       structure)
 
 
-__all__ = ["RefitState", "from_fit", "from_options"]
+__all__ = ["RefitState", "from_fit", "from_layout", "from_options"]

@@ -1,0 +1,237 @@
+"""Material libraries: one layout, many right-hand sides (issue 15).
+
+:func:`factorize_many` factors a list of targets (materials under one environment, or one material
+under several environments) on one layout: the same sample directions, the same system matrix.
+
+1. The directions are drawn once (:func:`homofac.fit.draw.draw_pairs`). The values of lighting targets
+   of a BRDF in lobe form that share an environment come from one evaluation: the per-lobe sums of
+   :func:`homofac.fit.transport.lobe_sums` are computed once per distinct lobe *shape* (roughness,
+   exponent), vmapped over the shapes so the geometry of every normal is shared, and each material is
+   a linear combination of them with its colours (kd, ks, F0). Other targets are sampled one by one.
+2. Products: the system rows (thesis eq. 37) are built once and every target's right-hand side is
+   solved by the ``lsmr`` solver from its own §3.1.2 start, vmapped over the targets (one compiled
+   program; each result is what a full run of that target gives). Sums of products, baselines and fits that choose their structure or size
+   (``target_error``, ``max_lookups``) are fitted per target on the shared samples (after the first
+   target's choice, which fixes the layout of the others).
+3. The metrics are measured per target from shared footprints.
+
+Every result is a normal :class:`~homofac.fit.result.Result` with a state (refits work on each).
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import time
+from typing import Callable, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..errors import HomofacError
+from ..light import Lighting
+from ..target import Target, evaluate
+from ..param import parametrizations as pz
+from . import cache, transport
+from .draw import default_mapper, draw_pairs
+from .options import FitOptions
+from .pipeline import factorize, options, quality_warnings, resolve_sampling
+from .product import zeros_rule
+from .result import Result
+from .samples import Samples, check_values, evaluate_grouped
+from .refit import data_matrix, laplacian_matrix, layout_of, measure_on, product_model, refit, system_rows
+from .solvers.lsmr import _lsmr as lsmr_solve
+from .start import starting_solution
+from .state import from_layout
+
+#: Keywords of factorize that are not fit options (they describe one target's run).
+RUN_KEYWORDS = ("samples", "config", "target_info", "log", "keep_samples")
+
+
+def _environment_key(fn: Lighting) -> tuple:
+    h = hashlib.sha256(transport.geometry_key(fn.env).encode())
+    h.update(np.ascontiguousarray(np.asarray(fn.env.radiance, np.float32)).tobytes())
+    return (h.hexdigest(), fn.clamp, fn.horizon, fn.brdf.model)
+
+
+def library_values(targets: Sequence[Target], groups, val_groups, pairs, val_pairs,
+                   log: Callable[[str], None]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Every target's values at the shared training and validation pairs (see the module doc, 1.)."""
+    out: list = [None] * len(targets)
+    shared: dict = {}
+    for i, t in enumerate(targets):
+        if groups is not None and transport.supported(t.fn):
+            shared.setdefault(_environment_key(t.fn), []).append(i)
+    for members in shared.values():
+        shapes: dict = {}
+        for i in members:
+            shapes.setdefault(transport.shape_key(targets[i].fn.brdf), []).append(i)
+        first = [targets[idx[0]].fn.brdf for idx in shapes.values()]
+        fn0 = targets[members[0]].fn
+        log(f"sampling {len(members)} materials ({len(first)} lobe shapes) at {len(pairs)} training pairs")
+        parts = []
+        for g in (groups, val_groups):
+            if g.mask.any():
+                parts.append((g, transport.lobe_sums(first, fn0.env, g.normals, g.views, horizon=fn0.horizon)))
+            else:
+                parts.append((g, None))
+        for s, idx in enumerate(shapes.values()):
+            for i in idx:
+                fn = targets[i].fn
+                ys = [np.asarray(transport.combine(fn.brdf, sums, s, g.normals, g.views, fn.clamp))[g.mask]
+                      if sums is not None else np.zeros((0, 3), np.float32) for g, sums in parts]
+                out[i] = (ys[0], ys[1])
+    for i, t in enumerate(targets):
+        if out[i] is not None:
+            continue
+        log(f"sampling material {i + 1} of {len(targets)}")
+        if groups is not None:
+            y = np.asarray(evaluate_grouped(t, groups))
+            v = np.asarray(evaluate_grouped(t, val_groups)) if len(val_pairs) else np.zeros((0, 3), np.float32)
+        else:
+            y = np.asarray(evaluate(t, pairs.a, pairs.b))
+            v = np.asarray(evaluate(t, val_pairs.a, val_pairs.b)) if len(val_pairs) else np.zeros((0, 3), np.float32)
+        out[i] = (y, v)
+    return out
+
+
+def _samples(targets, parametrization, s, log) -> tuple[list[Samples], object]:
+    """The shared directions and every target's samples (from the sample cache where it has them)."""
+    kind = targets[0].kind
+    pairs, val, groups, vgroups = draw_pairs(kind, parametrization, s)
+    if len(pairs) == 0:
+        raise HomofacError("sampling produced no valid direction pairs; increase sampling.size")
+    settings = s.model_dump()
+    keys = [cache.key(t, settings, parametrization) if s.cache else None for t in targets]
+    hits = [cache.load(k, validation=s.validation) if k is not None else None for k in keys]
+    todo = [i for i, h in enumerate(hits) if h is None]
+    values = library_values([targets[i] for i in todo], groups, vgroups, pairs, val, log) if todo else []
+    out = list(hits)
+    for i, (y, v) in zip(todo, values):
+        smp = Samples(pairs.a, pairs.b, np.ascontiguousarray(y, np.float32), val.a, val.b,
+                      np.ascontiguousarray(v, np.float32))
+        out[i] = smp
+        if keys[i] is not None:
+            cache.store(keys[i], smp)
+    return out, groups
+
+
+def factorize_many(targets: Sequence[Target], parametrization: str = "NR", *, configs: Sequence[dict] | None = None,
+                   target_infos: Sequence[dict] | None = None, log: Callable[[str], None] | None = None,
+                   keep_samples: bool = False, **keywords) -> list[Result]:
+    """Factor every target on one layout (see the module docstring); one :class:`Result` per target.
+
+    ``keywords`` are those of :func:`homofac.fit.factorize` (``mapper``, ``texture_size``, ``sampling``,
+    ``solver``, ``terms``, ...), validated once; ``configs`` and ``target_infos`` are recorded per
+    result. All targets must be of one kind.
+    """
+    log = log or (lambda msg: None)
+    t_start = time.perf_counter()
+    targets = list(targets)
+    if not targets:
+        raise HomofacError("factorize_many needs at least one target")
+    bad = [i for i, t in enumerate(targets) if not isinstance(t, Target)]
+    if bad:
+        raise HomofacError(f"factorize_many: target {bad[0]} is a {type(targets[bad[0]]).__name__}, not a homofac Target")
+    kinds = {t.kind for t in targets}
+    if len(kinds) > 1:
+        raise HomofacError(f"factorize_many: all targets must be of one kind, got {', '.join(sorted(kinds))}")
+    for name in RUN_KEYWORDS:
+        if name in keywords:
+            raise HomofacError(f"factorize_many: {name} is per target; use configs=, target_infos=, log=, keep_samples=")
+    for what, seq in (("configs", configs), ("target_infos", target_infos)):
+        if seq is not None and len(seq) != len(targets):
+            raise HomofacError(f"factorize_many: {len(seq)} {what} for {len(targets)} targets")
+    opts = options(parametrization, **keywords)
+    kind = targets[0].kind
+    mapper = opts.mapper or default_mapper(kind)
+    t0 = time.perf_counter()
+    samples, _ = _samples(targets, opts.parametrization, resolve_sampling(opts, kind, mapper), log)
+    sample_s = time.perf_counter() - t0
+    for smp in samples:
+        check_values(np.asarray(smp.y), "training")
+    configs = list(configs) if configs is not None else [None] * len(targets)
+    infos = list(target_infos) if target_infos is not None else [None] * len(targets)
+    contexts = {tuple(sorted((k, np.asarray(v).tobytes()) for k, v in t.context.items())) for t in targets}
+    batched = (opts.target_error is None and not opts.is_sum and opts.parametrization in pz.PARAMETRIZATIONS
+               and opts.solver.method == "lsmr" and int(opts.solver.levels) == 1 and len(contexts) == 1
+               and all(zeros_rule(t, opts.solver) == "bias" for t in targets))
+    if batched:
+        state = from_layout(opts, kind, samples[0], mapper)
+        p, layout = layout_of(state)
+    if not batched:
+        return _one_by_one(targets, opts, samples, configs, infos, keep_samples, log, sample_s, t_start)
+    t1 = time.perf_counter()
+    sys = system_rows(state, targets[0])
+    eps = float(opts.solver.epsilon)
+    lam = float(opts.solver.laplacian)
+    alphas, rhs = [], []
+    for smp in samples:
+        y = np.maximum(np.asarray(smp.y, np.float64), 0.0)
+        alpha = np.mean(y, axis=0)
+        alpha = np.where(alpha > 0, alpha, 1.0)
+        alphas.append(alpha)
+        rhs.append(np.log((y + eps * alpha) / alpha).astype(np.float32))
+    x0 = np.stack([np.asarray(starting_solution(sys._replace(rhs=jnp.asarray(r)), layout, p.J)) for r in rhs])
+    xs, steps, ok = _solve_all(sys, jnp.asarray(np.stack(rhs)), jnp.asarray(x0), jnp.float32(lam),
+                               rtol=float(opts.solver.tolerance), max_steps=int(opts.solver.max_iterations))
+    xs, steps, ok = np.asarray(xs, np.float64), np.asarray(steps), np.asarray(ok)
+    solve_s = time.perf_counter() - t1
+    log(f"solved {len(targets)} right-hand sides of one system ({layout.n_unknowns} unknowns), "
+        f"{int(steps.max())} LSMR iterations")
+    a_t, lap = data_matrix(sys, layout.n_unknowns).T.tocsr(), laplacian_matrix(sys, lam, layout.n_unknowns)
+    results = []
+    total = time.perf_counter() - t_start
+    for i, (t, smp) in enumerate(zip(targets, samples)):
+        t2 = time.perf_counter()
+        x = xs[i]
+        model = product_model(t, p, layout, x, alphas[i])
+        obj = float(np.sum((a_t.T @ x - rhs[i]) ** 2) + np.sum((lap @ x) ** 2))
+        bn = float(np.sum(rhs[i].astype(np.float64) ** 2))
+        solver = {"method": opts.solver.method, "iterations": int(steps[i]), "converged": bool(ok[i]),
+                  "tolerance": float(opts.solver.tolerance), "max_iterations": int(opts.solver.max_iterations),
+                  "laplacian": lam, "epsilon": eps, "objective": obj,
+                  "residual": float(np.sqrt(obj / bn)) if bn > 0 else float(np.sqrt(obj)), "library": len(targets)}
+        res = Result(model, solver=solver, config=configs[i] or {}, target_info=infos[i] or {}, state=state, target=t,
+                     samples=smp if keep_samples else None)
+        mets = measure_on(state, res, t, smp, eps)
+        res = res.replace(metrics=mets, warnings=tuple(quality_warnings(mets)))
+        n = len(targets)
+        results.append(res.replace(
+            timings={"sample_s": sample_s / n, "solve_s": solve_s / n, "measure_s": time.perf_counter() - t2,
+                     "total_s": total / n + time.perf_counter() - t2, "library_sample_s": sample_s,
+                     "library_solve_s": solve_s},
+            counts={"train": int(len(smp.a)), "validation": int(len(smp.val_a)), "unknowns": int(layout.n_unknowns),
+                    "lights": int(getattr(t.fn, "n_lights", 0)), "library": n}))
+    return results
+
+
+@functools.partial(jax.jit, static_argnames=("rtol", "max_steps"))
+def _solve_all(sys, rhs, x0, lam, *, rtol: float, max_steps: int):
+    """LSMR (the ``lsmr`` solver: column-scaled, from each target's §3.1.2 start) vmapped over the targets'
+    right-hand sides of one system: every target's least-squares solution in one program."""
+    return jax.vmap(lambda r, x: lsmr_solve(sys._replace(rhs=r), lam, x, rtol=rtol, max_steps=max_steps))(rhs, x0)
+
+
+def _one_by_one(targets, opts: FitOptions, samples, configs, infos, keep_samples, log, sample_s, t_start):
+    """Per-target fits on the shared samples: the first one fixes the layout (its choice, when it chooses)."""
+    kw = {k: v for k, v in opts.model_dump().items() if v is not None}
+    name = kw.pop("parametrization")
+    results = []
+    n = len(targets)
+    first = None
+    for i, (t, smp) in enumerate(zip(targets, samples)):
+        log(f"fitting material {i + 1} of {n}")
+        if first is None or not (opts.target_error is not None or opts.max_lookups is not None):
+            res = factorize(t, name, samples=smp, config=configs[i], target_info=infos[i], log=log,
+                            keep_samples=keep_samples, **kw)
+            first = first or res
+        else:  # the first target's choice fixes the layout of the others
+            res = refit(first, target=t, samples=smp, start="fresh", config=configs[i] or {},
+                                  target_info=infos[i] or {}, keep_samples=keep_samples, log=log)
+        results.append(res.replace(timings={**res.timings, "sample_s": sample_s / n, "library_sample_s": sample_s}))
+    return results
+
+
+__all__ = ["factorize_many", "library_values"]
