@@ -188,6 +188,7 @@ def test_max_lookups_picks_within_the_budget(plastic):
     fac = hf.fit.factorize(target, "NR", texture_size=S, max_lookups=8, samples=s, linear={"iterations": 5})
     sel = fac.selection
     assert fac.model.lookups <= 8 and sel["max_lookups"] == 8
+    assert fac.analysis is not None and fac.analysis["pair"] == "nr"  # Mahajan analysis beside the choice
     errs = [t["validation_nrmse"] for t in sel["tried"]]
     assert fac.metrics["validation"]["float"]["nrmse"] == pytest.approx(min(errs))
     assert all(t["lookups"] <= 8 for t in sel["tried"]) and len(sel["tried"]) >= 2
@@ -297,3 +298,13 @@ def test_prefiltered_keeps_the_split_sum_and_corrects_it(plastic):
     both = np.asarray(m.term_values(s.a[:300], s.b[:300]))[:2].sum(0)
     np.testing.assert_allclose(both, np.asarray(base.evaluate(s.a[:300], s.b[:300])), rtol=2e-3, atol=1e-5)
     assert _nrmse(m.evaluate(s.a, s.b), s.y) < _nrmse(base.evaluate(s.a, s.b), s.y)
+
+
+def test_spd_solve_equals_lapack():
+    rng = np.random.default_rng(3)
+    for K in (1, 2, 5):
+        r = rng.normal(size=(40, 3, K, K))
+        A = r @ np.swapaxes(r, -1, -2) + 0.1 * np.eye(K)
+        b = rng.normal(size=(40, 3, K))
+        np.testing.assert_allclose(np.asarray(als.spd_solve(jnp.asarray(A), jnp.asarray(b))),
+                                   np.linalg.solve(A, b[..., None])[..., 0], rtol=1e-3, atol=1e-4)
