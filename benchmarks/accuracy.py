@@ -263,12 +263,17 @@ def main(argv=None) -> int:
     ap.add_argument("--methods", help="comma-separated (default: all)")
     ap.add_argument("--fit-resolution", type=int, default=32)
     ap.add_argument("--size", type=int, default=32)
+    ap.add_argument("--merge", action="append", default=[],
+                    help="a JSON of an earlier run whose rows are kept (its cases are not run again)")
     args = ap.parse_args(argv)
     cases = [tuple(c.split("/")) for c in args.cases.split(",")] if args.cases else [
         (m, e) for m in MATERIALS for e in ENVIRONMENTS]
     methods = args.methods.split(",") if args.methods else list(METHODS)
-    rows = []
+    rows = [r for m in args.merge for r in json.loads(Path(m).read_text())]
+    done = {(r["material"], r["environment"]) for r in rows}
     for material, env in cases:
+        if (material, env) in done:
+            continue
         rows += run_case(material, env, methods, args.fit_resolution, args.size)
         Path(args.json).write_text(json.dumps(rows, indent=1))
     table = report(rows)

@@ -174,6 +174,9 @@ def _fit(args) -> int:
         f"validation nrmse {val.get('nrmse', float('nan')):.4g} avg_rel {val.get('avg_rel', float('nan')):.4g}, "
         f"{how}, {time.perf_counter() - t0:.1f} s"
     )
+    if fac.selection is not None and "max_lookups" in fac.selection:
+        tried = "; ".join(f"{t['label']} ({t['lookups']}) {t['validation_nrmse']:.4g}" for t in fac.selection["tried"])
+        print(f"structure: {fac.selection['reason']} (tried: {tried})")
     if fac.analysis is not None:
         a = fac.analysis
         ranks = ", ".join(f"{t}: K = {k}" for t, k in a["rank_for"].items())

@@ -361,7 +361,8 @@ def refit(fac: Result, environment: Environment | None = None, brdf: BRDF | None
             (the start rule of a full run, on the new target: the full run's result on the same samples).
             ALS and Levenberg-Marquardt find local minima, so a warm start may end in another one than
             a full run (often a lower training objective; docs/refit.md).
-        config, target_info: what to record in the result (default: the previous ones).
+        config: the configuration to record in the result (default: the previous one).
+        target_info: the target description to record in the result (default: the previous one).
         keep_samples: keep the new samples on the result (default: when ``fac`` kept them).
         samples: the new target's values at the state's directions, computed already
             (:class:`~homofac.fit.samples.Samples`; :func:`homofac.fit.many.factorize_many` shares them).

@@ -153,7 +153,7 @@ def _normal_radiance(brdf, spec, kd, dirs, rad, geom, k, n, v, centroid=False):
 CULL_CLUSTER = 16
 
 
-def _normal_radiance_culled(brdf, kd, dirs, rad, geom, cos_s, slots, n, v):
+def _normal_radiance_culled(brdf, kd, dirs, rad, geom, cos_s, slots, n, v, centroid=False):
     """L(v_p, n) for one normal with lobe culling (:class:`Lighting` ``lobe_tolerance``).
 
     The P views are split into clusters of :data:`CULL_CLUSTER`. A cluster's mirror directions
@@ -162,8 +162,15 @@ def _normal_radiance_culled(brdf, kd, dirs, rad, geom, cos_s, slots, n, v):
     peak (``ModelSpec.support``). Only the visible lights inside the cone are evaluated, compacted into
     ``slots`` places (cumsum, no sort). Returns the values (P, 3) and the largest number of lights a
     cone held: when it exceeds ``slots`` some were left out, and the caller reruns with more slots.
+    ``centroid``: straddling texels are evaluated (and tested against the cone) at the centroid of
+    their visible part, as in :func:`_normal_radiance`.
     """
-    w = cosine_weights(n[None], geom, select=True)[0]  # (L,)
+    if centroid:
+        w, (sidx, cent) = cosine_weights(n[None], geom, select=True, centroids=True)
+        w = w[0]
+        dirs = dirs.at[sidx[0]].set(cent[0], mode="drop")
+    else:
+        w = cosine_weights(n[None], geom, select=True)[0]  # (L,)
     out = jnp.zeros(v.shape[:-1] + (3,), v.dtype)
     if kd is not None:
         out = out + (kd / jnp.pi) * (w @ rad)
@@ -255,7 +262,8 @@ class Lighting(eqx.Module):
         if pad:
             normals = jnp.concatenate([normals, jnp.broadcast_to(normals[:1], (pad, 3))])
             views = jnp.concatenate([views, jnp.broadcast_to(views[:1], (pad, pp, 3))])
-        one = lambda n, v: _normal_radiance_culled(self.brdf, kd, dirs, rad, geom, cos_s, slots, n, v)  # noqa: E731
+        one = lambda n, v: _normal_radiance_culled(self.brdf, kd, dirs, rad, geom, cos_s, slots, n, v,  # noqa: E731
+                                                   self.horizon == "centroid")
         out, count = jax.lax.map(lambda nv: jax.vmap(one)(nv[0], nv[1]),
                                  (normals.reshape(-1, per, 3), views.reshape(-1, per, pp, 3)))
         return self._clamp(out.reshape(-1, pp, 3)[:g_count, :p]), jnp.max(count)
