@@ -59,6 +59,10 @@ FACE_NAMES = ("px", "nx", "py", "ny", "pz", "nz")
 EXR_TYPES = ("float32", "half")
 #: Largest texture size a loaded document may declare.
 MAX_SIZE = 4096
+#: A material library (docs/refit.md): one output directory per material and this index beside them.
+LIBRARY_FORMAT = "homofac.library"
+LIBRARY_VERSION = 1
+INDEX_NAME = "index.json"
 
 
 class OutputOptions(Options):
@@ -125,15 +129,27 @@ def is_homofac_dir(path: Path) -> bool:
         return False
 
 
+def is_library_dir(path: Path) -> bool:
+    """True when ``path`` holds a material library's index.json written by homofac (:func:`save_library`)."""
+    f = Path(path) / INDEX_NAME
+    try:
+        if f.stat().st_size > MAX_JSON_BYTES:
+            return False
+        return json.loads(f.read_text()).get("format") == LIBRARY_FORMAT
+    except (OSError, ValueError, AttributeError, UnicodeDecodeError, RecursionError):
+        return False
+
+
 def check_output_dir(out_dir) -> Path:
-    """Refuse output paths that are files, foreign non-empty directories, or not writable (before any work)."""
+    """Refuse output paths that are files, foreign non-empty directories, or not writable (before any work).
+    A directory homofac wrote (a factorization or a material library) may be replaced."""
     out = Path(out_dir)
     parent = out.parent
     if parent.exists() and not parent.is_dir():
         raise HomofacError(f"output path {out}: parent {parent} is not a directory")
     if out.exists() and not out.is_dir():
         raise HomofacError(f"output path {out} exists and is not a directory")
-    if out.is_dir() and any(out.iterdir()) and not is_homofac_dir(out):
+    if out.is_dir() and any(out.iterdir()) and not (is_homofac_dir(out) or is_library_dir(out)):
         raise HomofacError(f"output directory {out} is not empty and was not written by homofac; refusing to overwrite it")
     return out
 
@@ -216,7 +232,7 @@ def recover(out: Path) -> list[str]:
     if not parent.is_dir():
         return done
     olds = sorted(parent.glob(f".{out.name}.old-*"), key=lambda p: p.stat().st_mtime, reverse=True)
-    if not out.exists() and olds and is_homofac_dir(olds[0]):
+    if not out.exists() and olds and (is_homofac_dir(olds[0]) or is_library_dir(olds[0])):
         os.replace(olds[0], out)
         done.append(f"restored {out} from {olds[0].name}")
         olds = olds[1:]
@@ -341,6 +357,34 @@ def save(fac: Result, out_dir, *, samples=None, extra_files: dict | None = None,
             shutil.rmtree(tmp, ignore_errors=True)
             where = f" ({e.filename})" if getattr(e, "filename", None) else ""
             raise HomofacError(f"cannot write the output directory {out}{where}: {e.strerror or one_line(e)}") from None
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+    return out
+
+
+def save_library(out_dir, write_members) -> Path:
+    """Write a material library atomically: ``write_members(tmp)`` writes the members' output
+    directories into a temporary sibling directory (e.g. with :func:`save` into ``tmp / name``) and
+    returns the index, which is written (given ``format`` and ``version``) as index.json; then the directory is swapped
+    into place under the output lock, as :func:`save` does: a killed or failed write leaves the
+    previous library (or nothing), never a half-written one. Returns the path."""
+    out = check_output_dir(out_dir)
+    with OutputLock(out):
+        out = check_output_dir(out_dir)
+        tmp = out.parent / f".{out.name}.tmp-{uuid.uuid4().hex[:8]}"
+        try:
+            tmp.mkdir(mode=0o777 & ~_umask())
+            index = write_members(tmp)
+            bad: list = []
+            doc = _jsonable({"format": LIBRARY_FORMAT, "version": LIBRARY_VERSION, "homofac": __version__, **index},
+                            bad)
+            _write_json(tmp / INDEX_NAME, doc)
+            _swap_into_place(tmp, out)
+        except OSError as e:
+            shutil.rmtree(tmp, ignore_errors=True)
+            where = f" ({e.filename})" if getattr(e, "filename", None) else ""
+            raise HomofacError(f"cannot write the library {out}{where}: {e.strerror or one_line(e)}") from None
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)
             raise
@@ -650,6 +694,6 @@ def _read_png(d: Path, doc: Document, raw: dict, specs, terms_doc) -> Quantized:
 
 register_writer(save)
 
-__all__ = ["Document", "EXR_TYPES", "FACE_NAMES", "FORMAT", "JSON_NAME", "OutputLock", "OutputOptions", "SCHEMA_VERSION",
-           "check_output_dir", "cube_faces", "cube_vertical", "document", "is_homofac_dir", "load", "recover", "save",
-           "shader_files"]
+__all__ = ["Document", "EXR_TYPES", "FACE_NAMES", "FORMAT", "INDEX_NAME", "JSON_NAME", "LIBRARY_FORMAT", "LIBRARY_VERSION",
+           "OutputLock", "OutputOptions", "SCHEMA_VERSION", "check_output_dir", "cube_faces", "cube_vertical", "document",
+           "is_homofac_dir", "is_library_dir", "load", "recover", "save", "save_library", "shader_files"]

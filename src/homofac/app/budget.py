@@ -13,7 +13,9 @@ file's header) alone, no sampling:
   float32 temporaries each (the lobe form's per-light work), plus the light arrays;
 * the environment image: reading it whole (its header's size x 12 bytes and the reader's
   temporaries), or a few strips when it is read downsampled (:mod:`homofac.light.sources`);
-* a fixed 1 GB for the JAX/XLA runtime, compilation and compiled code (measured 0.4-0.9 GB).
+* a fixed 1 GB for the JAX/XLA runtime, compilation and compiled code (measured 0.4-0.9 GB);
+* a material library (``target.materials``): per further material its training and validation
+  values, its log right-hand side, its own solver state (the solves are vmapped) and its textures.
 
 It aims at the right order of magnitude and errs high (the tests check it against a measured peak).
 :func:`check` refuses a config whose estimate exceeds the limit: ``limits.memory_gb``, or by default
@@ -173,6 +175,9 @@ def estimate(cfg: Config, base: Path = Path(".")) -> dict:
         lights = 6 * res * res + len(cfg.target.environment.lights if cfg.target.environment else [])
         parts["lighting"] = (1 << 22) * 16 * 4 + lights * 200
         parts["environment"] = environment_bytes(cfg, base)
+    count = len(cfg.target.materials or ())
+    if count > 1:  # a library: one layout, per material its values, right-hand side, solver state, textures
+        parts["materials"] = (count - 1) * ((m + v) * 24 + m * 12 + parts["solver"] + n * 3 * 4 * 4)
     parts["total"] = sum(parts.values())
     parts["pairs"] = m
     parts["unknowns"] = n

@@ -33,7 +33,8 @@ from ..param import mappers
 from ..param import parametrizations as pz
 from ..shader import LANGUAGES
 from . import config as cfgmod
-from .run import run, target_from_config
+from .library import run_library
+from .run import run, run_refit, target_from_config
 from .view import write_viewer
 
 
@@ -105,7 +106,8 @@ def fit_epilog() -> str:
     maps = " | ".join(m for m, r in mappers.MAPPERS.items() if not r.scalar)
     return f"""\
 config keys (docs/config.md; unknown keys are errors):
-  target:          kind (brdf | lighting), brdf {{model, ...its parameters}} (docs/models.md),
+  target:          kind (brdf | lighting), brdf {{model, ...its parameters}} (docs/models.md)
+                   or materials [{{name, brdf}}, ...] (a library: OUT/<name>/ each, OUT/index.json),
                    environment {{file ({' | '.join(BUNDLED)} | a file), resolution, boost, lights, cull}},
                    quantity (brdf | brdf_cos; brdf only), clamp, lobe_cull
   parametrization: {brdfs} (brdf); {lighting} (lighting); baselines: {' | '.join(baselines.BASELINES)}
@@ -133,6 +135,9 @@ def fit_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("config", nargs="?", help="YAML config file (default: the bundled default.yaml)")
     p.add_argument("--out", "-o", metavar="DIR", help="output directory (overrides output.dir)")
+    p.add_argument("--refit", metavar="OUT_DIR",
+                   help="refit the factorization saved in OUT_DIR to the config's target (a new environment "
+                        "and / or BRDF on the saved layout; docs/refit.md)")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress display, only the summary line")
     p.add_argument("--debug", action="store_true", help="show full tracebacks on errors")
     p.add_argument("--print-config", action="store_true", help="print the resolved config as YAML and exit")
@@ -165,14 +170,40 @@ def _fit(args) -> int:
             status.update(msg)
             console.log(msg)
 
-        fac, out = run(cfg, base, args.out, log=log, preview=False if args.no_preview else None, shaders=shaders)
+        kw = dict(log=log, preview=False if args.no_preview else None, shaders=shaders)
+        if args.refit is not None:
+            fac, out = run_refit(cfg, base, args.refit, args.out, **kw)
+        elif cfg.is_library:
+            facs, out, index = run_library(cfg, base, args.out, **kw)
+        else:
+            fac, out = run(cfg, base, args.out, **kw)
+    if args.refit is None and cfg.is_library:
+        for name, fac in zip((m["name"] for m in index["materials"]), facs):
+            _summary(fac, out / name, None)
+        t = index["timings"]
+        print(f"wrote library {out}: {len(facs)} materials on one layout ({facs[0].parametrization} on "
+              f"{facs[0].mapper} {facs[0].texture_size}), {out / 'index.json'}, fit {t['fit_s']:.2f} s, "
+              f"{time.perf_counter() - t0:.1f} s")
+        return 0
+    _summary(fac, out, time.perf_counter() - t0)
+    if args.refit is not None:
+        tm = fac.timings
+        print(f"refit of {args.refit}: values {tm.get('sample_s', 0):.3f} s, solve {tm.get('solve_s', 0):.3f} s, "
+              f"measure {tm.get('measure_s', 0):.3f} s, refit {tm.get('total_s', 0):.3f} s "
+              f"({fac.solver.get('method', '')})")
+    return 0
+
+
+def _summary(fac, out, seconds: float | None) -> None:
+    """The summary lines of one written result (stdout) and its warnings (stderr)."""
     val = fac.metrics.get("validation", fac.metrics.get("train", {})).get("float", {})
     s = fac.solver
     how = f"{s['method']} {s['iterations']} iterations{'' if s.get('converged', True) else ' (NOT converged)'}" if s else ""
+    took = f", {seconds:.1f} s" if seconds is not None else ""
     print(
         f"wrote {out}: {fac.parametrization} on {fac.mapper} {fac.texture_size} ({fac.model.lookups} lookups), "
         f"validation nrmse {val.get('nrmse', float('nan')):.4g} avg_rel {val.get('avg_rel', float('nan')):.4g}, "
-        f"{how}, {time.perf_counter() - t0:.1f} s"
+        f"{how}{took}"
     )
     if fac.selection is not None and "max_lookups" in fac.selection:
         tried = "; ".join(f"{t['label']} ({t['lookups']}) {t['validation_nrmse']:.4g}" for t in fac.selection["tried"])
@@ -184,7 +215,6 @@ def _fit(args) -> int:
               f"terms for error {ranks}")
     for w in fac.warnings:
         print(f"homofac: warning: {w}", file=sys.stderr)
-    return 0
 
 
 # --------------------------------------------------------------------------------------------------

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any, Literal, Optional
 
 import yaml
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from .. import brdf
 from ..errors import HomofacError
@@ -32,16 +32,55 @@ MAX_BYTES = 1 << 20
 MAX_DEPTH = 32
 
 
+#: A material's name: a plain file name (its output directory), letters, digits, ``_`` and ``-``.
+MATERIAL_NAME = r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$"
+#: Most materials in one config (a library).
+MAX_MATERIALS = 256
+#: The BRDF option models of the registry, as one union tagged by ``model``.
+BrdfOptions = brdf.options_union()
+
+
+class MaterialOptions(Options):
+    """``target.materials[]``: one material of a library: its name (the name of its output directory)
+    and its BRDF (one of the BRDF registry's option models, by ``model``)."""
+
+    name: str = Field(pattern=MATERIAL_NAME, description="the material's output directory under output.dir: "
+                      "letters, digits, _ and - (at most 64; unique, ignoring case)")
+    brdf: BrdfOptions  # type: ignore[valid-type]
+
+
 class TargetOptions(Options):
-    """``target``: what is factored. ``brdf`` is one of the BRDF registry's option models (by ``model``)."""
+    """``target``: what is factored. ``brdf`` is one of the BRDF registry's option models (by ``model``);
+    ``materials`` instead of ``brdf`` makes a material library (one layout, one output directory per
+    material, docs/refit.md)."""
 
     kind: Literal["brdf", "lighting"] = "lighting"
-    brdf: brdf.options_union()  # type: ignore[valid-type]
+    brdf: Optional[BrdfOptions] = None  # type: ignore[valid-type]
+    materials: Optional[list[MaterialOptions]] = Field(
+        None, min_length=1, max_length=MAX_MATERIALS,
+        description="a material library instead of one brdf: [{name, brdf}, ...], fitted on one layout "
+                    "(hf.fit.factorize_many) into output.dir/<name>/ plus output.dir/index.json")
     environment: Optional[EnvironmentOptions] = None
     quantity: Optional[Literal["brdf", "brdf_cos"]] = None
     clamp: Optional[float] = Field(None, gt=0, allow_inf_nan=False)
     # lobe culling while sampling (Phong family): skip lights where every lobe < lobe_cull x its peak
     lobe_cull: Optional[float] = Field(None, gt=0, lt=1)
+
+    @model_validator(mode="after")
+    def _one_material_or_a_library(self):
+        if self.brdf is None and self.materials is None:
+            raise ValueError("missing brdf: give target.brdf (one material) or target.materials (a library)")
+        if self.brdf is not None and self.materials is not None:
+            raise ValueError("give target.brdf (one material) or target.materials (a library), not both")
+        if self.materials is not None:
+            seen: dict[str, str] = {}
+            for m in self.materials:
+                if m.name.lower() in seen:
+                    raise ValueError(f"materials: the name {m.name!r} is used twice"
+                                     + ("" if m.name == seen[m.name.lower()] else f" (as {seen[m.name.lower()]!r}; "
+                                        "names differing only in case collide on some file systems)"))
+                seen[m.name.lower()] = m.name
+        return self
 
 
 class LimitsOptions(Options):
@@ -61,6 +100,21 @@ class Config(FitOptions):
     def fit_options(self) -> dict:
         """The keywords of :func:`homofac.fit.factorize` this config gives."""
         return {k: getattr(self, k) for k in FitOptions.model_fields}
+
+    @property
+    def is_library(self) -> bool:
+        """True for a material library (``target.materials``)."""
+        return self.target.materials is not None
+
+    def material_configs(self) -> list[tuple[str, "Config"]]:
+        """(name, the one-material config) of every material of a library (``[]`` for one material):
+        each is this config with ``target.brdf`` the material's and no ``materials``, what a single run
+        of that material would be given (and what its output directory records)."""
+        if self.target.materials is None:
+            return []
+        return [(m.name, self.model_copy(update={"target": self.target.model_copy(update={"brdf": m.brdf,
+                                                                                          "materials": None})}))
+                for m in self.target.materials]
 
 
 def default_config_path() -> Path:
@@ -168,5 +222,6 @@ def resolve_path(value: str, base: Path) -> str:
     return str(cand)
 
 
-__all__ = ["Config", "LimitsOptions", "MAX_BYTES", "MAX_DEPTH", "TargetOptions", "default_config_path", "load", "parse",
+__all__ = ["Config", "LimitsOptions", "MATERIAL_NAME", "MAX_BYTES", "MAX_DEPTH", "MAX_MATERIALS", "MaterialOptions",
+           "TargetOptions", "default_config_path", "load", "parse",
            "read_yaml", "resolve_path"]
