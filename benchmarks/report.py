@@ -3,7 +3,8 @@
     python benchmarks/report.py [benchmarks/results.json] [--readme README.md]
 
 Writes ``benchmarks/results.md`` and ``benchmarks/pareto.png`` beside the JSON; with ``--readme`` it
-also replaces the part of README.md between ``<!-- bench:start -->`` and ``<!-- bench:end -->``.
+also replaces the part of README.md between ``<!-- bench:start -->`` and ``<!-- bench:end -->`` (and
+the refit table of benchmarks/test_refit.py between ``<!-- refit:start -->`` and ``<!-- refit:end -->``).
 Times are warm (compile reported apart); run time = sampling + assembling + solving.
 """
 
@@ -14,6 +15,7 @@ import json
 from pathlib import Path
 
 START, END = "<!-- bench:start -->", "<!-- bench:end -->"
+REFIT_START, REFIT_END = "<!-- refit:start -->", "<!-- refit:end -->"
 
 
 def records(path: Path) -> tuple[list[dict], list[dict], list[dict], dict]:
@@ -26,9 +28,42 @@ def records(path: Path) -> tuple[list[dict], list[dict], list[dict], dict]:
             baselines.append(r)
         elif r.get("kind") == "sums":
             sums.append(r)
+        elif r.get("kind") == "refit":
+            continue  # refit_records
         elif "val_nrmse" in r:
             cases.append(r)
     return cases, baselines, sums, doc.get("machine_info", {})
+
+
+def refit_records(path: Path) -> list[dict]:
+    """The records of benchmarks/test_refit.py (``kind: refit``) in a pytest-benchmark JSON."""
+    doc = json.loads(path.read_text())
+    return [b["extra_info"] for b in doc["benchmarks"] if b.get("extra_info", {}).get("kind") == "refit"]
+
+
+def refit_table(rows: list[dict]) -> str:
+    """Refits and the material library (issue 15) against the full runs they replace."""
+    if not rows:
+        return ""
+    lines = ["| case (gold / forest, default sizes) | change | first s | warm s | full run s warm (first) | "
+             "ratio | target | val nrmse (full run) | metrics vs full run |",
+             "|---|---|---:|---:|---:|---:|---|---:|---:|"]
+    for r in rows:
+        ratio = r.get("ratio", r["warm_s"] / r["full_s"] if r["full_s"] > 0 else float("nan"))
+        lines.append(f"| {r['case']} | {r['what']} | {r['first_s']:.2f} | {r['warm_s']:.3f} | "
+                     f"{r['full_s']:.2f} ({r['full_first_s']:.1f}) | {ratio:.3g}x | {r['target']}: "
+                     f"{'met' if r['met'] else 'NOT met'} | {r['val_nrmse']:.4f} ({r['full_val_nrmse']:.4f}) | "
+                     f"{r['max_rel_metric_diff']:.1e} |")
+    return "\n".join(lines)
+
+
+def replace_block(text: str, start: str, end: str, block: str, name: str) -> str:
+    """``text`` with the part between the markers ``start`` and ``end`` replaced by ``block``."""
+    if start not in text or end not in text:
+        raise SystemExit(f"{name}: no {start} ... {end} markers")
+    head, rest = text.split(start, 1)
+    _, tail = rest.split(end, 1)
+    return head + f"{start}\n{block}\n{end}" + tail
 
 
 def sums_table(rows: list[dict]) -> str:
@@ -123,25 +158,28 @@ def main(argv=None) -> None:
     args = p.parse_args(argv)
     path = Path(args.json)
     cases, baselines, sums, _ = records(path)
-    if not cases and not sums:
+    refits = refit_records(path)
+    if not cases and not sums and not refits:
         raise SystemExit(f"{path}: no benchmark records")
-    machine = (cases or sums)[0].get("machine", "")
-    md = f"Machine: {machine}.\n\n" + (table(cases, baselines) + "\n" if cases else "")
-    if sums:
-        md += "\n" + sums_table(sums) + "\n"
-    (path.parent / "results.md").write_text(md)
+    machine = (cases or sums or refits)[0].get("machine", "")
+    md = ""
+    if cases or sums:
+        md = f"Machine: {machine}.\n\n" + (table(cases, baselines) + "\n" if cases else "")
+        if sums:
+            md += "\n" + sums_table(sums) + "\n"
+        (path.parent / "results.md").write_text(md)
     if cases:
         plot(cases, path.parent / "pareto.png", machine)
+    refit_md = f"Machine: {machine}.\n\n{refit_table(refits)}\n" if refits else ""
     if args.readme:
         readme = Path(args.readme)
         text = readme.read_text()
-        if START not in text or END not in text:
-            raise SystemExit(f"{readme}: no {START} ... {END} markers")
-        head, rest = text.split(START, 1)
-        _, tail = rest.split(END, 1)
-        block = f"{START}\n{md}\n![error against run time](benchmarks/pareto.png)\n{END}"
-        readme.write_text(head + block + tail)
-    print(md)
+        if md:
+            text = replace_block(text, START, END, f"{md}\n![error against run time](benchmarks/pareto.png)", str(readme))
+        if refit_md:
+            text = replace_block(text, REFIT_START, REFIT_END, refit_md, str(readme))
+        readme.write_text(text)
+    print(md + refit_md)
 
 
 if __name__ == "__main__":
