@@ -22,6 +22,7 @@ from pydantic import Field, model_validator
 from .. import brdf
 from ..errors import HomofacError
 from ..fit.options import FitOptions
+from ..fit.scene import bundled_path as bundled_scene
 from ..light import BUNDLED, EnvironmentOptions
 from ..options import Options, validate
 from ..output import OutputOptions
@@ -207,7 +208,12 @@ def load(path) -> tuple[Config, Path]:
     data = read_yaml(p)
     if data is None:
         raise HomofacError(f"{p}: the config file is empty")
-    return parse(data, str(p)), p.resolve().parent
+    cfg, base = parse(data, str(p)), p.resolve().parent
+    mesh = cfg.sampling.mesh  # a scene's mesh is relative to the config file (a bundled name stays a name)
+    q = Path(mesh).expanduser() if mesh is not None else None
+    if q is not None and not q.is_absolute() and ((base / q).exists() or bundled_scene(mesh) is None):
+        cfg = cfg.model_copy(update={"sampling": cfg.sampling.model_copy(update={"mesh": str(base / q)})})
+    return cfg, base
 
 
 def resolve_path(value: str, base: Path) -> str:

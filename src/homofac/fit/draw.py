@@ -13,7 +13,7 @@ import numpy as np
 from ..errors import HomofacError
 from ..options import validate
 from ..target import Target
-from . import cache, sampling
+from . import cache, sampling, scene
 from .options import SamplingOptions
 from .samples import Samples, evaluate, evaluate_grouped
 
@@ -35,6 +35,8 @@ def draw_samples(target: Target, parametrization: str, options: SamplingOptions 
     log = log or (lambda msg: None)
     s = validate(SamplingOptions, options, "sampling")
     settings = s.model_dump()
+    if s.kind == "scene":  # the mesh file's content, not only its name, keys the samples
+        settings["mesh_sha256"] = scene.fingerprint(s)
     k = cache.key(target, settings, parametrization) if s.cache else None
     if k is not None:
         hit = cache.load(k, validation=s.validation)
@@ -53,6 +55,13 @@ def draw_pairs(kind: str, parametrization: str, s: SamplingOptions):
     (:class:`~homofac.fit.sampling.Pairs`; for lighting targets also the pairs grouped by normal, whose
     flattening they are). Deterministic: the same settings give the same pairs (refits rely on it)."""
     smapper = s.mapper or default_mapper(kind)
+    if s.kind == "scene":
+        if kind != "lighting":
+            raise HomofacError("sampling.kind: scene draws the (n, v) pairs of a scene, for lighting targets")
+        sc = scene.load(s)  # rendered once per process (homofac.fit.scene)
+        groups = sc.pairs(s.count, s.seed)
+        vgroups = sc.pairs(s.validation, s.seed + 1) if s.validation else sc.grouped(np.zeros(0, np.int64))
+        return groups.flatten(), vgroups.flatten(), groups, vgroups
     if kind == "lighting":
         # grouped by normal: per-normal work (weights, frames, diffuse, horizon culling) done once
         groups = sampling.grouped_pairs(s.kind, s.size, mapper=smapper, count=s.count, seed=s.seed,

@@ -9,9 +9,9 @@ one-line message from the Python API and from the CLI. Allowed names derive from
 
 from __future__ import annotations
 
-from typing import Literal, Optional
+from typing import Annotated, Literal, Optional
 
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from .. import baselines
 from ..options import Options
@@ -27,6 +27,40 @@ ParametrizationName = Literal[tuple(pz.PARAMETRIZATIONS) + tuple(baselines.BASEL
 MIN_TEXTURE_SIZE, MAX_TEXTURE_SIZE = 4, 1024
 
 
+#: A finite scene coordinate (metres or any unit: only directions matter to the lighting).
+Coordinate = Annotated[float, Field(ge=-1e6, le=1e6, allow_inf_nan=False)]
+#: Largest camera image side, and most pixels of all cameras of a scene together.
+MAX_CAMERA_SIDE, MAX_SCENE_PIXELS = 2048, 1 << 22
+#: Most cameras of a scene.
+MAX_CAMERAS = 16
+
+
+class CameraOptions(Options):
+    """One camera of ``sampling.kind: scene``: a pinhole at ``position`` looking at ``look_at``, ``up``
+    the image's up direction (default +z, homofac's up; docs/conventions.md), ``fov`` the vertical
+    field of view in degrees, ``width`` x ``height`` pixels (rays through the pixel centres)."""
+
+    position: list[Coordinate] = Field(min_length=3, max_length=3)
+    look_at: list[Coordinate] = Field(default_factory=lambda: [0.0, 0.0, 0.0], min_length=3, max_length=3)
+    up: list[Coordinate] = Field(default_factory=lambda: [0.0, 0.0, 1.0], min_length=3, max_length=3)
+    fov: float = Field(40.0, gt=1, lt=170)
+    width: int = Field(160, ge=1, le=MAX_CAMERA_SIDE)
+    height: int = Field(120, ge=1, le=MAX_CAMERA_SIDE)
+
+    @model_validator(mode="after")
+    def _frame(self):
+        f = [a - b for a, b in zip(self.look_at, self.position)]
+        nf = sum(x * x for x in f) ** 0.5
+        if nf < 1e-9:
+            raise ValueError("camera look_at equals its position")
+        u = self.up
+        nu = sum(x * x for x in u) ** 0.5
+        c = [f[1] * u[2] - f[2] * u[1], f[2] * u[0] - f[0] * u[2], f[0] * u[1] - f[1] * u[0]]
+        if nu < 1e-9 or sum(x * x for x in c) ** 0.5 < 1e-6 * nf * nu:
+            raise ValueError("camera up is zero or parallel to the view direction")
+        return self
+
+
 class SamplingOptions(Options):
     """``sampling``: the training pairs (thesis §4.2) and the seeded validation set.
 
@@ -38,9 +72,16 @@ class SamplingOptions(Options):
     for linear-space sums of lighting products and ``texels`` otherwise. ``validation``: the number of
     random validation pairs (seed ``seed + 1``). ``cache``: reuse the samples of an identical (target,
     sampling) from disk.
+
+    ``scene`` (lighting): the (n, v) pairs that ``cameras`` see of the mesh ``mesh`` (an OBJ, glTF/GLB
+    or PLY file, or a bundled scene name such as ``demo``, whose cameras are the default), drawn
+    uniformly over all covered pixels (``count`` of them, default every covered pixel once; the
+    validation pairs likewise with seed ``seed + 1``); the result's metrics gain ``scene``, the
+    image-space error over every covered pixel (:mod:`homofac.fit.scene`). ``mesh_up``: the mesh
+    file's up axis (``y`` for glTF's convention; turned into homofac's +z).
     """
 
-    kind: Literal["auto", "texels", "latlong", "random", "grid"] = "auto"
+    kind: Literal["auto", "texels", "latlong", "random", "grid", "scene"] = "auto"
     size: int = Field(24, ge=2, le=512)
     view_size: Optional[int] = Field(None, ge=2, le=512)
     validation: int = Field(20000, ge=0, le=10_000_000)
@@ -48,6 +89,22 @@ class SamplingOptions(Options):
     count: int = Field(0, ge=0, le=100_000_000)
     mapper: Optional[MapperName] = None
     cache: bool = True
+    mesh: Optional[str] = Field(None, min_length=1, max_length=4096)
+    mesh_up: Literal["z", "y"] = "z"
+    cameras: Optional[list[CameraOptions]] = Field(None, min_length=1, max_length=MAX_CAMERAS)
+
+    @model_validator(mode="after")
+    def _scene(self):
+        if self.kind != "scene":
+            if self.mesh is not None or self.cameras is not None:
+                raise ValueError("mesh and cameras are for kind: scene")
+            return self
+        if self.mesh is None:
+            raise ValueError("kind: scene needs a mesh (a file or a bundled scene name such as demo)")
+        pixels = sum(c.width * c.height for c in self.cameras or ())
+        if pixels > MAX_SCENE_PIXELS:
+            raise ValueError(f"the cameras have {pixels} pixels together, more than {MAX_SCENE_PIXELS}")
+        return self
 
 
 class AnalysisOptions(Options):
@@ -128,4 +185,4 @@ class FitOptions(Options):
                 or self.prefiltered or self.max_lookups is not None or self.linear is not None)
 
 
-__all__ = ["AnalysisOptions", "FitOptions", "LinearOptions", "MAX_TERMS", "MAX_TEXTURE_SIZE", "MIN_TEXTURE_SIZE", "MapperName", "SamplingOptions"]
+__all__ = ["AnalysisOptions", "CameraOptions", "MAX_CAMERAS", "MAX_CAMERA_SIDE", "MAX_SCENE_PIXELS", "FitOptions", "LinearOptions", "MAX_TERMS", "MAX_TEXTURE_SIZE", "MIN_TEXTURE_SIZE", "MapperName", "SamplingOptions"]

@@ -19,7 +19,7 @@ from ..errors import HomofacError
 from ..options import validate
 from ..param import parametrizations as pz
 from ..target import Target
-from . import auto, structures, sums
+from . import auto, scene, structures, sums
 from .draw import default_mapper, draw_samples
 from .metrics import measure
 from .options import AnalysisOptions, FitOptions, LinearOptions, SamplingOptions
@@ -138,8 +138,9 @@ def factorize(
     if opts.is_sum:
         pz.get(opts.parametrization, target.kind)
     t0 = time.perf_counter()
+    resolved = resolve_sampling(opts, target.kind, mapper)
     if samples is None:
-        samples = draw_samples(target, opts.parametrization, resolve_sampling(opts, target.kind, mapper), log)
+        samples = draw_samples(target, opts.parametrization, resolved, log)
     sample_s = time.perf_counter() - t0
     check_values(np.asarray(samples.y), "training")
     record = {"config": config or {}, "target_info": target_info or {}, "samples": samples if keep_samples else None}
@@ -170,7 +171,13 @@ def factorize(
         a = opts.analysis
         log(f"in-out analysis ({a.pair}) on {a.mapper} {a.size}")
         result = result.replace(analysis=baselines.analyse(target, a.pair, a.mapper, a.size).record())
-    state = from_fit(opts, target.kind, samples, result, mapper)  # what hf.fit.refit reuses (fit/refit.py)
+    sc = None
+    if resolved.kind == "scene":  # image-space metrics over every covered pixel of the cameras
+        sc = scene.load(resolved)
+        log(f"measuring the scene's image-space error ({len(sc)} covered pixels)")
+        result = result.replace(metrics={**result.metrics, "scene": sc.metrics(result, target, float(opts.solver.epsilon))},
+                                counts={**(result.counts or {}), "scene_pixels": len(sc)})
+    state = from_fit(opts, target.kind, samples, result, mapper, scene=sc)  # what hf.fit.refit reuses (fit/refit.py)
     return result.replace(timings={**result.timings, "total_s": time.perf_counter() - t_start}, target=target,
                           state=state)
 

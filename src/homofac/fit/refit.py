@@ -412,7 +412,7 @@ def refit(fac: Result, environment: Environment | None = None, brdf: BRDF | None
                     samples=samples if (fac.samples is not None if keep_samples is None else keep_samples) else None)
     mets = measure_on(state, result, tgt, samples, eps=float(opts.solver.epsilon))
     if state.scene is not None:
-        mets = {**mets, "scene": state.scene.metrics(result, tgt)}
+        mets = {**mets, "scene": state.scene.metrics(result, tgt, float(opts.solver.epsilon))}
     measure_s = time.perf_counter() - t1
     counts = {**(fac.counts or {}), "train": int(len(y)), "validation": int(len(val_y)),
               "lights": int(getattr(tgt.fn, "n_lights", 0))}

@@ -24,7 +24,7 @@ import numpy as np
 from .. import baselines
 from ..errors import HomofacError
 from ..param import parametrizations as pz
-from . import sampling
+from . import sampling, scene
 from .draw import draw_pairs
 from .options import FitOptions, SamplingOptions
 from .samples import Samples
@@ -123,8 +123,9 @@ def from_options(opts: FitOptions, kind: str, result, mapper: str, sampling_opti
         raise HomofacError("refit: the recorded sampling produces no training pairs")
     if groups is not None:  # the pairs exactly as the fit had them (normal-major)
         groups, vgroups = sampling.regroup(train.a, train.b), sampling.regroup(val.a, val.b)
+    sc = scene.load(sampling_options) if sampling_options.kind == "scene" else None
     return RefitState(opts, kind, mode, name, mapper, int(result.texture_size), train, val, groups, vgroups,
-                      structure)
+                      structure, sc)
 
 
 __all__ = ["RefitState", "from_fit", "from_layout", "from_options"]
