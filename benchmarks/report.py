@@ -4,7 +4,9 @@
 
 Writes ``benchmarks/results.md`` and ``benchmarks/pareto.png`` beside the JSON; with ``--readme`` it
 also replaces the part of README.md between ``<!-- bench:start -->`` and ``<!-- bench:end -->`` (and
-the refit table of benchmarks/test_refit.py between ``<!-- refit:start -->`` and ``<!-- refit:end -->``).
+the refit table of benchmarks/test_refit.py between ``<!-- refit:start -->`` and ``<!-- refit:end -->``,
+and the scene-sampling table of benchmarks/test_scene.py between ``<!-- scene:start -->`` and
+``<!-- scene:end -->``).
 Times are warm (compile reported apart); run time = sampling + assembling + solving.
 """
 
@@ -16,6 +18,7 @@ from pathlib import Path
 
 START, END = "<!-- bench:start -->", "<!-- bench:end -->"
 REFIT_START, REFIT_END = "<!-- refit:start -->", "<!-- refit:end -->"
+SCENE_START, SCENE_END = "<!-- scene:start -->", "<!-- scene:end -->"
 
 
 def records(path: Path) -> tuple[list[dict], list[dict], list[dict], dict]:
@@ -28,8 +31,8 @@ def records(path: Path) -> tuple[list[dict], list[dict], list[dict], dict]:
             baselines.append(r)
         elif r.get("kind") == "sums":
             sums.append(r)
-        elif r.get("kind") == "refit":
-            continue  # refit_records
+        elif r.get("kind") in ("refit", "scene"):
+            continue  # refit_records, scene_records
         elif "val_nrmse" in r:
             cases.append(r)
     return cases, baselines, sums, doc.get("machine_info", {})
@@ -54,6 +57,29 @@ def refit_table(rows: list[dict]) -> str:
                      f"{r['full_s']:.2f} ({r['full_first_s']:.1f}) | {ratio:.3g}x | {r['target']}: "
                      f"{'met' if r['met'] else 'NOT met'} | {r['val_nrmse']:.4f} ({r['full_val_nrmse']:.4f}) | "
                      f"{r['max_rel_metric_diff']:.1e} |")
+    return "\n".join(lines)
+
+
+def scene_records(path: Path) -> list[dict]:
+    """The records of benchmarks/test_scene.py (``kind: scene``) in a pytest-benchmark JSON."""
+    doc = json.loads(path.read_text())
+    return [b["extra_info"] for b in doc["benchmarks"] if b.get("extra_info", {}).get("kind") == "scene"]
+
+
+def scene_table(rows: list[dict]) -> str:
+    """The demo scene's image-space error per sampling (issue 15, part 3), and each sampling's error
+    relative to scene sampling of the same case."""
+    if not rows:
+        return ""
+    ref = {r["case"]: r["scene_nrmse"] for r in rows if r["sampling"] == "scene"}
+    lines = ["| case | sampling | training pairs | scene nrmse | x scene sampling | scene nrmse 8-bit | "
+             "scene avg rel | own validation nrmse | fit s |",
+             "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        x = r["scene_nrmse"] / ref[r["case"]] if r["case"] in ref else float("nan")
+        lines.append(f"| {r['case']} | {r['sampling']} | {r['pairs']:,} | {r['scene_nrmse']:.4f} | {x:.2f} | "
+                     f"{r['scene_nrmse_8bit']:.4f} | {r['scene_avg_rel']:.4f} | {r['own_val_nrmse']:.4f} | "
+                     f"{r['fit_s']:.1f} |")
     return "\n".join(lines)
 
 
@@ -159,9 +185,10 @@ def main(argv=None) -> None:
     path = Path(args.json)
     cases, baselines, sums, _ = records(path)
     refits = refit_records(path)
-    if not cases and not sums and not refits:
+    scenes = scene_records(path)
+    if not cases and not sums and not refits and not scenes:
         raise SystemExit(f"{path}: no benchmark records")
-    machine = (cases or sums or refits)[0].get("machine", "")
+    machine = (cases or sums or refits or scenes)[0].get("machine", "")
     md = ""
     if cases or sums:
         md = f"Machine: {machine}.\n\n" + (table(cases, baselines) + "\n" if cases else "")
@@ -171,6 +198,8 @@ def main(argv=None) -> None:
     if cases:
         plot(cases, path.parent / "pareto.png", machine)
     refit_md = f"Machine: {machine}.\n\n{refit_table(refits)}\n" if refits else ""
+    scene_md = (f"Machine: {machine}; the demo scene's {scenes[0]['scene_pixels']:,} covered pixels.\n\n"
+                f"{scene_table(scenes)}\n") if scenes else ""
     if args.readme:
         readme = Path(args.readme)
         text = readme.read_text()
@@ -178,8 +207,10 @@ def main(argv=None) -> None:
             text = replace_block(text, START, END, f"{md}\n![error against run time](benchmarks/pareto.png)", str(readme))
         if refit_md:
             text = replace_block(text, REFIT_START, REFIT_END, refit_md, str(readme))
+        if scene_md:
+            text = replace_block(text, SCENE_START, SCENE_END, scene_md, str(readme))
         readme.write_text(text)
-    print(md + refit_md)
+    print(md + refit_md + scene_md)
 
 
 if __name__ == "__main__":
