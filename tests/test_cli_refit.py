@@ -15,6 +15,7 @@ import yaml
 
 import homofac as hf
 from homofac.app.cli import fit_main as main
+from homofac.errors import HomofacError
 
 GOLD = {"model": "cook_torrance", "kd": [0.05, 0.04, 0.02], "ks": 1.0, "roughness": 0.3, "f0": [1.0, 0.78, 0.34]}
 CFG = {
@@ -82,6 +83,7 @@ def test_refit_through_the_cli_equals_a_full_run(saved, tmp_path, capsys):
     assert rel < 0.01, where
     doc = json.loads((out / "factorization.json").read_text())
     assert doc["solver"]["refit"] is True
+    assert doc["solver"]["method"] == "lsmr" and doc["solver"]["converged"]  # one right-hand side: no factoring
     assert doc["config"]["target"]["environment"]["file"] == "city"
     assert doc["target"]["environment"]["source"].endswith("city.exr") or "city" in json.dumps(doc["target"])
     assert (out / "samples.npz").is_file()
@@ -149,3 +151,18 @@ def test_bad_refit_inputs_are_refused_in_one_line(saved, tmp_path, capsys):
         assert "\n" not in err and err.startswith("homofac: error: ") and message in err, (argv, err)
     assert entries(tmp_path) == before  # nothing written, nothing left behind
     assert sorted((tmp_path / "foreign").iterdir()) == [tmp_path / "foreign" / "notes.txt"]
+
+
+def test_lsmr_refit_equals_the_factored_one(saved):
+    fac = hf.fit.prepare_refit(hf.output.load(saved / "forest"))
+    city = hf.light.load_environment("city", resolution=8)
+    target = hf.light.lighting_target(hf.brdf.cook_torrance(**{k: v for k, v in GOLD.items() if k != "model"}), city)
+    lsmr = hf.fit.refit(fac, target=target, solve="lsmr")
+    normal = hf.fit.refit(fac, target=target)
+    assert lsmr.solver["method"] == "lsmr" and normal.solver["method"].startswith("normal equations")
+    for split in normal.metrics:
+        for kind in normal.metrics[split]:
+            for name, y in normal.metrics[split][kind].items():
+                assert abs(lsmr.metrics[split][kind][name] - y) <= 0.01 * max(abs(y), 1e-12), (split, kind, name)
+    with pytest.raises(HomofacError, match="solve must be auto or lsmr"):
+        hf.fit.refit(fac, target=target, solve="cholesky")

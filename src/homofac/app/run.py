@@ -255,8 +255,10 @@ def run_refit(cfg: Config, base: Path, saved_dir, out_dir: str | None = None, lo
         if log is not None:
             log(f"preparing the refit state of {saved_dir}")
         ready = prepare_refit(saved)
+        # one right-hand side in a fresh process: the configured solver from the saved solution (factoring
+        # the normal equations pays only when the state is refitted again; docs/refit.md)
         fac = refit(ready, target=target, config=cfg.model_dump(mode="json"), target_info=info,
-                    keep_samples=keeps_samples(cfg), log=log)
+                    keep_samples=keeps_samples(cfg), log=log, solve="lsmr")
         fac = write_result(fac, target, cfg, out, log=log, preview=preview, shaders=shaders)
     return fac, out
 

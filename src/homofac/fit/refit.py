@@ -282,8 +282,10 @@ def product_model(target: Target, p: pz.Parametrization, layout: Layout, x, alph
     return precision.normalize(model)
 
 
-def refit_product(state: RefitState, fac: Result, target: Target, y: np.ndarray, log) -> tuple[Factorization, dict, float]:
-    """The log-space product of the state's layout for values ``y`` (see the module doc, 2.)."""
+def refit_product(state: RefitState, fac: Result, target: Target, y: np.ndarray, log,
+                  solve: str = "auto") -> tuple[Factorization, dict, float]:
+    """The log-space product of the state's layout for values ``y`` (see the module doc, 2.); ``solve``
+    as in :func:`refit`."""
     p, layout = layout_of(state)
     opts = state.options.solver
     sys = system_rows(state, target)
@@ -294,7 +296,7 @@ def refit_product(state: RefitState, fac: Result, target: Target, y: np.ndarray,
     if not keep.any():
         raise HomofacError("solver.zeros: ignore left no training sample with all channels > 0")
     t0 = time.perf_counter()
-    if keep.all() and n <= CHOLESKY_MAX_UNKNOWNS:
+    if solve != "lsmr" and keep.all() and n <= CHOLESKY_MAX_UNKNOWNS:
         (how, factor), a_t, lap = normal_equations(state, sys, lam, layout, p)
         if how == "inverse":
             x, alpha, rhs = _inverse_solve(factor, sys.cols, sys.w, jnp.asarray(y, jnp.float32), jnp.asarray(keep),
@@ -342,7 +344,7 @@ def _log_rhs(y, keep, eps):
 
 def refit(fac: Result, environment: Environment | None = None, brdf: BRDF | None = None, *,
           target: Target | None = None, transport: bool | None = None, linear: dict | None = None,
-          start: str = "previous", samples=None,
+          start: str = "previous", solve: str = "auto", samples=None,
           config: dict | None = None, target_info: dict | None = None, keep_samples: bool | None = None,
           log: Callable[[str], None] | None = None) -> Result:
     """The factorization of a new environment and / or BRDF on ``fac``'s layout, with its metrics.
@@ -357,6 +359,10 @@ def refit(fac: Result, environment: Environment | None = None, brdf: BRDF | None
             or ``None`` (auto: when the refit keeps the BRDF's lobe shape -- an environment or colour
             change -- and it fits in :data:`TRANSPORT_BYTES`, or when the state holds it already).
         linear: options of a sum's linear-space refit (e.g. ``{"iterations": 10}``), merged into the fit's.
+        solve: how a product's refit solves: ``auto`` (the normal equations factored once and kept in
+            the state, up to :data:`CHOLESKY_MAX_UNKNOWNS` unknowns: best when the state is refitted
+            again) or ``lsmr`` (the configured solver from the previous solution: best for one refit
+            of a fresh state, e.g. the CLI's ``--refit``, where factoring would not pay).
         start: where a sum's refit starts: ``previous`` (the previous terms, a warm start) or ``fresh``
             (the start rule of a full run, on the new target: the full run's result on the same samples).
             ALS and Levenberg-Marquardt find local minima, so a warm start may end in another one than
@@ -378,6 +384,8 @@ def refit(fac: Result, environment: Environment | None = None, brdf: BRDF | None
                            "for one read from disk use hf.fit.prepare_refit(fac))")
     t_start = time.perf_counter()
     tgt = new_target(fac, environment, brdf, target)
+    if solve not in ("auto", "lsmr"):
+        raise HomofacError(f"refit: solve must be auto or lsmr, got {solve!r}")
     if start not in ("previous", "fresh"):
         raise HomofacError(f"refit: start must be previous or fresh, got {start!r}")
     opts = state.options
@@ -392,7 +400,7 @@ def refit(fac: Result, environment: Environment | None = None, brdf: BRDF | None
     sample_s = time.perf_counter() - t0
     log(f"refitting {state.mode} {state.parametrization} on {len(y)} training pairs")
     if state.mode == "product":
-        model, record, solve_s = refit_product(state, fac, tgt, y, log)
+        model, record, solve_s = refit_product(state, fac, tgt, y, log, solve)
         warnings: tuple = ()
     elif state.mode == "sum":
         lin = opts.linear or LinearOptions()
