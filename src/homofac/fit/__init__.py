@@ -9,12 +9,14 @@ sums of products in linear space: :mod:`.structures` (terms, diffuse, nv_factor)
 and the choice within ``max_lookups``), :mod:`.als` (grid ALS), :mod:`.refine` (Levenberg-Marquardt).
 Solve once, reuse: :func:`refit` (:mod:`.refit`; a new environment or material on a fit's layout, what
 it reuses in :mod:`.state`, the light transport in :mod:`.transport`), :func:`factorize_many` (:mod:`.many`: one layout, many targets).
+Scene-aware sampling: :mod:`.scene` (``sampling.kind: scene``: the (n, v) pairs a mesh seen by cameras
+produces, and the image-space metrics of that scene).
 """
 
 from __future__ import annotations
 
 from ..target import Target, brdf_target, evaluate
-from . import als, metrics, precision, refine, sampling, solvers, structures, sums, system, transport
+from . import als, metrics, precision, refine, sampling, scene, solvers, structures, sums, system, transport
 from .draw import draw_samples
 from .metrics import measure
 from .options import FitOptions, LinearOptions, SamplingOptions
@@ -30,5 +32,5 @@ from .structures import Structure
 __all__ = [
     "FitOptions", "LinearOptions", "Result", "SamplingOptions", "Structure", "als", "refine", "structures", "sums", "Samples", "SolveResult", "SolverOptions", "Target", "brdf_target",
     "draw_samples", "evaluate", "evaluate_grouped", "factorize", "factorize_many", "measure", "metrics", "precision", "sampling",
-    "prepare_refit", "refit", "solve", "solvers", "system", "transport",
+    "prepare_refit", "refit", "scene", "solve", "solvers", "system", "transport",
 ]

@@ -35,8 +35,9 @@ def draw_samples(target: Target, parametrization: str, options: SamplingOptions 
     log = log or (lambda msg: None)
     s = validate(SamplingOptions, options, "sampling")
     settings = s.model_dump()
-    if s.kind == "scene":  # the mesh file's content, not only its name, keys the samples
+    if s.kind == "scene":  # the mesh file's content and the cameras (a bundled scene's own), not only names
         settings["mesh_sha256"] = scene.fingerprint(s)
+        settings["cameras"] = [c.model_dump() for c in scene.resolve_cameras(s)]
     k = cache.key(target, settings, parametrization) if s.cache else None
     if k is not None:
         hit = cache.load(k, validation=s.validation)
@@ -76,6 +77,15 @@ def draw_pairs(kind: str, parametrization: str, s: SamplingOptions):
 
 
 def _draw(target: Target, parametrization: str, s: SamplingOptions, log: Callable) -> Samples:
+    if s.kind == "scene" and target.kind == "lighting":
+        # the exact lighting at every covered pixel, evaluated once (the scene metrics reuse it), then
+        # gathered at the drawn pixels: the pairs of draw_pairs, in its order
+        sc = scene.load(s)
+        train = sc.draw(s.count, s.seed)
+        val = sc.draw(s.validation, s.seed + 1) if s.validation else np.zeros(0, np.int64)
+        log(f"sampling the scene's {len(sc)} covered pixels ({len(train)} training pairs)")
+        y = sc.exact(target)
+        return Samples(sc.normals[train], sc.views[train], y[train], sc.normals[val], sc.views[val], y[val])
     pairs, val, groups, vgroups = draw_pairs(target.kind, parametrization, s)
     if len(pairs) == 0:
         raise HomofacError("sampling produced no valid direction pairs; increase sampling.size")

@@ -38,7 +38,7 @@ from ..errors import HomofacError
 from ..light import Lighting
 from ..target import Target, evaluate
 from ..param import parametrizations as pz
-from . import cache, transport
+from . import cache, scene, transport
 from .draw import default_mapper, draw_pairs
 from .options import FitOptions
 from .pipeline import factorize, options, quality_warnings, resolve_sampling
@@ -157,7 +157,9 @@ def factorize_many(targets: Sequence[Target], parametrization: str = "NR", *, co
     kind = targets[0].kind
     mapper = opts.mapper or default_mapper(kind)
     t0 = time.perf_counter()
-    samples, _ = _samples(targets, opts.parametrization, resolve_sampling(opts, kind, mapper), log)
+    resolved = resolve_sampling(opts, kind, mapper)
+    samples, _ = _samples(targets, opts.parametrization, resolved, log)
+    sc = scene.load(resolved) if resolved.kind == "scene" else None  # image-space metrics of every target
     sample_s = time.perf_counter() - t0
     for smp in samples:
         check_values(np.asarray(smp.y), "training")
@@ -168,7 +170,7 @@ def factorize_many(targets: Sequence[Target], parametrization: str = "NR", *, co
                and opts.solver.method == "lsmr" and int(opts.solver.levels) == 1 and len(contexts) == 1
                and all(zeros_rule(t, opts.solver) == "bias" for t in targets))
     if batched:
-        state = from_layout(opts, kind, samples[0], mapper)
+        state = from_layout(opts, kind, samples[0], mapper, scene=sc)
         p, layout = layout_of(state)
     if not batched:
         return _one_by_one(targets, opts, samples, configs, infos, keep_samples, log, sample_s, t_start)
@@ -215,6 +217,8 @@ def factorize_many(targets: Sequence[Target], parametrization: str = "NR", *, co
         res = Result(model, solver=solver, config=configs[i] or {}, target_info=infos[i] or {}, state=state, target=t,
                      samples=smp if keep_samples else None)
         mets = measure_on(state, res, t, smp, eps)
+        if sc is not None:
+            mets = {**mets, "scene": sc.metrics(res, t, eps)}
         res = res.replace(metrics=mets, warnings=tuple(quality_warnings(mets)))
         n = len(targets)
         results.append(res.replace(
@@ -222,7 +226,8 @@ def factorize_many(targets: Sequence[Target], parametrization: str = "NR", *, co
                      "total_s": total / n + time.perf_counter() - t2, "library_sample_s": sample_s,
                      "library_solve_s": solve_s},
             counts={"train": int(len(smp.a)), "validation": int(len(smp.val_a)), "unknowns": int(layout.n_unknowns),
-                    "lights": int(getattr(t.fn, "n_lights", 0)), "library": n}))
+                    "lights": int(getattr(t.fn, "n_lights", 0)), "library": n,
+                    **({"scene_pixels": len(sc)} if sc is not None else {})}))
     return results
 
 

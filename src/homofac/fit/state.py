@@ -92,9 +92,9 @@ def from_fit(opts: FitOptions, kind: str, samples: Samples, result, mapper: str,
     return RefitState(opts, kind, mode, name, mapper, size, train, val, groups, val_groups, structure, scene)
 
 
-def from_layout(opts: FitOptions, kind: str, samples: Samples, mapper: str) -> RefitState:
+def from_layout(opts: FitOptions, kind: str, samples: Samples, mapper: str, scene=None) -> RefitState:
     """The state of the layout ``opts`` describes (no fit yet: products, sums and baselines of fixed
-    structure), on the directions of ``samples``."""
+    structure), on the directions of ``samples`` (``scene``: the scene of a scene sampling)."""
     mode = _mode(opts)
     structure = (Structure(opts.parametrization, opts.terms, opts.diffuse, opts.nv_factor, opts.reflection,
                            opts.prefiltered) if mode == "sum" else None)
@@ -104,7 +104,7 @@ def from_layout(opts: FitOptions, kind: str, samples: Samples, mapper: str) -> R
     if kind == "lighting":
         groups, val_groups = sampling.regroup(train.a, train.b), sampling.regroup(val.a, val.b)
     return RefitState(opts, kind, mode, opts.parametrization, mapper, int(opts.texture_size), train, val, groups,
-                      val_groups, structure)
+                      val_groups, structure, scene)
 
 
 def from_options(opts: FitOptions, kind: str, result, mapper: str, sampling_options: SamplingOptions) -> RefitState:
