@@ -216,6 +216,7 @@ def test_a_refit_of_a_scene_sampled_fit_measures_the_scene_too(target):
     assert r.metrics["scene"] != first.metrics["scene"]  # measured for the new environment
 
 
+@pytest.mark.slow
 def test_sums_of_products_take_scene_samples(target):
     fac = hf.fit.factorize(target, "NR", texture_size=8, terms=1, diffuse="exact",
                            linear={"method": "levenberg_marquardt", "iterations": 3, "inner_iterations": 20},
