@@ -8,6 +8,8 @@ Small sizes (texture 16, sampling 8, light resolution 8) so the file runs in sec
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -166,3 +168,13 @@ def test_lsmr_refit_equals_the_factored_one(saved):
                 assert abs(lsmr.metrics[split][kind][name] - y) <= 0.01 * max(abs(y), 1e-12), (split, kind, name)
     with pytest.raises(HomofacError, match="solve must be auto or lsmr"):
         hf.fit.refit(fac, target=target, solve="cholesky")
+
+
+def test_refit_through_the_module_entry_point(saved, tmp_path):
+    city = config(tmp_path, "city", target__environment={"file": "city", "resolution": 8})
+    r = subprocess.run([sys.executable, "-m", "homofac.fit", str(city), "--quiet", "--refit", str(saved / "forest"),
+                        "--out", str(tmp_path / "o")], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.splitlines()[1].startswith(f"refit of {saved / 'forest'}: ")
+    rel, where = worst(metrics(tmp_path / "o"), metrics(saved / "city_full"))
+    assert rel < 0.01, where
