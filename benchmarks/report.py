@@ -71,15 +71,17 @@ def scene_table(rows: list[dict]) -> str:
     relative to scene sampling of the same case."""
     if not rows:
         return ""
-    ref = {r["case"]: r["scene_nrmse"] for r in rows if r["sampling"] == "scene"}
+    ref = {r["case"]: r for r in rows if r["sampling"] == "scene"}
     lines = ["| case | sampling | training pairs | scene nrmse | x scene sampling | scene nrmse 8-bit | "
-             "scene avg rel | own validation nrmse | fit s |",
-             "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
+             "scene avg rel | held-out views nrmse | x scene sampling | own validation nrmse | fit s |",
+             "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
-        x = r["scene_nrmse"] / ref[r["case"]] if r["case"] in ref else float("nan")
+        base = ref.get(r["case"])
+        x = r["scene_nrmse"] / base["scene_nrmse"] if base else float("nan")
+        hx = r["held_out_nrmse"] / base["held_out_nrmse"] if base else float("nan")
         lines.append(f"| {r['case']} | {r['sampling']} | {r['pairs']:,} | {r['scene_nrmse']:.4f} | {x:.2f} | "
-                     f"{r['scene_nrmse_8bit']:.4f} | {r['scene_avg_rel']:.4f} | {r['own_val_nrmse']:.4f} | "
-                     f"{r['fit_s']:.1f} |")
+                     f"{r['scene_nrmse_8bit']:.4f} | {r['scene_avg_rel']:.4f} | {r['held_out_nrmse']:.4f} | "
+                     f"{hx:.2f} | {r['own_val_nrmse']:.4f} | {r['fit_s']:.1f} |")
     return "\n".join(lines)
 
 
@@ -198,7 +200,8 @@ def main(argv=None) -> None:
     if cases:
         plot(cases, path.parent / "pareto.png", machine)
     refit_md = f"Machine: {machine}.\n\n{refit_table(refits)}\n" if refits else ""
-    scene_md = (f"Machine: {machine}; the demo scene's {scenes[0]['scene_pixels']:,} covered pixels.\n\n"
+    scene_md = (f"Machine: {machine}; the demo scene's {scenes[0]['scene_pixels']:,} covered pixels (held-out "
+                f"views: {scenes[0]['held_out_pixels']:,}).\n\n"
                 f"{scene_table(scenes)}\n") if scenes else ""
     if args.readme:
         readme = Path(args.readme)
