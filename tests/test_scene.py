@@ -388,3 +388,18 @@ def test_scene_samples_hold_the_exact_values_of_the_pairs_draw_pairs_gives(targe
     np.testing.assert_array_equal(smp.val_b, val.b)
     direct = np.asarray(hf.fit.evaluate(target, smp.a, smp.b))
     np.testing.assert_allclose(smp.y, direct, rtol=2e-4, atol=1e-6)
+
+
+@pytest.mark.slow
+def test_a_saved_scene_fit_refits_from_disk_with_its_scene(target, tmp_path):
+    opts = {"parametrization": "NR", "texture_size": 8,
+            "sampling": {"kind": "scene", "mesh": "demo", "count": 2000, "validation": 300, "cache": False}}
+    first = hf.fit.factorize(target, **opts, config=opts)
+    first.save(tmp_path / "out")
+    back = hf.fit.prepare_refit(hf.output.load(tmp_path / "out"))
+    assert back.state.scene is scene.load(opts["sampling"])  # rebuilt from the recorded config
+    np.testing.assert_array_equal(back.state.train.a, first.state.train.a)
+    env = hf.light.load_environment("city", resolution=8)
+    r = hf.fit.refit(back, target=hf.light.lighting_target(target.fn.brdf, env))
+    live = hf.fit.refit(first, environment=env)
+    assert r.metrics["scene"]["float"]["nrmse"] == pytest.approx(live.metrics["scene"]["float"]["nrmse"], rel=1e-3)

@@ -90,7 +90,9 @@ def factorize(
         mapper: direction mapper of the textures (default: parabolic for BRDF, dual_paraboloid for lighting).
         texture_size: S of the mapper table (4 ... 1024).
         sampling: :class:`~homofac.fit.options.SamplingOptions` as a dict (``kind``, ``size``, ``view_size``,
-            ``validation``, ``seed``, ``count``, ``mapper``, ``cache``).
+            ``validation``, ``seed``, ``count``, ``mapper``, ``cache``; ``kind: scene`` with ``mesh``,
+            ``cameras``, ``mesh_up`` draws the pairs a scene shows and adds ``metrics["scene"]``, the
+            image-space error over its covered pixels: :mod:`homofac.fit.scene`).
         solver: solver options as a dict (``method``, ``tolerance``, ``max_iterations``, ``laplacian``,
             ``epsilon``, ``levels``), validated by the method's own option model.
         target_error: fit candidates cheapest first and keep the first whose validation nrmse meets it
