@@ -23,6 +23,7 @@ def _close(a: dict, b: dict, tol: float = 0.01):
                 assert abs(a[split][kind][name] - y) <= tol * max(abs(y), 1e-12), (split, kind, name, a[split][kind][name], y)
 
 
+@pytest.mark.slow
 def test_library_equals_full_runs(env):
     brdfs = [hf.brdf.cook_torrance(kd=(0.05, 0.04, 0.02), ks=1.0, roughness=0.3, f0=(1.0, 0.78, 0.34)),
              hf.brdf.cook_torrance(kd=(0.3, 0.1, 0.1), ks=0.5, roughness=0.3, f0=(0.04, 0.04, 0.04)),  # same shape
@@ -44,6 +45,7 @@ def test_library_equals_full_runs(env):
     assert again.metrics["validation"]["float"]["nrmse"] > 0
 
 
+@pytest.mark.slow
 def test_library_of_sums_fits_each_target(env):
     kw = dict(texture_size=8, terms=1, diffuse="exact", linear={"iterations": 4},
               sampling={"count": 4000, "validation": 500, "cache": False})

@@ -97,6 +97,7 @@ def test_transport_path_equals_the_direct_values(base, envs):
                                rtol=1e-4, atol=1e-6)
 
 
+@pytest.mark.slow
 def test_lobe_sums_and_transport_match_the_lighting_computation(envs):
     g = sampling.grouped_pairs("texels", 6, mapper="dual_paraboloid")
     brdfs = [gold(roughness=r) for r in (0.2, 0.45)] 
@@ -169,6 +170,7 @@ def test_brdf_factorization_refit():
     assert rel < 0.01, where
 
 
+@pytest.mark.slow
 def test_sum_refit_warm_start_and_fresh(envs):
     kw = dict(texture_size=8, terms=2, diffuse="exact", nv_factor=True, linear={"iterations": 8},
               sampling={"count": 6000, "validation": 1000, "cache": False})

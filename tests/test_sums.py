@@ -116,6 +116,7 @@ def test_levenberg_marquardt_matches_on_random_samples(exact_sum):
         sums.fit_sum(target, Structure("NR", 1, None, True), "dual_paraboloid", S, s, LinearOptions(method="als"))
 
 
+@pytest.mark.slow
 def test_jaxopt_backend_reaches_a_comparable_objective(exact_sum):
     pytest.importorskip("jaxopt")
     model, target, s = exact_sum
@@ -183,6 +184,7 @@ def test_factorize_keys_validate_and_record(plastic, tmp_path):
         hf.fit.factorize(target, "split_sum", texture_size=S, samples=s, terms=2)
 
 
+@pytest.mark.slow
 def test_max_lookups_picks_within_the_budget(plastic):
     target, s = plastic
     fac = hf.fit.factorize(target, "NR", texture_size=S, max_lookups=8, samples=s, linear={"iterations": 5})
@@ -246,6 +248,7 @@ def _clean_nrmse(fac, model, s):
     return _nrmse(pred, clean)
 
 
+@pytest.mark.slow
 def test_measured_zeros_are_left_out_of_the_log_system(garnet):
     model, target = garnet
     s = hf.fit.draw_samples(target, "PQP", {"cache": False, "validation": 5000})
@@ -259,6 +262,7 @@ def test_measured_zeros_are_left_out_of_the_log_system(garnet):
     assert _clean_nrmse(biased, model, s) > 2 * _clean_nrmse(auto, model, s)  # what the zeros cost in log space
 
 
+@pytest.mark.slow
 def test_two_term_pqp_fits_a_sum_of_two_lobes():
     """A BRDF that is a sum of two PQP products: two linear-space terms hold it, one product cannot."""
     a = _pqp(16, (0.5, 0.1, 0.1), 2.0, 40.0)
