@@ -205,6 +205,10 @@ def _summary(fac, out, seconds: float | None) -> None:
         f"validation nrmse {val.get('nrmse', float('nan')):.4g} avg_rel {val.get('avg_rel', float('nan')):.4g}, "
         f"{how}{took}"
     )
+    if "scene" in fac.metrics:
+        sc = fac.metrics["scene"]["float"]
+        pixels = (fac.counts or {}).get("scene_pixels", 0)
+        print(f"scene (image space, {pixels} covered pixels): nrmse {sc['nrmse']:.4g} avg_rel {sc['avg_rel']:.4g}")
     if fac.selection is not None and "max_lookups" in fac.selection:
         tried = "; ".join(f"{t['label']} ({t['lookups']}) {t['validation_nrmse']:.4g}" for t in fac.selection["tried"])
         print(f"structure: {fac.selection['reason']} (tried: {tried})")

@@ -19,7 +19,7 @@ from PIL import Image
 
 from .. import brdf as brdf_mod
 from ..errors import HomofacError
-from ..fit import factorize, prepare_refit, refit
+from ..fit import factorize, prepare_refit, refit, scene
 from ..fit.draw import default_mapper
 from ..fit.options import FitOptions
 from ..fit.metrics import measure
@@ -138,8 +138,11 @@ def write_result(fac: Result, target: Target, cfg: Config, out: Path, log=None, 
     encoding = encoding_of(cfg)
     if encoding != {"alpha": True}:  # the quantized metrics must describe the 8-bit textures that are written
         fac = fac.replace(encoding=encoding)
-        fac = fac.replace(metrics=measure(fac, target, fac.samples, eps=float(cfg.solver.epsilon)),
-                          samples=fac.samples if o.samples else None)
+        eps = float(cfg.solver.epsilon)
+        metrics = measure(fac, target, fac.samples, eps=eps)
+        if "scene" in fac.metrics:  # the scene's image-space error, of the textures that are written
+            metrics["scene"] = scene.load(cfg.sampling).metrics(fac, target, eps)
+        fac = fac.replace(metrics=metrics, samples=fac.samples if o.samples else None)
     extra = {}
     if o.preview if preview is None else preview:
         extra["preview.png"] = preview_writer(fac, target, log=log)
