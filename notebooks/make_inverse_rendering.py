@@ -1,5 +1,5 @@
 """Writes notebooks/inverse_rendering.ipynb (outputs stripped) from the cells below:
-python notebooks/make_inverse_rendering.py
+python notebooks/make_inverse_rendering.py (``--run``: execute the cells as a script instead)
 
 The notebook is generated so its source stays reviewable as plain Python; tests/test_inverse.py checks
 that the committed notebook matches this generator and executes it (HOMOFAC_NOTEBOOK_QUICK=1).
@@ -135,7 +135,24 @@ def build() -> nbformat.NotebookNode:
     return nb
 
 
+def run() -> None:
+    """Executes the code cells in order as a script (the measurement of docs/differentiable.md):
+    python notebooks/make_inverse_rendering.py --run (HOMOFAC_NOTEBOOK_QUICK=1 for the small sizes)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    ns: dict = {}
+    for kind, src in CELLS:
+        if kind == "code":
+            exec(compile(src, "inverse_rendering.ipynb", "exec"), ns)
+
+
 if __name__ == "__main__":
+    import sys
+
+    if "--run" in sys.argv[1:]:
+        run()
+        sys.exit(0)
     path = Path(__file__).with_name("inverse_rendering.ipynb")
     nbformat.write(build(), path)
     print("wrote", path)

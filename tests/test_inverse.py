@@ -190,12 +190,14 @@ def recover(fac, pixels, reference, *, guess=(0.6, (0.5, 0.5, 0.5)), max_steps=2
 def test_inverse_rendering_recovers_roughness_and_f0(x64_module):
     """Cook-Torrance under forest (8 x 8 x 6 lights), rendered exactly at roughness 0.3, F0 (0.9, 0.65,
     0.3), recovered from roughness 0.6, F0 0.5 through an NR layout (16^2 textures) fitted on a 32^2
-    camera image's pairs. Measured errors at these sizes: roughness ~0.00x, F0 ~0.01 (the factorized
-    model's remaining image error at the truth biases the minimum a little); asserted: 0.03 each."""
+    camera image's pairs, loss on a 24^2 image. Measured (34 BFGS steps): roughness 0.2982 (error
+    0.0018), F0 (0.9002, 0.6503, 0.3000) (errors <= 3e-4); the factorized model's remaining image error
+    at the truth moves the minimum a little. Asserted: 0.01 each, over 5x the measured error."""
     _, fac, pixels, reference = _scene(8, 16, 32, 24)
     r, f0, sol = recover(fac, pixels, reference)
-    assert abs(r - TRUE_ROUGHNESS) < 0.03, (r, f0)
-    assert np.all(np.abs(f0 - TRUE_F0) < 0.03), (r, f0)
+    assert abs(r - TRUE_ROUGHNESS) < 0.01, (r, f0)
+    assert np.all(np.abs(f0 - TRUE_F0) < 0.01), (r, f0)
+    assert abs(r - 0.6) > 0.25  # it moved from the guess
 
 
 # ------------------------------------------------------------------------------------------------
