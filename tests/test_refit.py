@@ -14,6 +14,7 @@ import pytest
 import homofac as hf
 import homofac.fit.refit  # noqa: F401  (the module; hf.fit.refit is the function)
 from homofac.errors import HomofacError
+from homofac.fit import differentiable as dr
 from homofac.fit import footprints, sampling, transport
 
 rf = sys.modules["homofac.fit.refit"]
@@ -209,3 +210,20 @@ def test_refit_refuses_bad_input(base, envs):
         hf.fit.refit(base, target=hf.fit.brdf_target(gold()))
     with pytest.raises(HomofacError, match="start"):
         hf.fit.refit(base, environment=envs[1], start="cold")
+
+
+def test_a_layout_with_unreached_unknowns_refits_finite_and_equal(envs):
+    """Pairs of one perspective view of a sphere leave the back paraboloid half without a sample (and its
+    texels out of reach of the smoothing rows): the normal equations are near-singular there. The refit
+    must neither hand back non-finite textures (a float32 inverse did) nor differ from a full run."""
+    lo = [hf.light.load_environment(n, resolution=4) for n in ("forest", "city")]
+    px = dr.sphere_pixels(20, camera="perspective")
+    kw = dict(texture_size=8, solver={"method": "lsmr", "laplacian": 1.0})
+    t0, t1 = (hf.light.lighting_target(gold(), e) for e in lo)
+    fac = hf.fit.factorize(t0, "NR", samples=dr.pixel_samples(t0, px), **kw)
+    r = hf.fit.refit(fac, environment=lo[1])
+    assert r.solver["method"] == "normal equations (cholesky)"
+    assert all(np.all(np.isfinite(np.asarray(t.data))) for t in r.model.textures)
+    full = hf.fit.factorize(t1, "NR", samples=dr.pixel_samples(t1, px), **kw)
+    rel, where = worst(r.metrics, full.metrics)
+    assert rel < 0.01, where

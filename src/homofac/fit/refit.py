@@ -58,6 +58,9 @@ from .system import Layout, System, build_system, objective, parametrization_lay
 CHOLESKY_MAX_UNKNOWNS = 8000
 #: Up to this many unknowns the factored normal equations are kept as their float32 inverse (one
 #: matrix-vector product per refit; well conditioned once the gauge is fixed, see :func:`gauge_basis`).
+#: The float32 inverse is used only when the Cholesky factor's diagonal ratio squared (a cheap estimate
+#: of the reciprocal condition number) is above this; else the float64 Cholesky solve.
+INVERSE_MIN_RCOND = 1e-6
 INVERSE_MAX_UNKNOWNS = 4096
 #: Largest light transport (training + validation) a refit keeps in its state, bytes.
 TRANSPORT_BYTES = 1 << 30
@@ -236,15 +239,24 @@ def normal_equations(state: RefitState, sys: System, lam: float, layout: Layout,
         g = gauge_basis(layout, p)
         ata += max(float(np.mean(np.diag(ata))), 1e-30) * (g @ g.T)
         ata[np.diag_indices_from(ata)] += 1e-12 * max(float(np.mean(np.diag(ata))), 1e-30)
+        c, info = sla.lapack.dpotrf(ata, lower=True)
+        if info != 0:
+            raise HomofacError("refit: the normal equations are not positive definite; try a larger solver.laplacian")
+        d = np.abs(np.diag(c))
+        if how == "inverse" and (d.min() / d.max()) ** 2 < INVERSE_MIN_RCOND:
+            # near-singular (unknowns that no sample and no smoothing row reaches, e.g. a paraboloid half
+            # no pixel shows): a float32 inverse amplifies round-off along those directions into
+            # non-finite textures, while the float64 Cholesky solve keeps them at ~0 (A^T b has no
+            # component there)
+            how = "cholesky"
         if how == "inverse":
-            c, info = sla.lapack.dpotrf(ata, lower=True)
-            inv, info2 = sla.lapack.dpotri(c, lower=True) if info == 0 else (None, info)
+            inv, info2 = sla.lapack.dpotri(c, lower=True)
             if info2 != 0:
                 raise HomofacError("refit: the normal equations are not positive definite; try a larger solver.laplacian")
             inv = np.tril(inv) + np.tril(inv, -1).T
             factor = ("inverse", jnp.asarray(inv, jnp.float32))
         else:
-            factor = ("cholesky", sla.cho_factor(ata, lower=True, check_finite=False))
+            factor = ("cholesky", (c, True))
         state.cache[key] = (factor, a_data.T.tocsr(), lap)
     return state.cache[key]
 
