@@ -16,7 +16,7 @@ produces, and the image-space metrics of that scene).
 from __future__ import annotations
 
 from ..target import Target, brdf_target, evaluate
-from . import als, metrics, precision, refine, sampling, scene, solvers, structures, sums, system, transport
+from . import als, differentiable, metrics, precision, refine, sampling, scene, solvers, structures, sums, system, transport
 from .draw import draw_samples
 from .metrics import measure
 from .options import FitOptions, LinearOptions, SamplingOptions
@@ -30,7 +30,7 @@ from .solvers import SolveResult, SolverOptions, solve
 from .structures import Structure
 
 __all__ = [
-    "FitOptions", "LinearOptions", "Result", "SamplingOptions", "Structure", "als", "refine", "structures", "sums", "Samples", "SolveResult", "SolverOptions", "Target", "brdf_target",
+    "FitOptions", "LinearOptions", "Result", "differentiable", "SamplingOptions", "Structure", "als", "refine", "structures", "sums", "Samples", "SolveResult", "SolverOptions", "Target", "brdf_target",
     "draw_samples", "evaluate", "evaluate_grouped", "factorize", "factorize_many", "measure", "metrics", "precision", "sampling",
     "prepare_refit", "refit", "scene", "solve", "solvers", "system", "transport",
 ]
