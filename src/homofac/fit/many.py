@@ -8,13 +8,11 @@ under several environments) on one layout: the same sample directions, the same 
    :func:`homofac.fit.transport.lobe_sums` are computed once per distinct lobe *shape* (roughness,
    exponent), vmapped over the shapes so the geometry of every normal is shared, and each material is
    a linear combination of them with its colours (kd, ks, F0). Other targets are sampled one by one.
-2. Products: the system rows (thesis eq. 37) are built once. From :data:`DIRECT_MIN_TARGETS` targets
-   on (and up to :data:`~homofac.fit.refit.CHOLESKY_MAX_UNKNOWNS` unknowns) the gauge-fixed normal
-   equations are Cholesky-factored once (float64, :func:`homofac.fit.refit.normal_equations`) and every
-   target's right-hand side is two triangular solves: the least-squares optimum, to which a full run's
-   LSMR converges (to ~1e-7 at tolerance 1e-6). Fewer targets, or larger layouts, are solved by the
-   ``lsmr`` solver from each target's own §3.1.2 start, vmapped over the targets (one compiled
-   program; each result is what a full run of that target gives). Sums of products, baselines and fits that choose their structure or size
+2. Products: the system rows (thesis eq. 37) are built once, and every target is solved by the
+   ``lsmr`` solver from its own §3.1.2 start in one LSMR run: the targets' RGB channels are the
+   columns of one block-diagonal least-squares problem (as the three channels of one product already
+   are), so one Krylov iteration serves all of them (each result is what a full run of that target
+   gives, tested within 1%). Sums of products, baselines and fits that choose their structure or size
    (``target_error``, ``max_lookups``) are fitted per target on the shared samples (after the first
    target's choice, which fixes the layout of the others).
 3. The metrics are measured per target from shared footprints.
@@ -32,7 +30,6 @@ from typing import Callable, Sequence
 import jax
 import jax.numpy as jnp
 import numpy as np
-import scipy.linalg as sla
 
 from ..errors import HomofacError
 from ..light import Lighting
@@ -45,7 +42,7 @@ from .pipeline import factorize, options, quality_warnings, resolve_sampling
 from .product import zeros_rule
 from .result import Result
 from .samples import Samples, check_values, evaluate_grouped
-from .refit import (CHOLESKY_MAX_UNKNOWNS, data_matrix, laplacian_matrix, layout_of, measure_on, normal_equations,
+from .refit import (data_matrix, laplacian_matrix, layout_of, measure_on,
                     product_model, refit, system_rows)
 from .solvers.lsmr import _lsmr as lsmr_solve
 from .start import starting_solution
@@ -53,10 +50,6 @@ from .state import from_layout
 
 #: Keywords of factorize that are not fit options (they describe one target's run).
 RUN_KEYWORDS = ("samples", "config", "target_info", "log", "keep_samples")
-#: From this many product targets on, the library solves the factored normal equations (one Cholesky
-#: factor for all right-hand sides) instead of a vmapped LSMR: measured on the default case (16
-#: materials, 3200 unknowns) the factor costs about as much as two LSMR solves.
-DIRECT_MIN_TARGETS = 4
 
 
 def _environment_key(fn: Lighting) -> tuple:
@@ -185,23 +178,17 @@ def factorize_many(targets: Sequence[Target], parametrization: str = "NR", *, co
         alpha = np.where(alpha > 0, alpha, 1.0)
         alphas.append(alpha)
         rhs.append(np.log((y + eps * alpha) / alpha).astype(np.float32))
-    direct = len(targets) >= DIRECT_MIN_TARGETS and layout.n_unknowns <= CHOLESKY_MAX_UNKNOWNS
-    if direct:
-        (_, factor), a_t, lap = normal_equations(state, sys, lam, layout, p, prefer="cholesky")
-        b = np.concatenate([a_t @ r.astype(np.float64) for r in rhs], axis=1)
-        xs = sla.cho_solve(factor, b, check_finite=False).reshape(layout.n_unknowns, len(rhs), 3).transpose(1, 0, 2)
-        steps, ok = np.ones(len(rhs), np.int64), np.ones(len(rhs), bool)
-        method = "normal equations (cholesky)"
-    else:
-        x0 = np.stack([np.asarray(starting_solution(sys._replace(rhs=jnp.asarray(r)), layout, p.J)) for r in rhs])
-        xs, steps, ok = _solve_all(sys, jnp.asarray(np.stack(rhs)), jnp.asarray(x0), jnp.float32(lam),
-                                   rtol=float(opts.solver.tolerance), max_steps=int(opts.solver.max_iterations))
-        xs, steps, ok = np.asarray(xs, np.float64), np.asarray(steps), np.asarray(ok)
-        a_t, lap = data_matrix(sys, layout.n_unknowns).T.tocsr(), laplacian_matrix(sys, lam, layout.n_unknowns)
-        method = opts.solver.method
+    side = np.concatenate(rhs, axis=1)  # every target's start at once: columns are independent in §3.1.2
+    x0 = np.asarray(starting_solution(sys._replace(rhs=jnp.asarray(side)), layout, p.J))
+    x0 = x0.reshape(layout.n_unknowns, len(rhs), 3).transpose(1, 0, 2)
+    xs, steps, ok = _solve_all(sys, jnp.asarray(np.stack(rhs)), jnp.asarray(x0), jnp.float32(lam),
+                               rtol=float(opts.solver.tolerance), max_steps=int(opts.solver.max_iterations))
+    xs, steps, ok = np.asarray(xs, np.float64), np.asarray(steps), np.asarray(ok)
+    a_t, lap = data_matrix(sys, layout.n_unknowns).T.tocsr(), laplacian_matrix(sys, lam, layout.n_unknowns)
+    method = opts.solver.method
     solve_s = time.perf_counter() - t1
     log(f"solved {len(targets)} right-hand sides of one system ({layout.n_unknowns} unknowns), "
-        + ("one Cholesky factor" if direct else f"{int(steps.max())} LSMR iterations"))
+        + f"{int(steps.max())} LSMR iterations")
     results = []
     total = time.perf_counter() - t_start
     for i, (t, smp) in enumerate(zip(targets, samples)):
@@ -233,9 +220,17 @@ def factorize_many(targets: Sequence[Target], parametrization: str = "NR", *, co
 
 @functools.partial(jax.jit, static_argnames=("rtol", "max_steps"))
 def _solve_all(sys, rhs, x0, lam, *, rtol: float, max_steps: int):
-    """LSMR (the ``lsmr`` solver: column-scaled, from each target's §3.1.2 start) vmapped over the targets'
-    right-hand sides of one system: every target's least-squares solution in one program."""
-    return jax.vmap(lambda r, x: lsmr_solve(sys._replace(rhs=r), lam, x, rtol=rtol, max_steps=max_steps))(rhs, x0)
+    """LSMR (the ``lsmr`` solver: column-scaled, from each target's §3.1.2 start) on the targets' right-hand
+    sides of one system side by side: the T targets' RGB channels are the 3T columns of one block-diagonal
+    least-squares problem ``min sum_c ||A x_c - b_c||^2`` (the channels of one product already are), whose
+    minimiser is every target's own. One Krylov iteration serves every column (the operator's gathers are
+    shared), where a vmap ran T LSMRs with their own scalars. Returns x (T, n, 3), steps and success
+    (one value for all, broadcast per target)."""
+    t, m, c = rhs.shape
+    n = x0.shape[1]
+    x, steps, ok = lsmr_solve(sys._replace(rhs=jnp.transpose(rhs, (1, 0, 2)).reshape(m, t * c)), lam,
+                              jnp.transpose(x0, (1, 0, 2)).reshape(n, t * c), rtol=rtol, max_steps=max_steps)
+    return (jnp.transpose(x.reshape(n, t, c), (1, 0, 2)), jnp.broadcast_to(steps, (t,)), jnp.broadcast_to(ok, (t,)))
 
 
 def _one_by_one(targets, opts: FitOptions, samples, configs, infos, keep_samples, log, sample_s, t_start):

@@ -26,14 +26,15 @@ def _accumulate(sys: System, n: int):
     """Steps 3-6: scatter-add w * log y and w into the unknowns (all factors at once)."""
     cols = sys.cols.reshape(-1)
     w = sys.w.reshape(-1)
-    vals = (sys.w[..., None] * sys.rhs[:, None, :]).reshape(-1, 3)
+    vals = (sys.w[..., None] * sys.rhs[:, None, :]).reshape(-1, sys.rhs.shape[-1])
     acc = jax.ops.segment_sum(vals, cols, num_segments=n)
     wsum = jax.ops.segment_sum(w, cols, num_segments=n)
     return acc, wsum
 
 
-def starting_solution(sys: System, layout: Layout, n_factors: int) -> Float[Array, "n 3"]:
-    """Averaging start of thesis §3.1.2 with inverse-distance fill; returns x0 (n, 3)."""
+def starting_solution(sys: System, layout: Layout, n_factors: int) -> Float[Array, "n c"]:
+    """Averaging start of thesis §3.1.2 with inverse-distance fill; returns x0 (n, c) for a right-hand
+    side of c columns (RGB; or several targets' RGB side by side, :func:`homofac.fit.many.factorize_many`)."""
     n = layout.n_unknowns
     acc, wsum = _accumulate(sys, n)
     acc = np.asarray(acc, np.float64)
@@ -51,18 +52,18 @@ def _fill(x: np.ndarray, filled: np.ndarray, layout: Layout) -> np.ndarray:
         h, w = tex.shape
         s = tex.size
         sl = slice(tex.offset, tex.offset + tex.n_valid)
-        img = np.zeros((h * w, 3))
+        img = np.zeros((h * w, x.shape[1]))
         ok = np.zeros(h * w, bool)
         img[tex.texel_of_unknown] = x[sl]
         ok[tex.texel_of_unknown] = filled[sl]
-        img = img.reshape(h, w, 3)
+        img = img.reshape(h, w, -1)
         ok = ok.reshape(h, w)
         empty = ~ok & tex.valid.reshape(h, w)
         if not empty.any():
             continue
         rows, cols = np.nonzero(empty)
         face = cols // s
-        num = np.zeros((rows.size, 3))
+        num = np.zeros((rows.size, x.shape[1]))
         den = np.zeros(rows.size)
         for dr, dc in _DIRS:  # 8 directions x up-to-S steps; vectorised over texels
             found = np.zeros(rows.size, bool)

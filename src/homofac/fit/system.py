@@ -167,7 +167,7 @@ def apply(sys: System, lam, x: Float[Array, "n 3"]) -> Float[Array, "m_plus_n 3"
 
 def augmented_rhs(sys: System) -> Float[Array, "m_plus_n 3"]:
     """Right-hand side of eq. 37: the log samples, then zeros for the Laplacian rows."""
-    return jnp.concatenate([sys.rhs, jnp.zeros((sys.lap_cols.shape[0], 3), sys.rhs.dtype)], axis=0)
+    return jnp.concatenate([sys.rhs, jnp.zeros((sys.lap_cols.shape[0], sys.rhs.shape[1]), sys.rhs.dtype)], axis=0)
 
 
 def objective(sys: System, lam, x) -> Float[Array, ""]:
