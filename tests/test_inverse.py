@@ -1,15 +1,10 @@
 """Differentiable refits (issue 15, part 4): gradients of an image-space loss through a re-solve of a
 fit's layout agree with finite differences, the forward value agrees with ``hf.fit.refit``, and an
-inverse rendering recovers a Cook-Torrance sphere's roughness and F0; notebooks/inverse_rendering.ipynb
-matches its generator and executes (HOMOFAC_NOTEBOOK_QUICK=1)."""
+inverse rendering recovers a Cook-Torrance sphere's roughness and F0 (notebooks/inverse_rendering.ipynb
+is tested with the other notebooks in tests/test_notebook.py)."""
 
 from __future__ import annotations
 
-import importlib.util
-import json
-import re
-import sys
-from pathlib import Path
 
 import equinox as eqx
 import jax
@@ -21,8 +16,6 @@ import homofac as hf
 from homofac.errors import HomofacError
 from homofac.fit import differentiable as dr
 
-ROOT = Path(__file__).resolve().parents[1]
-NOTEBOOK = ROOT / "notebooks" / "inverse_rendering.ipynb"
 KD = (0.05, 0.04, 0.02)
 TRUE_ROUGHNESS, TRUE_F0 = 0.3, np.array([0.9, 0.65, 0.3])
 
@@ -198,52 +191,3 @@ def test_inverse_rendering_recovers_roughness_and_f0(x64_module):
     assert abs(r - TRUE_ROUGHNESS) < 0.01, (r, f0)
     assert np.all(np.abs(f0 - TRUE_F0) < 0.01), (r, f0)
     assert abs(r - 0.6) > 0.25  # it moved from the guess
-
-
-# ------------------------------------------------------------------------------------------------
-# the notebook
-
-
-def test_notebook_is_committed_without_outputs_and_matches_its_generator():
-    nbformat = pytest.importorskip("nbformat")
-    nb = nbformat.read(NOTEBOOK, as_version=4)
-    assert all(not c.get("outputs") for c in nb.cells if c.cell_type == "code")
-    spec = importlib.util.spec_from_file_location("make_inverse_rendering", NOTEBOOK.with_name("make_inverse_rendering.py"))
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    assert [c.source for c in mod.build().cells] == [c.source for c in nb.cells]
-
-
-@pytest.mark.slow
-def test_inverse_rendering_notebook_executes(monkeypatch, tmp_path):
-    """The mechanism of tests/test_notebook.py: a kernelspec pinned to this interpreter, QUICK sizes."""
-    nbformat = pytest.importorskip("nbformat")
-    nbclient = pytest.importorskip("nbclient")
-    pytest.importorskip("ipykernel")
-    from jupyter_client.kernelspec import KernelSpecManager
-    from jupyter_client.manager import KernelManager
-
-    monkeypatch.setenv("HOMOFAC_NOTEBOOK_QUICK", "1")
-    monkeypatch.delenv("MPLBACKEND", raising=False)
-    nb = nbformat.read(NOTEBOOK, as_version=4)
-    spec_dir = tmp_path / "kernels" / "homofac-test"
-    spec_dir.mkdir(parents=True)
-    (spec_dir / "kernel.json").write_text(json.dumps({
-        "argv": [sys.executable, "-m", "ipykernel_launcher", "-f", "{connection_file}"],
-        "display_name": "homofac test", "language": "python"}))
-    km = KernelManager(kernel_name="homofac-test",
-                       kernel_spec_manager=KernelSpecManager(kernel_dirs=[str(tmp_path / "kernels")]))
-    run_dir = tmp_path / "run"
-    run_dir.mkdir()
-    client = nbclient.NotebookClient(nb, km=km, timeout=600, resources={"metadata": {"path": str(run_dir)}})
-    client.execute()
-    outputs = [o for c in nb.cells if c.cell_type == "code" for o in c.outputs]
-    assert not any(o.get("output_type") == "error" for o in outputs)
-    text = "\n".join(o.get("text", "") for o in outputs if o.get("output_type") == "stream")
-    m = re.search(r"errors: roughness ([0-9.]+), F0 \[([0-9. ]+)\]", text)
-    assert m, text
-    # QUICK sizes (4 x 4 x 6 lights, 8^2 textures, a 16^2 image): measured 0.006 and up to 0.02
-    assert float(m.group(1)) < 0.03
-    assert all(float(e) < 0.04 for e in m.group(2).split())
-    assert re.search(r"gradient evaluation: [0-9.]+ s", text)
-    assert any("image/png" in o.get("data", {}) for o in outputs)

@@ -1,4 +1,4 @@
-"""The notebooks (quickstart.ipynb, time_of_day.ipynb) are committed without outputs, match their
+"""The notebooks (quickstart.ipynb, time_of_day.ipynb, inverse_rendering.ipynb) are committed without outputs, match their
 generators (notebooks/make_<name>.py), run top to bottom at small sizes (HOMOFAC_NOTEBOOK_QUICK=1) in a
 real Jupyter kernel of this interpreter, and their results are sane."""
 
@@ -18,7 +18,7 @@ pytest.importorskip("ipykernel")
 
 NOTEBOOKS = Path(__file__).resolve().parent.parent / "notebooks"
 NOTEBOOK = NOTEBOOKS / "quickstart.ipynb"
-NAMES = ("quickstart", "time_of_day")
+NAMES = ("quickstart", "time_of_day", "inverse_rendering")
 
 
 @pytest.mark.parametrize("name", NAMES)
@@ -107,3 +107,15 @@ def test_time_of_day_notebook_executes(monkeypatch, tmp_path):
     else:
         assert len(previews) == 2 and all(0 < float(e) < 1.0 for _, e in previews), text
         assert len(images(nb)) >= 3
+
+
+@pytest.mark.slow
+def test_inverse_rendering_notebook_executes(monkeypatch, tmp_path):
+    nb, text = execute(NOTEBOOKS / "inverse_rendering.ipynb", monkeypatch, tmp_path)
+    m = re.search(r"errors: roughness ([0-9.]+), F0 \[([0-9. ]+)\]", text)
+    assert m, text
+    # QUICK sizes (4 x 4 x 6 lights, 8^2 textures, a 16^2 image): measured 0.006 and up to 0.02
+    assert float(m.group(1)) < 0.03
+    assert all(float(e) < 0.04 for e in m.group(2).split())
+    assert re.search(r"gradient evaluation: [0-9.]+ s", text)
+    assert images(nb)

@@ -118,26 +118,25 @@ def _jsonable(v: Any, bad: list) -> Any:
     return v
 
 
-def is_homofac_dir(path: Path) -> bool:
-    """True when ``path`` holds a factorization.json written by homofac."""
-    f = Path(path) / JSON_NAME
+def _format_of(path: Path, name: str):
+    """The ``format`` field of the JSON file ``path / name`` (None when absent, too big or unreadable)."""
+    f = Path(path) / name
     try:
         if f.stat().st_size > MAX_JSON_BYTES:
-            return False
-        return json.loads(f.read_text()).get("format") == FORMAT
+            return None
+        return json.loads(f.read_text()).get("format")
     except (OSError, ValueError, AttributeError, UnicodeDecodeError, RecursionError):
-        return False
+        return None
+
+
+def is_homofac_dir(path: Path) -> bool:
+    """True when ``path`` holds a factorization.json written by homofac."""
+    return _format_of(path, JSON_NAME) == FORMAT
 
 
 def is_library_dir(path: Path) -> bool:
     """True when ``path`` holds a material library's index.json written by homofac (:func:`save_library`)."""
-    f = Path(path) / INDEX_NAME
-    try:
-        if f.stat().st_size > MAX_JSON_BYTES:
-            return False
-        return json.loads(f.read_text()).get("format") == LIBRARY_FORMAT
-    except (OSError, ValueError, AttributeError, UnicodeDecodeError, RecursionError):
-        return False
+    return _format_of(path, INDEX_NAME) == LIBRARY_FORMAT
 
 
 def check_output_dir(out_dir) -> Path:
