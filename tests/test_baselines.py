@@ -67,6 +67,7 @@ def test_dfg_table_is_the_integral_of_f_cos_under_a_constant_environment(model):
         np.testing.assert_allclose(got, want, rtol=1e-3, atol=1e-4)
 
 
+@pytest.mark.slow
 def test_split_sum_at_n_equals_v_tends_to_the_mirror_limit():
     """At n = v Karis' assumption holds; as the roughness goes to 0 the split sum tends to F0 L(r), r = n."""
     rng = np.random.default_rng(3)
@@ -149,6 +150,7 @@ def test_rank_one_analysis_of_a_separable_target_is_exact():
     assert "Mahajan" in real.summary() and real.record()["pair"] == "nr"
 
 
+@pytest.mark.slow
 def test_baselines_are_ordinary_results(tmp_path):
     """Evaluate, metrics, save / load, the 8-bit textures, shaders: a baseline is the same model as a fit."""
     env = hf.light.load_environment("studio", 4)

@@ -170,6 +170,7 @@ def test_lsmr_refit_equals_the_factored_one(saved):
         hf.fit.refit(fac, target=target, solve="cholesky")
 
 
+@pytest.mark.slow
 def test_refit_through_the_module_entry_point(saved, tmp_path):
     city = config(tmp_path, "city", target__environment={"file": "city", "resolution": 8})
     r = subprocess.run([sys.executable, "-m", "homofac.fit", str(city), "--quiet", "--refit", str(saved / "forest"),

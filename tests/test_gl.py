@@ -307,6 +307,7 @@ def test_default_run_writes_a_preview(tmp_path):
     assert "preview" not in json.loads((out / "factorization.json").read_text())
 
 
+@pytest.mark.slow
 def test_preview_cli_writes_a_png(default_run, tmp_path, capsys):
     from homofac.preview import main
 
@@ -327,6 +328,7 @@ def _one_line_error(capsys, code: int) -> str:
     return lines[0]
 
 
+@pytest.mark.slow
 def test_preview_cli_refuses_bad_input(tmp_path, capsys, monkeypatch, default_run):
     from homofac.preview import main
 
@@ -353,6 +355,7 @@ SMALL_BRDF = {
 }
 
 
+@pytest.mark.slow
 def test_fit_without_gl_warns_and_skips_the_preview(tmp_path, capsys, monkeypatch):
     import yaml
 

@@ -44,6 +44,7 @@ def test_gradient_sky_closed_form():
     np.testing.assert_allclose(out, np.broadcast_to(want, out.shape), atol=1e-3)
 
 
+@pytest.mark.slow
 def test_lighting_is_zero_for_invalid_pairs_and_uses_all_models():
     env = envmod.sun_sky(sun_direction=(0.3, 0.2, 0.9), sun_radiance=50.0, sun_angle_deg=5.0, resolution=8)
     n = jnp.array([[0.0, 0.0, 1.0]])

@@ -84,6 +84,7 @@ def test_index_lists_every_material_with_its_directory_and_metrics(lib):
     assert [p.name for p in lib.parent.iterdir() if p.name.startswith(".")] == []
 
 
+@pytest.mark.slow
 def test_each_directory_loads_and_equals_a_single_material_run(lib, tmp_path):
     for m in MATERIALS:
         d = lib / m["name"]

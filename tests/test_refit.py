@@ -157,6 +157,7 @@ def test_refit_of_a_saved_result(base, envs, tmp_path):
     assert rel < 1e-3, where
 
 
+@pytest.mark.slow
 def test_brdf_factorization_refit():
     kw = dict(mapper="parabolic", texture_size=8, sampling={"kind": "texels", "size": 6, "validation": 1000,
                                                             "cache": False})
@@ -190,6 +191,7 @@ def test_sum_refit_warm_start_and_fresh(envs):
     assert warm.metrics["validation"]["float"]["nrmse"] < 1.5 * full.metrics["validation"]["float"]["nrmse"]
 
 
+@pytest.mark.slow
 def test_baseline_refit(envs):
     kw = dict(texture_size=8, sampling={"kind": "texels", "size": 6, "validation": 1000, "cache": False})
     fac = hf.fit.factorize(hf.light.lighting_target(gold(), envs[0]), "split_sum", **kw)
@@ -212,6 +214,7 @@ def test_refit_refuses_bad_input(base, envs):
         hf.fit.refit(base, environment=envs[1], start="cold")
 
 
+@pytest.mark.slow
 def test_a_layout_with_unreached_unknowns_refits_finite_and_equal(envs):
     """Pairs of one perspective view of a sphere leave the back paraboloid half without a sample (and its
     texels out of reach of the smoothing rows): the normal equations are near-singular there. The refit

@@ -405,6 +405,7 @@ def test_a_saved_scene_fit_refits_from_disk_with_its_scene(target, tmp_path):
     assert r.metrics["scene"]["float"]["nrmse"] == pytest.approx(live.metrics["scene"]["float"]["nrmse"], rel=1e-3)
 
 
+@pytest.mark.slow
 def test_the_cli_keeps_and_prints_the_scene_error_with_a_custom_encoding(tmp_path, capsys):
     """A custom 8-bit encoding re-measures the written textures: the scene's image-space error is
     measured again with them (not dropped), saved, and printed in the run summary."""

@@ -116,6 +116,7 @@ def test_target_error_picks_the_cheapest_candidate_that_meets_it(cache_dir):
     assert fac.metrics["validation"]["float"]["nrmse"] == pytest.approx(best)
 
 
+@pytest.mark.slow
 def test_target_error_from_the_cli_records_its_choice(cache_dir, tmp_path):
     import json
 

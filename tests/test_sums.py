@@ -105,6 +105,7 @@ def test_als_recovers_an_exact_sum_of_two_products(exact_sum):
     assert two.model.lookups == 6 and len(two.model.terms) == 2
 
 
+@pytest.mark.slow
 def test_levenberg_marquardt_matches_on_random_samples(exact_sum):
     model, target, _ = exact_sum
     s = _samples(target, kind="random", count=6000)
@@ -196,6 +197,7 @@ def test_max_lookups_picks_within_the_budget(plastic):
     assert all(t["lookups"] <= 8 for t in sel["tried"]) and len(sel["tried"]) >= 2
 
 
+@pytest.mark.slow
 def test_diffuse_needs_a_kd(plastic):
     target, s = plastic
     brdf = hf.brdf.phong(exponent=20.0, ks=1.0, kd=0.0)

@@ -162,6 +162,7 @@ def test_nan_pixels_are_cleaned_with_a_counted_warning(tmp_path, capsys):
     assert doc["target"]["environment"]["nonfinite"] == 4
 
 
+@pytest.mark.slow
 def test_failed_rerun_keeps_the_previous_result_byte_for_byte(tmp_path, capsys):
     write_exr(tmp_path / "env.exr", _latlong())
     cfg = _config(tmp_path, LIGHTING, {})
