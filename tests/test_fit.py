@@ -82,6 +82,7 @@ def _small_system(x64_dtype=jnp.float64):
     return sys, layout, p
 
 
+@pytest.mark.slow
 def test_solvers_agree_with_direct_optimum(x64):
     """LSMR, QMR, normal-equation CG and optimistix Gauss-Newton reach an objective within 1e-4 (relative)
     of the direct normal-equation optimum."""

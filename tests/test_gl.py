@@ -236,6 +236,7 @@ def test_brdf_render_under_one_light_equals_cpu():
     assert img.dtype == np.uint8 and img.shape[1] > 3 * 64 and np.isfinite(data["nrmse"])
 
 
+@pytest.mark.slow
 def test_preview_exact_panel_is_the_lighting(lighting):
     """The exact panel is hf.light.lighting at the pixels' (n, v); the error is measured against it."""
     fac = lighting["facs"]["dual_paraboloid"]

@@ -56,6 +56,7 @@ def test_lighting_is_zero_for_invalid_pairs_and_uses_all_models():
         assert np.all(np.isfinite(np.asarray(val))) and float(jnp.min(val)) > 0, name
 
 
+@pytest.mark.slow
 def test_diffuse_split_and_grouped_path_match_direct_sum(x64):
     """L = sum_k (kd/pi + f_spec(l_k, v)) L_k w_k(n): the diffuse part uses the exact texel weights even
     for texels whose centre is just below the horizon (where f, by convention, is 0); the grouped
@@ -137,6 +138,7 @@ class PhongLobe(eqx.Module):
         return c @ (self.env.radiance * self.env.solid_angle[:, None])
 
 
+@pytest.mark.slow
 def test_phong_lobe_with_R_is_exact():
     env = hf.light.load_environment(hf.light.bundled("forest"), resolution=16)
     target = Target("lighting", PhongLobe(env, 4.0), "lighting")

@@ -64,6 +64,7 @@ def lib(tmp_path_factory):
     return d / "lib"
 
 
+@pytest.mark.slow
 def test_index_lists_every_material_with_its_directory_and_metrics(lib):
     index = json.loads((lib / "index.json").read_text())
     assert index["format"] == output.LIBRARY_FORMAT and index["version"] == output.LIBRARY_VERSION
@@ -102,6 +103,7 @@ def test_each_directory_loads_and_equals_a_single_material_run(lib, tmp_path):
                  str(tmp_path / "gold_city")]) == 0
 
 
+@pytest.mark.slow
 def test_a_failing_write_leaves_the_previous_library_whole(lib, tmp_path, monkeypatch):
     out = tmp_path / "lib2"
     shutil.copytree(lib, out)
@@ -119,6 +121,7 @@ def test_a_failing_write_leaves_the_previous_library_whole(lib, tmp_path, monkey
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
 
 
+@pytest.mark.slow
 def test_a_kill_between_the_renames_restores_the_previous_library(lib, tmp_path):
     # what a kill between the two renames of the swap leaves: no library, the old one beside it
     shutil.copytree(lib, tmp_path / ".lib.old-0123abcd")

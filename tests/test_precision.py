@@ -200,6 +200,7 @@ def gold_pqp():
     return target, fac
 
 
+@pytest.mark.slow
 def test_alpha_trick_lowers_eight_bit_error_on_hdr_brdf(gold_pqp):
     target, fac = gold_pqp
     assert float(np.max(np.asarray(fac.correction))) > 4  # a high-dynamic-range case: z > 1
@@ -232,6 +233,7 @@ def test_alpha_trick_lowers_eight_bit_error_on_hdr_brdf(gold_pqp):
     assert cost_alpha < 0.5 * cost_plain
 
 
+@pytest.mark.slow
 def test_quantized_differs_from_naive_rounding(gold_pqp):
     """evaluate(quantized=True) is the RGBA8 decode, not rounding of the normalized textures."""
     _, fac = gold_pqp

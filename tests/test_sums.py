@@ -143,6 +143,7 @@ def plastic():
     return target, s
 
 
+@pytest.mark.slow
 def test_exact_diffuse_term_is_the_irradiance(plastic):
     target, s = plastic
     fit = sums.fit_sum(target, Structure("NR", 1, "exact", True), "dual_paraboloid", S, s, LinearOptions(iterations=10))
@@ -157,6 +158,7 @@ def test_exact_diffuse_term_is_the_irradiance(plastic):
     np.testing.assert_allclose(d0, kd / np.pi * e_at, rtol=1e-4, atol=1e-6)
 
 
+@pytest.mark.slow
 def test_more_structure_fits_better_and_beats_one_product(plastic):
     target, s = plastic
     errs = {}
@@ -292,6 +294,7 @@ def test_als_blocks_in_chunks_equal_one_pass(exact_sum, monkeypatch):
         np.testing.assert_allclose(np.asarray(a.data), np.asarray(b.data), rtol=2e-3, atol=2e-4)
 
 
+@pytest.mark.slow
 def test_prefiltered_keeps_the_split_sum_and_corrects_it(plastic):
     """E + SS + corrections: the split sum's own terms are in the model unchanged, and the corrections
     lower the training error below split-sum's."""
