@@ -21,7 +21,6 @@ get the modes the umask allows (as any program's output), not the 0600/0700 of t
 
 from __future__ import annotations
 
-import contextlib
 import errno
 import fcntl
 import json
@@ -344,18 +343,25 @@ def save(fac: Result, out_dir, *, samples=None, extra_files: dict | None = None,
     Non-finite metrics are written as null with a warning in the document (strict JSON).
     """
     shaders = shader_files(list(shaders), png)
+    return _write_dir_atomically(out_dir, "the output directory",
+                                 lambda tmp: _write_all(fac, tmp, samples, extra_files, png, exr, shaders))
+
+
+def _write_dir_atomically(out_dir, what: str, write) -> Path:
+    """``write(tmp)`` into a temporary sibling of ``out_dir``, then swapped into place under the output
+    lock: a killed or failed write leaves the previous directory (or nothing), never a half-written one."""
     out = check_output_dir(out_dir)
     with OutputLock(out):
         out = check_output_dir(out_dir)
         tmp = out.parent / f".{out.name}.tmp-{uuid.uuid4().hex[:8]}"
         try:
             tmp.mkdir(mode=0o777 & ~_umask())
-            _write_all(fac, tmp, samples, extra_files, png, exr, shaders)
+            write(tmp)
             _swap_into_place(tmp, out)
         except OSError as e:
             shutil.rmtree(tmp, ignore_errors=True)
             where = f" ({e.filename})" if getattr(e, "filename", None) else ""
-            raise HomofacError(f"cannot write the output directory {out}{where}: {e.strerror or one_line(e)}") from None
+            raise HomofacError(f"cannot write {what} {out}{where}: {e.strerror or one_line(e)}") from None
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)
             raise
@@ -368,26 +374,14 @@ def save_library(out_dir, write_members) -> Path:
     returns the index, which is written (given ``format`` and ``version``) as index.json; then the directory is swapped
     into place under the output lock, as :func:`save` does: a killed or failed write leaves the
     previous library (or nothing), never a half-written one. Returns the path."""
-    out = check_output_dir(out_dir)
-    with OutputLock(out):
-        out = check_output_dir(out_dir)
-        tmp = out.parent / f".{out.name}.tmp-{uuid.uuid4().hex[:8]}"
-        try:
-            tmp.mkdir(mode=0o777 & ~_umask())
-            index = write_members(tmp)
-            bad: list = []
-            doc = _jsonable({"format": LIBRARY_FORMAT, "version": LIBRARY_VERSION, "homofac": __version__, **index},
-                            bad)
-            _write_json(tmp / INDEX_NAME, doc)
-            _swap_into_place(tmp, out)
-        except OSError as e:
-            shutil.rmtree(tmp, ignore_errors=True)
-            where = f" ({e.filename})" if getattr(e, "filename", None) else ""
-            raise HomofacError(f"cannot write the library {out}{where}: {e.strerror or one_line(e)}") from None
-        except BaseException:
-            shutil.rmtree(tmp, ignore_errors=True)
-            raise
-    return out
+
+    def write(tmp: Path) -> None:
+        index = write_members(tmp)
+        bad: list = []
+        doc = _jsonable({"format": LIBRARY_FORMAT, "version": LIBRARY_VERSION, "homofac": __version__, **index}, bad)
+        _write_json(tmp / INDEX_NAME, doc)
+
+    return _write_dir_atomically(out_dir, "the library", write)
 
 
 def _write_all(fac: Result, tmp: Path, samples, extra_files, png: bool, exr: str, shaders: dict) -> None:
