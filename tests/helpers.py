@@ -50,3 +50,14 @@ def nrw_sum(K: int = 2, S: int = 8, line: int = 32, seed: int = 10) -> Factoriza
         terms.append(Term((Factor("n", f"n{s}"), Factor("r", f"r{s}"), Factor("nv", f"w{s}")),
                           jnp.asarray([1.0, 0.7, 0.5]) / (t + 1), "fitted"))
     return Factorization("lighting", "lighting", tuple(textures), tuple(terms), {}, "nrw_sum")
+
+
+def worst(a: dict, b: dict) -> tuple[float, str]:
+    """Largest relative difference over every metric of two metric dicts ({split: {float|quantized: {name: value}}}), and where."""
+    out = (0.0, "")
+    for split in b:
+        for kind in b[split]:
+            for name, y in b[split][kind].items():
+                x = a[split][kind][name]
+                out = max(out, (abs(x - y) / max(abs(y), 1e-12), f"{split}.{kind}.{name}: {x} vs {y}"))
+    return out

@@ -18,6 +18,7 @@ import yaml
 import homofac as hf
 from homofac.app.cli import fit_main as main
 from homofac.errors import HomofacError
+from helpers import worst
 
 GOLD = {"model": "cook_torrance", "kd": [0.05, 0.04, 0.02], "ks": 1.0, "roughness": 0.3, "f0": [1.0, 0.78, 0.34]}
 CFG = {
@@ -42,17 +43,6 @@ def config(tmp_path: Path, name: str, **changes) -> Path:
     p = tmp_path / f"{name}.yaml"
     p.write_text(yaml.safe_dump(cfg))
     return p
-
-
-def worst(a: dict, b: dict) -> tuple[float, str]:
-    """Largest relative difference over every metric of two factorization.json metric dicts."""
-    out = (0.0, "")
-    for split in b:
-        for kind in b[split]:
-            for name, y in b[split][kind].items():
-                x = a[split][kind][name]
-                out = max(out, (abs(x - y) / max(abs(y), 1e-12), f"{split}.{kind}.{name}: {x} vs {y}"))
-    return out
 
 
 def metrics(d: Path) -> dict:

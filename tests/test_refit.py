@@ -14,6 +14,7 @@ import pytest
 import homofac as hf
 import homofac.fit.refit  # noqa: F401  (the module; hf.fit.refit is the function)
 from homofac.errors import HomofacError
+from helpers import worst
 from homofac.fit import differentiable as dr
 from homofac.fit import footprints, sampling, transport
 
@@ -37,18 +38,6 @@ def envs():
 @pytest.fixture(scope="module")
 def base(envs):
     return hf.fit.factorize(hf.light.lighting_target(gold(), envs[0]), "NR", **KW)
-
-
-def worst(a: dict, b: dict) -> tuple[float, str]:
-    """Largest relative difference over every metric of two metric dicts (and where)."""
-    out = (0.0, "")
-    for split in b:
-        for kind in b[split]:
-            for name, y in b[split][kind].items():
-                x = a[split][kind][name]
-                rel = abs(x - y) / max(abs(y), 1e-12)
-                out = max(out, (rel, f"{split}.{kind}.{name}: {x} vs {y}"))
-    return out
 
 
 def test_environment_refit_equals_a_full_run(base, envs):
