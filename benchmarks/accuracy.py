@@ -2,7 +2,8 @@
 
     python benchmarks/accuracy.py                      # all cases and methods -> benchmarks/accuracy.json
     python benchmarks/accuracy.py --readme README.md   # ... and the README table between the markers
-    python benchmarks/accuracy.py --cases gold/forest --methods split_sum,NR   # a subset (quick looks)
+    python benchmarks/accuracy.py --cases metal/forest --methods split_sum,NR --json /tmp/a.json  # a subset
+                                                       # (table in /tmp/a.md; the committed files untouched)
 
 Cases: the bundled environments (city, forest, interior, studio) x four materials (a metal, a
 dielectric plastic, a rough dielectric, a near-mirror metal). Methods: the baselines (split-sum,
@@ -14,7 +15,8 @@ Ground truth: the brute-force lighting computation at the light resolution where
 changes it by less than 0.5 % (nrmse over the validation pairs; checked per case, starting at 64, up to
 512; the straddling texels' BRDF evaluated at their visible centroids, see homofac.light.geometry),
 cached in benchmarks/.cache. Metrics on 20000 random valid (n, v) pairs (seeded; n uniform, v uniform on
-n's hemisphere): nrmse, avg_rel, and nrmse in the n.v bins grazing (< 0.25), mid, frontal (> 0.5); and
+n's hemisphere): nrmse, avg_rel, nrmse in the n.v bins grazing (< 0.25), mid, frontal (> 0.5), the share of
+the squared error held by the pairs with n.v < 0.02 and < 0.1 and by the worst 0.1 % of the pairs; and
 the image-space nrmse of a rendered sphere (OpenGL, the exported shader) against the ground truth at
 its pixels. Each row also records lookups per pixel, texels, and the fit (or build) seconds.
 """
@@ -104,15 +106,32 @@ def ground_truth(material: str, env: str, groups, log=print, start: int = 64, li
     return prev, prev_r, change
 
 
+#: n.v bands and the top fraction of pairs whose share of the squared error :func:`errors` reports
+SHARE_BANDS = (0.02, 0.1)
+SHARE_TOP = 0.001
+
+
+def error_shares(approx: np.ndarray, exact: np.ndarray, nv: np.ndarray) -> dict:
+    """Where the squared error (the numerator of nrmse, summed over RGB) lives: the share held by the
+    pairs with n.v below each of SHARE_BANDS, and by the worst SHARE_TOP of the pairs."""
+    d2 = np.sum((approx - exact) ** 2, axis=1)
+    total = max(float(d2.sum()), 1e-30)
+    out = {f"share_nv_lt_{b:g}": float(d2[nv < b].sum() / total) for b in SHARE_BANDS}
+    k = max(1, int(round(SHARE_TOP * len(d2))))
+    out["share_top"] = float(np.sort(d2)[::-1][:k].sum() / total)
+    return out
+
+
 def errors(approx: np.ndarray, exact: np.ndarray, nv: np.ndarray) -> dict:
-    """nrmse and avg_rel (pinned definitions, per channel then averaged) and nrmse per n.v bin."""
+    """nrmse and avg_rel (pinned definitions, per channel then averaged), nrmse per n.v bin, and the
+    shares of the squared error of :func:`error_shares`."""
     m = hf.fit.metrics.metrics(approx, exact)
     out = {"nrmse": m["nrmse"], "avg_rel": m["avg_rel"]}
     for name, (lo, hi) in BINS.items():
         sel = (nv >= lo) & (nv < hi)
         d, e = approx[sel] - exact[sel], exact[sel]
         out[f"nrmse_{name}"] = float(np.mean(np.linalg.norm(d, axis=0) / np.maximum(np.linalg.norm(e, axis=0), 1e-30)))
-    return out
+    return {**out, **error_shares(approx, exact, nv)}
 
 
 #: exact renders by (material, environment, resolution, pixel hash): every method renders the same pixels
@@ -196,6 +215,8 @@ def report(rows: list[dict]) -> str:
             cells.append(f"{r['nrmse']:.3f}{ratio}")
         lines.append(f"| {c[0]} / {c[1]} | " + " | ".join(cells) + " |")
     lines += ["", bins_table(rows)]
+    if any("share_top" in r for r in rows):
+        lines += ["", shares_table(rows)]
     gt = sorted({(r["material"], r["environment"], r["ground_truth_resolution"], r["ground_truth_change"]) for r in rows})
     lines.append("")
     lines.append("Ground truth light resolution (and nrmse change at the last doubling): " + ", ".join(
@@ -221,6 +242,21 @@ def bins_table(rows: list[dict]) -> str:
         fit_s = float(np.mean([r["fit_s"] for r, _ in rs]))
         lines.append(f"| {m} | {rs[0][0]['lookups']} | {g['grazing']:.2f}x | {g['mid']:.2f}x | {g['frontal']:.2f}x | "
                      f"{worst:.2f}x | {frontal} of {len(rs)} | {fit_s:.1f} |")
+    return "\n".join(lines)
+
+
+def shares_table(rows: list[dict]) -> str:
+    """Per case and method, the share of the squared error held by the grazing-most pairs and by the worst
+    0.1 % of the pairs (the rows that record them)."""
+    bands = " | ".join(f"n.v < {b:g}" for b in SHARE_BANDS)
+    lines = [f"| case | method | lookups | nrmse | share of squared error: {bands} | worst {SHARE_TOP:.1%} of pairs |",
+             "|---|---|---:|---:|" + "---:|" * (len(SHARE_BANDS) + 1)]
+    for r in rows:
+        if "share_top" not in r:
+            continue
+        cells = " | ".join(f"{r[f'share_nv_lt_{b:g}']:.0%}" for b in SHARE_BANDS)
+        lines.append(f"| {r['material']} / {r['environment']} | {r['method']} | {r['lookups']} | {r['nrmse']:.3f} | "
+                     f"{cells} | {r['share_top']:.0%} |")
     return "\n".join(lines)
 
 
@@ -277,8 +313,10 @@ def main(argv=None) -> int:
         rows += run_case(material, env, methods, args.fit_resolution, args.size)
         Path(args.json).write_text(json.dumps(rows, indent=1))
     table = report(rows)
-    (HERE / "accuracy.md").write_text(table + "\n")
-    plots(rows, HERE)
+    out = Path(args.json)
+    out.with_suffix(".md").write_text(table + "\n")  # the default run: benchmarks/accuracy.md
+    if out.resolve() == (HERE / "accuracy.json").resolve():
+        plots(rows, HERE)  # a run into another JSON (a subset) leaves the committed plots alone
     if args.readme:
         readme = Path(args.readme)
         text = readme.read_text()
