@@ -69,3 +69,25 @@ def test_library_refuses_bad_input(env):
         hf.fit.factorize_many([t], "NR", texture_sise=8)
     with pytest.raises(HomofacError, match="not a homofac Target"):
         hf.fit.factorize_many([t, "gold"], "NR")
+
+
+def test_measure_many_equals_measure_per_result(env):
+    """The library's one vmapped measurement (:func:`homofac.fit.footprints.measure_many`) gives every
+    result the metrics :func:`homofac.fit.footprints.measure` gives it alone (float and 8-bit, both splits)."""
+    from homofac.fit import footprints as fp
+
+    targets = [hf.light.lighting_target(hf.brdf.cook_torrance(roughness=0.3, f0=c), env)
+               for c in ((1.0, 0.78, 0.34), (0.04, 0.04, 0.04), (0.95, 0.64, 0.54))]
+    kw = dict(texture_size=8, sampling={"kind": "texels", "size": 6, "validation": 500, "cache": False})
+    lib = hf.fit.factorize_many(targets, "NR", keep_samples=True, **kw)
+    s0 = lib[0].samples
+    train, val = fp.footprints(lib[0].model, s0.a, s0.b), fp.footprints(lib[0].model, s0.val_a, s0.val_b)
+    many = fp.measure_many(lib, targets, [r.samples for r in lib], train, val)
+    assert len({r.metrics["validation"]["float"]["nrmse"] for r in lib}) == 3  # three different fits
+    for r, t, m in zip(lib, targets, many):
+        one = fp.measure(r, t, r.samples, train, val)
+        for split in one:
+            for kind in one[split]:
+                for name, y in one[split][kind].items():
+                    assert m[split][kind][name] == pytest.approx(y, rel=1e-5, abs=1e-9), (split, kind, name)
+        _close(r.metrics, one, tol=1e-5)

@@ -38,6 +38,7 @@ from ..fit.sampling import GRID_COUNT
 from ..fit.draw import default_mapper
 from ..io.limits import image_info
 from ..light import bundled
+from ..light.lighting import STEP_TERMS
 from ..light.sources import MAX_SOURCE_PIXELS
 from ..param import mappers
 from ..param import parametrizations as pz
@@ -173,7 +174,7 @@ def estimate(cfg: Config, base: Path = Path(".")) -> dict:
     if kind == "lighting":
         res = cfg.target.environment.resolution if cfg.target.environment else 32
         lights = 6 * res * res + len(cfg.target.environment.lights if cfg.target.environment else [])
-        parts["lighting"] = (1 << 22) * 16 * 4 + lights * 200
+        parts["lighting"] = STEP_TERMS * 16 * 4 + lights * 200
         parts["environment"] = environment_bytes(cfg, base)
     count = len(cfg.target.materials or ())
     if count > 1:  # a library: one layout, per material its values, right-hand side, solver state, textures

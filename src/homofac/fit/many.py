@@ -42,7 +42,7 @@ from .pipeline import factorize, options, quality_warnings, resolve_sampling
 from .product import zeros_rule
 from .result import Result
 from .samples import Samples, check_values, evaluate_grouped
-from .refit import (data_matrix, laplacian_matrix, layout_of, measure_on,
+from .refit import (data_matrix, laplacian_matrix, layout_of, measure_all,
                     product_model, refit, system_rows)
 from .solvers.lsmr import _lsmr as lsmr_solve
 from .start import starting_solution
@@ -186,13 +186,10 @@ def factorize_many(targets: Sequence[Target], parametrization: str = "NR", *, co
     xs, steps, ok = np.asarray(xs, np.float64), np.asarray(steps), np.asarray(ok)
     a_t, lap = data_matrix(sys, layout.n_unknowns).T.tocsr(), laplacian_matrix(sys, lam, layout.n_unknowns)
     method = opts.solver.method
-    solve_s = time.perf_counter() - t1
     log(f"solved {len(targets)} right-hand sides of one system ({layout.n_unknowns} unknowns), "
         + f"{int(steps.max())} LSMR iterations")
-    results = []
-    total = time.perf_counter() - t_start
+    built = []
     for i, (t, smp) in enumerate(zip(targets, samples)):
-        t2 = time.perf_counter()
         x = xs[i]
         model = product_model(t, p, layout, x, alphas[i])
         obj = float(np.sum((a_t.T @ x - rhs[i]) ** 2) + np.sum((lap @ x) ** 2))
@@ -201,16 +198,22 @@ def factorize_many(targets: Sequence[Target], parametrization: str = "NR", *, co
                   "tolerance": float(opts.solver.tolerance), "max_iterations": int(opts.solver.max_iterations),
                   "laplacian": lam, "epsilon": eps, "objective": obj,
                   "residual": float(np.sqrt(obj / bn)) if bn > 0 else float(np.sqrt(obj)), "library": len(targets)}
-        res = Result(model, solver=solver, config=configs[i] or {}, target_info=infos[i] or {}, state=state, target=t,
-                     samples=smp if keep_samples else None)
-        mets = measure_on(state, res, t, smp, eps)
+        built.append(Result(model, solver=solver, config=configs[i] or {}, target_info=infos[i] or {}, state=state,
+                            target=t, samples=smp if keep_samples else None))
+    solve_s = time.perf_counter() - t1
+    t2 = time.perf_counter()
+    every = measure_all(state, built, targets, samples, eps)  # one program for all targets
+    n = len(targets)
+    total = time.perf_counter() - t_start
+    results = []
+    for res, t, smp, mets in zip(built, targets, samples, every):
         if sc is not None:
             mets = {**mets, "scene": sc.metrics(res, t, eps)}
         res = res.replace(metrics=mets, warnings=tuple(quality_warnings(mets)))
-        n = len(targets)
+        measure_s = (time.perf_counter() - t2) / n
         results.append(res.replace(
-            timings={"sample_s": sample_s / n, "solve_s": solve_s / n, "measure_s": time.perf_counter() - t2,
-                     "total_s": total / n + time.perf_counter() - t2, "library_sample_s": sample_s,
+            timings={"sample_s": sample_s / n, "solve_s": solve_s / n, "measure_s": measure_s,
+                     "total_s": total / n + measure_s, "library_sample_s": sample_s,
                      "library_solve_s": solve_s},
             counts={"train": int(len(smp.a)), "validation": int(len(smp.val_a)), "unknowns": int(layout.n_unknowns),
                     "lights": int(getattr(t.fn, "n_lights", 0)), "library": n,

@@ -22,8 +22,9 @@ NAMES = ("avg_abs", "max_abs", "avg_rel", "max_rel", "rms", "nrmse", "log_rms")
 
 
 @jax.jit
-def metric_arrays(approx: Float[Array, "N 3"], exact: Float[Array, "N 3"], eps: float = 1e-5) -> dict:
-    """All pinned metrics as 0-d arrays (pure and differentiable; average over RGB)."""
+def channel_metrics(approx: Float[Array, "N C"], exact: Float[Array, "N C"], eps: float = 1e-5) -> dict:
+    """The pinned metrics per channel (column), as (C,) arrays: :func:`metric_arrays` averages them over
+    RGB; a material library stacks its targets' channels side by side and measures them in one pass."""
     a = approx
     e = exact
     diff = a - e
@@ -34,7 +35,7 @@ def metric_arrays(approx: Float[Array, "N 3"], exact: Float[Array, "N 3"], eps: 
     alpha = jnp.maximum(mean_e, 1e-30)
     log_err = jnp.log((jnp.maximum(a, 0.0) + eps * alpha) / (jnp.maximum(e, 0.0) + eps * alpha))
     norm_e = jnp.sqrt(jnp.sum(e * e, axis=0))
-    per_channel = {
+    return {
         "avg_abs": jnp.mean(ad, axis=0),
         "max_abs": jnp.max(ad, axis=0),
         "avg_rel": jnp.mean(rel, axis=0),
@@ -43,7 +44,11 @@ def metric_arrays(approx: Float[Array, "N 3"], exact: Float[Array, "N 3"], eps: 
         "nrmse": jnp.sqrt(jnp.sum(diff * diff, axis=0)) / jnp.maximum(norm_e, 1e-30),
         "log_rms": jnp.sqrt(jnp.mean(log_err * log_err, axis=0)),
     }
-    return {k: jnp.mean(v) for k, v in per_channel.items()}
+
+
+def metric_arrays(approx: Float[Array, "N 3"], exact: Float[Array, "N 3"], eps: float = 1e-5) -> dict:
+    """All pinned metrics as 0-d arrays (pure and differentiable; average over RGB)."""
+    return {k: jnp.mean(v) for k, v in channel_metrics(approx, exact, eps).items()}
 
 
 def metrics(approx, exact, eps: float = 1e-5) -> dict[str, float]:

@@ -30,6 +30,7 @@ from jax.flatten_util import ravel_pytree
 from jaxtyping import Array, Float, Int
 
 from ..errors import HomofacError
+from ..param import mappers
 
 
 #: Largest Jacobian jaxopt's LevenbergMarquardt may materialize (it computes diag(J^T J) from it).
@@ -61,7 +62,7 @@ def predict(X: tuple, prob: Problem, terms: tuple[tuple[int, ...], ...]) -> Floa
         v = 1.0
         for k in factors:
             lk = prob.lookups[j]
-            v = v * jnp.einsum("nk,nkc->nc", lk.w, X[k][lk.cols])
+            v = v * mappers.gather(X[k], lk.cols, lk.w)
             j += 1
         out = out + v
     return out

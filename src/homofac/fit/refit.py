@@ -443,16 +443,28 @@ def refit(fac: Result, environment: Environment | None = None, brdf: BRDF | None
     )
 
 
-def measure_on(state: RefitState, result: Result, target: Target, samples, eps: float) -> dict:
-    """The pinned metrics (:func:`homofac.fit.metrics.measure`) from footprints kept in the state."""
+def _state_footprints(state: RefitState, result: Result, samples):
+    """The footprints of ``result``'s lookups at the training and validation pairs, kept in the state."""
     keys = footprints.lookup_keys(result.model)
     key = ("footprints", keys, tuple(sorted((k, np.asarray(v).tobytes()) for k, v in result.model.context.items())))
     if key not in state.cache:
         state.cache[key] = (footprints.footprints(result.model, samples.a, samples.b),
                             footprints.footprints(result.model, samples.val_a, samples.val_b) if len(samples.val_a)
                             else None)
-    fp_train, fp_val = state.cache[key]
+    return state.cache[key]
+
+
+def measure_on(state: RefitState, result: Result, target: Target, samples, eps: float) -> dict:
+    """The pinned metrics (:func:`homofac.fit.metrics.measure`) from footprints kept in the state."""
+    fp_train, fp_val = _state_footprints(state, result, samples)
     return footprints.measure(result, target, samples, fp_train, fp_val, eps=eps)
+
+
+def measure_all(state: RefitState, results: list[Result], targets: list[Target], samples: list, eps: float) -> list[dict]:
+    """:func:`measure_on` of many results of the state's layout at its pairs, in one vmapped program
+    (:func:`homofac.fit.footprints.measure_many`): what a material library measures."""
+    fp_train, fp_val = _state_footprints(state, results[0], samples[0])
+    return footprints.measure_many(results, targets, samples, fp_train, fp_val, eps=eps)
 
 
 def prepare(fac: Result, options: FitOptions | dict | None = None) -> Result:
@@ -471,5 +483,5 @@ def prepare(fac: Result, options: FitOptions | dict | None = None) -> Result:
 
 
 __all__ = ["CHOLESKY_MAX_UNKNOWNS", "INVERSE_MAX_UNKNOWNS", "TRANSPORT_BYTES", "data_matrix", "gauge_basis", "laplacian_matrix", "layout_of", "log_start",
-           "measure_on", "new_target", "normal_equations", "product_model",
+           "measure_all", "measure_on", "new_target", "normal_equations", "product_model",
            "prepare", "refit", "refit_product", "system_rows", "values"]

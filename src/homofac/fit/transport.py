@@ -38,13 +38,11 @@ from ..brdf import BRDF, MODELS
 from ..brdf.core import has_lobes, lobe_colors, lobe_terms
 from ..light import Environment, Lighting
 from ..light.geometry import cosine_weights, light_geometry
-from ..light.lighting import max_visible
+from ..light.lighting import STEP_TERMS, max_visible
 from ..light.lights import light_corners, light_moments
 
 #: Parameters that enter the lobe form only through its colours (``kd/pi`` and ``colors(params)``).
 COLOUR_PARAMS = ("kd", "ks", "f0")
-#: Light terms (views x slots x shapes) per lax.map step: bounds the temporaries of one step.
-STEP_TERMS = 1 << 22
 
 
 class LobeSums(NamedTuple):

@@ -52,6 +52,11 @@ from .lights import light_corners, light_moments
 CHUNK = 256
 
 
+#: Light terms (views x light slots) per lax.map step of the grouped lighting computation: bounds the
+#: temporaries of one step (and keeps them near the caches) while giving each step enough work.
+STEP_TERMS = 1 << 20
+
+
 def _split_diffuse(brdf):
     """(specular-only BRDF or None, kd (3,) or None): the kd/pi term is handled through E(n)."""
     params = getattr(brdf, "params", None)
@@ -257,7 +262,7 @@ class Lighting(eqx.Module):
         if pad_p:
             views = jnp.concatenate([views, jnp.broadcast_to(-normals[:, None, :], (g_count, pad_p, 3))], axis=1)
         pp = views.shape[1]
-        per = int(max(1, min(g_count, (1 << 22) // max(1, pp * slots))))
+        per = int(max(1, min(g_count, STEP_TERMS // max(1, pp * slots))))
         pad = (-g_count) % per
         if pad:
             normals = jnp.concatenate([normals, jnp.broadcast_to(normals[:1], (pad, 3))])
@@ -301,7 +306,7 @@ class Lighting(eqx.Module):
         k = max_visible(self.env)
         g_count, p = views.shape[0], views.shape[1]
         # several normals per lax.map step (vmapped) so each step has a few million light terms
-        per = int(max(1, min(g_count, (1 << 22) // max(1, p * k))))
+        per = int(max(1, min(g_count, STEP_TERMS // max(1, p * k))))
         pad = (-g_count) % per
         views = views.astype(normals.dtype)
         if pad:

@@ -18,12 +18,12 @@ from .geometry import (
     texture_shape,
     valid_mask,
 )
-from .lookup import bilinear, continuous_coords, face_uv, lookup
+from .lookup import bilinear, continuous_coords, face_uv, gather, lookup
 from .records import CUBE_N, CUBE_SC, CUBE_TC, MAPPERS, Mapper, get, register, resolve
 from .tables import dilate, nearest_valid, neighbours
 
 __all__ = [
     "CUBE_N", "CUBE_SC", "CUBE_TC", "MAPPERS", "Mapper", "bilinear", "check_size", "continuous_coords", "dilate",
-    "face_uv", "get", "inside_mask", "lookup", "nearest_valid", "neighbours", "register", "resolve",
+    "face_uv", "gather", "get", "inside_mask", "lookup", "nearest_valid", "neighbours", "register", "resolve",
     "texel_centers", "texel_directions", "texel_solid_angles", "texture_shape", "valid_mask",
 ]

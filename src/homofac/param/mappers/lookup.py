@@ -94,4 +94,17 @@ def lookup(m: Mapper | str, texture: Float[Array, "H W *C"], d) -> Float[Array, 
     return xp.sum(w.astype(vals.dtype).reshape(w.shape + (1,) * channels) * vals, axis=w.ndim - 1)
 
 
-__all__ = ["bilinear", "continuous_coords", "face_uv", "lookup"]
+def gather(flat: Float[Array, "T C"], idx: Int[Array, "N K"], w: Float[Array, "N K"]) -> Float[Array, "N C"]:
+    """``sum_k w[:, k] flat[idx[:, k]]``: bilinear lookups from precomputed footprints (eq. 34).
+
+    The K taps are unrolled into K gathers of (N, C) rows and fused multiply-adds: on the CPU this is
+    several times faster than ``einsum("nk,nkc->nc", w, flat[idx])``, which XLA lowers to N tiny
+    batched matrix products.
+    """
+    out = w[:, 0, None] * flat[idx[:, 0]]
+    for k in range(1, idx.shape[1]):
+        out = out + w[:, k, None] * flat[idx[:, k]]
+    return out
+
+
+__all__ = ["bilinear", "continuous_coords", "face_uv", "gather", "lookup"]
