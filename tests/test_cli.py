@@ -80,6 +80,7 @@ def test_brdf_run_writes_pinned_output(tmp_path):
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []
 
 
+@pytest.mark.slow
 def test_load_reproduces_metrics(tmp_path):
     from homofac.fit.metrics import metrics
     from homofac.output import load

@@ -149,13 +149,27 @@ def test_hardware_filtered_lookup_equals_mappers_lookup(name):
 
 @pytest.fixture(scope="module")
 def lighting():
+    """One NR fit on the dual paraboloid; its textures resampled onto the cube (as NRHD) and octahedral (as NRV)
+    maps stand in for fits there: what these tests compare is a model's GL and CPU evaluation, not a fit."""
     env = hf.light.load_environment("forest", resolution=8)
     brdf = hf.brdf.cook_torrance(kd=(0.05, 0.04, 0.02), ks=1.0, roughness=0.3, f0=(1.0, 0.78, 0.34))
     target = hf.light.lighting_target(brdf, env, parametrization="NRHD")
-    samples = hf.fit.draw_samples(target, "NRHD", {"kind": "texels", "size": 8, "validation": 1000}, lambda m: None)
-    facs = {m: hf.fit.factorize(target, p, mapper=m, texture_size=8, samples=samples)
-            for p, m in (("NRHD", "cube"), ("NR", "dual_paraboloid"), ("NRV", "octahedral"))}
+    samples = hf.fit.draw_samples(target, "NR", {"kind": "texels", "size": 8, "validation": 1000}, lambda m: None)
+    dp = hf.fit.factorize(target, "NR", mapper="dual_paraboloid", texture_size=8, samples=samples)
+    facs = {"dual_paraboloid": dp, "cube": resampled(dp, "cube", "NRHD", target.context),
+            "octahedral": resampled(dp, "octahedral", "NRV", target.context)}
     return {"env": env, "brdf": brdf, "target": target, "facs": facs}
+
+
+def resampled(fac, mapper: str, name: str, context: dict):
+    """``fac``'s textures looked up at the texel centres of ``mapper`` (cyclically) as the textures of
+    parametrization ``name``: a smooth, positive model on any mapper without a fit."""
+    d = jnp.asarray(mappers.texel_directions(mapper, fac.texture_size), jnp.float32)
+    data = [mappers.lookup(fac.mapper, jnp.asarray(fac.textures[k % len(fac.textures)]), d)
+            for k in range(pz.get(name).T)]
+    model = Factorization.product(fac.kind, fac.quantity, name, mapper, fac.texture_size, data, fac.correction,
+                                  dict(context))
+    return Result(model)
 
 
 def as_parametrization(fac, name: str):

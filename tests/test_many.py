@@ -71,6 +71,7 @@ def test_library_refuses_bad_input(env):
         hf.fit.factorize_many([t, "gold"], "NR")
 
 
+@pytest.mark.slow
 def test_measure_many_equals_measure_per_result(env):
     """The library's one vmapped measurement (:func:`homofac.fit.footprints.measure_many`) gives every
     result the metrics :func:`homofac.fit.footprints.measure` gives it alone (float and 8-bit, both splits)."""

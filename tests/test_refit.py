@@ -40,6 +40,7 @@ def base(envs):
     return hf.fit.factorize(hf.light.lighting_target(gold(), envs[0]), "NR", **KW)
 
 
+@pytest.mark.slow
 def test_environment_refit_equals_a_full_run(base, envs):
     r = hf.fit.refit(base, environment=envs[1])
     full = hf.fit.factorize(hf.light.lighting_target(gold(), envs[1]), "NR", **KW)

@@ -91,6 +91,7 @@ def test_grid_samples_hit_one_texel_each():
     assert als.single_texel("dual_paraboloid", S, q.a, lay.unknown_of_texel) is None
 
 
+@pytest.mark.slow
 def test_als_recovers_an_exact_sum_of_two_products(exact_sum):
     model, target, s = exact_sum
     one = sums.fit_sum(target, Structure("NR", 1, None, True), "dual_paraboloid", S, s,
@@ -169,6 +170,7 @@ def test_more_structure_fits_better_and_beats_one_product(plastic):
     assert errs["E'+NRW x2"] < errs["E+NRW x1"]
 
 
+@pytest.mark.slow
 def test_factorize_keys_validate_and_record(plastic, tmp_path):
     target, s = plastic
     fac = hf.fit.factorize(target, "NR", texture_size=S, terms=2, diffuse="exact", nv_factor=True, samples=s,
