@@ -62,21 +62,23 @@ def footprints(model: Factorization, a, b) -> Footprints:
     return Footprints(keys, tuple(idx), tuple(w))
 
 
-def _gather(data, idx, w):
-    return mappers.gather(data.reshape((-1,) + data.shape[2:]), idx, w)
-
-
 def _values(textures, corrections, alphas, offsets, scales, structure, idx, w):
     """sum_t c_t prod_f decode(bilerp(texture)) with ``structure`` (static): per term the (texture
-    index, footprint index) of each factor; ``alphas`` per texture (None for the float textures)."""
+    index, footprint index) of each factor; ``alphas`` per texture (None for the float textures).
+
+    Also T models of one structure at once, their channels side by side ("wide"): textures (H, W, T C),
+    corrections / offsets / scales (3 T,), values (N, 3 T) (a material library; T = 1 is one model). One
+    gather reads every model's texels, and the metrics reduce over contiguous columns."""
     out = 0.0
     for (factors, c) in zip(structure, corrections):
-        v = jnp.broadcast_to(c, (idx[0].shape[0], 3))
+        v = jnp.reshape(c, (1, -1))
         for k, f in factors:
-            x = _gather(textures[k], idx[f], w[f])
-            if alphas is not None:
-                x = x[:, :3] * (x[:, 3:4] if alphas[k] else 1.0)
-                x = offsets[k] + scales[k] * x
+            data = textures[k]
+            x = mappers.gather(data.reshape(-1, data.shape[-1]), idx[f], w[f])  # (N, T C)
+            if alphas is not None:  # RGBA per model: decode after the interpolation (pinned rule)
+                x4 = x.reshape(x.shape[0], -1, 4)
+                x = (x4[..., :3] * (x4[..., 3:4] if alphas[k] else 1.0)).reshape(x.shape[0], -1)
+                x = offsets[k][None, :] + scales[k][None, :] * x
             v = v * x
         out = out + v
     return out
@@ -135,37 +137,6 @@ def measure(result, target, samples, fp_train: Footprints, fp_val: Footprints | 
     return out
 
 
-def _values_many(textures, corrections, alphas, offsets, scales, structure, idx, w):
-    """:func:`_values` of T models of one structure, their channels side by side ("wide"): textures
-    (H, W, T C), corrections / offsets / scales (3 T,); returns (N, 3 T). One gather reads the T models'
-    texels at once, and every reduction of the metrics runs over contiguous columns."""
-    out = 0.0
-    for (factors, c) in zip(structure, corrections):
-        v = c[None, :]
-        for k, f in factors:
-            data = textures[k]
-            x = mappers.gather(data.reshape(-1, data.shape[-1]), idx[f], w[f])  # (N, T C)
-            if alphas is not None:  # RGBA per model: decode after the interpolation (pinned rule)
-                x4 = x.reshape(x.shape[0], -1, 4)
-                x = (x4[..., :3] * (x4[..., 3:4] if alphas[k] else 1.0)).reshape(x.shape[0], -1)
-                x = offsets[k][None, :] + scales[k][None, :] * x
-            v = v * x
-        out = out + v
-    return out
-
-
-def _many_float_impl(textures, corrections, idx, w, *, structure):
-    return _values_many(textures, corrections, None, None, None, structure, idx, w)
-
-
-def _many_q_impl(channels, corrections, offsets, scales, idx, w, *, structure, alphas):
-    return _values_many(channels, corrections, alphas, offsets, scales, structure, idx, w)
-
-
-_many_float = jax.jit(_many_float_impl, static_argnames=("structure",))
-_many_q = jax.jit(_many_q_impl, static_argnames=("structure", "alphas"))
-
-
 @jax.jit
 def _many_metrics(approx, exact, eps):
     """:func:`metric_arrays` of T targets from their channels side by side, (N, 3 T) each: (T,) arrays."""
@@ -207,8 +178,8 @@ def measure_many(results, targets, samples, fp_train: Footprints, fp_val: Footpr
         aj = jnp.asarray(a)
         t0 = targets[0]  # one kind and quantity for all: what the metrics compare (f cos for BRDFs)
         exact = t0.shown(aj, wide(ys))
-        for name, approx in (("float", _many_float(textures, corrections, fp.idx, fp.w, structure=structure)),
-                             ("quantized", _many_q(channels, q_corr, offsets, scales, fp.idx, fp.w,
+        for name, approx in (("float", _eval_float(textures, corrections, fp.idx, fp.w, structure=structure)),
+                             ("quantized", _eval_q(channels, q_corr, offsets, scales, fp.idx, fp.w,
                                                    structure=structure, alphas=alphas))):
             m = {k: np.asarray(v) for k, v in _many_metrics(t0.shown(aj, approx), exact, eps).items()}
             for i in range(len(results)):
