@@ -29,11 +29,21 @@ except OSError:  # a read-only checkout: compile as usual
     pass
 
 
-@pytest.fixture
-def x64():
-    """Enable float64 for one test (references and exactness tests need it), then restore float32."""
+def _float64():
     jax.config.update("jax_enable_x64", True)
     try:
         yield
     finally:
         jax.config.update("jax_enable_x64", False)
+
+
+@pytest.fixture
+def x64():
+    """Enable float64 for one test (references and exactness tests need it), then restore float32."""
+    yield from _float64()
+
+
+@pytest.fixture(scope="module")
+def x64_module():
+    """float64 for a whole module's fits and gradients (module-scoped fixtures built in it), restored afterwards."""
+    yield from _float64()

@@ -24,16 +24,6 @@ def material(roughness, f0):
     return hf.brdf.cook_torrance(kd=KD, ks=1.0, roughness=roughness, f0=f0)
 
 
-@pytest.fixture(scope="module")
-def x64_module():
-    """float64 for this module's fits and gradients, restored afterwards (like conftest's ``x64``)."""
-    jax.config.update("jax_enable_x64", True)
-    try:
-        yield
-    finally:
-        jax.config.update("jax_enable_x64", False)
-
-
 def _scene(light_res: int, tex: int, fit_pixels: int, image: int):
     env = hf.light.load_environment("forest", resolution=light_res)
     env = eqx.tree_at(lambda e: e.radiance, env, jnp.asarray(env.radiance, jnp.float64))
