@@ -533,3 +533,31 @@ def test_lobe_form_reproduces_the_model(model):
     tri = lobe_terms(brdf, (wi[:, 0], wi[:, 1], wi[:, 2]), (wo[:, 0], wo[:, 1], wo[:, 2]))
     for g1, g2 in zip(tri, lobe_terms(brdf, wi, wo)):
         np.testing.assert_array_equal(np.asarray(g1), np.asarray(g2))
+
+
+@pytest.mark.parametrize("model", list(PARAMS))
+def test_stacked_lobes_equal_each_shape(model):
+    """stacked_lobe_terms of B roughnesses / exponents (a library's lobe shapes, evaluated at once with
+    the geometry shared when the model has a Shaped split) equals lobe_terms of each, horizon included."""
+    from homofac.brdf.core import MODELS, lobe_terms, stacked_lobe_terms
+
+    rng = np.random.default_rng(11)
+    wi = rng.normal(size=(256, 3))
+    wo = rng.normal(size=(256, 3))
+    wi /= np.linalg.norm(wi, axis=1, keepdims=True)
+    wo /= np.linalg.norm(wo, axis=1, keepdims=True)
+    wi, wo = jnp.asarray(wi, jnp.float32), jnp.asarray(wo, jnp.float32)
+    name = "roughness" if "roughness" in PARAMS[model] else "exponent" if "exponent" in PARAMS[model] else None
+    scales = (0.5, 1.0, 1.7)
+    brdfs = [B.make(model, **{**PARAMS[model], **({name: PARAMS[model][name] * s} if name else {})}) for s in scales]
+    stacked = B.BRDF(model, {k: jnp.stack([jnp.broadcast_to(jnp.asarray(b.params[k], jnp.float32),
+                                                            jnp.shape(brdfs[0].params[k])) for b in brdfs])
+                             for k in brdfs[0].params})
+    got = np.asarray(stacked_lobe_terms(stacked, wi, wo))
+    m = len(lobe_terms(brdfs[0], wi, wo))
+    assert got.shape == (len(scales), m, 256)
+    for b, g in zip(brdfs, got):
+        for want, one in zip(lobe_terms(b, wi, wo), g):
+            np.testing.assert_allclose(one, np.asarray(want), rtol=2e-5, atol=1e-7)
+    if model in ("cook_torrance", "ward"):
+        assert MODELS[model].shaped is not None  # the split that the library's lighting uses

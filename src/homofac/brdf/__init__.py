@@ -15,7 +15,7 @@ Submodules: ``core`` (registry, BRDF, make, validation), ``analytic`` (models wi
 sources), ``measured`` (MERL files, lookup, tabulation), ``integrate`` (directional albedo).
 """
 
-from .core import BRDF, MODELS, Microfacet, ModelSpec, check_value, evaluate, from_config, make, options_model, options_union, register
+from .core import BRDF, MODELS, Microfacet, ModelSpec, Shaped, check_value, evaluate, from_config, make, options_model, options_union, register
 from .analytic import blinn_phong, cook_torrance, ggx, lambert, modified_phong, phong, ward
 from .measured import (
     MERL_DIMS,
@@ -38,6 +38,7 @@ __all__ = [
     "MODELS",
     "Microfacet",
     "ModelSpec",
+    "Shaped",
     "albedo",
     "blinn_phong",
     "check_value",

@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array
 
-from .core import COS_EPS, BRDF, Microfacet, ModelSpec, make, register
+from .core import COS_EPS, BRDF, Microfacet, ModelSpec, Shaped, make, register
 
 PI = jnp.pi
 #: Floor for cos(theta_h) in microfacet distributions: below it the distributions are 0 anyway
@@ -196,6 +196,24 @@ def _cook_torrance_lobes(p: Params, wi: Comp, wo: Comp) -> tuple[Array, Array]:
     return a, a * (1.0 - vh) ** 5
 
 
+def _beckmann_geometry(wi: Comp, wo: Comp) -> tuple[Array, Array, Array]:
+    """The roughness-independent part of :func:`_cook_torrance_lobes`: ``(tan^2 theta_h,
+    G / (4 pi (n.l)(n.v)(n.h)^4), (1 - v.h)^5)``, so that ``a = exp(-s tan^2 theta_h) s * geometry``
+    with s = 1 / m^2."""
+    _, nl, nv, nh, vh, tan2_h = _microfacet_angles(wi, wo)
+    g = jnp.minimum(1.0, 2.0 * nh * jnp.minimum(nv, nl) / vh)
+    nh2 = nh * nh
+    return tan2_h, g / ((4.0 * PI) * nl * nv * (nh2 * nh2)), (1.0 - vh) ** 5
+
+
+def _beckmann_shape(p: Params, geom: tuple) -> tuple[Array, Array]:
+    """:func:`_cook_torrance_lobes` from :func:`_beckmann_geometry`: the exponential and two products."""
+    tan2_h, geometry, f5 = geom
+    s = 1.0 / p["roughness"] ** 2
+    a = jnp.exp(tan2_h * (-s)) * (geometry * s)
+    return a, a * f5
+
+
 _cook_torrance = _with_lobes(_cook_torrance_lobes, _schlick_colors)
 
 
@@ -225,6 +243,18 @@ def _ward_lobes(p: Params, wi: Comp, wo: Comp) -> tuple[Array]:
     _, nl, nv, _, _, tan2_h = _microfacet_angles(wi, wo)
     a2 = p["roughness"] ** 2
     return (jnp.exp(-tan2_h / a2) / (4.0 * PI * a2 * jnp.sqrt(nl * nv)),)
+
+
+def _ward_geometry(wi: Comp, wo: Comp) -> tuple[Array, Array]:
+    """The roughness-independent part of :func:`_ward_lobes`: ``(tan^2 theta_h, 1 / (4 pi sqrt((n.l)(n.v))))``."""
+    _, nl, nv, _, _, tan2_h = _microfacet_angles(wi, wo)
+    return tan2_h, 1.0 / ((4.0 * PI) * jnp.sqrt(nl * nv))
+
+
+def _ward_shape(p: Params, geom: tuple) -> tuple[Array]:
+    tan2_h, geometry = geom
+    s = 1.0 / p["roughness"] ** 2
+    return (jnp.exp(tan2_h * (-s)) * (geometry * s),)
 
 
 _ward = _with_lobes(_ward_lobes, _ks)
@@ -319,12 +349,14 @@ register(ModelSpec("blinn_phong", _blinn_phong, BLINN_PHONG_DEFAULTS, True, "kd 
 register(
     ModelSpec("cook_torrance", _cook_torrance, COOK_TORRANCE_DEFAULTS, True, "kd + ks <= 1 (f0 <= 1)", COOK_TORRANCE_DOC,
               lobes=_cook_torrance_lobes, colors=_schlick_colors,
-              microfacet=Microfacet(beckmann, "Beckmann, m = roughness"))
+              microfacet=Microfacet(beckmann, "Beckmann, m = roughness"),
+              shaped=Shaped(_beckmann_geometry, _beckmann_shape))
 )
 register(ModelSpec("ggx", _ggx, GGX_DEFAULTS, True, "kd + ks <= 1 (f0 <= 1)", GGX_DOC,
                    lobes=_ggx_lobes, colors=_schlick_colors,
                    microfacet=Microfacet(ggx_ndf, "GGX / Trowbridge-Reitz, alpha = roughness")))
-register(ModelSpec("ward", _ward, WARD_DEFAULTS, True, "", WARD_DOC, lobes=_ward_lobes, colors=_ks))
+register(ModelSpec("ward", _ward, WARD_DEFAULTS, True, "", WARD_DOC, lobes=_ward_lobes, colors=_ks,
+                   shaped=Shaped(_ward_geometry, _ward_shape)))
 
 
 # ----------------------------------------------------------------------------------------------

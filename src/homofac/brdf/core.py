@@ -57,6 +57,10 @@ class ModelSpec(NamedTuple):
             option model of :func:`options_model` is derived from it (or from ``defaults``).
         microfacet: optional :class:`Microfacet` (the model's NDF), for the split-sum baseline
             (:mod:`homofac.baselines.split_sum`); None for models without one.
+        shaped: optional :class:`Shaped`, the lobe form split into the part that depends on the
+            directions only and the part that depends on the shape parameters (roughness): what
+            :func:`stacked_lobe_terms` uses to evaluate many roughnesses at once with the geometry
+            computed once. Must equal ``lobes`` (tested for every model that has it).
     """
 
     name: str
@@ -71,6 +75,7 @@ class ModelSpec(NamedTuple):
     support: Callable[[dict[str, Array], float], tuple[Array, tuple[Array, ...]]] | None = None
     schema: dict[str, tuple[Any, Any]] | None = None
     microfacet: "Microfacet | None" = None
+    shaped: "Shaped | None" = None
 
 
 class Microfacet(NamedTuple):
@@ -85,6 +90,19 @@ class Microfacet(NamedTuple):
     ndf: Callable[[dict[str, Array], Array], Array]
     doc: str
     fresnel: str = "schlick"
+
+
+class Shaped(NamedTuple):
+    """A lobe form split for stacked shapes: ``lobes(p, wi, wo) == shape(p, geometry(wi, wo))``.
+
+    ``geometry(wi, wo) -> tuple of arrays``: everything that does not depend on the parameters
+    (half vector, cosines, shadowing, Fresnel weight); ``shape(params, geometry) -> tuple of M
+    lobes``: the few operations that do (for Beckmann, ``exp(-s tan^2 theta_h) s`` times the
+    geometry). Directions reach ``geometry`` above the horizon only, as for ``lobes``.
+    """
+
+    geometry: Callable[[tuple, tuple], tuple]
+    shape: Callable[[dict[str, Array], tuple], tuple]
 
 
 #: All registered models by name.
@@ -159,6 +177,32 @@ def lobe_terms(brdf: BRDF, wi, wo) -> tuple[Array, ...]:
     safe = lambda w: (jnp.where(m, w[0], 0.0), jnp.where(m, w[1], 0.0), jnp.where(m, w[2], 1.0))  # noqa: E731
     terms = MODELS[brdf.model].lobes(brdf.params, safe(wi), safe(wo))
     return tuple(jnp.where(m, g, jnp.zeros((), g.dtype)) for g in terms)
+
+
+def stacked_lobe_terms(brdfs: BRDF, wi, wo) -> Array:
+    """The lobes of B BRDFs of one model stacked along their parameters' leading axis (see
+    :func:`homofac.fit.transport.stack`): ``(B, M) + broadcast(wi, wo)`` -- :func:`lobe_terms` of each.
+
+    With a :class:`Shaped` split and B > 1 the direction-only geometry is computed once and only the
+    shape part is vmapped over the B shapes (4 Beckmann roughnesses: 0.9 -> 0.7 s of a library's
+    lighting, measured; for one shape the direct form is ~10 % faster); otherwise :func:`lobe_terms` is vmapped (parts that do not depend on the parameters are
+    still traced once, but XLA's fusion may evaluate them again per shape).
+    """
+    spec = MODELS[brdfs.model]
+    wi = _triple(wi)
+    wo = _triple(wo)
+    count = jax.tree_util.tree_leaves(brdfs.params)[0].shape[0]
+    if spec.shaped is None or count == 1:  # one shape: the direct form (measured faster alone)
+        def one(b):
+            g = lobe_terms(b, wi, wo)
+            shape = jnp.broadcast_shapes(*(c.shape for c in wi + wo))
+            return jnp.stack(g) if g else jnp.zeros((0,) + shape, wi[0].dtype)
+        return jax.vmap(one)(brdfs)
+    m = (wi[2] > 0) & (wo[2] > 0)
+    safe = lambda w: (jnp.where(m, w[0], 0.0), jnp.where(m, w[1], 0.0), jnp.where(m, w[2], 1.0))  # noqa: E731
+    geom = spec.shaped.geometry(safe(wi), safe(wo))
+    g = jax.vmap(lambda params: jnp.stack(spec.shaped.shape(params, geom)))(brdfs.params)
+    return jnp.where(m, g, jnp.zeros((), g.dtype))
 
 
 def _triple(w):

@@ -43,7 +43,7 @@ from .product import zeros_rule
 from .result import Result
 from .samples import Samples, check_values, evaluate_grouped
 from .refit import (data_matrix, laplacian_matrix, layout_of, measure_all,
-                    product_model, refit, system_rows)
+                    product_models, refit, system_rows)
 from .solvers.lsmr import _lsmr as lsmr_solve
 from .start import starting_solution
 from .state import from_layout
@@ -189,9 +189,10 @@ def factorize_many(targets: Sequence[Target], parametrization: str = "NR", *, co
     log(f"solved {len(targets)} right-hand sides of one system ({layout.n_unknowns} unknowns), "
         + f"{int(steps.max())} LSMR iterations")
     built = []
+    models = product_models(targets[0], p, layout, xs, np.stack(alphas))  # one context (checked above)
     for i, (t, smp) in enumerate(zip(targets, samples)):
         x = xs[i]
-        model = product_model(t, p, layout, x, alphas[i])
+        model = models[i]
         obj = float(np.sum((a_t.T @ x - rhs[i]) ** 2) + np.sum((lap @ x) ** 2))
         bn = float(np.sum(rhs[i].astype(np.float64) ** 2))
         solver = {"method": method, "iterations": int(steps[i]), "converged": bool(ok[i]),

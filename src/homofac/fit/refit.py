@@ -29,6 +29,7 @@ from __future__ import annotations
 import time
 from typing import Callable
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -284,14 +285,33 @@ def log_start(model: Factorization, layout: Layout, p: pz.Parametrization, alpha
     return np.concatenate(out, axis=0)
 
 
-def product_model(target: Target, p: pz.Parametrization, layout: Layout, x, alpha) -> Factorization:
+def _product(kind: str, quantity: str, context: dict, p: pz.Parametrization, layout: Layout, x, alpha) -> Factorization:
+    """The normalized one-product model of log texels ``x`` (n, 3) and the log-space scale ``alpha``."""
     textures = precision.exponentiate(unpack(jnp.asarray(x, jnp.float32), layout), jnp.asarray(alpha), p.J)
     main = next((t for t in layout.textures if not mappers.get(t.mapper).scalar), layout.textures[0])
     line = next((t.size for t in layout.textures if mappers.get(t.mapper).scalar), None)
-    model = Factorization.product(target.kind, target.quantity if target.kind == "brdf" else "lighting", p.name,
-                                  main.mapper, main.size, textures, jnp.ones((3,), jnp.float32),
-                                  context=dict(target.context), line_size=line)
+    model = Factorization.product(kind, quantity, p.name, main.mapper, main.size, textures, jnp.ones((3,), jnp.float32),
+                                  context=context, line_size=line)
     return precision.normalize(model)
+
+
+@eqx.filter_jit
+def _product_batch(kind: str, quantity: str, context: dict, p: pz.Parametrization, layout: Layout, xs, alphas):
+    batch = eqx.filter_vmap(lambda x, a: _product(kind, quantity, context, p, layout, x, a))(xs, alphas)
+    return [jax.tree_util.tree_map(lambda leaf, i=i: leaf[i], batch) for i in range(xs.shape[0])]
+
+
+def product_models(target: Target, p: pz.Parametrization, layout: Layout, xs, alphas) -> list[Factorization]:
+    """The one-product models of T solutions ``xs`` (T, n, 3) with scales ``alphas`` (T, 3) of one layout:
+    exponentiated, normalized and dilated in one compiled program (op by op, 16 models took 0.13 s)."""
+    quantity = target.quantity if target.kind == "brdf" else "lighting"
+    return _product_batch(target.kind, quantity, dict(target.context), p, layout,
+                          jnp.asarray(xs, jnp.float32), jnp.asarray(alphas, jnp.float32))
+
+
+def product_model(target: Target, p: pz.Parametrization, layout: Layout, x, alpha) -> Factorization:
+    """:func:`product_models` of one solution."""
+    return product_models(target, p, layout, np.asarray(x)[None], np.asarray(alpha)[None])[0]
 
 
 def refit_product(state: RefitState, fac: Result, target: Target, y: np.ndarray, log,
@@ -483,5 +503,5 @@ def prepare(fac: Result, options: FitOptions | dict | None = None) -> Result:
 
 
 __all__ = ["CHOLESKY_MAX_UNKNOWNS", "INVERSE_MAX_UNKNOWNS", "TRANSPORT_BYTES", "data_matrix", "gauge_basis", "laplacian_matrix", "layout_of", "log_start",
-           "measure_all", "measure_on", "new_target", "normal_equations", "product_model",
+           "measure_all", "measure_on", "new_target", "normal_equations", "product_model", "product_models",
            "prepare", "refit", "refit_product", "system_rows", "values"]

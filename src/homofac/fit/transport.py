@@ -35,7 +35,7 @@ from jaxtyping import Array, Float, Int
 
 from .. import sphere
 from ..brdf import BRDF, MODELS
-from ..brdf.core import has_lobes, lobe_colors, lobe_terms
+from ..brdf.core import has_lobes, lobe_colors, stacked_lobe_terms
 from ..light import Environment, Lighting
 from ..light.geometry import cosine_weights, light_geometry
 from ..light.lighting import STEP_TERMS, max_visible
@@ -118,12 +118,7 @@ def _normal_parts(brdfs: BRDF, dirs, geom, k: int, centroid: bool, n, v):
     wo = v @ frame  # (P, 3)
     wi3 = tuple(wi[None, :, c] for c in range(3))
     wo3 = tuple(wo[:, None, c] for c in range(3))
-
-    def lobes(brdf):
-        g = lobe_terms(brdf, wi3, wo3)
-        return jnp.stack(g) if g else jnp.zeros((0, v.shape[0], k), v.dtype)
-
-    g = jax.vmap(lobes)(brdfs)  # (B, M, P, k); parts not depending on the parameters are computed once
+    g = stacked_lobe_terms(brdfs, wi3, wo3)  # (B, M, P, k): the geometry once for every shape
     return w, idx, wk, g
 
 
@@ -186,7 +181,11 @@ def combine(brdf: BRDF, sums: LobeSums, shape: int, normals, views, clamp: float
     """``kd/pi E + sum_m c_m S_m`` of ``brdf`` (its colours) from shape ``shape`` of ``sums``: L (G, P, 3),
     0 where n . v <= 0 and clamped at ``clamp`` (as :class:`~homofac.light.Lighting`)."""
     normals = jnp.asarray(normals)
-    views = jnp.asarray(views, normals.dtype)
+    return _combine(brdf, sums, shape, normals, jnp.asarray(views, normals.dtype), clamp)
+
+
+@eqx.filter_jit
+def _combine(brdf: BRDF, sums: LobeSums, shape: int, normals, views, clamp: float | None):
     out = jnp.zeros(views.shape[:2] + (3,), normals.dtype)
     if "kd" in brdf.params:
         kd = jnp.broadcast_to(jnp.asarray(brdf.params["kd"], normals.dtype), (3,))
