@@ -42,11 +42,11 @@ from .pipeline import factorize, options, quality_warnings, resolve_sampling
 from .product import zeros_rule
 from .result import Result
 from .samples import Samples, check_values, evaluate_grouped
-from .refit import (data_matrix, laplacian_matrix, layout_of, measure_all,
-                    product_models, refit, system_rows)
+from .refit import layout_of, measure_all, product_models, refit, system_rows
 from .solvers.lsmr import _lsmr as lsmr_solve
 from .start import starting_solution
 from .state import from_layout
+from .system import apply, augmented_rhs, log_transform, sample_mean
 
 #: Keywords of factorize that are not fit options (they describe one target's run).
 RUN_KEYWORDS = ("samples", "config", "target_info", "log", "keep_samples")
@@ -79,12 +79,13 @@ def library_values(targets: Sequence[Target], groups, val_groups, pairs, val_pai
                 parts.append((g, transport.lobe_sums(first, fn0.env, g.normals, g.views, horizon=fn0.horizon)))
             else:
                 parts.append((g, None))
-        for s, idx in enumerate(shapes.values()):
-            for i in idx:
-                fn = targets[i].fn
-                ys = [np.asarray(transport.combine(fn.brdf, sums, s, g.normals, g.views, fn.clamp))[g.mask]
-                      if sums is not None else np.zeros((0, 3), np.float32) for g, sums in parts]
-                out[i] = (ys[0], ys[1])
+        order = [i for idx in shapes.values() for i in idx]
+        shape_of = [s for s, idx in enumerate(shapes.values()) for _ in idx]
+        ys = [np.asarray(transport.combine_many([targets[i].fn.brdf for i in order], sums, shape_of, g.normals,
+                                                g.views, fn0.clamp))[:, g.mask]
+              if sums is not None else np.zeros((len(order), 0, 3), np.float32) for g, sums in parts]
+        for j, i in enumerate(order):
+            out[i] = (ys[0][j], ys[1][j])
     for i, t in enumerate(targets):
         if out[i] is not None:
             continue
@@ -171,30 +172,23 @@ def factorize_many(targets: Sequence[Target], parametrization: str = "NR", *, co
     sys = system_rows(state, targets[0])
     eps = float(opts.solver.epsilon)
     lam = float(opts.solver.laplacian)
-    alphas, rhs = [], []
-    for smp in samples:
-        y = np.maximum(np.asarray(smp.y, np.float64), 0.0)
-        alpha = np.mean(y, axis=0)
-        alpha = np.where(alpha > 0, alpha, 1.0)
-        alphas.append(alpha)
-        rhs.append(np.log((y + eps * alpha) / alpha).astype(np.float32))
-    side = np.concatenate(rhs, axis=1)  # every target's start at once: columns are independent in §3.1.2
+    alphas, rhs, side, bnorm2 = (np.asarray(a) for a in _log_sides(jnp.asarray(np.stack([s.y for s in samples])),
+                                                                     jnp.float32(eps)))
     x0 = np.asarray(starting_solution(sys._replace(rhs=jnp.asarray(side)), layout, p.J))
     x0 = x0.reshape(layout.n_unknowns, len(rhs), 3).transpose(1, 0, 2)
-    xs, steps, ok = _solve_all(sys, jnp.asarray(np.stack(rhs)), jnp.asarray(x0), jnp.float32(lam),
-                               rtol=float(opts.solver.tolerance), max_steps=int(opts.solver.max_iterations))
-    xs, steps, ok = np.asarray(xs, np.float64), np.asarray(steps), np.asarray(ok)
-    a_t, lap = data_matrix(sys, layout.n_unknowns).T.tocsr(), laplacian_matrix(sys, lam, layout.n_unknowns)
+    xs, steps, ok, objs = _solve_all(sys, jnp.asarray(rhs), jnp.asarray(x0), jnp.float32(lam),
+                                     rtol=float(opts.solver.tolerance), max_steps=int(opts.solver.max_iterations))
+    xs, steps, ok, objs = np.asarray(xs, np.float64), np.asarray(steps), np.asarray(ok), np.asarray(objs, np.float64)
     method = opts.solver.method
     log(f"solved {len(targets)} right-hand sides of one system ({layout.n_unknowns} unknowns), "
         + f"{int(steps.max())} LSMR iterations")
     built = []
-    models = product_models(targets[0], p, layout, xs, np.stack(alphas))  # one context (checked above)
+    models = product_models(targets[0], p, layout, xs, alphas)  # one context (checked above)
     for i, (t, smp) in enumerate(zip(targets, samples)):
         x = xs[i]
         model = models[i]
-        obj = float(np.sum((a_t.T @ x - rhs[i]) ** 2) + np.sum((lap @ x) ** 2))
-        bn = float(np.sum(rhs[i].astype(np.float64) ** 2))
+        obj = float(objs[i])
+        bn = float(bnorm2[i])
         solver = {"method": method, "iterations": int(steps[i]), "converged": bool(ok[i]),
                   "tolerance": float(opts.solver.tolerance), "max_iterations": int(opts.solver.max_iterations),
                   "laplacian": lam, "epsilon": eps, "objective": obj,
@@ -222,6 +216,17 @@ def factorize_many(targets: Sequence[Target], parametrization: str = "NR", *, co
     return results
 
 
+@jax.jit
+def _log_sides(ys, eps):
+    """Every target's alpha (T, 3) and log right-hand side (T, m, 3) of eq. 26 as a single fit builds them
+    (:func:`homofac.fit.system.sample_mean`, :func:`~homofac.fit.system.log_transform`), the sides next to
+    each other (m, 3 T) for the start (its columns are independent in §3.1.2), and their squared norms."""
+    alphas = jax.vmap(sample_mean)(ys)
+    rhs = jax.vmap(log_transform, in_axes=(0, 0, None))(ys, alphas, eps)
+    side = jnp.transpose(rhs, (1, 0, 2)).reshape(rhs.shape[1], -1)
+    return alphas, rhs, side, jnp.sum(rhs.astype(jnp.float32) ** 2, axis=(1, 2))
+
+
 @functools.partial(jax.jit, static_argnames=("rtol", "max_steps"))
 def _solve_all(sys, rhs, x0, lam, *, rtol: float, max_steps: int):
     """LSMR (the ``lsmr`` solver: column-scaled, from each target's §3.1.2 start) on the targets' right-hand
@@ -229,12 +234,16 @@ def _solve_all(sys, rhs, x0, lam, *, rtol: float, max_steps: int):
     least-squares problem ``min sum_c ||A x_c - b_c||^2`` (the channels of one product already are), whose
     minimiser is every target's own. One Krylov iteration serves every column (the operator's gathers are
     shared), where a vmap ran T LSMRs with their own scalars. Returns x (T, n, 3), steps and success
-    (one value for all, broadcast per target)."""
+    (one value for all, broadcast per target) and each target's objective ``||A x - b||^2 + ||lambda L x||^2``
+    (:func:`homofac.fit.system.objective` per target, from the same program)."""
     t, m, c = rhs.shape
     n = x0.shape[1]
-    x, steps, ok = lsmr_solve(sys._replace(rhs=jnp.transpose(rhs, (1, 0, 2)).reshape(m, t * c)), lam,
-                              jnp.transpose(x0, (1, 0, 2)).reshape(n, t * c), rtol=rtol, max_steps=max_steps)
-    return (jnp.transpose(x.reshape(n, t, c), (1, 0, 2)), jnp.broadcast_to(steps, (t,)), jnp.broadcast_to(ok, (t,)))
+    wide = sys._replace(rhs=jnp.transpose(rhs, (1, 0, 2)).reshape(m, t * c))
+    x, steps, ok = lsmr_solve(wide, lam, jnp.transpose(x0, (1, 0, 2)).reshape(n, t * c), rtol=rtol, max_steps=max_steps)
+    r = apply(wide, lam, x) - augmented_rhs(wide)
+    objs = jnp.sum(jnp.sum(r * r, axis=0).reshape(t, c), axis=1)
+    return (jnp.transpose(x.reshape(n, t, c), (1, 0, 2)), jnp.broadcast_to(steps, (t,)), jnp.broadcast_to(ok, (t,)),
+            objs)
 
 
 def _one_by_one(targets, opts: FitOptions, samples, configs, infos, keep_samples, log, sample_s, t_start):

@@ -140,13 +140,18 @@ def log_transform(y: Float[Array, "m 3"], alpha: Float[Array, "3"], eps: float) 
     return jnp.log((jnp.maximum(y, 0.0) + eps * alpha) / alpha)
 
 
+def sample_mean(y: Float[Array, "m 3"]) -> Float[Array, "3"]:
+    """alpha of eq. 26: the per-channel mean of the (clamped) samples; 1 for a channel that is all 0."""
+    alpha = jnp.mean(jnp.maximum(y, 0.0), axis=0)
+    return jnp.where(alpha > 0, alpha, 1.0)
+
+
 def build_system(
     param: Parametrization, layout: Layout, a, b, y, *, eps: float, context: dict | None = None
 ) -> tuple[System, Float[Array, "3"]]:
     """Assemble eq. 37 for samples (a, b, y); returns the system and the sample mean alpha (eq. 26)."""
     y = jnp.asarray(y)
-    alpha = jnp.mean(jnp.maximum(y, 0.0), axis=0)
-    alpha = jnp.where(alpha > 0, alpha, 1.0)
+    alpha = sample_mean(y)
     cols, w = _data_rows_jit(param, layout, jnp.asarray(a), jnp.asarray(b), context or {})
     lap_cols, lap_w = laplacian_rows(layout, np.float32)
     rhs = log_transform(y, alpha, eps)

@@ -25,7 +25,7 @@ texels), so the values equal the pipeline's to float rounding (tested).
 from __future__ import annotations
 
 import hashlib
-from typing import NamedTuple
+from typing import NamedTuple, Sequence
 
 import equinox as eqx
 import jax
@@ -146,7 +146,8 @@ def _lobe_sums(brdfs: BRDF, env: Environment, normals, views, centroid: bool):
 
     def one(n, v):
         w, idx, wk, g = _normal_parts(brdfs, dirs, geom, k, centroid, n, v)
-        s = jnp.einsum("bmpk,kc->bmpc", g, wk[:, None] * rad[idx])
+        r4 = jnp.pad(wk[:, None] * rad[idx], ((0, 0), (0, 1)))  # 4 columns: XLA's CPU dot is ~25 % faster than at 3
+        s = jnp.einsum("bmpk,kc->bmpc", g, r4)[..., :3]
         return w @ rad, s
 
     e, s = jax.lax.map(lambda nv: jax.vmap(one)(nv[0], nv[1]), (nb, vb))
@@ -195,6 +196,28 @@ def _combine(brdf: BRDF, sums: LobeSums, shape: int, normals, views, clamp: floa
     valid = jnp.einsum("gpc,gc->gp", views, normals) > 0
     out = jnp.where(valid[..., None], out, 0.0)
     return out if clamp is None else jnp.minimum(out, clamp)
+
+
+def combine_many(brdfs: list[BRDF], sums: LobeSums, shapes: Sequence[int], normals, views,
+                 clamp: float | None = None) -> Float[Array, "T G P 3"]:
+    """:func:`combine` of T BRDFs of one model (their colours; BRDF t from shape ``shapes[t]`` of ``sums``)
+    in one program: ``L_t = kd_t/pi E + sum_m c_tm S_m[shape_t]``, (T, G, P, 3)."""
+    normals = jnp.asarray(normals)
+    dtype = normals.dtype
+    kd = jnp.stack([jnp.broadcast_to(jnp.asarray(b.params.get("kd", 0.0), dtype), (3,)) for b in brdfs])
+    colours = jnp.stack([jnp.stack(lobe_colors(b)).astype(dtype) if lobe_colors(b) else
+                         jnp.zeros((0, 3), dtype) for b in brdfs])
+    clamp = jnp.asarray(jnp.inf if clamp is None else clamp, dtype)
+    return _combine_many(kd, colours, jnp.asarray(np.asarray(shapes, np.int32)), sums, normals,
+                         jnp.asarray(views, dtype), clamp)
+
+
+@jax.jit
+def _combine_many(kd, colours, shapes, sums: LobeSums, normals, views, clamp):
+    s = jnp.take(sums.lobes, shapes, axis=1)  # (G, T, M, P, 3)
+    out = (kd[:, None, None, :] / jnp.pi) * sums.irradiance[None, :, None, :] + jnp.einsum("tmc,gtmpc->tgpc", colours, s)
+    valid = jnp.einsum("gpc,gc->gp", views, normals) > 0
+    return jnp.minimum(jnp.where(valid[None, ..., None], out, 0.0), clamp)
 
 
 @eqx.filter_jit
@@ -272,6 +295,6 @@ def lobe_count(brdf: BRDF) -> int:
     return len(MODELS[brdf.model].colors(brdf.params))
 
 
-__all__ = ["COLOUR_PARAMS", "LobeSums", "Transport", "apply_transport", "build_transport", "combine",
+__all__ = ["COLOUR_PARAMS", "LobeSums", "Transport", "apply_transport", "build_transport", "combine", "combine_many",
            "geometry_key", "lobe_count", "lobe_sums", "shape_key", "shape_params", "stack", "supported",
            "transport_bytes", "transported_values"]
