@@ -68,20 +68,33 @@ def _values(textures, corrections, alphas, offsets, scales, structure, idx, w):
 
     Also T models of one structure at once, their channels side by side ("wide"): textures (H, W, T C),
     corrections / offsets / scales (3 T,), values (N, 3 T) (a material library; T = 1 is one model). One
-    gather reads every model's texels, and the metrics reduce over contiguous columns."""
+    gather reads every model's texels, and the metrics reduce over contiguous columns. 8-bit textures
+    come as pairs (RGB (H, W, 3 T), alpha (H, W, T)): interpolated apart and multiplied after the lookup
+    (the pinned rule); slicing an interleaved (N, T, 4) lookup instead was 8x slower (45 -> 5.5 ms at
+    T = 16, measured)."""
     out = 0.0
     for (factors, c) in zip(structure, corrections):
         v = jnp.reshape(c, (1, -1))
         for k, f in factors:
-            data = textures[k]
-            x = mappers.gather(data.reshape(-1, data.shape[-1]), idx[f], w[f])  # (N, T C)
-            if alphas is not None:  # RGBA per model: decode after the interpolation (pinned rule)
-                x4 = x.reshape(x.shape[0], -1, 4)
-                x = (x4[..., :3] * (x4[..., 3:4] if alphas[k] else 1.0)).reshape(x.shape[0], -1)
+            if alphas is None:
+                data = textures[k]
+                x = mappers.gather(data.reshape(-1, data.shape[-1]), idx[f], w[f])  # (N, T C)
+            else:  # RGB and alpha per model: decode after the interpolation (pinned rule)
+                rgb, alpha = textures[k]
+                x = mappers.gather(rgb.reshape(-1, rgb.shape[-1]), idx[f], w[f])  # (N, 3 T)
+                if alphas[k]:
+                    a = mappers.gather(alpha.reshape(-1, alpha.shape[-1]), idx[f], w[f])  # (N, T)
+                    x = (x.reshape(x.shape[0], -1, 3) * a[:, :, None]).reshape(x.shape[0], -1)
                 x = offsets[k][None, :] + scales[k][None, :] * x
             v = v * x
         out = out + v
     return out
+
+
+def _split_rgba(rgba: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """8-bit RGBA codes (H, W, 4) as linear values [0, 1]: RGB (H, W, 3) and alpha (H, W, 1)."""
+    x = np.asarray(rgba, np.float64) / 255.0
+    return x[..., :3], x[..., 3:]
 
 
 def _structure(model: Factorization, keys: tuple) -> tuple:
@@ -101,7 +114,7 @@ def evaluate(model: Factorization, fp: Footprints) -> Float[Array, "N 3"]:
 def evaluate_quantized(model: Factorization, q: Quantized, fp: Footprints) -> Float[Array, "N 3"]:
     """The model's 8-bit value at the footprints' pairs (as :func:`homofac.factorization.evaluate_quantized`:
     every RGBA channel interpolated before the decode rule)."""
-    channels = tuple(jnp.asarray(np.asarray(r, np.float64) / 255.0, jnp.float32) for r in q.rgba)
+    channels = tuple(tuple(jnp.asarray(c, jnp.float32) for c in _split_rgba(r)) for r in q.rgba)
     return _eval_q(channels, tuple(jnp.asarray(c, jnp.float32) for c in q.corrections),
                    tuple(jnp.asarray(o, jnp.float32) for o in q.offset), tuple(jnp.asarray(s, jnp.float32)
                                                                                 for s in q.scale),
@@ -166,7 +179,8 @@ def measure_many(results, targets, samples, fp_train: Footprints, fp_val: Footpr
     textures = tuple(wide([m.textures[k].data for m in models]) for k in range(len(models[0].textures)))
     corrections = tuple(wide([np.broadcast_to(m.terms[t].correction, (3,)) for m in models])
                         for t in range(len(models[0].terms)))
-    channels = tuple(wide([np.asarray(q.rgba[k], np.float64) / 255.0 for q in qs]) for k in range(len(qs[0].rgba)))
+    split = [[_split_rgba(r) for r in q.rgba] for q in qs]
+    channels = tuple((wide([sp[k][0] for sp in split]), wide([sp[k][1] for sp in split])) for k in range(len(qs[0].rgba)))
     q_corr = tuple(wide([np.broadcast_to(q.corrections[t], (3,)) for q in qs]) for t in range(len(qs[0].corrections)))
     offsets = tuple(wide([np.broadcast_to(q.offset[k], (3,)) for q in qs]) for k in range(len(qs[0].offset)))
     scales = tuple(wide([np.broadcast_to(q.scale[k], (3,)) for q in qs]) for k in range(len(qs[0].scale)))
