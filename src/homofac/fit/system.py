@@ -192,8 +192,10 @@ def augmented_rhs(sys: System) -> Float[Array, "m_plus_n 3"]:
     return jnp.concatenate([sys.rhs, jnp.zeros((sys.lap_cols.shape[0], sys.rhs.shape[1]), sys.rhs.dtype)], axis=0)
 
 
+@jax.jit
 def objective(sys: System, lam, x) -> Float[Array, ""]:
-    """``||A x - b||^2 + ||lambda L x||^2`` summed over RGB: what every solver minimises."""
+    """``||A x - b||^2 + ||lambda L x||^2`` summed over RGB: what every solver minimises (one compiled
+    program: op by op it took 0.035 s of a 0.65 s default run)."""
     r = apply(sys, lam, x) - augmented_rhs(sys)
     return jnp.sum(r * r)
 
