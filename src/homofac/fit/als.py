@@ -47,6 +47,7 @@ class GridData(NamedTuple):
     y: Float[Array, "N 3"]  # what the terms fit, in units of sigma
     nb: Int[Array, "n 4"]  # neighbour unknowns of each texel (0 where missing)
     nbm: Float[Array, "n 4"]  # 1 where the neighbour exists
+    s: Float[Array, "N"]  # square roots of the sample weights (mean weight 1; ones: the plain objective)
 
 
 class Flags(NamedTuple):
@@ -189,7 +190,8 @@ def _balance(P, Q, W, flags: Flags):
 @functools.partial(jax.jit, static_argnames=("flags", "sweeps", "jacobi"))
 def run(P, Q, W, d: GridData, lam, *, flags: Flags, sweeps: int, jacobi: int = 3):
     """``sweeps`` ALS sweeps from (P, Q, W) (K, n, 3), (K, n, 3), (K, S_w, 3); returns them and the data
-    objective ``sum ||yhat - y||^2`` after each sweep."""
+    objective ``sum_i s_i^2 ||yhat_i - y_i||^2`` (``d.s``: the square roots of the sample weights) after
+    each sweep."""
     N, n, Sw = d.y.shape[0], P.shape[1], W.shape[1]
     mu = lam * N / n
     mu_w = lam * N / Sw
@@ -197,25 +199,28 @@ def run(P, Q, W, d: GridData, lam, *, flags: Flags, sweeps: int, jacobi: int = 3
     up = jnp.asarray(flags.p, P.dtype)[:, None, None]
     Q = Q * uq + (1 - uq)
     P = P * up + (1 - up)
+    s1 = d.s[:, None]
+    s3 = d.s[None, :, None]
 
     def sweep(carry, _):
         P, Q, W = carry
         wv = _wv(W, d, flags)
+        # weighted least squares as row scaling: coefficients and targets times sqrt(weight)
         if any(flags.q):
             c = _factor(P, d.a, flags.p) * wv
             fixed = jnp.sum(c * (1 - uq), axis=0)
-            Q = _texel_block(Q, c * uq, d.b, d.y - fixed, d, mu, jacobi) * uq + (1 - uq)
+            Q = _texel_block(Q, c * uq * s3, d.b, (d.y - fixed) * s1, d, mu, jacobi) * uq + (1 - uq)
         if any(flags.p):
             c = _factor(Q, d.b, flags.q) * wv
             fixed = jnp.sum(c * (1 - up), axis=0)
-            P = _texel_block(P, c * up, d.a, d.y - fixed, d, mu, jacobi) * up + (1 - up)
+            P = _texel_block(P, c * up * s3, d.a, (d.y - fixed) * s1, d, mu, jacobi) * up + (1 - up)
         if any(flags.w):
             pq = _factor(P, d.a, flags.p) * _factor(Q, d.b, flags.q)
             uw = jnp.asarray(flags.w, P.dtype)[:, None, None]
             fixed = jnp.sum(pq * (1 - uw), axis=0)
-            W = _w_block(pq, W, d, flags, d.y - fixed, mu_w)
+            W = _w_block(pq * s3, W, d, flags, (d.y - fixed) * s1, mu_w)
         P, Q, W = _balance(P, Q, W, flags)
-        r = predict(P, Q, W, d, flags) - d.y
+        r = (predict(P, Q, W, d, flags) - d.y) * s1
         return (P, Q, W), jnp.sum(r * r)
 
     (P, Q, W), hist = jax.lax.scan(sweep, (P, Q, W), None, length=sweeps)

@@ -129,6 +129,10 @@ class LinearOptions(Options):
     ``laplacian``: the smoothing weight lambda, scaled by samples per texel (mu = lambda N / texels).
     ``start``: ``split_sum`` (term 1 = the split sum; microfacet lighting targets), ``product`` (term 1
     = the log-space product of the parametrization) or ``auto`` (split_sum where it exists).
+    ``nv_balance`` (``als`` only): beta of the sample weights ``(mean of y^2 over the sample's n.v bin)^-beta``
+    (8 bins of equal width, weights scaled to mean 1): 0 is the plain objective, where the bright
+    grazing views dominate; 1 makes every bin's relative error count by its sample count
+    (:func:`homofac.fit.sums.nv_weights`).
     """
 
     method: Literal["auto", "als", "levenberg_marquardt", "gauss_newton"] = "auto"
@@ -137,6 +141,7 @@ class LinearOptions(Options):
     inner_iterations: int = Field(100, ge=1, le=100_000)
     laplacian: float = Field(1e-2, ge=0, allow_inf_nan=False)
     start: Literal["auto", "split_sum", "product"] = "auto"
+    nv_balance: float = Field(0.0, ge=0, le=1, allow_inf_nan=False)
 
 
 #: Largest number of fitted terms accepted (the packed shaders and the ALS blocks grow as K^2).

@@ -314,13 +314,17 @@ def fit_sum(target: Target, structure: Structure, mapper: str, size: int, sample
                            "(sampling.kind: grid on the textures' own mapper and size)")
     if method == "auto":
         method = "als" if grid is not None else "levenberg_marquardt"
+    if opts.nv_balance > 0 and method != "als":
+        raise HomofacError(f"linear.nv_balance needs linear.method: als (grid samples of NR / NRW lighting products), "
+                           f"not {method}")
     assemble_s = time.perf_counter() - t0
     fitted_terms = [t for t in terms if t.fitted]
     log(f"fitting {structure.label()} in linear space with {method} ({sum(l.n_valid for l in layouts.values())} "
         f"unknowns x 3 channels, {len(a)} samples, start {rule})")
     t1 = time.perf_counter()
     if method == "als":
-        X, steps, hist = _fit_als(structure, specs, fitted_terms, layouts, x0, grid, a, b, y_fit / sigma, opts)
+        weights = nv_weights(a, b, y, NV_BINS, opts.nv_balance)
+        X, steps, hist = _fit_als(structure, specs, fitted_terms, layouts, x0, grid, a, b, y_fit / sigma, opts, weights)
         converged = True
         backend = "homofac"
     else:
@@ -336,7 +340,8 @@ def fit_sum(target: Target, structure: Structure, mapper: str, size: int, sample
     warnings = [] if converged else [f"linear {method} stopped after {steps} steps without meeting its tolerance"]
     record = {
         "method": method, "backend": backend, "iterations": int(steps), "converged": bool(converged),
-        "start": rule, "laplacian": float(opts.laplacian), "structure": structure.record(),
+        "start": rule, "laplacian": float(opts.laplacian), "nv_balance": float(opts.nv_balance),
+        "structure": structure.record(),
         "lookups": int(model.lookups), "objective": float(hist[-1]) if len(hist) else None,
         "objective_start": float(hist[0]) if len(hist) else None, "sigma": [float(s) for s in sigma],
     }
@@ -361,7 +366,32 @@ def _grid_indices(target, structure, specs, layouts, a, b):
     return ia, ib, lay
 
 
-def _fit_als(structure, specs, fitted_terms, layouts, x0, grid, a, b, y, opts: LinearOptions):
+#: n.v bins of :func:`nv_weights` (equal width on [0, 1]).
+NV_BINS = 8
+
+
+def nv_weights(a, b, y, bins: int, beta: float) -> np.ndarray:
+    """Sample weights ``(mean of |y|^2 over the sample's n.v bin)^-beta``, scaled to mean 1 (``linear.nv_balance``).
+
+    The plain least-squares objective is dominated by the brightest values: for a dielectric the
+    Fresnel-boosted grazing views, so the frontal views (a weak specular over the diffuse term) are fitted
+    worst, relative to what they show. With beta = 1 each of the ``bins`` n.v bins weighs its squared
+    error relative to its own mean square target: every bin's relative error counts by its sample count.
+    ``a``, ``b``: normals and views (N, 3); ``y``: the full target values (N, 3) (what the metrics compare).
+    """
+    if beta <= 0:
+        return np.ones(len(y), np.float32)
+    nv = np.clip(np.sum(np.asarray(a, np.float64) * np.asarray(b, np.float64), -1), 0.0, 1.0)
+    k = np.minimum((nv * bins).astype(np.int64), bins - 1)
+    y2 = np.mean(np.asarray(y, np.float64) ** 2, axis=1)
+    count = np.bincount(k, minlength=bins)
+    ms = np.bincount(k, weights=y2, minlength=bins) / np.maximum(count, 1)
+    floor = 1e-12 * max(float(np.max(ms)), 1e-30)
+    w = np.maximum(ms, floor)[k] ** (-beta)
+    return (w / np.mean(w)).astype(np.float32)
+
+
+def _fit_als(structure, specs, fitted_terms, layouts, x0, grid, a, b, y, opts: LinearOptions, weights):
     ia, ib, lay = grid
     n = lay.n_valid
     flags_p, flags_q, flags_w, names = [], [], [], []
@@ -388,7 +418,7 @@ def _fit_als(structure, specs, fitted_terms, layouts, x0, grid, a, b, y, opts: L
     vi, vw = als.line_footprint(jnp.asarray(nv, jnp.float32), LINE_SIZE)
     data = als.GridData(jnp.asarray(ia), jnp.asarray(ib), jnp.asarray(vi, jnp.int32), jnp.asarray(vw, jnp.float32),
                         jnp.asarray(y, jnp.float32), jnp.asarray(np.maximum(nb_unk, 0), jnp.int32),
-                        jnp.asarray(nb_unk >= 0, jnp.float32))
+                        jnp.asarray(nb_unk >= 0, jnp.float32), jnp.asarray(np.sqrt(weights), jnp.float32))
     flags = als.Flags(tuple(flags_p), tuple(flags_q), tuple(flags_w))
     P, Q, W, hist = als.run(jnp.asarray(P, jnp.float32), jnp.asarray(Q, jnp.float32), jnp.asarray(W, jnp.float32),
                             data, jnp.float32(opts.laplacian), flags=flags, sweeps=int(opts.iterations))
@@ -516,4 +546,4 @@ def _selected(res, tried, reason, target_error, max_lookups, met, analysis):
     })
 
 
-__all__ = ["SumFit", "choose", "diffuse_albedo", "fit_sum", "has_diffuse", "start", "warm_start"]
+__all__ = ["SumFit", "choose", "diffuse_albedo", "fit_sum", "nv_weights", "has_diffuse", "start", "warm_start"]
