@@ -185,7 +185,6 @@ def factorize_many(targets: Sequence[Target], parametrization: str = "NR", *, co
     built = []
     models = product_models(targets[0], p, layout, xs, alphas)  # one context (checked above)
     for i, (t, smp) in enumerate(zip(targets, samples)):
-        x = xs[i]
         model = models[i]
         obj = float(objs[i])
         bn = float(bnorm2[i])

@@ -53,7 +53,7 @@ from .product import unpack, zeros_rule
 from .result import Result
 from .samples import check_values, evaluate_grouped
 from .state import RefitState, from_options
-from .system import Layout, System, build_system, objective, parametrization_layout
+from .system import Layout, System, build_system, parametrization_layout
 
 #: Largest number of unknowns whose normal equations a refit factors densely (float64: 512 MB at 8000).
 CHOLESKY_MAX_UNKNOWNS = 8000
