@@ -199,6 +199,7 @@ API_CASES = [
     ("solver", {"method": "lsmr", "max_iterations": 1.5}, "solver.max_iterations: Input should be a valid integer"),
     ("texture_size", 2000, "texture_size: Input should be less than or equal to 1024"),
     ("mapper", "cubee", "(did you mean cube?)"),
+    ("sampling", {"\n": None}, "sampling: unknown key '\\n'"),  # a key with a newline stays on one line
 ]
 
 

@@ -82,6 +82,13 @@ def _resolve(model: type[BaseModel] | None, loc: tuple) -> tuple[tuple, list[str
     return tuple(clean), known
 
 
+def _key_text(part: Any) -> str:
+    """A key as it appears in a message: itself, or quoted (``repr``) when it is empty, has surrounding
+    spaces or holds a non-printable character (a newline in a key must not break the one-line error)."""
+    s = str(part)
+    return s if s and s.isprintable() and s.strip() == s else _short(s)
+
+
 def _short(value: Any, limit: int = 60) -> str:
     s = repr(value)
     return s if len(s) <= limit else s[: limit - 3] + "..."
@@ -93,7 +100,7 @@ def format_error(e: ValidationError, where: str, model: type[BaseModel] | None =
     err = errors[0]
     raw = tuple(x for x in err["loc"] if not (isinstance(x, str) and x.startswith("function-")))
     loc, known = _resolve(model, raw)
-    key = ".".join(str(x) for x in loc)
+    key = ".".join(_key_text(x) for x in loc)
     full = f"{where}.{key}" if where and key else (where or key)
     prefix = f"{full}: " if full else ""
     more = f" (and {len(errors) - 1} more problems)" if len(errors) > 1 else ""
@@ -101,7 +108,8 @@ def format_error(e: ValidationError, where: str, model: type[BaseModel] | None =
         name = str(loc[-1]) if loc else ""
         close = difflib.get_close_matches(name, known, n=1, cutoff=0.6)
         hint = f" (did you mean {close[0]}?)" if close else (f"; known keys: {', '.join(known)}" if known else "")
-        parent = ".".join(str(x) for x in loc[:-1])
+        name = _key_text(name)
+        parent = ".".join(_key_text(x) for x in loc[:-1])
         at = f"{where}.{parent}" if where and parent else (where or parent or "config")
         return f"{at}: unknown key {name}{hint}{more}"
     if err["type"] == "missing":
