@@ -310,8 +310,9 @@ def product_models(target: Target, p: pz.Parametrization, layout: Layout, xs, al
 
 
 def product_model(target: Target, p: pz.Parametrization, layout: Layout, x, alpha) -> Factorization:
-    """:func:`product_models` of one solution."""
-    return product_models(target, p, layout, np.asarray(x)[None], np.asarray(alpha)[None])[0]
+    """The model of one solution (op by op: a refit of a new layout then compiles no program for it)."""
+    quantity = target.quantity if target.kind == "brdf" else "lighting"
+    return _product(target.kind, quantity, dict(target.context), p, layout, x, alpha)
 
 
 def refit_product(state: RefitState, fac: Result, target: Target, y: np.ndarray, log,
