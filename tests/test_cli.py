@@ -173,6 +173,7 @@ def test_debug_shows_traceback(tmp_path):
         main([str(cfg), "--debug"])
 
 
+@pytest.mark.slow  # compile- or subprocess-heavy: with the slow set, to keep the fast suite under 5 min
 def test_help_documents_options():
     r = subprocess.run([sys.executable, "-m", "homofac.fit", "--help"], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0

@@ -63,6 +63,7 @@ def saved(tmp_path_factory):
     return d
 
 
+@pytest.mark.slow  # compile- or subprocess-heavy: with the slow set, to keep the fast suite under 5 min
 def test_refit_through_the_cli_equals_a_full_run(saved, tmp_path, capsys):
     city = config(tmp_path, "city", target__environment={"file": "city", "resolution": 8})
     out = tmp_path / "city_refit"

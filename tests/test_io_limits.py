@@ -527,6 +527,7 @@ def _flat_hdr(path: Path, w: int, h: int) -> Path:
     return path
 
 
+@pytest.mark.slow  # compile- or subprocess-heavy: with the slow set, to keep the fast suite under 5 min
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc/self/status")
 def test_peak_memory_strips_vs_whole(tmp_path):
     p = _gradient_exr(tmp_path / "m.exr", 4096, 2048)  # float32 whole: 96 MiB; with the half read: 144 MiB

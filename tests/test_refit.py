@@ -56,6 +56,7 @@ def test_environment_refit_equals_a_full_run(base, envs):
         base, r.target, r.state.samples(*rf.values(r.state, r.target)))["validation"]["float"]["nrmse"]
 
 
+@pytest.mark.slow  # compile- or subprocess-heavy: with the slow set, to keep the fast suite under 5 min
 def test_refits_chain_and_come_back(base, envs):
     r1 = hf.fit.refit(base, environment=envs[1])
     r2 = hf.fit.refit(r1, environment=envs[0])  # warm: the state is shared along the chain

@@ -292,6 +292,7 @@ def test_the_estimate_covers_the_environment_image(tmp_path):
     assert est["environment"] >= 1024 * 2048 * 12
 
 
+@pytest.mark.slow  # compile- or subprocess-heavy: with the slow set, to keep the fast suite under 5 min
 def test_process_limits_lower_the_default_limit():
     code = textwrap.dedent("""
         import resource
@@ -435,6 +436,7 @@ def test_a_file_size_limit_is_one_line_and_keeps_the_previous_result(tmp_path):
 # 8. Two runs, one output directory
 
 
+@pytest.mark.slow  # compile- or subprocess-heavy: with the slow set, to keep the fast suite under 5 min
 def test_a_second_run_on_a_locked_output_is_refused(tmp_path, capsys):
     p = _write_cfg(tmp_path, SMALL)
     code = textwrap.dedent(f"""
