@@ -30,6 +30,17 @@ def random_dirs(rng, n, max_theta_deg=89.0):
     return np.stack([s * np.cos(phi), s * np.sin(phi), mu], axis=-1)
 
 
+def sphere_pairs(seed, n):
+    """(wi, wo) float32 (n, 3): normal-distributed directions normalized, over the whole sphere (about
+    a quarter of the pairs are above the horizon on both sides)."""
+    rng = np.random.default_rng(seed)
+    wi = rng.normal(size=(n, 3))
+    wo = rng.normal(size=(n, 3))
+    wi /= np.linalg.norm(wi, axis=1, keepdims=True)
+    wo /= np.linalg.norm(wo, axis=1, keepdims=True)
+    return jnp.asarray(wi, jnp.float32), jnp.asarray(wo, jnp.float32)
+
+
 # ------------------------------------------------------------------------------------------------
 # Independent numpy references written from the formulas with spherical angles.
 
@@ -515,12 +526,7 @@ def test_lobe_form_reproduces_the_model(model):
 
     brdf = B.make(model, **PARAMS[model])
     assert has_lobes(brdf)
-    rng = np.random.default_rng(7)
-    wi = rng.normal(size=(512, 3))
-    wo = rng.normal(size=(512, 3))
-    wi /= np.linalg.norm(wi, axis=1, keepdims=True)
-    wo /= np.linalg.norm(wo, axis=1, keepdims=True)
-    wi, wo = jnp.asarray(wi, jnp.float32), jnp.asarray(wo, jnp.float32)
+    wi, wo = sphere_pairs(7, 512)
     want = np.asarray(brdf(wi, wo))
     above = np.asarray((wi[:, 2] > 0) & (wo[:, 2] > 0))
     kd = np.broadcast_to(np.asarray(PARAMS[model].get("kd", 0.0), np.float32), 3)
@@ -541,12 +547,7 @@ def test_stacked_lobes_equal_each_shape(model):
     the geometry shared when the model has a Shaped split) equals lobe_terms of each, horizon included."""
     from homofac.brdf.core import MODELS, lobe_terms, stacked_lobe_terms
 
-    rng = np.random.default_rng(11)
-    wi = rng.normal(size=(256, 3))
-    wo = rng.normal(size=(256, 3))
-    wi /= np.linalg.norm(wi, axis=1, keepdims=True)
-    wo /= np.linalg.norm(wo, axis=1, keepdims=True)
-    wi, wo = jnp.asarray(wi, jnp.float32), jnp.asarray(wo, jnp.float32)
+    wi, wo = sphere_pairs(11, 256)
     name = "roughness" if "roughness" in PARAMS[model] else "exponent" if "exponent" in PARAMS[model] else None
     scales = (0.5, 1.0, 1.7)
     brdfs = [B.make(model, **{**PARAMS[model], **({name: PARAMS[model][name] * s} if name else {})}) for s in scales]
