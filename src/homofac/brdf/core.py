@@ -170,13 +170,19 @@ def lobe_terms(brdf: BRDF, wi, wo) -> tuple[Array, ...]:
     broadcast against each other (what the lighting computation passes: no (P, K, 3) array is built).
     Masked with the same "double where" as :meth:`BRDF.__call__` (finite gradients).
     """
+    m, wi_s, wo_s = _above(wi, wo)
+    terms = MODELS[brdf.model].lobes(brdf.params, wi_s, wo_s)
+    return tuple(jnp.where(m, g, jnp.zeros((), g.dtype)) for g in terms)
+
+
+def _above(wi, wo):
+    """(mask of pairs above the horizon, wi, wo) as component triples, the masked entries replaced by the
+    normal direction, so that no model divides by zero there (the first half of the "double where")."""
     wi = _triple(wi)
     wo = _triple(wo)
     m = (wi[2] > 0) & (wo[2] > 0)
-    # masked entries see the normal direction, so no model divides by zero there
     safe = lambda w: (jnp.where(m, w[0], 0.0), jnp.where(m, w[1], 0.0), jnp.where(m, w[2], 1.0))  # noqa: E731
-    terms = MODELS[brdf.model].lobes(brdf.params, safe(wi), safe(wo))
-    return tuple(jnp.where(m, g, jnp.zeros((), g.dtype)) for g in terms)
+    return m, safe(wi), safe(wo)
 
 
 def stacked_lobe_terms(brdfs: BRDF, wi, wo) -> Array:
@@ -198,9 +204,8 @@ def stacked_lobe_terms(brdfs: BRDF, wi, wo) -> Array:
             shape = jnp.broadcast_shapes(*(c.shape for c in wi + wo))
             return jnp.stack(g) if g else jnp.zeros((0,) + shape, wi[0].dtype)
         return jax.vmap(one)(brdfs)
-    m = (wi[2] > 0) & (wo[2] > 0)
-    safe = lambda w: (jnp.where(m, w[0], 0.0), jnp.where(m, w[1], 0.0), jnp.where(m, w[2], 1.0))  # noqa: E731
-    geom = spec.shaped.geometry(safe(wi), safe(wo))
+    m, wi_s, wo_s = _above(wi, wo)
+    geom = spec.shaped.geometry(wi_s, wo_s)
     g = jax.vmap(lambda params: jnp.stack(spec.shaped.shape(params, geom)))(brdfs.params)
     return jnp.where(m, g, jnp.zeros((), g.dtype))
 

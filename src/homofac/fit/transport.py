@@ -181,21 +181,7 @@ def lobe_sums(brdfs: list[BRDF], env: Environment, normals, views, *, horizon: s
 def combine(brdf: BRDF, sums: LobeSums, shape: int, normals, views, clamp: float | None = None):
     """``kd/pi E + sum_m c_m S_m`` of ``brdf`` (its colours) from shape ``shape`` of ``sums``: L (G, P, 3),
     0 where n . v <= 0 and clamped at ``clamp`` (as :class:`~homofac.light.Lighting`)."""
-    normals = jnp.asarray(normals)
-    return _combine(brdf, sums, shape, normals, jnp.asarray(views, normals.dtype), clamp)
-
-
-@eqx.filter_jit
-def _combine(brdf: BRDF, sums: LobeSums, shape: int, normals, views, clamp: float | None):
-    out = jnp.zeros(views.shape[:2] + (3,), normals.dtype)
-    if "kd" in brdf.params:
-        kd = jnp.broadcast_to(jnp.asarray(brdf.params["kd"], normals.dtype), (3,))
-        out = out + (kd / jnp.pi) * sums.irradiance[:, None, :]
-    for m, c in enumerate(lobe_colors(brdf)):
-        out = out + c.astype(normals.dtype) * sums.lobes[:, shape, m]
-    valid = jnp.einsum("gpc,gc->gp", views, normals) > 0
-    out = jnp.where(valid[..., None], out, 0.0)
-    return out if clamp is None else jnp.minimum(out, clamp)
+    return combine_many([brdf], sums, [shape], normals, views, clamp)[0]
 
 
 def combine_many(brdfs: list[BRDF], sums: LobeSums, shapes: Sequence[int], normals, views,
