@@ -16,7 +16,8 @@ from homofac.fit import pipeline, solvers
 from homofac.fit.options import FitOptions
 from homofac.fit.product import level_sizes
 from homofac.fit.start import starting_solution
-from homofac.fit.system import build_system, objective, parametrization_layout, to_scipy
+from homofac.fit.solvers.lsmr import _lsmr
+from homofac.fit.system import adjoint_plan, apply_transpose, build_system, objective, parametrization_layout, to_scipy
 from homofac.options import validate
 from homofac.param import mappers
 from homofac.param import parametrizations as pz
@@ -202,3 +203,36 @@ def test_column_scaling_is_the_inverse_column_norm():
     a = to_scipy(sys, 0.5, layout.n_unknowns)
     norms = np.sqrt(np.asarray(a.multiply(a).sum(axis=0))).ravel()
     np.testing.assert_allclose(d, 1 / norms, rtol=1e-5)
+
+
+@pytest.mark.parametrize("name", ["PQP", "NR"])
+def test_gathered_transpose_is_the_transpose(name):
+    """apply_transpose (the entries sorted by column, gathered in chunks) is A^T of the augmented matrix
+    (scipy's), with PQP's rows holding a column twice and the zero-weight taps of invalid texels; LSMR
+    with it reaches LSMR's solution with jax's derived transpose."""
+    kind = "brdf" if name == "PQP" else "lighting"
+    target = brdf_target(brdf.cook_torrance(kd=0.1, ks=1.0, roughness=0.3, f0=(1.0, 0.78, 0.34)))
+    p = pz.get(name)
+    rng = np.random.default_rng(3)
+    if kind == "brdf":
+        s = pipeline.draw_samples(target, name, {"kind": "texels", "size": 8, "validation": 0, "cache": False},
+                                  log=lambda m: None)
+        a, b, y = s.a, s.b, s.y
+    else:  # random (n, v) pairs and values: the rows' structure is what is tested
+        a = rng.normal(size=(3000, 3)); a /= np.linalg.norm(a, axis=1, keepdims=True)
+        b = rng.normal(size=(3000, 3)); b /= np.linalg.norm(b, axis=1, keepdims=True)
+        y = rng.uniform(0.1, 1.0, (3000, 3))
+    layout = parametrization_layout(p, "dual_paraboloid", 8)
+    sys, _ = build_system(p, layout, jnp.asarray(a, jnp.float32), jnp.asarray(b, jnp.float32),
+                          jnp.asarray(y, jnp.float32), eps=1e-5)
+    plan = adjoint_plan(sys)
+    lam = 0.7
+    r = rng.normal(size=(sys.cols.shape[0] + layout.n_unknowns, 5)).astype(np.float32)
+    expect = to_scipy(sys, lam, layout.n_unknowns).T @ r.astype(np.float64)
+    got = np.asarray(apply_transpose(sys, jnp.float32(lam), plan, jnp.asarray(r)))
+    np.testing.assert_allclose(got, expect, rtol=2e-4, atol=2e-4 * np.abs(expect).max())
+    x0 = jnp.zeros((layout.n_unknowns, 3), jnp.float32)
+    ref, _, _ = _lsmr(sys, jnp.float32(lam), x0, rtol=1e-6, max_steps=500)
+    fast, _, _ = _lsmr(sys, jnp.float32(lam), x0, rtol=1e-6, max_steps=500, plan=plan)
+    assert float(objective(sys, lam, fast)) <= float(objective(sys, lam, ref)) * (1 + 1e-4)
+    np.testing.assert_allclose(np.asarray(fast), np.asarray(ref), atol=2e-3 * float(jnp.abs(ref).max()))

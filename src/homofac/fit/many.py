@@ -46,7 +46,7 @@ from .refit import layout_of, measure_all, product_models, refit, system_rows
 from .solvers.lsmr import _lsmr as lsmr_solve
 from .start import starting_solution
 from .state import from_layout
-from .system import apply, augmented_rhs, log_transform, sample_mean
+from .system import adjoint_plan, apply, augmented_rhs, log_transform, sample_mean
 
 #: Keywords of factorize that are not fit options (they describe one target's run).
 RUN_KEYWORDS = ("samples", "config", "target_info", "log", "keep_samples")
@@ -176,7 +176,7 @@ def factorize_many(targets: Sequence[Target], parametrization: str = "NR", *, co
                                                                      jnp.float32(eps)))
     x0 = np.asarray(starting_solution(sys._replace(rhs=jnp.asarray(side)), layout, p.J))
     x0 = x0.reshape(layout.n_unknowns, len(rhs), 3).transpose(1, 0, 2)
-    xs, steps, ok, objs = _solve_all(sys, jnp.asarray(rhs), jnp.asarray(x0), jnp.float32(lam),
+    xs, steps, ok, objs = _solve_all(sys, adjoint_plan(sys), jnp.asarray(rhs), jnp.asarray(x0), jnp.float32(lam),
                                      rtol=float(opts.solver.tolerance), max_steps=int(opts.solver.max_iterations))
     xs, steps, ok, objs = np.asarray(xs, np.float64), np.asarray(steps), np.asarray(ok), np.asarray(objs, np.float64)
     method = opts.solver.method
@@ -227,18 +227,20 @@ def _log_sides(ys, eps):
 
 
 @functools.partial(jax.jit, static_argnames=("rtol", "max_steps"))
-def _solve_all(sys, rhs, x0, lam, *, rtol: float, max_steps: int):
+def _solve_all(sys, plan, rhs, x0, lam, *, rtol: float, max_steps: int):
     """LSMR (the ``lsmr`` solver: column-scaled, from each target's §3.1.2 start) on the targets' right-hand
     sides of one system side by side: the T targets' RGB channels are the 3T columns of one block-diagonal
     least-squares problem ``min sum_c ||A x_c - b_c||^2`` (the channels of one product already are), whose
     minimiser is every target's own. One Krylov iteration serves every column (the operator's gathers are
-    shared), where a vmap ran T LSMRs with their own scalars. Returns x (T, n, 3), steps and success
+    shared; the transposed products gather by ``plan``, :func:`~homofac.fit.system.adjoint_plan`: their
+    scatter was 3/4 of an iteration at 48 columns), where a vmap ran T LSMRs with their own scalars. Returns x (T, n, 3), steps and success
     (one value for all, broadcast per target) and each target's objective ``||A x - b||^2 + ||lambda L x||^2``
     (:func:`homofac.fit.system.objective` per target, from the same program)."""
     t, m, c = rhs.shape
     n = x0.shape[1]
     wide = sys._replace(rhs=jnp.transpose(rhs, (1, 0, 2)).reshape(m, t * c))
-    x, steps, ok = lsmr_solve(wide, lam, jnp.transpose(x0, (1, 0, 2)).reshape(n, t * c), rtol=rtol, max_steps=max_steps)
+    x, steps, ok = lsmr_solve(wide, lam, jnp.transpose(x0, (1, 0, 2)).reshape(n, t * c), rtol=rtol, max_steps=max_steps,
+                              plan=plan)
     r = apply(wide, lam, x) - augmented_rhs(wide)
     objs = jnp.sum(jnp.sum(r * r, axis=0).reshape(t, c), axis=1)
     return (jnp.transpose(x.reshape(n, t, c), (1, 0, 2)), jnp.broadcast_to(steps, (t,)), jnp.broadcast_to(ok, (t,)),

@@ -13,7 +13,12 @@ Rows:
   across face edges so smoothing has no seams).
 
 Both are stored as ELL index/weight arrays (``cols``, ``w``), which a matrix-free operator gathers
-from; this was about 2x faster than BCOO on the target machine (docs/conventions.md).
+from; this was about 2x faster than BCOO on the target machine (docs/conventions.md). The transposed
+product ``A^T r`` that jax derives from the gathers is a scatter-add of every entry, which XLA's CPU
+backend runs an order of magnitude slower than a gather at many columns (77 against 3.6 ms for the 48
+columns of a 16-material library); :func:`adjoint_plan` sorts the entries by column once so that
+:func:`apply_transpose` gathers them instead (in chunks of :data:`CHUNK`, summed per column by a
+scatter of one row per chunk: 7 ms there).
 """
 
 from __future__ import annotations
@@ -185,6 +190,78 @@ def _ell(w, cols, x):
     for k in range(1, w.shape[1]):
         out = out + w[:, k, None] * x[cols[:, k]]
     return out
+
+
+#: Entries per chunk of an :class:`Adjoint` (16 and 32 measured alike at 3 and 48 columns; 8 slower at 3).
+CHUNK = 16
+
+
+class Adjoint(NamedTuple):
+    """The entries of ELL rows sorted by column, in chunks of :data:`CHUNK` (one column per chunk):
+    ``entry`` indexes the flattened weights (the padding: one past the end, weight 0), ``row`` the rows,
+    ``column`` (sorted) the column each chunk adds to."""
+
+    entry: Int[Array, "c W"]
+    row: Int[Array, "c W"]
+    column: Int[Array, "c"]
+
+
+class AdjointPlan(NamedTuple):
+    """:class:`Adjoint` of the data rows and of the Laplacian rows of a :class:`System`."""
+
+    data: Adjoint
+    laplacian: Adjoint
+
+
+def _adjoint(cols: np.ndarray, n: int, width: int = CHUNK) -> Adjoint:
+    cols = np.asarray(cols)
+    rows, k = cols.shape
+    flat = cols.reshape(-1)
+    key = flat.astype(np.uint16) if n <= np.iinfo(np.uint16).max else flat
+    order = np.argsort(key, kind="stable")  # numpy's radix sort for 16-bit keys
+    col = flat[order]
+    count = np.bincount(col, minlength=n)
+    chunks = -(-count // width)
+    first_chunk = np.concatenate([[0], np.cumsum(chunks)[:-1]])
+    first_entry = np.concatenate([[0], np.cumsum(count)[:-1]])
+    pos = np.arange(col.size) - first_entry[col]
+    slot = (first_chunk[col] + pos // width) * width + pos % width
+    total = int(chunks.sum())
+    entry = np.full(total * width, flat.size, np.int32)
+    entry[slot] = order
+    row = np.where(entry < flat.size, entry // k, 0).astype(np.int32)
+    return Adjoint(jnp.asarray(entry.reshape(total, width)), jnp.asarray(row.reshape(total, width)),
+                   jnp.asarray(np.repeat(np.arange(n, dtype=np.int32), chunks)))
+
+
+def adjoint_plan(sys: System) -> AdjointPlan:
+    """The gather form of ``A^T`` for :func:`apply_transpose` (numpy, from the concrete column indices;
+    the weights are read from the system at every product, so it serves any weights of that pattern)."""
+    n = int(sys.lap_cols.shape[0])
+    return AdjointPlan(_adjoint(np.asarray(sys.cols), n), _adjoint(np.asarray(sys.lap_cols), n))
+
+
+def _chunk_weights(w, plan: Adjoint):
+    return jnp.concatenate([w.reshape(-1), jnp.zeros((1,), w.dtype)])[plan.entry]  # (c, W)
+
+
+def adjoint_weights(sys: System, plan: AdjointPlan) -> tuple[Float[Array, "c W"], Float[Array, "d W"]]:
+    """The weights of the plan's chunks (data, Laplacian): gathered once per solve, not per product."""
+    return _chunk_weights(sys.w, plan.data), _chunk_weights(sys.lap_w, plan.laplacian)
+
+
+def _ell_transpose(wt, plan: Adjoint, r, n: int):
+    part = _ell(wt, plan.row, r)
+    return jnp.zeros((n, r.shape[1]), r.dtype).at[plan.column].add(part, indices_are_sorted=True)
+
+
+def apply_transpose(sys: System, lam, plan: AdjointPlan, r: Float[Array, "m_plus_n C"],
+                    weights: tuple | None = None) -> Float[Array, "n C"]:
+    """``A^T r`` of the augmented matrix of eq. 37 (the transpose of :func:`apply`) by gathers;
+    ``weights`` from :func:`adjoint_weights` (computed here when not given)."""
+    m, n = sys.cols.shape[0], sys.lap_cols.shape[0]
+    wd, wl = weights if weights is not None else adjoint_weights(sys, plan)
+    return _ell_transpose(wd, plan.data, r[:m], n) + lam * _ell_transpose(wl, plan.laplacian, r[m:], n)
 
 
 def augmented_rhs(sys: System) -> Float[Array, "m_plus_n 3"]:

@@ -15,8 +15,10 @@ import jax
 import jax.numpy as jnp
 import lineax as lx
 
-from ..system import System, apply, augmented_rhs
+from ..system import AdjointPlan, System, adjoint_plan, adjoint_weights, apply, apply_transpose, augmented_rhs
+from .adjoint import AdjointOperator
 from .base import Solver, SolverOptions
+
 
 
 class LSMROptions(SolverOptions):
@@ -41,14 +43,22 @@ def column_scale(sys: System, lam) -> jnp.ndarray:
 
 
 @functools.partial(jax.jit, static_argnames=("rtol", "max_steps"))
-def _lsmr(sys: System, lam, x0, *, rtol: float, max_steps: int):
-    """LSMR on the column-scaled correction: x = x0 + D z, minimising ||A D z - (b - A x0)||."""
+def _lsmr(sys: System, lam, x0, *, rtol: float, max_steps: int, plan: AdjointPlan | None = None):
+    """LSMR on the column-scaled correction: x = x0 + D z, minimising ||A D z - (b - A x0)||; with a
+    ``plan`` the transposed products gather (:func:`~homofac.fit.system.apply_transpose`)."""
     d = column_scale(sys, lam)[:, None]
 
     def mv(z):
         return apply(sys, lam, z * d)
 
-    op = lx.FunctionLinearOperator(mv, jax.ShapeDtypeStruct(x0.shape, x0.dtype))
+    structure = jax.ShapeDtypeStruct(x0.shape, x0.dtype)
+    if plan is None:
+        op = lx.FunctionLinearOperator(mv, structure)
+    else:
+        weights = adjoint_weights(sys, plan)
+        rows = sys.cols.shape[0] + sys.lap_cols.shape[0]
+        op = AdjointOperator(mv, lambda r: apply_transpose(sys, lam, plan, r, weights) * d, structure,
+                             jax.ShapeDtypeStruct((rows, x0.shape[1]), x0.dtype))
     r0 = augmented_rhs(sys) - apply(sys, lam, x0)
     sol = lx.linear_solve(op, r0, lx.LSMR(rtol=rtol, atol=rtol, max_steps=max_steps), throw=False)
     return x0 + sol.value * d, sol.stats["num_steps"], sol.result == lx.RESULTS.successful
@@ -58,7 +68,9 @@ def _lsmr(sys: System, lam, x0, *, rtol: float, max_steps: int):
 
 def run(sys: System, x0, options: LSMROptions):
     lam = jnp.asarray(options.laplacian, x0.dtype)
-    x, steps, ok = _lsmr(sys, lam, x0, rtol=float(options.tolerance), max_steps=int(options.max_iterations))
+    plan = adjoint_plan(sys)  # ~20 ms of sorting; saved at 3 columns already (default run 0.10 -> 0.085 s)
+    x, steps, ok = _lsmr(sys, lam, x0, rtol=float(options.tolerance), max_steps=int(options.max_iterations),
+                         plan=plan)
     return jax.block_until_ready(x), int(steps), bool(ok)
 
 
