@@ -5,6 +5,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import lineax as lx
 import numpy as np
 import pytest
 
@@ -16,6 +17,7 @@ from homofac.fit import pipeline, solvers
 from homofac.fit.options import FitOptions
 from homofac.fit.product import level_sizes
 from homofac.fit.start import starting_solution
+from homofac.fit.solvers.adjoint import AdjointOperator
 from homofac.fit.solvers.lsmr import _lsmr
 from homofac.fit.system import adjoint_plan, apply_transpose, build_system, objective, parametrization_layout, to_scipy
 from homofac.options import validate
@@ -236,3 +238,15 @@ def test_gathered_transpose_is_the_transpose(name):
     fast, _, _ = _lsmr(sys, jnp.float32(lam), x0, rtol=1e-6, max_steps=500, plan=plan)
     assert float(objective(sys, lam, fast)) <= float(objective(sys, lam, ref)) * (1 + 1e-4)
     np.testing.assert_allclose(np.asarray(fast), np.asarray(ref), atol=2e-3 * float(jnp.abs(ref).max()))
+
+
+def test_adjoint_operator_uses_the_given_transpose():
+    """AdjointOperator.transpose() is the given function (not jax's derived transpose), conj leaves it,
+    and transposing twice is the operator again."""
+    a = jnp.arange(6.0, dtype=jnp.float32).reshape(3, 2)
+    op = AdjointOperator(lambda x: a @ x, lambda y: 2.0 * (a.T @ y), jax.ShapeDtypeStruct((2,), jnp.float32),
+                         jax.ShapeDtypeStruct((3,), jnp.float32))
+    y = jnp.asarray([1.0, -2.0, 0.5], jnp.float32)
+    np.testing.assert_allclose(op.transpose().mv(y), 2.0 * (a.T @ y))  # the given (here deliberately 2 A^T)
+    assert lx.conj(op) is op
+    np.testing.assert_allclose(op.T.T.mv(jnp.ones(2)), a @ jnp.ones(2))
