@@ -75,8 +75,11 @@ def run(sys: System, x0, options: LSMROptions):
 
 
 def memory(rows: int, unknowns: int, k: int) -> int:
-    """The gathered (rows, K, 3) float32 operand of the forward and transposed products, and ~8 vectors."""
-    return rows * 2 * 12 * k + 8 * (rows + unknowns) * 12
+    """The gathered (rows, K, 3) float32 operand of the forward and transposed products, ~8 vectors, and
+    the adjoint plan (entry and row indices and chunk weights, 12 bytes per entry and its padding, plus
+    the sort's int64 order while it is built)."""
+    entries = rows * k + unknowns * (5 + 2 * 16)
+    return rows * 2 * 12 * k + 8 * (rows + unknowns) * 12 + entries * (12 + 8)
 
 
 SOLVER = Solver("lsmr", LSMROptions, run, memory, "matrix-free LSMR (lineax), Jacobi column scaling; the default")
