@@ -67,6 +67,8 @@ METHODS = {
                     "sampling": GRID},
     "E'+NRW x2+R bal1": {"parametrization": "NR", "terms": 2, "diffuse": "fitted", "nv_factor": True,
                          "reflection": True, "linear": {"nv_balance": 1.0}, "sampling": GRID},
+    "E'+NRW x2+R pol8": {"parametrization": "NR", "terms": 2, "diffuse": "fitted", "nv_factor": True,
+                         "reflection": True, "linear": {"polish": 8}, "sampling": GRID},
     "E'+SS+NRW+R": {"parametrization": "NR", "diffuse": "fitted", "nv_factor": True, "prefiltered": True,
                     "reflection": True, "sampling": GRID},
     "E+NRW x5": {"parametrization": "NR", "terms": 5, "diffuse": "exact", "nv_factor": True, "sampling": GRID},

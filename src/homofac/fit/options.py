@@ -132,7 +132,9 @@ class LinearOptions(Options):
     ``nv_balance`` (``als`` only): beta of the sample weights ``(mean of y^2 over the sample's n.v bin)^-beta``
     (8 bins of equal width, weights scaled to mean 1): 0 is the plain objective, where the bright
     grazing views dominate; 1 makes every bin's relative error count by its sample count
-    (:func:`homofac.fit.sums.nv_weights`).
+    (:func:`homofac.fit.sums.nv_weights`). ``polish`` (after ``als``): that many Levenberg-Marquardt steps
+    on texel-sampled pairs at ``polish_size``, off the texel centres the grid design sees
+    (:mod:`homofac.fit.polish`); 0 (the default) is off.
     """
 
     method: Literal["auto", "als", "levenberg_marquardt", "gauss_newton"] = "auto"
@@ -142,6 +144,8 @@ class LinearOptions(Options):
     laplacian: float = Field(1e-2, ge=0, allow_inf_nan=False)
     start: Literal["auto", "split_sum", "product"] = "auto"
     nv_balance: float = Field(0.0, ge=0, le=1, allow_inf_nan=False)
+    polish: int = Field(0, ge=0, le=1000)
+    polish_size: int = Field(24, ge=4, le=256)
 
 
 #: Largest number of fitted terms accepted (the packed shaders and the ALS blocks grow as K^2).

@@ -19,7 +19,7 @@ from ..errors import HomofacError
 from ..options import validate
 from ..param import parametrizations as pz
 from ..target import Target
-from . import auto, scene, structures, sums
+from . import auto, polish, scene, structures, sums
 from .draw import default_mapper, draw_samples
 from .metrics import measure
 from .options import AnalysisOptions, FitOptions, LinearOptions, SamplingOptions
@@ -141,6 +141,9 @@ def factorize(
         pz.get(opts.parametrization, target.kind)
     t0 = time.perf_counter()
     resolved = resolve_sampling(opts, target.kind, mapper)
+    if opts.linear is not None and opts.linear.polish > 0 and samples is None and resolved.kind != "grid":
+        raise HomofacError(f"linear.polish follows an als fit on grid samples (sampling.kind: grid), "
+                           f"not sampling.kind: {resolved.kind}")
     if samples is None:
         samples = draw_samples(target, opts.parametrization, resolved, log)
     sample_s = time.perf_counter() - t0
@@ -201,15 +204,27 @@ def _sums(target: Target, opts: FitOptions, mapper: str, samples: Samples, recor
     """A linear-space sum of products: the structure of the options, or the one chosen within a budget."""
     lin = opts.linear or LinearOptions()
     eps = float(opts.solver.epsilon)
+    polished: dict = {}
+
+    def pairs() -> Samples:  # the polish's off-grid pairs, drawn once for every candidate structure
+        if "pairs" not in polished:
+            t0 = time.perf_counter()
+            polished["pairs"] = polish.polish_pairs(target, opts.parametrization, lin, opts.sampling.seed,
+                                                    opts.sampling.cache, log)
+            polished["sample_s"] = time.perf_counter() - t0
+        return polished["pairs"]
 
     def fit(structure: Structure) -> Result:
         sf = sums.fit_sum(target, structure, mapper, opts.texture_size, samples, lin, log)
+        if lin.polish > 0:
+            sf = polish.polish(target, structure, mapper, opts.texture_size, sf, pairs(), lin, log)
         result = Result(sf.model, solver=sf.solver, warnings=sf.warnings, **record)
         log("measuring errors")
         mets = measure(result, target, samples, eps=eps)
+        extra = {"polish_sample_s": polished["sample_s"]} if "sample_s" in polished else {}
         return result.replace(
             metrics=mets, warnings=tuple(result.warnings) + tuple(quality_warnings(mets)),
-            timings={"sample_s": sample_s, "assemble_s": sf.assemble_s, "solve_s": sf.solve_s},
+            timings={"sample_s": sample_s, "assemble_s": sf.assemble_s, "solve_s": sf.solve_s, **extra},
             counts={"train": int(len(samples.a)), "validation": int(len(samples.val_a)), "unknowns": sf.unknowns,
                     "lights": int(getattr(target.fn, "n_lights", 0)), "lookups": int(sf.model.lookups)},
         )

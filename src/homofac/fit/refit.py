@@ -49,6 +49,7 @@ from . import footprints, precision, solvers, sums, transport
 from .draw import default_mapper
 from .options import FitOptions, LinearOptions
 from .pipeline import quality_warnings, resolve_sampling
+from .polish import polish, polish_pairs
 from .product import unpack, zeros_rule
 from .result import Result
 from .samples import check_values, evaluate_grouped
@@ -441,6 +442,9 @@ def refit(fac: Result, environment: Environment | None = None, brdf: BRDF | None
             lin = validate(LinearOptions, {**lin.model_dump(), **linear}, "linear")
         sf = sums.fit_sum(tgt, state.structure, state.mapper, state.texture_size, samples, lin, log,
                           previous=fac.model if start == "previous" else None)
+        if lin.polish > 0:  # the same off-grid pairs as the full run (deterministic), the new target's values
+            pairs = polish_pairs(tgt, opts.parametrization, lin, opts.sampling.seed, opts.sampling.cache, log)
+            sf = polish(tgt, state.structure, state.mapper, state.texture_size, sf, pairs, lin, log)
         model, record, solve_s, warnings = sf.model, {**sf.solver, "refit": True}, sf.solve_s, sf.warnings
     else:
         t1 = time.perf_counter()

@@ -314,6 +314,8 @@ def fit_sum(target: Target, structure: Structure, mapper: str, size: int, sample
                            "(sampling.kind: grid on the textures' own mapper and size)")
     if method == "auto":
         method = "als" if grid is not None else "levenberg_marquardt"
+    if opts.polish > 0 and method != "als":
+        raise HomofacError(f"linear.polish follows an als fit on grid samples (sampling.kind: grid), not {method}")
     if opts.nv_balance > 0 and method != "als":
         raise HomofacError(f"linear.nv_balance needs linear.method: als (grid samples of NR / NRW lighting products), "
                            f"not {method}")
