@@ -395,7 +395,7 @@ def test_polish_lowers_the_off_grid_error():
     plain = hf.fit.factorize(target, "NR", **kw)
     pol = hf.fit.factorize(target, "NR", linear={"polish": 4, "polish_size": 12}, **kw)
     val = lambda r: r.metrics["validation"]["float"]["nrmse"]  # noqa: E731
-    assert val(pol) < 0.98 * val(plain)
+    assert val(pol) < 0.99 * val(plain)
     rec = pol.solver["polish"]
     assert rec["iterations"] >= 1 and rec["samples"] > 0 and rec["objective"] < rec["objective_start"]
     assert "polish" not in plain.solver and pol.timings["polish_sample_s"] > 0

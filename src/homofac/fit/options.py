@@ -133,8 +133,8 @@ class LinearOptions(Options):
     (8 bins of equal width, weights scaled to mean 1): 0 is the plain objective, where the bright
     grazing views dominate; 1 makes every bin's relative error count by its sample count
     (:func:`homofac.fit.sums.nv_weights`). ``polish`` (after ``als``): that many Levenberg-Marquardt steps
-    on texel-sampled pairs at ``polish_size``, off the texel centres the grid design sees
-    (:mod:`homofac.fit.polish`); 0 (the default) is off.
+    on the grid pairs and texel-sampled pairs at ``polish_size`` between the texel centres the grid
+    design sees (:mod:`homofac.fit.polish`); 0 (the default) is off.
     """
 
     method: Literal["auto", "als", "levenberg_marquardt", "gauss_newton"] = "auto"

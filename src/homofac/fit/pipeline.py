@@ -217,7 +217,7 @@ def _sums(target: Target, opts: FitOptions, mapper: str, samples: Samples, recor
     def fit(structure: Structure) -> Result:
         sf = sums.fit_sum(target, structure, mapper, opts.texture_size, samples, lin, log)
         if lin.polish > 0:
-            sf = polish.polish(target, structure, mapper, opts.texture_size, sf, pairs(), lin, log)
+            sf = polish.polish(target, structure, mapper, opts.texture_size, sf, samples, pairs(), lin, log)
         result = Result(sf.model, solver=sf.solver, warnings=sf.warnings, **record)
         log("measuring errors")
         mets = measure(result, target, samples, eps=eps)

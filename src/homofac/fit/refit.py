@@ -444,7 +444,7 @@ def refit(fac: Result, environment: Environment | None = None, brdf: BRDF | None
                           previous=fac.model if start == "previous" else None)
         if lin.polish > 0:  # the same off-grid pairs as the full run (deterministic), the new target's values
             pairs = polish_pairs(tgt, opts.parametrization, lin, opts.sampling.seed, opts.sampling.cache, log)
-            sf = polish(tgt, state.structure, state.mapper, state.texture_size, sf, pairs, lin, log)
+            sf = polish(tgt, state.structure, state.mapper, state.texture_size, sf, samples, pairs, lin, log)
         model, record, solve_s, warnings = sf.model, {**sf.solver, "refit": True}, sf.solve_s, sf.warnings
     else:
         t1 = time.perf_counter()
