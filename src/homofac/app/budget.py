@@ -66,7 +66,7 @@ def _cgroup_limit() -> int | None:
                 rel = parts[2].lstrip("/")
                 candidates += [Path("/sys/fs/cgroup") / rel / "memory.max",
                                Path("/sys/fs/cgroup/memory") / rel / "memory.limit_in_bytes"]
-    except OSError:
+    except OSError:  # no /proc/self/cgroup (not Linux): only the fixed paths below
         pass
     candidates += [Path("/sys/fs/cgroup/memory.max"), Path("/sys/fs/cgroup/memory/memory.limit_in_bytes")]
     for p in candidates:
@@ -91,7 +91,7 @@ def process_limit() -> int:
         soft, _ = resource.getrlimit(resource.RLIMIT_AS)
         if soft not in (resource.RLIM_INFINITY, -1) and soft > 0:
             limits.append(int(soft))
-    except (ValueError, OSError):
+    except (ValueError, OSError):  # no RLIMIT_AS on this platform: RAM and cgroup only
         pass
     cg = _cgroup_limit()
     if cg is not None:

@@ -233,8 +233,8 @@ def _solve_all(sys, plan, rhs, x0, lam, *, rtol: float, max_steps: int):
     least-squares problem ``min sum_c ||A x_c - b_c||^2`` (the channels of one product already are), whose
     minimiser is every target's own. One Krylov iteration serves every column (the operator's gathers are
     shared; the transposed products gather by ``plan``, :func:`~homofac.fit.system.adjoint_plan`: their
-    scatter was 3/4 of an iteration at 48 columns), where a vmap ran T LSMRs with their own scalars. Returns x (T, n, 3), steps and success
-    (one value for all, broadcast per target) and each target's objective ``||A x - b||^2 + ||lambda L x||^2``
+    scatter was 3/4 of an iteration at 48 columns), where a vmap ran T LSMRs with their own scalars.
+    Returns x (T, n, 3), steps and success (one value for all, broadcast per target) and each target's objective ``||A x - b||^2 + ||lambda L x||^2``
     (:func:`homofac.fit.system.objective` per target, from the same program)."""
     t, m, c = rhs.shape
     n = x0.shape[1]

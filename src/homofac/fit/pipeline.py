@@ -142,8 +142,7 @@ def factorize(
     t0 = time.perf_counter()
     resolved = resolve_sampling(opts, target.kind, mapper)
     if opts.linear is not None and opts.linear.polish > 0 and samples is None and resolved.kind != "grid":
-        raise HomofacError(f"linear.polish follows an als fit on grid samples (sampling.kind: grid), "
-                           f"not sampling.kind: {resolved.kind}")
+        raise HomofacError(f"{sums.POLISH_NEEDS_GRID}, not sampling.kind: {resolved.kind}")
     if samples is None:
         samples = draw_samples(target, opts.parametrization, resolved, log)
     sample_s = time.perf_counter() - t0

@@ -315,7 +315,7 @@ def fit_sum(target: Target, structure: Structure, mapper: str, size: int, sample
     if method == "auto":
         method = "als" if grid is not None else "levenberg_marquardt"
     if opts.polish > 0 and method != "als":
-        raise HomofacError(f"linear.polish follows an als fit on grid samples (sampling.kind: grid), not {method}")
+        raise HomofacError(f"{POLISH_NEEDS_GRID}, not {method}")
     if opts.nv_balance > 0 and method != "als":
         raise HomofacError(f"linear.nv_balance needs linear.method: als (grid samples of NR / NRW lighting products), "
                            f"not {method}")
@@ -367,6 +367,9 @@ def _grid_indices(target, structure, specs, layouts, a, b):
         return None
     return ia, ib, lay
 
+
+#: Why ``linear.polish`` is refused (here for a fit that is not ALS, by the pipeline before sampling).
+POLISH_NEEDS_GRID = "linear.polish follows an als fit on grid samples (sampling.kind: grid)"
 
 #: n.v bins of :func:`nv_weights` (equal width on [0, 1]).
 NV_BINS = 8

@@ -20,7 +20,6 @@ from .adjoint import AdjointOperator
 from .base import Solver, SolverOptions
 
 
-
 class LSMROptions(SolverOptions):
     """Options of ``lsmr`` (the common ones; ``tolerance`` is LSMR's rtol and atol)."""
 
