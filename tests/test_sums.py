@@ -12,7 +12,7 @@ import homofac as hf
 from homofac.brdf import measured
 from homofac.errors import HomofacError
 from homofac.factorization import Factor, Factorization, Term, Texture
-from homofac.fit import als, sampling, structures, sums
+from homofac.fit import als, refine, sampling, structures, sums
 from homofac.fit.options import LinearOptions
 from homofac.fit.samples import Samples, evaluate_grouped
 from homofac.fit.structures import Structure
@@ -362,11 +362,62 @@ def test_nv_balance_lowers_the_frontal_error(plastic):
     assert bal[1] < 1.3 * plain[1]
 
 
-def test_nv_balance_needs_als(exact_sum):
-    _, target, s = exact_sum
-    with pytest.raises(HomofacError, match="nv_balance needs linear.method: als"):
-        sums.fit_sum(target, Structure("NR", 1, None, True), "dual_paraboloid", S, s,
-                     LinearOptions(method="levenberg_marquardt", nv_balance=0.5, iterations=2))
+@pytest.mark.slow
+def test_nv_balance_weighs_the_levenberg_marquardt_fit(plastic):
+    """The same n.v-bin weights in the Levenberg-Marquardt objective (what ``linear.polish`` minimises):
+    from the same start, the weighted fit has the lower frontal error, the plain one the lower total."""
+    target, s = plastic
+    nv = np.sum(s.val_a * s.val_b, axis=1)
+    front = nv > 0.5
+    st = Structure("NR", 1, "fitted", True)
+    out = {}
+    for beta in (0.0, 1.0):
+        f = sums.fit_sum(target, st, "dual_paraboloid", S, s,
+                         LinearOptions(method="levenberg_marquardt", iterations=12, nv_balance=beta))
+        pred = np.asarray(f.model.evaluate(s.val_a, s.val_b), np.float64)
+        out[beta] = (np.linalg.norm(pred[front] - s.val_y[front]) / np.linalg.norm(s.val_y[front]),
+                     np.linalg.norm(pred - s.val_y) / np.linalg.norm(s.val_y))
+        assert f.solver["nv_balance"] == beta and f.solver["objective"] < f.solver["objective_start"]
+    assert out[1.0][0] < 0.95 * out[0.0][0], out
+    assert out[0.0][1] <= out[1.0][1] * 1.02, out
+
+
+def test_weights_count_as_repeated_samples():
+    """refine's objective: a sample of weight 2 counts as the same sample twice (weights multiply the
+    squared data residuals, not the smoothing)."""
+    rng = np.random.default_rng(0)
+    n, texels = 40, 9
+    cols = rng.integers(0, texels, (2, n, 4)).astype(np.int32)
+    w = rng.uniform(0, 1, (2, n, 4)).astype(np.float32)
+    y = rng.uniform(0, 1, (n, 3)).astype(np.float32)
+    X = tuple(jnp.asarray(rng.uniform(0.5, 1.5, (texels, 3)), jnp.float32) for _ in range(2))
+    edges = tuple(jnp.asarray(refine.edges_of(np.stack([np.roll(np.arange(texels), 1), -np.ones(texels, int),
+                                                        -np.ones(texels, int), -np.ones(texels, int)], 1)))
+                  for _ in range(2))
+    mu = (jnp.float32(0.3), jnp.float32(0.7))
+    scales = tuple(jnp.ones(texels) for _ in range(2))
+
+    def problem(idx, weights):
+        lk = tuple(refine.Lookup(jnp.asarray(cols[j][idx]), jnp.asarray(w[j][idx])) for j in range(2))
+        return refine.Problem(lk, jnp.asarray(y[idx]), edges, mu, scales, jnp.sqrt(jnp.asarray(weights, jnp.float32)))
+
+    terms = ((0, 1),)
+    weights = np.ones(n)
+    weights[:10] = 2.0
+    weighted = refine.objective(X, problem(np.arange(n), weights), terms)
+    repeated = refine.objective(X, problem(np.concatenate([np.arange(n), np.arange(10)]), np.ones(n + 10)), terms)
+    np.testing.assert_allclose(float(weighted), float(repeated), rtol=1e-5)
+    plain = refine.objective(X, problem(np.arange(n), np.ones(n)), terms)
+    assert float(weighted) > float(plain)
+
+
+def test_nv_balance_needs_a_lighting_target():
+    """BRDF pairs have no n.v: refused in one line before sampling, and by fit_sum."""
+    target = hf.target.brdf_target(hf.brdf.phong(kd=0.2, ks=0.5, exponent=10.0))
+    with pytest.raises(HomofacError, match="nv_balance weighs the n.v bins of lighting pairs") as err:
+        hf.fit.factorize(target, "PQP", texture_size=S, terms=2, linear={"nv_balance": 1.0},
+                         sampling={"kind": "random", "count": 200, "validation": 10})
+    assert "\n" not in str(err.value)
 
 
 def test_polish_needs_grid_samples(exact_sum):

@@ -129,7 +129,7 @@ class LinearOptions(Options):
     ``laplacian``: the smoothing weight lambda, scaled by samples per texel (mu = lambda N / texels).
     ``start``: ``split_sum`` (term 1 = the split sum; microfacet lighting targets), ``product`` (term 1
     = the log-space product of the parametrization) or ``auto`` (split_sum where it exists).
-    ``nv_balance`` (``als`` only): beta of the sample weights ``(mean of y^2 over the sample's n.v bin)^-beta``
+    ``nv_balance``: beta of the sample weights ``(mean of y^2 over the sample's n.v bin)^-beta``
     (8 bins of equal width, weights scaled to mean 1): 0 is the plain objective, where the bright
     grazing views dominate; 1 makes every bin's relative error count by its sample count
     (:func:`homofac.fit.sums.nv_weights`). ``polish`` (after ``als``): that many Levenberg-Marquardt steps

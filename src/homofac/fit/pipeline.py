@@ -143,6 +143,8 @@ def factorize(
     resolved = resolve_sampling(opts, target.kind, mapper)
     if opts.linear is not None and opts.linear.polish > 0 and samples is None and resolved.kind != "grid":
         raise HomofacError(f"{sums.POLISH_NEEDS_GRID}, not sampling.kind: {resolved.kind}")
+    if opts.linear is not None and opts.linear.nv_balance > 0 and target.kind != "lighting":
+        raise HomofacError(sums.NV_BALANCE_NEEDS_LIGHTING)
     if samples is None:
         samples = draw_samples(target, opts.parametrization, resolved, log)
     sample_s = time.perf_counter() - t0

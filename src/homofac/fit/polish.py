@@ -13,9 +13,9 @@ matrix-free, bilinear footprints) on the grid pairs *and* texel-sampled pairs be
 evaluation), warm-started from the ALS textures, with the same smoothing. The grid pairs stay: on the
 off-grid pairs alone the fit lost the sun's glints (gold under the city sun 0.277 -> 0.297 with texel
 pairs, 0.325 with 300 000 random ones, 0.275 with both sets), while the near-mirror under small lamps
-gained either way (0.586 -> 0.500 alone, 0.527 with both). It minimises the plain objective (the n.v-bin
-weights of ``nv_balance`` are an ALS option). Refits polish again on the same pairs (deterministic), so
-a refit equals its full run.
+gained either way (0.586 -> 0.500 alone, 0.527 with both). It minimises the objective of the ALS fit:
+with ``nv_balance``, the n.v-bin weights of the union of both sets of pairs. Refits polish again on the
+same pairs (deterministic), so a refit equals its full run.
 """
 
 from __future__ import annotations
@@ -49,8 +49,7 @@ def polish(target: Target, structure: Structure, mapper: str, size: int, fit: Su
     pairs = Samples(*(np.concatenate([np.asarray(u), np.asarray(v)]) for u, v in
                       ((samples.a, pairs.a), (samples.b, pairs.b), (samples.y, pairs.y))),
                     samples.val_a, samples.val_b, samples.val_y)
-    lm = lin.model_copy(update={"method": "levenberg_marquardt", "iterations": int(lin.polish), "nv_balance": 0.0,
-                                  "polish": 0})
+    lm = lin.model_copy(update={"method": "levenberg_marquardt", "iterations": int(lin.polish), "polish": 0})
     log(f"polishing {structure.label()} off the grid: {lin.polish} Levenberg-Marquardt steps on {len(pairs.a)} pairs")
     out = fit_sum(target, structure, mapper, size, pairs, lm, log, previous=fit.model)
     record = {**fit.solver, "polish": {"method": out.solver["method"], "backend": out.solver["backend"],

@@ -2,10 +2,11 @@
 
 The objective is the one a GPU sees, in units of sigma_c per channel::
 
-    F(X) = sum_i ||sum_t prod_(f in t) bilinear(X_k(f), pi_f(a_i, b_i)) - y_i||^2
+    F(X) = sum_i w_i ||sum_t prod_(f in t) bilinear(X_k(f), pi_f(a_i, b_i)) - y_i||^2
            + sum_k mu_k sum_(edges (u, v) of texture k) ||X_k[u] - X_k[v]||^2,   mu_k = lambda N / texels_k
 
-over the valid texels X_k of every fitted texture (all RGB channels at once). The lookups are the ELL
+over the valid texels X_k of every fitted texture (all RGB channels at once), with sample weights w_i
+(1, or the n.v-bin weights of ``linear.nv_balance``, :func:`homofac.fit.sums.nv_weights`). The lookups are the ELL
 footprints of :func:`homofac.param.mappers.bilinear` (4 texels per factor), so the residual and its
 JVP/VJP are gathers and scatter-adds: optimistix's ``LevenbergMarquardt`` / ``GaussNewton`` with a
 lineax ``LSMR`` inner solve never form the Jacobian. Unknowns are column-scaled by the footprint
@@ -52,6 +53,7 @@ class Problem(NamedTuple):
     edges: tuple[Int[Array, "E 2"], ...]  # per texture: (u, v) neighbour pairs, both directions
     mu: tuple[Float[Array, ""], ...]  # per texture
     scales: tuple[Float[Array, "n"], ...]  # column scales per texture
+    sqrt_w: Float[Array, "N"]  # square roots of the sample weights w_i
 
 
 def predict(X: tuple, prob: Problem, terms: tuple[tuple[int, ...], ...]) -> Float[Array, "N 3"]:
@@ -71,7 +73,7 @@ def predict(X: tuple, prob: Problem, terms: tuple[tuple[int, ...], ...]) -> Floa
 def residuals(Z: tuple, prob: Problem, terms) -> tuple:
     """Residual pytree of F (its sum of squares is F) at scaled unknowns Z (X = D Z)."""
     X = tuple(z * s[:, None] for z, s in zip(Z, prob.scales))
-    data = predict(X, prob, terms) - prob.y
+    data = (predict(X, prob, terms) - prob.y) * prob.sqrt_w[:, None]
     # each edge appears in both directions: weight mu / 2 gives mu per edge
     smooth = tuple(jnp.sqrt(mu / 2) * (x[e[:, 0]] - x[e[:, 1]]) for x, e, mu in zip(X, prob.edges, prob.mu))
     return (data,) + smooth

@@ -316,22 +316,21 @@ def fit_sum(target: Target, structure: Structure, mapper: str, size: int, sample
         method = "als" if grid is not None else "levenberg_marquardt"
     if opts.polish > 0 and method != "als":
         raise HomofacError(f"{POLISH_NEEDS_GRID}, not {method}")
-    if opts.nv_balance > 0 and method != "als":
-        raise HomofacError(f"linear.nv_balance needs linear.method: als (grid samples of NR / NRW lighting products), "
-                           f"not {method}")
     assemble_s = time.perf_counter() - t0
     fitted_terms = [t for t in terms if t.fitted]
     log(f"fitting {structure.label()} in linear space with {method} ({sum(l.n_valid for l in layouts.values())} "
         f"unknowns x 3 channels, {len(a)} samples, start {rule})")
     t1 = time.perf_counter()
+    if opts.nv_balance > 0 and target.kind != "lighting":
+        raise HomofacError(NV_BALANCE_NEEDS_LIGHTING)
+    weights = nv_weights(a, b, y, NV_BINS, opts.nv_balance)
     if method == "als":
-        weights = nv_weights(a, b, y, NV_BINS, opts.nv_balance)
         X, steps, hist = _fit_als(structure, specs, fitted_terms, layouts, x0, grid, a, b, y_fit / sigma, opts, weights)
         converged = True
         backend = "homofac"
     else:
         X, steps, converged, hist = _fit_lm(target, fitted_specs, fitted_terms, layouts, x0, a, b, y_fit / sigma, opts,
-                                            method)
+                                            method, weights)
         backend = opts.backend
     solve_s = time.perf_counter() - t1
     bad = [n for n, x in X.items() if not np.all(np.isfinite(x))]
@@ -370,6 +369,9 @@ def _grid_indices(target, structure, specs, layouts, a, b):
 
 #: Why ``linear.polish`` is refused (here for a fit that is not ALS, by the pipeline before sampling).
 POLISH_NEEDS_GRID = "linear.polish follows an als fit on grid samples (sampling.kind: grid)"
+
+#: Why ``linear.nv_balance`` is refused for a BRDF target (by the pipeline before sampling, and here).
+NV_BALANCE_NEEDS_LIGHTING = "linear.nv_balance weighs the n.v bins of lighting pairs (n, v); a brdf target has none"
 
 #: n.v bins of :func:`nv_weights` (equal width on [0, 1]).
 NV_BINS = 8
@@ -439,7 +441,7 @@ def _fit_als(structure, specs, fitted_terms, layouts, x0, grid, a, b, y, opts: L
     return X, int(opts.iterations), hist
 
 
-def _fit_lm(target, fitted_specs, fitted_terms, layouts, x0, a, b, y, opts: LinearOptions, method: str):
+def _fit_lm(target, fitted_specs, fitted_terms, layouts, x0, a, b, y, opts: LinearOptions, method: str, weights):
     names = [s.name for s in fitted_specs]
     index = {n: k for k, n in enumerate(names)}
     lookups, which, terms = [], [], []
@@ -465,7 +467,8 @@ def _fit_lm(target, fitted_specs, fitted_terms, layouts, x0, a, b, y, opts: Line
         edges.append(jnp.asarray(refine.edges_of(nb_unk)))
     mu = tuple(jnp.float32(opts.laplacian * N / s) for s in sizes)
     scales = refine.column_scales(lookups, tuple(which), sizes)
-    prob = refine.Problem(tuple(lookups), jnp.asarray(y, jnp.float32), tuple(edges), mu, scales)
+    prob = refine.Problem(tuple(lookups), jnp.asarray(y, jnp.float32), tuple(edges), mu, scales,
+                          jnp.asarray(np.sqrt(weights), jnp.float32))
     X0 = tuple(jnp.asarray(x0[n], jnp.float32) for n in names)
     start_obj = float(refine.objective(X0, prob, tuple(terms)))
     X, steps, ok = refine.solve(X0, prob, tuple(terms), method=method, backend=opts.backend,
