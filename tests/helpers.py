@@ -9,7 +9,7 @@ from homofac.factorization import Factor, Factorization, Term, Texture
 from homofac.param import mappers
 
 
-def _smooth(mapper: str, S: int, seed: int, lo=0.2, signed=False) -> np.ndarray:
+def smooth_texture(mapper: str, S: int, seed: int, lo=0.2, signed=False) -> np.ndarray:
     """A smooth positive (or signed) RGB texture: a low-order function of the texel directions."""
     rng = np.random.default_rng(seed)
     d = np.asarray(mappers.texel_directions(mapper, S), np.float64)
@@ -25,9 +25,9 @@ def _smooth(mapper: str, S: int, seed: int, lo=0.2, signed=False) -> np.ndarray:
 def two_terms(S: int = 8, signed: bool = False) -> Factorization:
     """kd/pi E(n) + P(r) W(n.v): the shape of split-sum, with smooth made-up textures."""
     textures = (
-        Texture("E", "dual_paraboloid", S, jnp.asarray(_smooth("dual_paraboloid", S, 1))),
-        Texture("P", "dual_paraboloid", S, jnp.asarray(_smooth("dual_paraboloid", S, 2, signed=signed))),
-        Texture("W", "line", 16, jnp.asarray(_smooth("line", 16, 3))),
+        Texture("E", "dual_paraboloid", S, jnp.asarray(smooth_texture("dual_paraboloid", S, 1))),
+        Texture("P", "dual_paraboloid", S, jnp.asarray(smooth_texture("dual_paraboloid", S, 2, signed=signed))),
+        Texture("W", "line", 16, jnp.asarray(smooth_texture("line", 16, 3))),
     )
     terms = (
         Term((Factor("n", "E"),), jnp.asarray([0.1, 0.09, 0.08]), "irradiance"),
@@ -43,9 +43,9 @@ def nrw_sum(K: int = 2, S: int = 8, line: int = 32, seed: int = 10) -> Factoriza
     for t in range(K):
         s = "" if K == 1 else str(t)
         textures += [
-            Texture(f"n{s}", "dual_paraboloid", S, jnp.asarray(_smooth("dual_paraboloid", S, seed + 3 * t))),
-            Texture(f"r{s}", "dual_paraboloid", S, jnp.asarray(_smooth("dual_paraboloid", S, seed + 3 * t + 1))),
-            Texture(f"w{s}", "line", line, jnp.asarray(_smooth("line", line, seed + 3 * t + 2))),
+            Texture(f"n{s}", "dual_paraboloid", S, jnp.asarray(smooth_texture("dual_paraboloid", S, seed + 3 * t))),
+            Texture(f"r{s}", "dual_paraboloid", S, jnp.asarray(smooth_texture("dual_paraboloid", S, seed + 3 * t + 1))),
+            Texture(f"w{s}", "line", line, jnp.asarray(smooth_texture("line", line, seed + 3 * t + 2))),
         ]
         terms.append(Term((Factor("n", f"n{s}"), Factor("r", f"r{s}"), Factor("nv", f"w{s}")),
                           jnp.asarray([1.0, 0.7, 0.5]) / (t + 1), "fitted"))

@@ -45,7 +45,7 @@ from homofac.output import shader_files
 from homofac.param import mappers
 from homofac.param import projections as pj
 from homofac.shader import LANGUAGES, generate
-from helpers import _smooth
+from helpers import smooth_texture
 
 RNG = np.random.default_rng(14)
 DOMINANT = np.asarray([0.3, -0.5, 0.81]) / np.linalg.norm([0.3, -0.5, 0.81])
@@ -83,12 +83,12 @@ def model(mapper: str, terms: int) -> Result:
     the several-term case; ``mapper == "line"``: one term W(n.v)."""
     S = 8
     kind = "brdf" if mapper in BRDF_MAPPERS else "lighting"
-    W = Texture("W", "line", 16, jnp.asarray(_smooth("line", 16, 3)))
+    W = Texture("W", "line", 16, jnp.asarray(smooth_texture("line", 16, 3)))
     if mapper == "line":
         term = Term((Factor("nv", "W"),), jnp.asarray([0.5, 0.6, 0.7]))
         return Result(Factorization("lighting", "lighting", (W,), (term,), {}, "line"))
-    A = Texture("A", mapper, S, jnp.asarray(_smooth(mapper, S, 1)))
-    B = Texture("B", mapper, S, jnp.asarray(_smooth(mapper, S, 2, signed=True)))
+    A = Texture("A", mapper, S, jnp.asarray(smooth_texture(mapper, S, 1)))
+    B = Texture("B", mapper, S, jnp.asarray(smooth_texture(mapper, S, 2, signed=True)))
     if kind == "brdf":
         all_terms = [Term((Factor("wi", "A"), Factor("h", "B"), Factor("wo", "A")), jnp.asarray([0.9, 0.8, 0.7])),
                      Term((Factor("d", "B"), Factor("cos_i", "W"), Factor("cos_o", "W")), jnp.asarray([0.3, 0.2, 0.1]))]

@@ -20,7 +20,7 @@ from homofac.fit.system import texture_layout
 from homofac.light.sources import bundled
 from homofac.param import mappers
 from homofac.target import Target
-from helpers import nrw_sum
+from helpers import nrw_sum, smooth_texture
 
 S = 8
 
@@ -74,6 +74,9 @@ def test_candidates_fit_the_budget_cheapest_first():
         assert c and max(n) <= budget and n == sorted(n)
         assert any(s.nv_factor for s in c)
     assert structures.candidates("lighting", 4, has_diffuse=False)[0].diffuse is None
+    # the products without p(n) (q(r) w(n.v), parametrization R) compete within each budget
+    assert [s.label() for s in structures.candidates("lighting", 4)] == ["E'+NRW x1", "E'+RW x1+R"]
+    assert [s.label() for s in structures.candidates("lighting", 3)] == ["E'+RW x1"]
     with pytest.raises(HomofacError, match="max_lookups 1"):
         structures.candidates("lighting", 1)
 
@@ -104,6 +107,32 @@ def test_als_recovers_an_exact_sum_of_two_products(exact_sum):
     assert e2 < 0.02, e2  # the target is exactly of this structure
     assert e2 < 0.5 * e1
     assert two.model.lookups == 6 and len(two.model.terms) == 2
+
+
+def _rw_sum(K: int = 2, seed: int = 20) -> Factorization:
+    """sum_t q_t(r) w_t(n.v): the structure of parametrization R with nv_factor."""
+    textures, terms = [], []
+    for t in range(K):
+        textures += [Texture(f"r{t}", "dual_paraboloid", S, jnp.asarray(smooth_texture("dual_paraboloid", S, seed + 2 * t + 1))),
+                     Texture(f"w{t}", "line", 32, jnp.asarray(smooth_texture("line", 32, seed + 2 * t + 2)))]
+        terms.append(Term((Factor("r", f"r{t}"), Factor("nv", f"w{t}")), jnp.asarray([1.0, 0.7, 0.5]) / (t + 1),
+                          "fitted"))
+    return Factorization("lighting", "lighting", tuple(textures), tuple(terms), {}, "rw_sum")
+
+
+def test_als_fits_products_without_a_normal_factor():
+    """Parametrization R with the n.v factor (sum_t q_t(r) w_t(n.v), a max_lookups candidate) is an ALS
+    structure on grid samples: it recovers an exact sum of that form, far better than one term does."""
+    model = _rw_sum(2)
+    target = _model_target(model)
+    s = _samples(target)
+    err = {}
+    for K in (1, 2):
+        fit = sums.fit_sum(target, Structure("R", K, None, True), "dual_paraboloid", S, s,
+                           LinearOptions(iterations=60, laplacian=1e-4, start="product"))
+        assert fit.solver["method"] == "als" and fit.model.lookups == 2 * K
+        err[K] = _nrmse(fit.model.evaluate(s.val_a, s.val_b), s.val_y)
+    assert err[2] < 0.02 and err[2] < 0.5 * err[1], err
 
 
 @pytest.mark.slow

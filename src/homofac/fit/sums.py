@@ -268,7 +268,7 @@ def _is_reflection(term: TermSpec) -> bool:
 def _split_sum_possible(target, structure) -> bool:
     return (target.kind == "lighting" and isinstance(target.fn, Lighting) and isinstance(target.fn.brdf, BRDF)
             and MODELS[target.fn.brdf.model].microfacet is not None and target.fn.clamp is None
-            and structure.parametrization in ("NR", "NRW", "NRV"))
+            and structure.parametrization in ("NR", "NRW", "NRV", "R"))
 
 
 # ------------------------------------------------------------------------------------------------
@@ -310,7 +310,7 @@ def fit_sum(target: Target, structure: Structure, mapper: str, size: int, sample
     method = opts.method
     grid = _grid_indices(target, structure, specs, layouts, a, b) if method in ("auto", "als") else None
     if method == "als" and grid is None:
-        raise HomofacError("linear.method: als needs lighting NR / NRW products on grid samples "
+        raise HomofacError("linear.method: als needs lighting NR / NRW / R products on grid samples "
                            "(sampling.kind: grid on the textures' own mapper and size)")
     if method == "auto":
         method = "als" if grid is not None else "levenberg_marquardt"
@@ -351,7 +351,7 @@ def fit_sum(target: Target, structure: Structure, mapper: str, size: int, sample
 
 def _grid_indices(target, structure, specs, layouts, a, b):
     """Unknown indices of the n and r texel each sample reads, when the samples are grid-aligned."""
-    if target.kind != "lighting" or structure.parametrization not in ("NR", "NRW"):
+    if target.kind != "lighting" or structure.parametrization not in GRID_PARAMETRIZATIONS:
         return None
     dirs = [s for s in specs if s.role in ("factor", "diffuse_fitted", "reflection") and s.mapper != "line"]
     if not dirs:
@@ -366,6 +366,9 @@ def _grid_indices(target, structure, specs, layouts, a, b):
         return None
     return ia, ib, lay
 
+
+#: Lighting parametrizations whose sums ``als`` fits on grid samples: each n and r lookup reads one texel.
+GRID_PARAMETRIZATIONS = ("NR", "NRW", "R")
 
 #: Why ``linear.polish`` is refused (here for a fit that is not ALS, by the pipeline before sampling).
 POLISH_NEEDS_GRID = "linear.polish follows an als fit on grid samples (sampling.kind: grid)"
