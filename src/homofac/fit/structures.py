@@ -132,11 +132,12 @@ def candidates(kind: str, max_lookups: int, *, parametrization: str | None = Non
     """The structures worth fitting within ``max_lookups`` texture lookups, cheapest first.
 
     For each variant (the split sum computed or not; lighting) the one with the most terms that fits,
-    with the n.v factor and, when the material has a diffuse part, a fitted diffuse texture: more terms,
-    a free diffuse texture and w(n.v) never fit worse, so the smaller variants are not tried; a lookup
-    left over goes to the r-only term. ``parametrization`` defaults to NR (lighting) and PQP
-    (BRDF); with NR the products without p(n), ``q_t(r) w_t(n.v)`` (parametrization R with the n.v
-    factor), are candidates too. :func:`homofac.fit.sums.choose` fits them and keeps the best on the validation pairs.
+    with the n.v factor and, with ``has_diffuse`` (the pipeline: lighting models with a kd, even 0;
+    BRDFs with kd > 0), a fitted diffuse texture: more terms, a free diffuse texture and w(n.v) never
+    fit worse, so the smaller variants are not tried; a lookup left over goes to the r-only term.
+    ``parametrization`` defaults to NR (lighting) and PQP (BRDF); with NR the products without p(n),
+    ``q_t(r) w_t(n.v)`` (parametrization R with the n.v factor), are candidates too.
+    :func:`homofac.fit.sums.choose` fits them and keeps the best on the validation pairs.
     """
     return _sorted(_variants(kind, max_lookups, parametrization, has_diffuse, max_terms, largest=True))
 
