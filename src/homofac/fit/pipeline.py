@@ -236,9 +236,7 @@ def _sums(target: Target, opts: FitOptions, mapper: str, samples: Samples, recor
     if len(samples.val_a) == 0:
         raise HomofacError("max_lookups and target_error choose by validation error: sampling.validation must be > 0")
     budget = opts.max_lookups or DEFAULT_MAX_LOOKUPS
-    # lighting: a fitted n-only texture wherever the model has a kd (it starts at kd/pi E(n), which may
-    # be 0) -- a near-mirror under lamps fits better with it; BRDF: the constant kd/pi term only when kd > 0
-    has_d = sums.diffuse_albedo(target) is not None if target.kind == "lighting" else sums.has_diffuse(target)
+    has_d = sums.has_diffuse(target)
     pick = structures.ladder if opts.target_error is not None else structures.candidates
     cands = pick(target.kind, budget, parametrization=opts.parametrization, has_diffuse=has_d)
     if opts.diffuse is not None:  # a diffuse term asked for explicitly constrains the search

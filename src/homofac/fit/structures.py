@@ -132,12 +132,13 @@ def candidates(kind: str, max_lookups: int, *, parametrization: str | None = Non
     """The structures worth fitting within ``max_lookups`` texture lookups, cheapest first.
 
     For each variant (the split sum computed or not; lighting) the one with the most terms that fits,
-    with the n.v factor and, with ``has_diffuse`` (the pipeline: lighting models with a kd, even 0;
-    BRDFs with kd > 0), a fitted diffuse texture: more terms, a free diffuse texture and w(n.v) never
-    fit worse, so the smaller variants are not tried; a lookup left over goes to the r-only term.
-    ``parametrization`` defaults to NR (lighting) and PQP (BRDF); with NR the products without p(n),
-    ``q_t(r) w_t(n.v)`` (parametrization R with the n.v factor), are candidates too.
-    :func:`homofac.fit.sums.choose` fits them and keeps the best on the validation pairs.
+    with the n.v factor and, when the material has a diffuse part, a fitted diffuse texture: more terms,
+    a free diffuse texture and w(n.v) never fit worse, so the smaller variants are not tried; a lookup
+    left over goes to the r-only term. ``parametrization`` defaults to NR (lighting) and PQP
+    (BRDF). :func:`homofac.fit.sums.choose` fits them and keeps the best on the validation pairs.
+    The products without a normal factor (``parametrization: R`` with ``nv_factor``) are not among
+    them: the choice on the fit's own validation pairs picked them where the ground truth did not
+    (plastic / studio 0.405 against 0.371; docs/sums.md).
     """
     return _sorted(_variants(kind, max_lookups, parametrization, has_diffuse, max_terms, largest=True))
 
@@ -167,15 +168,6 @@ def _variants(kind, max_lookups, parametrization, has_diffuse, max_terms, larges
         if kind == "lighting" and fits and lookups(fits[-1]._replace(reflection=True), kind) <= max_lookups:
             fits.append(fits[-1]._replace(reflection=True))  # a lookup left over: the r-only term
         out += fits[-1:] if largest else fits
-    if kind == "lighting" and base == "NR":
-        # products without p(n): E' + sum_t q_t(r) w_t(n.v) [+ R(r)], the split sum's form with K free terms;
-        # a near-mirror under lamps fits them better than p(n) q(r) w(n.v) (0.49 against 0.59 nrmse)
-        for d in diffuses:
-            fits = [Structure("R", k, d, True) for k in range(1, max_terms + 1)
-                    if lookups(Structure("R", k, d, True), kind) <= max_lookups]
-            if fits and lookups(fits[-1]._replace(reflection=True), kind) <= max_lookups:
-                fits.append(fits[-1]._replace(reflection=True))
-            out += fits[-1:] if largest else fits
     if not out:
         smallest = lookups(Structure(base, 1, diffuses[0], False), kind)
         raise HomofacError(f"max_lookups {max_lookups}: no structure of {base} fits (the smallest needs {smallest})")
