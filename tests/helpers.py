@@ -36,19 +36,20 @@ def two_terms(S: int = 8, signed: bool = False) -> Factorization:
     return Factorization("lighting", "lighting", textures, terms, {}, "two_terms")
 
 
-def nrw_sum(K: int = 2, S: int = 8, line: int = 32, seed: int = 10) -> Factorization:
+def nrw_sum(K: int = 2, S: int = 8, line: int = 32, seed: int = 10, normal: bool = True) -> Factorization:
     """sum_t p_t(n) q_t(r) w_t(n.v) with smooth positive made-up textures (the structure of ``NR`` with
-    ``nv_factor`` and ``terms: K``, texture names n0, r0, w0, ...)."""
+    ``nv_factor`` and ``terms: K``, texture names n0, r0, w0, ...); ``normal=False``: without p_t(n)
+    (the structure of ``R`` with ``nv_factor``)."""
     textures, terms = [], []
     for t in range(K):
         s = "" if K == 1 else str(t)
-        textures += [
-            Texture(f"n{s}", "dual_paraboloid", S, jnp.asarray(smooth_texture("dual_paraboloid", S, seed + 3 * t))),
+        n = [Texture(f"n{s}", "dual_paraboloid", S, jnp.asarray(smooth_texture("dual_paraboloid", S, seed + 3 * t)))]
+        textures += (n if normal else []) + [
             Texture(f"r{s}", "dual_paraboloid", S, jnp.asarray(smooth_texture("dual_paraboloid", S, seed + 3 * t + 1))),
             Texture(f"w{s}", "line", line, jnp.asarray(smooth_texture("line", line, seed + 3 * t + 2))),
         ]
-        terms.append(Term((Factor("n", f"n{s}"), Factor("r", f"r{s}"), Factor("nv", f"w{s}")),
-                          jnp.asarray([1.0, 0.7, 0.5]) / (t + 1), "fitted"))
+        factors = ((Factor("n", f"n{s}"),) if normal else ()) + (Factor("r", f"r{s}"), Factor("nv", f"w{s}"))
+        terms.append(Term(factors, jnp.asarray([1.0, 0.7, 0.5]) / (t + 1), "fitted"))
     return Factorization("lighting", "lighting", tuple(textures), tuple(terms), {}, "nrw_sum")
 
 

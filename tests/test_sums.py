@@ -20,7 +20,7 @@ from homofac.fit.system import texture_layout
 from homofac.light.sources import bundled
 from homofac.param import mappers
 from homofac.target import Target
-from helpers import nrw_sum, smooth_texture
+from helpers import nrw_sum
 
 S = 8
 
@@ -106,21 +106,10 @@ def test_als_recovers_an_exact_sum_of_two_products(exact_sum):
     assert two.model.lookups == 6 and len(two.model.terms) == 2
 
 
-def _rw_sum(K: int = 2, seed: int = 20) -> Factorization:
-    """sum_t q_t(r) w_t(n.v): the structure of parametrization R with nv_factor."""
-    textures, terms = [], []
-    for t in range(K):
-        textures += [Texture(f"r{t}", "dual_paraboloid", S, jnp.asarray(smooth_texture("dual_paraboloid", S, seed + 2 * t + 1))),
-                     Texture(f"w{t}", "line", 32, jnp.asarray(smooth_texture("line", 32, seed + 2 * t + 2)))]
-        terms.append(Term((Factor("r", f"r{t}"), Factor("nv", f"w{t}")), jnp.asarray([1.0, 0.7, 0.5]) / (t + 1),
-                          "fitted"))
-    return Factorization("lighting", "lighting", tuple(textures), tuple(terms), {}, "rw_sum")
-
-
 def test_als_fits_products_without_a_normal_factor():
     """Parametrization R with the n.v factor (sum_t q_t(r) w_t(n.v), for near-mirrors under lamps) is an ALS
     structure on grid samples: it recovers an exact sum of that form, far better than one term does."""
-    model = _rw_sum(2)
+    model = nrw_sum(2, S, seed=20, normal=False)
     target = _model_target(model)
     s = _samples(target)
     err = {}

@@ -285,6 +285,8 @@ def fit_sum(target: Target, structure: Structure, mapper: str, size: int, sample
     """
     log = log or (lambda msg: None)
     opts = options or LinearOptions()
+    if opts.nv_balance > 0 and target.kind != "lighting":
+        raise HomofacError(NV_BALANCE_NEEDS_LIGHTING)
     t0 = time.perf_counter()
     quantity = _quantity(target)
     specs, terms = skeleton(structure, target.kind, quantity, mapper, size)
@@ -321,8 +323,6 @@ def fit_sum(target: Target, structure: Structure, mapper: str, size: int, sample
     log(f"fitting {structure.label()} in linear space with {method} ({sum(l.n_valid for l in layouts.values())} "
         f"unknowns x 3 channels, {len(a)} samples, start {rule})")
     t1 = time.perf_counter()
-    if opts.nv_balance > 0 and target.kind != "lighting":
-        raise HomofacError(NV_BALANCE_NEEDS_LIGHTING)
     weights = nv_weights(a, b, y, NV_BINS, opts.nv_balance)
     if method == "als":
         X, steps, hist = _fit_als(structure, specs, fitted_terms, layouts, x0, grid, a, b, y_fit / sigma, opts, weights)
