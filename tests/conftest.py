@@ -1,8 +1,13 @@
 """Shared fixtures and the test environment: private caches, float64 on demand.
 
 The suite is hermetic: no test reads a path outside the repository (bundled data, tests/data, or
-files the tests generate). JAX's persistent compilation cache for the tests lives in the repository's
-``.cache/jax-tests`` (ignored by git): the second run of the suite skips most XLA compilation.
+files the tests generate). JAX's persistent compilation cache is off for the tests and for the CLIs they
+start (``HOMOFAC_JAX_CACHE=0``): with it on, two CI runs of the slow suite crashed with a segfault inside
+JAX's cache read (``backend.deserialize_executable``, jax 0.10.2 on CPU) while the two xdist workers and
+their CLI subprocesses shared one cache directory. Every entry of that cache deserialized cleanly in a
+process of its own, so the crash is not one bad entry; a suite that can crash in a dependency's
+optimisation is worse than one that compiles. ``HOMOFAC_TEST_JAX_CACHE=<dir>`` turns it back on for a
+local run.
 """
 
 from __future__ import annotations
@@ -18,15 +23,15 @@ ROOT = Path(__file__).resolve().parents[1]
 
 # Samples cached by the tests go to a private directory, never to the user's ~/.cache.
 os.environ.setdefault("HOMOFAC_CACHE_DIR", tempfile.mkdtemp(prefix="homofac-test-cache-"))
-# The CLIs' compiled programs (subprocesses, and in-process CLI calls) share the tests' cache.
-_JAX_CACHE = ROOT / ".cache" / "jax-tests"
-os.environ.setdefault("HOMOFAC_JAX_CACHE", str(_JAX_CACHE))
-try:
-    _JAX_CACHE.mkdir(parents=True, exist_ok=True)
-    jax.config.update("jax_compilation_cache_dir", str(_JAX_CACHE))
+# No persistent compilation cache, in this process or in the CLIs the tests start (see the docstring),
+# unless HOMOFAC_TEST_JAX_CACHE names a directory for it.
+_JAX_CACHE = os.environ.get("HOMOFAC_TEST_JAX_CACHE")
+os.environ["HOMOFAC_JAX_CACHE"] = _JAX_CACHE or "0"
+os.environ.pop("JAX_COMPILATION_CACHE_DIR", None)
+if _JAX_CACHE:
+    Path(_JAX_CACHE).mkdir(parents=True, exist_ok=True)
+    jax.config.update("jax_compilation_cache_dir", _JAX_CACHE)
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
-except OSError:  # a read-only checkout: compile as usual
-    pass
 
 
 def _float64():
