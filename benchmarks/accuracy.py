@@ -76,9 +76,15 @@ METHODS = {
     "E'+RW+R": {"parametrization": "R", "diffuse": "fitted", "nv_factor": True, "reflection": True, "sampling": GRID},
     "E'+RW x3+R": {"parametrization": "R", "terms": 3, "diffuse": "fitted", "nv_factor": True, "reflection": True,
                    "sampling": GRID},
+    "E'+NRW+RW+R": {"parametrization": "NR", "diffuse": "fitted", "nv_factor": True, "rw_terms": 1, "reflection": True,
+                    "sampling": GRID},
+    "E'+NRW+RW x2": {"parametrization": "NR", "diffuse": "fitted", "nv_factor": True, "rw_terms": 2, "sampling": GRID},
+    "E'+NRW+RW x2 pol8": {"parametrization": "NR", "diffuse": "fitted", "nv_factor": True, "rw_terms": 2,
+                          "linear": {"polish": 8}, "sampling": GRID},
     "E'+SS+NRW+R": {"parametrization": "NR", "diffuse": "fitted", "nv_factor": True, "prefiltered": True,
                     "reflection": True, "sampling": GRID},
     "E+NRW x5": {"parametrization": "NR", "terms": 5, "diffuse": "exact", "nv_factor": True, "sampling": GRID},
+    "max_lookups 4": {"parametrization": "NR", "max_lookups": 4, "sampling": GRID},
     "max_lookups 8": {"parametrization": "NR", "max_lookups": 8, "sampling": GRID},
 }
 
@@ -183,7 +189,7 @@ def run_case(material: str, env: str, methods: list[str], fit_resolution: int, s
         p = kw.pop("parametrization")
         # the fits' own validation pairs (at the fit's light resolution) choose structures; rows are
         # measured on the ground-truth pairs below
-        sampling_cfg = {"kind": "texels", "size": 24, "validation": 5000, **kw.pop("sampling", {})}
+        sampling_cfg = {"kind": "texels", "size": 24, "validation": 20000, **kw.pop("sampling", {})}
         if sampling_cfg["kind"] == "grid":
             sampling_cfg.update(size=size, mapper="dual_paraboloid")
         skey = json.dumps(sampling_cfg, sort_keys=True)

@@ -36,13 +36,16 @@ def two_terms(S: int = 8, signed: bool = False) -> Factorization:
     return Factorization("lighting", "lighting", textures, terms, {}, "two_terms")
 
 
-def nrw_sum(K: int = 2, S: int = 8, line: int = 32, seed: int = 10, normal: bool = True) -> Factorization:
+def nrw_sum(K: int = 2, S: int = 8, line: int = 32, seed: int = 10, normal: bool | tuple = True) -> Factorization:
     """sum_t p_t(n) q_t(r) w_t(n.v) with smooth positive made-up textures (the structure of ``NR`` with
     ``nv_factor`` and ``terms: K``, texture names n0, r0, w0, ...); ``normal=False``: without p_t(n)
-    (the structure of ``R`` with ``nv_factor``)."""
+    (the structure of ``R`` with ``nv_factor``); a tuple: per term (``(True, False)``: the structure of
+    ``NR`` with ``nv_factor`` and ``rw_terms: 1``)."""
     textures, terms = [], []
+    flags = normal if isinstance(normal, tuple) else (normal,) * K
     for t in range(K):
         s = "" if K == 1 else str(t)
+        normal = flags[t]
         n = [Texture(f"n{s}", "dual_paraboloid", S, jnp.asarray(smooth_texture("dual_paraboloid", S, seed + 3 * t)))]
         textures += (n if normal else []) + [
             Texture(f"r{s}", "dual_paraboloid", S, jnp.asarray(smooth_texture("dual_paraboloid", S, seed + 3 * t + 1))),

@@ -12,7 +12,7 @@ import homofac as hf
 from homofac.brdf import measured
 from homofac.errors import HomofacError
 from homofac.factorization import Factor, Factorization, Term, Texture
-from homofac.fit import als, refine, sampling, structures, sums
+from homofac.fit import als, pipeline, refine, sampling, structures, sums
 from homofac.fit.options import LinearOptions
 from homofac.fit.samples import Samples, evaluate_grouped
 from homofac.fit.structures import Structure
@@ -74,6 +74,10 @@ def test_candidates_fit_the_budget_cheapest_first():
         assert c and max(n) <= budget and n == sorted(n)
         assert any(s.nv_factor for s in c)
     assert structures.candidates("lighting", 4, has_diffuse=False)[0].diffuse is None
+    # the products without p(n) (q(r) w(n.v), parametrization R) compete within each budget
+    assert [s.label() for s in structures.candidates("lighting", 4)] == ["E'+NRW x1", "E'+RW x1+R"]
+    assert [s.label() for s in structures.candidates("lighting", 3)] == ["E'+RW x1"]
+    assert not any(s.rw_terms for b in (4, 8, 16) for s in structures.ladder("lighting", b))
     with pytest.raises(HomofacError, match="max_lookups 1"):
         structures.candidates("lighting", 1)
 
@@ -119,6 +123,37 @@ def test_als_fits_products_without_a_normal_factor():
         assert fit.solver["method"] == "als" and fit.model.lookups == 2 * K
         err[K] = _nrmse(fit.model.evaluate(s.val_a, s.val_b), s.val_y)
     assert err[2] < 0.02 and err[2] < 0.5 * err[1], err
+
+
+def test_als_fits_a_sum_that_mixes_products_with_and_without_a_normal_factor():
+    """``rw_terms`` puts q(r) w(n.v) terms beside the p(n) q(r) w(n.v) products (texture names r1, w1 after
+    n0, r0, w0): ALS recovers an exact sum of one of each, which neither two NRW products nor one fit
+    as well."""
+    model = nrw_sum(2, S, seed=30, normal=(True, False))
+    target = _model_target(model)
+    s = _samples(target)
+    err = {}
+    for name, structure in {"NRW+RW": Structure("NR", 1, None, True, rw_terms=1),
+                            "NRW": Structure("NR", 1, None, True)}.items():
+        fit = sums.fit_sum(target, structure, "dual_paraboloid", S, s,
+                           LinearOptions(iterations=60, laplacian=1e-4, start="product"))
+        assert fit.solver["method"] == "als"
+        err[name] = _nrmse(fit.model.evaluate(s.val_a, s.val_b), s.val_y)
+        if name == "NRW+RW":
+            assert fit.model.lookups == 5
+            assert [[(f.projection, f.texture) for f in t.factors] for t in fit.model.terms] == [
+                [("n", "n0"), ("r", "r0"), ("nv", "w0")], [("r", "r1"), ("nv", "w1")]]
+            assert Structure.of(fit.solver["structure"]) == structure
+    assert err["NRW+RW"] < 0.02 and err["NRW+RW"] < 0.5 * err["NRW"], err
+
+
+def test_rw_terms_are_refused_where_they_mean_nothing():
+    with pytest.raises(HomofacError, match="rw_terms: the q\\(r\\) w\\(n.v\\) terms are for lighting"):
+        structures.skeleton(Structure("PQP", 1, rw_terms=1), "brdf", "brdf", "parabolic", 8)
+    with pytest.raises(HomofacError, match="rw_terms: R products are already"):
+        structures.skeleton(Structure("R", 1, None, True, rw_terms=1), "lighting", "lighting", "dual_paraboloid", 8)
+    with pytest.raises(HomofacError, match="rw_terms"):
+        pipeline.options("NR", rw_terms=-1)
 
 
 @pytest.mark.slow

@@ -168,7 +168,8 @@ class FitOptions(Options):
     w(n.v) in each product; for BRDFs w(cos_i) w(cos_o)), ``max_lookups`` (homofac chooses the structure
     within that many texture lookups per pixel, by validation error; :mod:`homofac.fit.structures`),
     ``reflection`` (lighting: one more fitted term, an r-only texture), ``prefiltered`` (lighting: the split
-    sum's P(r) W(n.v) computed and kept; the products fit corrections to it).
+    sum's P(r) W(n.v) computed and kept; the products fit corrections to it), ``rw_terms`` (lighting: J
+    more fitted terms q(r) w(n.v), without a normal texture, beside the K products).
     """
 
     parametrization: ParametrizationName = "NR"
@@ -184,13 +185,14 @@ class FitOptions(Options):
     nv_factor: bool = False
     reflection: bool = False
     prefiltered: bool = False
+    rw_terms: int = Field(0, ge=0, le=MAX_TERMS)
     max_lookups: Optional[int] = Field(None, ge=1, le=256)
     linear: Optional[LinearOptions] = None
 
     @property
     def is_sum(self) -> bool:
         """True when the fit is a linear-space sum of products rather than today's log-space product."""
-        return (self.terms > 1 or self.diffuse is not None or self.nv_factor or self.reflection
+        return (self.terms > 1 or self.diffuse is not None or self.nv_factor or self.reflection or self.rw_terms > 0
                 or self.prefiltered or self.max_lookups is not None or self.linear is not None)
 
 

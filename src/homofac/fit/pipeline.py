@@ -71,6 +71,7 @@ def factorize(
     nv_factor: bool | None = None,
     reflection: bool | None = None,
     prefiltered: bool | None = None,
+    rw_terms: int | None = None,
     max_lookups: int | None = None,
     linear: dict | None = None,
     baseline: dict | None = None,
@@ -103,6 +104,7 @@ def factorize(
         nv_factor: a 1D ``line`` texture w(n.v) in each product (BRDF: w(cos_i) w(cos_o)).
         reflection: one more fitted term, an r-only texture (lighting).
         prefiltered: keep the split sum's P(r) W(n.v) (computed) and fit corrections to it (lighting).
+        rw_terms: J more fitted terms q(r) w(n.v) without a normal texture, beside the K products (lighting).
         max_lookups: choose the structure (terms, nv_factor, diffuse) within this many texture lookups
             per pixel by validation error (:func:`homofac.fit.sums.choose`).
         linear: :class:`~homofac.fit.options.LinearOptions` of the linear-space fit as a dict
@@ -123,8 +125,8 @@ def factorize(
     t_start = time.perf_counter()
     opts = options(parametrization, mapper=mapper, texture_size=texture_size, sampling=sampling, solver=solver,
                    target_error=target_error, baseline=baseline, analysis=analysis, terms=terms, diffuse=diffuse,
-                   nv_factor=nv_factor, reflection=reflection, prefiltered=prefiltered, max_lookups=max_lookups,
-                   linear=linear)
+                   nv_factor=nv_factor, reflection=reflection, prefiltered=prefiltered, rw_terms=rw_terms,
+                   max_lookups=max_lookups, linear=linear)
     if not isinstance(target, Target):
         raise HomofacError(f"factorize needs a homofac Target (brdf_target or lighting_target), got {type(target).__name__}")
     mapper = opts.mapper or default_mapper(target.kind)
@@ -231,12 +233,13 @@ def _sums(target: Target, opts: FitOptions, mapper: str, samples: Samples, recor
         )
 
     if opts.max_lookups is None and opts.target_error is None:
-        return fit(Structure(opts.parametrization, opts.terms, opts.diffuse, opts.nv_factor, opts.reflection,
-                                   opts.prefiltered))
+        return fit(Structure.of(opts))
     if len(samples.val_a) == 0:
         raise HomofacError("max_lookups and target_error choose by validation error: sampling.validation must be > 0")
     budget = opts.max_lookups or DEFAULT_MAX_LOOKUPS
-    has_d = sums.has_diffuse(target)
+    # lighting: a fitted n-only texture wherever the model has a kd (it starts at kd/pi E(n), which may
+    # be 0) -- a near-mirror under lamps fits better with it; BRDF: the constant kd/pi term only when kd > 0
+    has_d = sums.diffuse_albedo(target) is not None if target.kind == "lighting" else sums.has_diffuse(target)
     pick = structures.ladder if opts.target_error is not None else structures.candidates
     cands = pick(target.kind, budget, parametrization=opts.parametrization, has_diffuse=has_d)
     if opts.diffuse is not None:  # a diffuse term asked for explicitly constrains the search

@@ -71,8 +71,7 @@ def _structure(result) -> Structure | None:
     rec = (result.solver or {}).get("structure")
     if not isinstance(rec, dict):
         return None
-    return Structure(rec["parametrization"], int(rec["terms"]), rec.get("diffuse"), bool(rec.get("nv_factor")),
-                     bool(rec.get("reflection")), bool(rec.get("prefiltered")))
+    return Structure.of(rec)
 
 
 def from_fit(opts: FitOptions, kind: str, samples: Samples, result, mapper: str, scene=None) -> RefitState:
@@ -96,8 +95,7 @@ def from_layout(opts: FitOptions, kind: str, samples: Samples, mapper: str, scen
     """The state of the layout ``opts`` describes (no fit yet: products, sums and baselines of fixed
     structure), on the directions of ``samples`` (``scene``: the scene of a scene sampling)."""
     mode = _mode(opts)
-    structure = (Structure(opts.parametrization, opts.terms, opts.diffuse, opts.nv_factor, opts.reflection,
-                           opts.prefiltered) if mode == "sum" else None)
+    structure = Structure.of(opts) if mode == "sum" else None
     train = sampling.Pairs(np.asarray(samples.a, np.float32), np.asarray(samples.b, np.float32))
     val = sampling.Pairs(np.asarray(samples.val_a, np.float32), np.asarray(samples.val_b, np.float32))
     groups = val_groups = None

@@ -12,6 +12,9 @@ A :class:`Structure` is the pinned config of a sum (``terms: K``, ``diffuse: exa
   ``kd/pi cos(theta_i)`` (a ``line`` texture of ``cos_i`` holding x) for ``brdf_cos``;
 * ``nv_factor``: each fitted term also reads a ``line`` texture ``w_t`` at ``nv`` (lighting) or at
   ``cos_i`` and ``cos_o`` (BRDF, the same texture twice: reciprocal for PQP);
+* ``rw_terms`` (lighting): J more fitted terms ``q_t(r) w_t(n.v)`` without a normal texture (two lookups
+  each) after the K products: a sum can mix products that carry p(n) (they help under a sun) with ones
+  that do not (they fit lamp highlights better; docs/sums.md);
 * ``reflection`` (lighting): one more fitted term, an r-only texture ``R`` (one lookup). Within a lookup
   budget it is worth more than an n.v-only or n-only term (gold under lamps: 0.83 -> 0.78 of
   split-sum at 8 lookups);
@@ -62,16 +65,26 @@ class Structure(NamedTuple):
     nv_factor: bool = False
     reflection: bool = False  # lighting: one more term, a fitted r-only texture q(r) (one lookup)
     prefiltered: bool = False  # lighting: the split sum's P(r) W(n.v) computed, not fitted (two lookups)
+    rw_terms: int = 0  # lighting: this many more fitted terms q(r) w(n.v) (two lookups each)
+
+    @classmethod
+    def of(cls, rec) -> "Structure":
+        """The structure of a record (:meth:`record`, the result's ``solver.structure``) or of options
+        with the same attribute names (:class:`~homofac.fit.options.FitOptions`)."""
+        get = rec.get if isinstance(rec, dict) else (lambda k, d=None: getattr(rec, k, d))
+        return cls(get("parametrization"), int(get("terms", 1)), get("diffuse"), bool(get("nv_factor", False)),
+                   bool(get("reflection", False)), bool(get("prefiltered", False)), int(get("rw_terms", 0) or 0))
 
     def label(self) -> str:
         d = {None: "", "exact": "E+", "fitted": "E'+"}[self.diffuse] + ("SS+" if self.prefiltered else "")
         w = "W" if self.nv_factor and not _has_nv(self.parametrization) else ""
-        return f"{d}{self.parametrization}{w} x{self.terms}{'+R' if self.reflection else ''}"
+        rw = f"+RW x{self.rw_terms}" if self.rw_terms else ""
+        return f"{d}{self.parametrization}{w} x{self.terms}{rw}{'+R' if self.reflection else ''}"
 
     def record(self) -> dict:
         return {"parametrization": self.parametrization, "terms": int(self.terms), "diffuse": self.diffuse,
                 "nv_factor": bool(self.nv_factor or _has_nv(self.parametrization)), "reflection": bool(self.reflection),
-                "prefiltered": bool(self.prefiltered)}
+                "prefiltered": bool(self.prefiltered), "rw_terms": int(self.rw_terms)}
 
 
 def _has_nv(parametrization: str) -> bool:
@@ -100,7 +113,7 @@ def skeleton(structure: Structure, kind: str, quantity: str, mapper: str, size: 
             raise HomofacError("prefiltered: the split sum's specular term is for lighting targets")
         textures += [TextureSpec("P", mapper, size, "prefiltered"), TextureSpec("W", "line", line_size, "dfg")]
         terms.append(TermSpec((("r", "P"), ("nv", "W")), "prefiltered", False))
-    many = structure.terms > 1
+    many = structure.terms + structure.rw_terms > 1
     for t in range(structure.terms):
         suffix = str(t) if many else ""
         names = [f"{name}{suffix}" for name in p.textures]
@@ -113,6 +126,16 @@ def skeleton(structure: Structure, kind: str, quantity: str, mapper: str, size: 
             textures.append(TextureSpec(w, "line", line_size, "nv"))
             factors += [("nv", w)] if kind == "lighting" else [("cos_i", w), ("cos_o", w)]
         terms.append(TermSpec(tuple(factors), "fitted", True))
+    if structure.rw_terms:
+        if kind != "lighting":
+            raise HomofacError("rw_terms: the q(r) w(n.v) terms are for lighting targets")
+        if p.textures == ("r",) or "r" not in {f.projection for f in p.factors}:
+            raise HomofacError(f"rw_terms: {p.name} products are already q(r) w(n.v) or lack an r factor; "
+                               f"use terms (rw_terms adds them beside NR products)")
+    for t in range(structure.terms, structure.terms + structure.rw_terms):
+        r, w = f"r{t}", f"w{t}"
+        textures += [TextureSpec(r, mapper, size, "factor"), TextureSpec(w, "line", line_size, "nv")]
+        terms.append(TermSpec((("r", r), ("nv", w)), "fitted", True))
     if structure.reflection:
         if kind != "lighting":
             raise HomofacError("reflection: the r-only term is for lighting targets")
@@ -135,10 +158,14 @@ def candidates(kind: str, max_lookups: int, *, parametrization: str | None = Non
     with the n.v factor and, when the material has a diffuse part, a fitted diffuse texture: more terms,
     a free diffuse texture and w(n.v) never fit worse, so the smaller variants are not tried; a lookup
     left over goes to the r-only term. ``parametrization`` defaults to NR (lighting) and PQP
-    (BRDF). :func:`homofac.fit.sums.choose` fits them and keeps the best on the validation pairs.
-    The products without a normal factor (``parametrization: R`` with ``nv_factor``) are not among
-    them: the choice on the fit's own validation pairs picked them where the ground truth did not
-    (plastic / studio 0.405 against 0.371; docs/sums.md).
+    (BRDF); with NR the products without p(n), ``q_t(r) w_t(n.v)`` (parametrization R with the n.v
+    factor), are candidates too (a near-mirror under lamps fits them better: 0.49 against 0.59 nrmse).
+    :func:`homofac.fit.sums.choose` fits them and keeps the best on the validation pairs; the errors
+    are heavy-tailed (the worst 0.1 % of pairs hold up to half the squared error): 5000 validation pairs
+    ranked E'+NRW and E'+RW+R unlike the ground truth on two of three cases, 20000 (the default) at the
+    same light resolution alike on all three (docs/sums.md).
+    Sums that mix both kinds of product (``rw_terms``) are not candidates: they fitted worse than
+    either kind alone (docs/sums.md).
     """
     return _sorted(_variants(kind, max_lookups, parametrization, has_diffuse, max_terms, largest=True))
 
@@ -168,6 +195,14 @@ def _variants(kind, max_lookups, parametrization, has_diffuse, max_terms, larges
         if kind == "lighting" and fits and lookups(fits[-1]._replace(reflection=True), kind) <= max_lookups:
             fits.append(fits[-1]._replace(reflection=True))  # a lookup left over: the r-only term
         out += fits[-1:] if largest else fits
+    if kind == "lighting" and base == "NR":
+        # products without p(n): E' + sum_t q_t(r) w_t(n.v) [+ R(r)], the split sum's form with K free terms
+        for d in diffuses:
+            fits = [Structure("R", k, d, True) for k in range(1, max_terms + 1)
+                    if lookups(Structure("R", k, d, True), kind) <= max_lookups]
+            if fits and lookups(fits[-1]._replace(reflection=True), kind) <= max_lookups:
+                fits.append(fits[-1]._replace(reflection=True))
+            out += fits[-1:] if largest else fits
     if not out:
         smallest = lookups(Structure(base, 1, diffuses[0], False), kind)
         raise HomofacError(f"max_lookups {max_lookups}: no structure of {base} fits (the smallest needs {smallest})")
