@@ -73,28 +73,45 @@ def relative_error(approx: Float[np.ndarray, "N 3"], exact: Float[np.ndarray, "N
     return np.mean(np.abs(approx - exact), axis=-1) / np.maximum(e, tau)
 
 
+def _block_values(target, a, b, light: Light) -> np.ndarray:
+    """The displayed exact values of one block of ``_BLOCK`` pairs (fixed shapes: one compile each)."""
+    y = evaluate(target, a, b, chunk=_BLOCK)
+    if target.kind == "brdf":
+        y = target.shown(jnp.asarray(a), y) * jnp.asarray(np.broadcast_to(light.irradiance, (3,)), y.dtype)
+    return np.asarray(y, np.float32)
+
+
+def warm_exact(target, light: Light = Light()) -> None:
+    """Compile (and run once) the programs of :func:`exact_values` on a dummy block.
+
+    :func:`preview` calls it before the GL render: XLA's CPU compiler then does not run right after
+    Mesa's llvmpipe, in whose wake a compile segfaulted twice in CI (two LLVMs in one process; the
+    slow suite's README test, ``hf.gl.preview``).
+    """
+    z = np.zeros((_BLOCK, 3), np.float32)
+    z[:, 2] = 1.0
+    _block_values(target, z, z, light)
+
+
 def exact_values(target, frame: Frame, light: Light = Light()) -> Float[np.ndarray, "N 3"]:
     """The exact target at the frame's covered pixels (same arguments as the shader), as displayed.
 
     Lighting: ``L(v, n)`` (0 where n.v <= 0). BRDF: ``f(wi, wo) cos(theta_i) E`` for the light's
-    irradiance E (0 below either horizon).
+    irradiance E (0 below either horizon). Padded to blocks of ``_BLOCK`` pairs in numpy, so that
+    every picture size runs the same compiled programs (:func:`warm_exact`).
     """
-    a = jnp.asarray(frame.a[frame.mask])
-    b = jnp.asarray(frame.b[frame.mask])
-    if len(a) == 0:
-        return np.zeros((0, 3), np.float32)
+    a = np.asarray(frame.a[frame.mask], np.float32)
+    b = np.asarray(frame.b[frame.mask], np.float32)
     n = len(a)
-    pad = (-n) % _BLOCK  # fixed-shape blocks: one compile for every picture size
-    a_p = jnp.concatenate([a, jnp.broadcast_to(a[:1], (pad, 3))])
-    b_p = jnp.concatenate([b, jnp.broadcast_to(b[:1], (pad, 3))])
-    y = jnp.concatenate([evaluate(target, a_p[i : i + _BLOCK], b_p[i : i + _BLOCK], chunk=_BLOCK)
-                         for i in range(0, n + pad, _BLOCK)])[:n]
-    if target.kind == "brdf":
-        y = target.shown(a, y) * jnp.asarray(np.broadcast_to(light.irradiance, (3,)), y.dtype)
-        ok = (a[:, 2] > 0) & (b[:, 2] > 0)
-    else:
-        ok = jnp.sum(a * b, axis=-1) > 0
-    return np.asarray(jnp.where(ok[:, None], y, 0.0), np.float32)
+    if n == 0:
+        return np.zeros((0, 3), np.float32)
+    pad = (-n) % _BLOCK
+    a_p = np.concatenate([a, np.broadcast_to(a[:1], (pad, 3))])
+    b_p = np.concatenate([b, np.broadcast_to(b[:1], (pad, 3))])
+    y = np.concatenate([_block_values(target, a_p[i : i + _BLOCK], b_p[i : i + _BLOCK], light)
+                        for i in range(0, n + pad, _BLOCK)])[:n]
+    ok = ((a[:, 2] > 0) & (b[:, 2] > 0)) if target.kind == "brdf" else (np.sum(a * b, axis=-1) > 0)
+    return np.where(ok[:, None], y, 0.0).astype(np.float32)
 
 
 def _font(size: int):
@@ -181,6 +198,8 @@ def preview(
     if target is not None and target.kind != fac.kind:
         raise HomofacError(f"target kind {target.kind} does not match the factorization ({fac.kind})")
     name = mesh if isinstance(mesh, str) else "mesh"
+    if target is not None:
+        warm_exact(target, light)
     frame = render(fac, mesh, size=size, camera=camera, light=light)
     approx = frame.value[frame.mask]
     exact = exact_values(target, frame, light) if target is not None else None
@@ -216,5 +235,5 @@ def write_preview(fac, path, target=None, **kwargs) -> Path:
     return path
 
 
-__all__ = ["auto_exposure", "colormap", "compose", "exact_values", "preview", "relative_error", "srgb",
+__all__ = ["auto_exposure", "colormap", "compose", "exact_values", "preview", "warm_exact", "relative_error", "srgb",
            "to_display", "write_preview"]
