@@ -79,8 +79,6 @@ METHODS = {
     "E'+NRW+RW+R": {"parametrization": "NR", "diffuse": "fitted", "nv_factor": True, "rw_terms": 1, "reflection": True,
                     "sampling": GRID},
     "E'+NRW+RW x2": {"parametrization": "NR", "diffuse": "fitted", "nv_factor": True, "rw_terms": 2, "sampling": GRID},
-    "E'+NRW+RW x2 pol8": {"parametrization": "NR", "diffuse": "fitted", "nv_factor": True, "rw_terms": 2,
-                          "linear": {"polish": 8}, "sampling": GRID},
     "E'+SS+NRW+R": {"parametrization": "NR", "diffuse": "fitted", "nv_factor": True, "prefiltered": True,
                     "reflection": True, "sampling": GRID},
     "E+NRW x5": {"parametrization": "NR", "terms": 5, "diffuse": "exact", "nv_factor": True, "sampling": GRID},

@@ -19,8 +19,6 @@ from pathlib import Path
 import jax
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-
 # Samples cached by the tests go to a private directory, never to the user's ~/.cache.
 os.environ.setdefault("HOMOFAC_CACHE_DIR", tempfile.mkdtemp(prefix="homofac-test-cache-"))
 # No persistent compilation cache, in this process or in the CLIs the tests start (see the docstring),

@@ -45,13 +45,12 @@ def nrw_sum(K: int = 2, S: int = 8, line: int = 32, seed: int = 10, normal: bool
     flags = normal if isinstance(normal, tuple) else (normal,) * K
     for t in range(K):
         s = "" if K == 1 else str(t)
-        normal = flags[t]
         n = [Texture(f"n{s}", "dual_paraboloid", S, jnp.asarray(smooth_texture("dual_paraboloid", S, seed + 3 * t)))]
-        textures += (n if normal else []) + [
+        textures += (n if flags[t] else []) + [
             Texture(f"r{s}", "dual_paraboloid", S, jnp.asarray(smooth_texture("dual_paraboloid", S, seed + 3 * t + 1))),
             Texture(f"w{s}", "line", line, jnp.asarray(smooth_texture("line", line, seed + 3 * t + 2))),
         ]
-        factors = ((Factor("n", f"n{s}"),) if normal else ()) + (Factor("r", f"r{s}"), Factor("nv", f"w{s}"))
+        factors = ((Factor("n", f"n{s}"),) if flags[t] else ()) + (Factor("r", f"r{s}"), Factor("nv", f"w{s}"))
         terms.append(Term(factors, jnp.asarray([1.0, 0.7, 0.5]) / (t + 1), "fitted"))
     return Factorization("lighting", "lighting", tuple(textures), tuple(terms), {}, "nrw_sum")
 

@@ -188,21 +188,17 @@ def _variants(kind, max_lookups, parametrization, has_diffuse, max_terms, larges
         diffuses: tuple = (None,)
     else:
         diffuses = ("fitted",) if kind == "lighting" else ("exact",)
+    families = [Structure(base, 1, d, not _has_nv(base), False, pre) for d in diffuses for pre in prefs]
+    if kind == "lighting" and base == "NR":
+        # products without p(n): E' + sum_t q_t(r) w_t(n.v) [+ R(r)], the split sum's form with K free terms
+        families += [Structure("R", 1, d, True) for d in diffuses]
     out = []
-    for nv, d, pre in ((not _has_nv(base), d, pre) for d in diffuses for pre in prefs):
-        fits = [Structure(base, k, d, nv, False, pre) for k in range(1, max_terms + 1)
-                if lookups(Structure(base, k, d, nv, False, pre), kind) <= max_lookups]
+    for family in families:
+        fits = [family._replace(terms=k) for k in range(1, max_terms + 1)
+                if lookups(family._replace(terms=k), kind) <= max_lookups]
         if kind == "lighting" and fits and lookups(fits[-1]._replace(reflection=True), kind) <= max_lookups:
             fits.append(fits[-1]._replace(reflection=True))  # a lookup left over: the r-only term
         out += fits[-1:] if largest else fits
-    if kind == "lighting" and base == "NR":
-        # products without p(n): E' + sum_t q_t(r) w_t(n.v) [+ R(r)], the split sum's form with K free terms
-        for d in diffuses:
-            fits = [Structure("R", k, d, True) for k in range(1, max_terms + 1)
-                    if lookups(Structure("R", k, d, True), kind) <= max_lookups]
-            if fits and lookups(fits[-1]._replace(reflection=True), kind) <= max_lookups:
-                fits.append(fits[-1]._replace(reflection=True))
-            out += fits[-1:] if largest else fits
     if not out:
         smallest = lookups(Structure(base, 1, diffuses[0], False), kind)
         raise HomofacError(f"max_lookups {max_lookups}: no structure of {base} fits (the smallest needs {smallest})")
