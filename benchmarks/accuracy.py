@@ -73,6 +73,12 @@ METHODS = {
                               "reflection": True, "linear": {"nv_balance": 1.0, "polish": 8}, "sampling": GRID},
     "E'+NRW bal1 pol8": {"parametrization": "NR", "diffuse": "fitted", "nv_factor": True,
                          "linear": {"nv_balance": 1.0, "polish": 8}, "sampling": GRID},
+    "E'+NROW": {"parametrization": "NRO", "diffuse": "fitted", "nv_factor": True, "sampling": GRID},
+    "E'+ROW+R": {"parametrization": "RO", "diffuse": "fitted", "nv_factor": True, "reflection": True, "sampling": GRID},
+    "E'+NROW x2+R": {"parametrization": "NRO", "terms": 2, "diffuse": "fitted", "nv_factor": True, "reflection": True,
+                     "sampling": GRID},
+    "E'+ROW x3+R": {"parametrization": "RO", "terms": 3, "diffuse": "fitted", "nv_factor": True, "reflection": True,
+                    "sampling": GRID},
     "E'+RW+R": {"parametrization": "R", "diffuse": "fitted", "nv_factor": True, "reflection": True, "sampling": GRID},
     "E'+RW x3+R": {"parametrization": "R", "terms": 3, "diffuse": "fitted", "nv_factor": True, "reflection": True,
                    "sampling": GRID},
@@ -190,13 +196,18 @@ def run_case(material: str, env: str, methods: list[str], fit_resolution: int, s
         sampling_cfg = {"kind": "texels", "size": 24, "validation": 20000, **kw.pop("sampling", {})}
         if sampling_cfg["kind"] == "grid":
             sampling_cfg.update(size=size, mapper="dual_paraboloid")
-        skey = json.dumps(sampling_cfg, sort_keys=True)
+        # the grid design of the off-specular products (NRO, RO) puts r_off on texel centres: their own pairs
+        target_p = hf.light.lighting_target(target.fn.brdf, target.fn.env, parametrization=p)
+        grid_p = p if p in hf.param.parametrizations.PARAMETRIZATIONS else "NR"
+        skey = json.dumps([sampling_cfg, hf.param.parametrizations.reflection_projection(grid_p)], sort_keys=True)
         if skey not in samples_cache:
-            samples_cache[skey] = hf.fit.draw_samples(target, "NR", sampling_cfg)
+            samples_cache[skey] = hf.fit.draw_samples(target_p, grid_p, sampling_cfg)
         s = samples_cache[skey]
         t0 = time.perf_counter()
-        fac = hf.fit.factorize(hf.light.lighting_target(target.fn.brdf, target.fn.env, parametrization=p), p,
-                               texture_size=size, samples=s, **kw)
+        if "max_lookups" in kw:  # the chooser draws the grid pairs of each candidate's direction (r, r_off)
+            fac = hf.fit.factorize(target_p, p, texture_size=size, sampling=sampling_cfg, **kw)
+        else:
+            fac = hf.fit.factorize(target_p, p, texture_size=size, samples=s, **kw)
         fit_s = time.perf_counter() - t0
         approx = np.asarray(fac.evaluate(val.a, val.b), np.float64)
         row = {"method": name, "material": material, "environment": env, "lookups": fac.model.lookups,

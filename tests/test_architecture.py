@@ -128,7 +128,7 @@ def test_projection_records_are_complete(name):
     p = projections.get(name)
     assert p.doc and p.kind in projections.KINDS
     for lang in LANGUAGES:
-        src, _ = generate.projection_function(languages.get(lang), name, {"dominant": np.array([0.0, 0.0, 1.0])})
+        src, _ = generate.projection_function(languages.get(lang), name, projections.example_context())
         assert f"hf_proj_{name}" in src
 
 

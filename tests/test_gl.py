@@ -55,7 +55,7 @@ def test_every_mapper_and_projection_traces_to_every_language(language):
         src, _ = generate.mapper_function(languages.get(language), name)
         assert f"hf_map_{name}" in src
     for name in pj.PROJECTIONS:
-        src, _ = generate.projection_function(languages.get(language), name, {"dominant": np.array([0.0, 0.0, 1.0])})
+        src, _ = generate.projection_function(languages.get(language), name, pj.example_context())
         assert f"hf_proj_{name}" in src
 
 
@@ -103,11 +103,10 @@ def _pairs(kind: str, n: int):
 def test_glsl_projection_equals_python(name):
     proj = pj.PROJECTIONS[name]
     a, b = _pairs(proj.kind, 4000)
-    dominant = np.asarray([0.3, -0.5, 0.81], np.float32)
-    dominant /= np.linalg.norm(dominant)
+    ctx = pj.example_context()  # the dominant light of NRHD, the shift of r_off
     expr = f"vec3(hf_proj_{name}(a, b))" if proj.scalar else f"hf_proj_{name}(a, b)"
-    gpu = run_glsl(_library(projections=[name], context={"dominant": dominant}), expr, a, b)
-    cpu = np.asarray(proj.fn(jnp.asarray(a), jnp.asarray(b), {"dominant": jnp.asarray(dominant)}))
+    gpu = run_glsl(_library(projections=[name], context=ctx), expr, a, b)
+    cpu = np.asarray(proj.fn(jnp.asarray(a), jnp.asarray(b), {k: jnp.asarray(v, jnp.float32) for k, v in ctx.items()}))
     if proj.scalar:
         cpu = np.repeat(cpu[:, None], 3, axis=1)
     np.testing.assert_allclose(gpu, cpu, atol=1e-5)  # float32 rounding (GPU FMA, sqrt)

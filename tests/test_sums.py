@@ -74,9 +74,12 @@ def test_candidates_fit_the_budget_cheapest_first():
         assert c and max(n) <= budget and n == sorted(n)
         assert any(s.nv_factor for s in c)
     assert structures.candidates("lighting", 4, has_diffuse=False)[0].diffuse is None
-    # the products without p(n) (q(r) w(n.v), parametrization R) compete within each budget
-    assert [s.label() for s in structures.candidates("lighting", 4)] == ["E'+NRW x1", "E'+RW x1+R"]
-    assert [s.label() for s in structures.candidates("lighting", 3)] == ["E'+RW x1"]
+    # the products read at the off-specular reflection (NRO) and those without p(n) at it (q(r') w(n.v),
+    # parametrization RO) compete within each budget
+    assert [s.label() for s in structures.candidates("lighting", 4)] == ["E'+NRW x1", "E'+NROW x1", "E'+ROW x1+R"]
+    assert [s.label() for s in structures.candidates("lighting", 3)] == ["E'+ROW x1"]
+    assert [s.label() for s in structures.candidates("lighting", 8, parametrization="NRO")] == [
+        "E'+SS+NROW x1+R", "E'+NROW x2+R", "E'+ROW x3+R"]
     assert not any(s.rw_terms for b in (4, 8, 16) for s in structures.ladder("lighting", b))
     with pytest.raises(HomofacError, match="max_lookups 1"):
         structures.candidates("lighting", 1)

@@ -600,11 +600,10 @@ def load(out_dir, textures: str = "exr", *, max_bytes: int = 1 << 28) -> Result:
     quantity = doc.target.get("quantity", "lighting" if doc.kind == "lighting" else "brdf")
     context = {}
     for k, v in (doc.context or {}).items():
-        numeric = isinstance(v, list) and all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)
-        a = np.asarray(v, np.float32) if numeric else None
-        if a is None or a.shape != (3,) or not np.all(np.isfinite(a)):
-            raise HomofacError(f"{d / JSON_NAME}: context.{k} must be 3 finite numbers")
-        context[k] = a
+        try:
+            context[k] = pj.check_context(k, v)
+        except HomofacError as e:
+            raise HomofacError(f"{d / JSON_NAME}: {e}") from None
     has_png = all(t.png for t, _, _ in specs)
     quant = None
     if textures == "png" or has_png:

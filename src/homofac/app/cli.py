@@ -109,7 +109,7 @@ config keys (docs/config.md; unknown keys are errors):
   target:          kind (brdf | lighting), brdf {{model, ...its parameters}} (docs/models.md)
                    or materials [{{name, brdf}}, ...] (a library: OUT/<name>/ each, OUT/index.json),
                    environment {{file ({' | '.join(BUNDLED)} | a file), resolution, boost, lights, cull}},
-                   quantity (brdf | brdf_cos; brdf only), clamp, lobe_cull
+                   quantity (brdf | brdf_cos; brdf only), clamp, lobe_cull, shift (beta of r_off: NRO, RO)
   parametrization: {brdfs} (brdf); {lighting} (lighting); baselines: {' | '.join(baselines.BASELINES)}
   baseline:        options of a baseline (split_sum: irradiance, weighting, line_size; kautz_mccool: slices)
   analysis:        {{pair: nr | nv, mapper, size}}: Mahajan's in-out analysis of the target, recorded

@@ -66,6 +66,8 @@ class TargetOptions(Options):
     clamp: Optional[float] = Field(None, gt=0, allow_inf_nan=False)
     # lobe culling while sampling (Phong family): skip lights where every lobe < lobe_cull x its peak
     lobe_cull: Optional[float] = Field(None, gt=0, lt=1)
+    # beta of the off-specular reflection r_off (parametrizations NRO, RO); default: the BRDF's roughness
+    shift: Optional[float] = Field(None, ge=0, le=0.9, allow_inf_nan=False)
 
     @model_validator(mode="after")
     def _one_material_or_a_library(self):

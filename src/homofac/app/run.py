@@ -58,7 +58,7 @@ def build_target(cfg: Config, base: Path) -> tuple[Target, dict]:
     if cfg.target.lobe_cull is not None:
         info["lobe_cull"] = cfg.target.lobe_cull
     return lighting_target(brdf, env, parametrization=cfg.parametrization, clamp=cfg.target.clamp,
-                           lobe_tolerance=cfg.target.lobe_cull), info
+                           lobe_tolerance=cfg.target.lobe_cull, shift=cfg.target.shift), info
 
 
 def target_from_config(fac: Result, base: str | Path | None = None) -> Target | None:

@@ -22,9 +22,8 @@ from __future__ import annotations
 from typing import Callable
 
 from ..errors import HomofacError
-from ..light import dominant_direction
+from ..light import with_context
 from ..param import parametrizations as pz
-from ..target import Target
 from .system import parametrization_layout
 
 #: Texture sizes tried (each at most ``max_size``).
@@ -98,10 +97,8 @@ def choose(
 
 
 def _target_for(target, name: str):
-    """NRHD needs the dominant light direction (thesis eq. 66) in the target's context."""
-    if "dominant" not in pz.get(name).context or "dominant" in target.context:
-        return target
-    return Target(target.kind, target.fn, target.quantity, {**target.context, "dominant": dominant_direction(target.fn.env)})
+    """The target with the context ``name``'s projections need (NRHD's dominant light direction)."""
+    return with_context(target, name) if target.kind == "lighting" else target
 
 
 def _record(fac, target_error, tried, reason, met):

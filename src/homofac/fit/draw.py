@@ -12,6 +12,8 @@ import numpy as np
 
 from ..errors import HomofacError
 from ..options import validate
+from ..param import parametrizations as pz
+from ..param import projections as pj
 from ..target import Target
 from . import cache, sampling, scene
 from .options import SamplingOptions
@@ -34,7 +36,7 @@ def draw_samples(target: Target, parametrization: str, options: SamplingOptions 
     """
     log = log or (lambda msg: None)
     s = validate(SamplingOptions, options, "sampling")
-    settings = s.model_dump()
+    settings = cache_settings(s, target.kind, parametrization, target.context)
     if s.kind == "scene":  # the mesh file's content and the cameras (a bundled scene's own), not only names
         settings["mesh_sha256"] = scene.fingerprint(s)
         settings["cameras"] = [c.model_dump() for c in scene.resolve_cameras(s)]
@@ -51,10 +53,30 @@ def draw_samples(target: Target, parametrization: str, options: SamplingOptions 
     return samples
 
 
-def draw_pairs(kind: str, parametrization: str, s: SamplingOptions):
+def grid_projection(kind: str, parametrization: str, s: SamplingOptions) -> str:
+    """The direction the ``grid`` design puts on texel centres beside ``n``: the parametrization's
+    reflection-like projection (``r``, or ``r_off`` for NRO and RO)."""
+    if kind != "lighting" or s.kind != "grid" or parametrization not in pz.PARAMETRIZATIONS:
+        return "r"
+    return pz.reflection_projection(parametrization)
+
+
+def cache_settings(s: SamplingOptions, kind: str, parametrization: str, context: dict) -> dict:
+    """The sampling settings that key the sample cache: the options, and for a grid design on another
+    projection than ``r`` that projection and its context (``r_off``'s beta)."""
+    settings = s.model_dump()
+    proj = grid_projection(kind, parametrization, s)
+    if proj != "r":
+        keys = pj.get(proj).context
+        settings["grid_projection"] = {"projection": proj, **{k: np.asarray(context[k]).tolist() for k in keys}}
+    return settings
+
+
+def draw_pairs(kind: str, parametrization: str, s: SamplingOptions, context: dict | None = None):
     """The direction pairs of a sampling, without values: ``(train, validation, groups, val_groups)``
     (:class:`~homofac.fit.sampling.Pairs`; for lighting targets also the pairs grouped by normal, whose
-    flattening they are). Deterministic: the same settings give the same pairs (refits rely on it)."""
+    flattening they are). Deterministic: the same settings give the same pairs (refits rely on it).
+    ``context``: the target's projection context (the grid design of NRO reads ``shift``)."""
     smapper = s.mapper or default_mapper(kind)
     if s.kind == "scene":
         if kind != "lighting":
@@ -66,7 +88,8 @@ def draw_pairs(kind: str, parametrization: str, s: SamplingOptions):
     if kind == "lighting":
         # grouped by normal: per-normal work (weights, frames, diffuse, horizon culling) done once
         groups = sampling.grouped_pairs(s.kind, s.size, mapper=smapper, count=s.count, seed=s.seed,
-                                        view_size=s.view_size)
+                                        view_size=s.view_size, projection=grid_projection(kind, parametrization, s),
+                                        context=context)
         vgroups = sampling.grouped_random(s.validation, s.seed + 1)
         return groups.flatten(), vgroups.flatten(), groups, vgroups
     pairs = sampling.sample_pairs(
@@ -86,7 +109,7 @@ def _draw(target: Target, parametrization: str, s: SamplingOptions, log: Callabl
         log(f"sampling the scene's {len(sc)} covered pixels ({len(train)} training pairs)")
         y = sc.exact(target)
         return Samples(sc.normals[train], sc.views[train], y[train], sc.normals[val], sc.views[val], y[val])
-    pairs, val, groups, vgroups = draw_pairs(target.kind, parametrization, s)
+    pairs, val, groups, vgroups = draw_pairs(target.kind, parametrization, s, target.context)
     if len(pairs) == 0:
         raise HomofacError("sampling produced no valid direction pairs; increase sampling.size")
     if groups is not None:
@@ -100,4 +123,4 @@ def _draw(target: Target, parametrization: str, s: SamplingOptions, log: Callabl
     return Samples(pairs.a, pairs.b, y, val.a, val.b, val_y)
 
 
-__all__ = ["default_mapper", "draw_pairs", "draw_samples"]
+__all__ = ["cache_settings", "default_mapper", "draw_pairs", "draw_samples", "grid_projection"]

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import json
 import time
 from typing import Callable, Sequence
 
@@ -32,11 +33,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..errors import HomofacError
-from ..light import Lighting
+from ..light import Lighting, with_context
 from ..target import Target, evaluate
 from ..param import parametrizations as pz
 from . import cache, scene, transport
-from .draw import default_mapper, draw_pairs
+from .draw import cache_settings, default_mapper, draw_pairs, grid_projection
 from .options import FitOptions
 from .pipeline import factorize, options, quality_warnings, resolve_sampling
 from .product import zeros_rule
@@ -103,10 +104,10 @@ def library_values(targets: Sequence[Target], groups, val_groups, pairs, val_pai
 def _samples(targets, parametrization, s, log) -> tuple[list[Samples], object]:
     """The shared directions and every target's samples (from the sample cache where it has them)."""
     kind = targets[0].kind
-    pairs, val, groups, vgroups = draw_pairs(kind, parametrization, s)
+    pairs, val, groups, vgroups = draw_pairs(kind, parametrization, s, targets[0].context)
     if len(pairs) == 0:
         raise HomofacError("sampling produced no valid direction pairs; increase sampling.size")
-    settings = s.model_dump()
+    settings = cache_settings(s, kind, parametrization, targets[0].context)
     keys = [cache.key(t, settings, parametrization) if s.cache else None for t in targets]
     hits = [cache.load(k, validation=s.validation) if k is not None else None for k in keys]
     todo = [i for i, h in enumerate(hits) if h is None]
@@ -149,9 +150,15 @@ def factorize_many(targets: Sequence[Target], parametrization: str = "NR", *, co
             raise HomofacError(f"factorize_many: {len(seq)} {what} for {len(targets)} targets")
     opts = options(parametrization, **keywords)
     kind = targets[0].kind
+    if kind == "lighting" and opts.parametrization in pz.PARAMETRIZATIONS:
+        targets = [with_context(t, opts.parametrization) for t in targets]  # NRHD's dominant light, NRO's shift
     mapper = opts.mapper or default_mapper(kind)
     t0 = time.perf_counter()
     resolved = resolve_sampling(opts, kind, mapper)
+    if grid_projection(kind, opts.parametrization, resolved) != "r" and len(
+            {json.dumps(cache_settings(resolved, kind, opts.parametrization, t.context)) for t in targets}) > 1:
+        raise HomofacError(f"{opts.parametrization} on grid samples: the materials' off-specular shifts differ, so "
+                           f"they share no training pairs; fit them one by one or give them one shift (lighting_target(..., shift=))")
     samples, _ = _samples(targets, opts.parametrization, resolved, log)
     sc = scene.load(resolved) if resolved.kind == "scene" else None  # image-space metrics of every target
     sample_s = time.perf_counter() - t0

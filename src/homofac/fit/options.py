@@ -156,7 +156,7 @@ class FitOptions(Options):
     """What :func:`homofac.fit.factorize` takes besides the target (and the config's top level).
 
     ``parametrization``: a registered parametrization of the target's kind (``IV``, ``GSHD``, ``PQP`` for
-    BRDFs; ``N``, ``R``, ``NR``, ``NRV``, ``NRHD``, ``NRW`` for lighting), or a baseline (``split_sum``,
+    BRDFs; ``N``, ``R``, ``NR``, ``NRV``, ``NRHD``, ``NRW``, ``NRO``, ``RO`` for lighting), or a baseline (``split_sum``,
     ``kautz_mccool``; options in ``baseline``). ``mapper``: of the direction textures (default parabolic
     for BRDFs, dual_paraboloid for lighting). ``texture_size``: S of the mapper. ``target_error``: the
     validation nrmse to meet (fit/auto.py picks the cheapest candidate). ``analysis``: record the

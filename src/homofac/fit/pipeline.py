@@ -16,11 +16,12 @@ import numpy as np
 
 from .. import baselines
 from ..errors import HomofacError
+from ..light import with_context
 from ..options import validate
 from ..param import parametrizations as pz
 from ..target import Target
 from . import auto, polish, scene, structures, sums
-from .draw import default_mapper, draw_samples
+from .draw import default_mapper, draw_samples, grid_projection
 from .metrics import measure
 from .options import AnalysisOptions, FitOptions, LinearOptions, SamplingOptions
 from .product import fit_product
@@ -141,12 +142,15 @@ def factorize(
                            f"{opts.parametrization} is a baseline (computed, not fitted)")
     if opts.is_sum:
         pz.get(opts.parametrization, target.kind)
+    if target.kind == "lighting" and opts.parametrization in pz.PARAMETRIZATIONS:
+        target = with_context(target, opts.parametrization)  # NRHD's dominant light, NRO's shift
     t0 = time.perf_counter()
     resolved = resolve_sampling(opts, target.kind, mapper)
     if opts.linear is not None and opts.linear.polish > 0 and samples is None and resolved.kind != "grid":
         raise HomofacError(f"{sums.POLISH_NEEDS_GRID}, not sampling.kind: {resolved.kind}")
     if opts.linear is not None and opts.linear.nv_balance > 0 and target.kind != "lighting":
         raise HomofacError(sums.NV_BALANCE_NEEDS_LIGHTING)
+    given = samples is not None
     if samples is None:
         samples = draw_samples(target, opts.parametrization, resolved, log)
     sample_s = time.perf_counter() - t0
@@ -166,7 +170,7 @@ def factorize(
         )
 
     if opts.is_sum:
-        result = _sums(target, opts, mapper, samples, record, sample_s, log)
+        result, target, samples = _sums(target, opts, mapper, samples, record, sample_s, log, resolved, given)
     elif opts.target_error is not None:
         result = auto.choose(target, opts.target_error, fit, samples, mapper=mapper, max_size=opts.texture_size,
                              log=log)
@@ -203,11 +207,28 @@ def resolve_sampling(opts: FitOptions, kind: str, mapper: str) -> SamplingOption
 
 
 def _sums(target: Target, opts: FitOptions, mapper: str, samples: Samples, record: dict, sample_s: float,
-          log) -> Result:
-    """A linear-space sum of products: the structure of the options, or the one chosen within a budget."""
+          log, resolved: SamplingOptions, given: bool) -> tuple[Result, Target, Samples]:
+    """A linear-space sum of products: the structure of the options, or the one chosen within a budget;
+    with the target (its projection context) and the samples the kept structure was fitted on.
+
+    The grid design puts ``n`` and the structure's reflection-like direction on texel centres (``r``, or
+    ``r_off`` for NRO and RO): candidates on another direction than the options' parametrization get
+    grid samples of their own, drawn once per direction (the validation pairs are the same for all),
+    unless the samples were given (then only the candidates on their direction are tried)."""
     lin = opts.linear or LinearOptions()
     eps = float(opts.solver.epsilon)
     polished: dict = {}
+    pools = {grid_projection(target.kind, opts.parametrization, resolved): (target, samples, sample_s)}
+
+    def pool(structure: Structure) -> tuple[Target, Samples, float]:
+        proj = grid_projection(target.kind, structure.parametrization, resolved)
+        if proj not in pools:
+            t0 = time.perf_counter()
+            tgt = with_context(target, structure.parametrization)
+            smp = draw_samples(tgt, structure.parametrization, resolved, log)
+            check_values(np.asarray(smp.y), "training")
+            pools[proj] = (tgt, smp, time.perf_counter() - t0)
+        return pools[proj]
 
     def pairs() -> Samples:  # the polish's off-grid pairs, drawn once for every candidate structure
         if "pairs" not in polished:
@@ -218,22 +239,28 @@ def _sums(target: Target, opts: FitOptions, mapper: str, samples: Samples, recor
         return polished["pairs"]
 
     def fit(structure: Structure) -> Result:
-        sf = sums.fit_sum(target, structure, mapper, opts.texture_size, samples, lin, log)
+        tgt, smp, s_s = pool(structure)
+        sf = sums.fit_sum(tgt, structure, mapper, opts.texture_size, smp, lin, log)
         if lin.polish > 0:
-            sf = polish.polish(target, structure, mapper, opts.texture_size, sf, samples, pairs(), lin, log)
-        result = Result(sf.model, solver=sf.solver, warnings=sf.warnings, **record)
+            sf = polish.polish(tgt, structure, mapper, opts.texture_size, sf, smp, pairs(), lin, log)
+        rec = {**record, "samples": smp if record.get("samples") is not None else None}
+        result = Result(sf.model, solver=sf.solver, warnings=sf.warnings, **rec)
         log("measuring errors")
-        mets = measure(result, target, samples, eps=eps)
+        mets = measure(result, tgt, smp, eps=eps)
         extra = {"polish_sample_s": polished["sample_s"]} if "sample_s" in polished else {}
         return result.replace(
             metrics=mets, warnings=tuple(result.warnings) + tuple(quality_warnings(mets)),
-            timings={"sample_s": sample_s, "assemble_s": sf.assemble_s, "solve_s": sf.solve_s, **extra},
-            counts={"train": int(len(samples.a)), "validation": int(len(samples.val_a)), "unknowns": sf.unknowns,
-                    "lights": int(getattr(target.fn, "n_lights", 0)), "lookups": int(sf.model.lookups)},
+            timings={"sample_s": s_s, "assemble_s": sf.assemble_s, "solve_s": sf.solve_s, **extra},
+            counts={"train": int(len(smp.a)), "validation": int(len(smp.val_a)), "unknowns": sf.unknowns,
+                    "lights": int(getattr(tgt.fn, "n_lights", 0)), "lookups": int(sf.model.lookups)},
         )
 
+    def kept(result: Result) -> tuple[Result, Target, Samples]:
+        tgt, smp, _ = pool(Structure.of(result.solver["structure"]))
+        return result, tgt, smp
+
     if opts.max_lookups is None and opts.target_error is None:
-        return fit(Structure.of(opts))
+        return kept(fit(Structure.of(opts)))
     if len(samples.val_a) == 0:
         raise HomofacError("max_lookups and target_error choose by validation error: sampling.validation must be > 0")
     budget = opts.max_lookups or DEFAULT_MAX_LOOKUPS
@@ -244,6 +271,9 @@ def _sums(target: Target, opts: FitOptions, mapper: str, samples: Samples, recor
     cands = pick(target.kind, budget, parametrization=opts.parametrization, has_diffuse=has_d)
     if opts.diffuse is not None:  # a diffuse term asked for explicitly constrains the search
         cands = [c for c in cands if c.diffuse == opts.diffuse] or cands
+    if given:  # samples given: only the candidates on their grid direction
+        own = grid_projection(target.kind, opts.parametrization, resolved)
+        cands = [c for c in cands if grid_projection(target.kind, c.parametrization, resolved) == own] or cands
     analysis = None
     if target.kind == "lighting":
         # Mahajan et al. 2008: the rank-K error of the gridded target bounds what K products p(n) q(r)
@@ -252,7 +282,7 @@ def _sums(target: Target, opts: FitOptions, mapper: str, samples: Samples, recor
         log(f"in-out analysis ({a.pair}) on {a.mapper} {a.size}")
         analysis = baselines.analyse(target, a.pair, a.mapper, a.size).record()
     result = sums.choose(fit, cands, target_error=opts.target_error, max_lookups=budget, log=log)
-    return result if analysis is None else result.replace(analysis=analysis)
+    return kept(result if analysis is None else result.replace(analysis=analysis))
 
 
 def _baseline(target: Target, opts: FitOptions, mapper: str, samples: Samples, record: dict, log) -> Result:

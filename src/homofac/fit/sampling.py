@@ -18,7 +18,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..errors import HomofacError
-from ..param import mappers
+from ..param import mappers, projections
 
 #: Smallest cosine accepted as "above the surface" for a valid pair.
 MIN_COS = 1e-4
@@ -189,11 +189,12 @@ def group_product(normals: np.ndarray, views: np.ndarray) -> Grouped:
 
 
 def grouped_pairs(sampling_kind: str, size: int, *, mapper: str, count: int = 0, seed: int = 0,
-                  view_size: int | None = None) -> Grouped:
-    """Lighting training pairs grouped by normal (same pairs as :func:`sample_pairs`)."""
+                  view_size: int | None = None, projection: str = "r", context: dict | None = None) -> Grouped:
+    """Lighting training pairs grouped by normal (same pairs as :func:`sample_pairs`); ``projection``
+    (and its ``context``): the direction the ``grid`` design puts on texel centres beside ``n``."""
     view_size = view_size or size
     if sampling_kind == "grid":
-        return grouped_grid(mapper, size, count, seed)
+        return grouped_grid(mapper, size, count, seed, projection=projection, context=context)
     if sampling_kind in ("texels", "auto"):
         m = mappers.get(mapper)
         if not m.covers_sphere:
@@ -227,48 +228,60 @@ def grouped_random(count: int, seed: int) -> Grouped:
 GRID_COUNT = 300_000
 
 
-def grid_texel_pairs(mapper: str, size: int, count: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """``count`` pairs ``(a, b)`` of flat texel indices of a ``size`` grid of ``mapper``: texel centres
-    inside the domain, drawn with probability proportional to the texel solid angles and kept when
-    ``n_a . r_b > MIN_COS``, so ``(n, r)`` (and hence ``(n, v)``) follow the validation distribution."""
+def grid_texel_pairs(mapper: str, size: int, count: int, seed: int, projection: str = "r",
+                     context: dict | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``count`` pairs ``(a, b)`` of flat texel indices of a ``size`` grid of ``mapper`` and their views
+    ``v``: texel centres ``n = dirs[a]`` and ``p = dirs[b]`` inside the domain, drawn with probability
+    proportional to the texel solid angles, ``v`` the view that ``projection`` maps to ``p`` at ``n``
+    (for ``r``: ``v = 2 (n.p) n - p``), kept when ``n.v > MIN_COS`` and with the projection's density
+    (d omega_v / d omega_p, :attr:`homofac.param.projections.Projection.invert`), so ``(n, v)`` follow
+    the validation distribution."""
     m = mappers.get(mapper)
+    proj = projections.get(projection, "lighting")
+    if proj.invert is None or proj.scalar:
+        raise HomofacError(f"sampling.kind: grid puts n and a direction on texel centres; {projection} has no inverse")
+    ctx = context or {}
     dirs = np.asarray(mappers.texel_directions(m, size), np.float64).reshape(-1, 3)
     inside = np.asarray(mappers.inside_mask(m, size)).reshape(-1)
     omega = np.asarray(mappers.texel_solid_angles(m, size), np.float64).reshape(-1)
     idx = np.nonzero(inside & (omega > 0))[0]
     pr = omega[idx] / omega[idx].sum()
     rng = np.random.default_rng(seed)
-    out_a, out_b, have = [], [], 0
-    while have < count:  # rejection rounds (about 2), vectorised
-        k = 2 * (count - have) + 64
+    out_a, out_b, out_v, have, rate = [], [], [], 0, 0.5
+    while have < count:  # rejection rounds (about 2 for r), vectorised; the batch follows the acceptance rate
+        k = int(min(4_000_000, (count - have) / rate + 64))
         a = idx[rng.choice(len(idx), size=k, p=pr)]
         b = idx[rng.choice(len(idx), size=k, p=pr)]
-        keep = np.sum(dirs[a] * dirs[b], axis=-1) > MIN_COS
+        v, density = proj.invert(dirs[a], dirs[b], ctx)
+        keep = np.sum(dirs[a] * v, axis=-1) > MIN_COS
+        if np.any(density < 1):  # r (an isometry) draws nothing more: its pairs are those of earlier versions
+            keep &= rng.random(k) < density
+            rate = max(float(keep.mean()), 1e-3)
         out_a.append(a[keep])
         out_b.append(b[keep])
+        out_v.append(v[keep])
         have += int(keep.sum())
-    return np.concatenate(out_a)[:count], np.concatenate(out_b)[:count]
+    return np.concatenate(out_a)[:count], np.concatenate(out_b)[:count], np.concatenate(out_v)[:count]
 
 
-def grouped_grid(mapper: str, size: int, count: int, seed: int) -> Grouped:
-    """Lighting pairs of the ``grid`` design, grouped by normal: ``n`` and the mirror direction
-    ``r = 2 (n.v) n - v`` are texel centres of the fitted textures' own grid, so every ``n``- and
+def grouped_grid(mapper: str, size: int, count: int, seed: int, *, projection: str = "r",
+                 context: dict | None = None) -> Grouped:
+    """Lighting pairs of the ``grid`` design, grouped by normal: ``n`` and the direction
+    ``projection(n, v)`` (the mirror direction ``r = 2 (n.v) n - v`` by default, ``r_off`` for the
+    off-specular products) are texel centres of the fitted textures' own grid, so every ``n``- and
     ``r``-lookup of a training pair reads exactly one texel and alternating least squares decouples
-    per texel (:mod:`homofac.fit.als`); ``v = 2 (n.r) n - r``."""
+    per texel (:mod:`homofac.fit.als`)."""
     if not mappers.get(mapper).covers_sphere:
         raise HomofacError(f"grid sampling on {mapper}: lighting needs a sphere mapper")
-    a, b = grid_texel_pairs(mapper, size, count or GRID_COUNT, seed)
+    a, b, v = grid_texel_pairs(mapper, size, count or GRID_COUNT, seed, projection, context)
     dirs = np.asarray(mappers.texel_directions(mapper, size), np.float64).reshape(-1, 3)
     order = np.argsort(a, kind="stable")
-    a, b = a[order], b[order]
+    a, v = a[order], _normalize(v[order])
     groups, start, counts = np.unique(a, return_index=True, return_counts=True)
     n = dirs[groups]
     p = int(counts.max())
     slot = np.arange(len(a)) - np.repeat(start, counts)
     g_of = np.repeat(np.arange(len(groups)), counts)
-    r = dirs[b]
-    nn = dirs[a]
-    v = _normalize(2 * np.sum(nn * r, -1, keepdims=True) * nn - r)
     views = np.broadcast_to(n[:, None, :], (len(groups), p, 3)).copy()
     mask = np.zeros((len(groups), p), bool)
     views[g_of, slot] = v

@@ -116,7 +116,7 @@ def from_options(opts: FitOptions, kind: str, result, mapper: str, sampling_opti
         raise HomofacError(f"refit: the saved model {result.model.name!r} is not a parametrization")
     name = structure.parametrization if structure is not None else (
         opts.parametrization if mode == "baseline" else result.model.name)
-    train, val, groups, vgroups = draw_pairs(kind, name, sampling_options)
+    train, val, groups, vgroups = draw_pairs(kind, name, sampling_options, result.model.context)
     if len(train) == 0:
         raise HomofacError("refit: the recorded sampling produces no training pairs")
     if groups is not None:  # the pairs exactly as the fit had them (normal-major)

@@ -38,6 +38,7 @@ from ..errors import HomofacError
 from ..factorization import Factor, Factorization, Term, Texture
 from ..light import Lighting
 from ..param import mappers
+from ..param import parametrizations as pz
 from ..param.projections import apply as project
 from ..target import Target
 from . import als, precision, refine, solvers
@@ -268,7 +269,7 @@ def _is_reflection(term: TermSpec) -> bool:
 def _split_sum_possible(target, structure) -> bool:
     return (target.kind == "lighting" and isinstance(target.fn, Lighting) and isinstance(target.fn.brdf, BRDF)
             and MODELS[target.fn.brdf.model].microfacet is not None and target.fn.clamp is None
-            and structure.parametrization in ("NR", "NRW", "NRV", "R"))
+            and structure.parametrization in ("NR", "NRW", "NRV", "R", "NRO", "RO"))
 
 
 # ------------------------------------------------------------------------------------------------
@@ -359,7 +360,7 @@ def _grid_indices(target, structure, specs, layouts, a, b):
     lay = layouts[dirs[0].name]
     if any((layouts[s.name].mapper, layouts[s.name].size) != (lay.mapper, lay.size) for s in dirs):
         return None
-    r = 2 * np.sum(a * b, -1, keepdims=True) * a - b
+    r = np.asarray(project(pz.reflection_projection(structure.parametrization), a, b, target.context))
     ia = als.single_texel(lay.mapper, lay.size, a, lay.unknown_of_texel)
     ib = als.single_texel(lay.mapper, lay.size, r, lay.unknown_of_texel) if ia is not None else None
     if ia is None or ib is None:
@@ -367,8 +368,9 @@ def _grid_indices(target, structure, specs, layouts, a, b):
     return ia, ib, lay
 
 
-#: Lighting parametrizations whose sums ``als`` fits on grid samples: each n and r lookup reads one texel.
-GRID_PARAMETRIZATIONS = ("NR", "NRW", "R")
+#: Lighting parametrizations whose sums ``als`` fits on grid samples: each n and r (or r_off) lookup reads
+#: one texel.
+GRID_PARAMETRIZATIONS = ("NR", "NRW", "R", "NRO", "RO")
 
 #: Why ``linear.polish`` is refused (here for a fit that is not ALS, by the pipeline before sampling).
 POLISH_NEEDS_GRID = "linear.polish follows an als fit on grid samples (sampling.kind: grid)"
@@ -405,12 +407,13 @@ def _fit_als(structure, specs, fitted_terms, layouts, x0, grid, a, b, y, opts: L
     ia, ib, lay = grid
     n = lay.n_valid
     flags_p, flags_q, flags_w, names = [], [], [], []
+    rproj = pz.reflection_projection(structure.parametrization)  # r, or r_off for NRO and RO
     for term in fitted_terms:
         roles = {f[0]: f[1] for f in term.factors}
         flags_p.append("n" in roles)
-        flags_q.append("r" in roles)
+        flags_q.append(rproj in roles)
         flags_w.append("nv" in roles)
-        names.append((roles.get("n"), roles.get("r"), roles.get("nv")))
+        names.append((roles.get("n"), roles.get(rproj), roles.get("nv")))
     K = len(fitted_terms)
     P = np.ones((K, n, 3))
     Q = np.ones((K, n, 3))

@@ -98,6 +98,14 @@ def names(kind: str | None = None) -> tuple[str, ...]:
     return tuple(n for n, p in PARAMETRIZATIONS.items() if kind is None or p.kind == kind)
 
 
+def reflection_projection(p: Parametrization | str) -> str:
+    """The projection of ``p``'s reflection-like texture: the direction the ``grid`` design puts on
+    texel centres beside ``n`` and an r-only term of a sum reads (``r_off`` for NRO and RO, else ``r``)."""
+    p = get(p) if isinstance(p, str) else p
+    found = [f.projection for f in p.factors if f.projection != "n" and PROJECTIONS[f.projection].invert is not None]
+    return found[0] if found else "r"
+
+
 def project(p: Parametrization, a, b, context: dict | None = None) -> list:
     """The J projected directions (or scalars) ``pi_j(a, b)`` of eq. 45, in factor order."""
     return [apply(f.projection, a, b, context) for f in p.factors]
@@ -118,7 +126,12 @@ for _p in (
                     "t1(n) t2(r) t3(h) t4(d) with the dominant light direction, eq. 66-70"),
     Parametrization("NRW", "lighting", ("n", "r", "w"), (F("n", 0), F("r", 1), F("nv", 2)),
                     "t1(n) t2(r) w(n.v): NR with a 1D factor of the view elevation"),
+    Parametrization("NRO", "lighting", ("n", "r"), (F("n", 0), F("r_off", 1)),
+                    "t1(n) t2(r'): NR read at the off-specular reflection r' (projection r_off)"),
+    Parametrization("RO", "lighting", ("r",), (F("r_off", 0),),
+                    "t1(r'): R read at the off-specular reflection r' (projection r_off)"),
 ):
     register(_p)
 
-__all__ = ["F", "Factor", "PARAMETRIZATIONS", "Parametrization", "get", "names", "project", "register"]
+__all__ = ["F", "Factor", "PARAMETRIZATIONS", "Parametrization", "get", "names", "project", "reflection_projection",
+           "register"]

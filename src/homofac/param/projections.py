@@ -11,14 +11,20 @@ Names (pinned, docs/format.md):
   ``cos_i`` = wi.z and ``cos_o`` = wo.z, clamped to [0, 1].
 * Lighting (a = n, b = v, world frame): ``n``, ``v``, ``r`` (eq. 40), ``h_dom`` (eq. 67-68) and
   ``d_dom`` (eq. 69), which use the dominant light direction ``i`` (eq. 66) from the context; the
-  scalar ``nv`` = n.v clamped to [0, 1].
+  scalar ``nv`` = n.v clamped to [0, 1]; ``r_off``, the off-specular reflection direction
+  ``normalize(r + beta (1 - n.v) n)`` with ``beta`` the context key ``shift`` (:func:`_r_off`).
 
-Scalar projections are looked up with the ``line`` mapper; direction projections with any other.
+Scalar projections are looked up with the ``line`` mapper; direction projections with any other. A
+projection may carry its inverse for fixed ``a`` (``invert``): the grid design of the linear-space fits
+(:func:`homofac.fit.sampling.grouped_grid`) puts ``n`` and the projected direction on texel centres
+and needs the view that projects there.
 """
 
 from __future__ import annotations
 
 from typing import Callable, NamedTuple
+
+import numpy as np
 
 from .. import sphere
 from ..errors import HomofacError
@@ -34,9 +40,56 @@ class Projection(NamedTuple):
     doc: str
     scalar: bool = False  # True: a scalar in [0, 1] (looked up with the line mapper)
     context: tuple[str, ...] = ()  # context keys the function reads (e.g. "dominant")
+    #: lighting directions: ``invert(n, p, context) -> (v, density)`` in NumPy: the view with
+    #: ``fn(n, v) = p`` (n.v <= 0 where none exists), and d omega_v / d omega_p divided by its supremum
+    #: (in [0, 1]: the acceptance of p-uniform pairs that makes v uniform)
+    invert: Callable | None = None
 
 
 PROJECTIONS: dict[str, Projection] = {}
+
+
+
+class ContextKey(NamedTuple):
+    """A key of the projection context (``factorization.json``'s ``context``): its shape and bounds."""
+
+    name: str
+    shape: tuple[int, ...]
+    doc: str
+    example: tuple | float  # a valid value (tests and docs derive from it)
+    bounds: tuple[float, float] | None = None
+
+
+#: The context keys projections read; :func:`check_context` validates a value of each.
+CONTEXT_KEYS: dict[str, ContextKey] = {k.name: k for k in (
+    ContextKey("dominant", (3,), "the dominant light direction [x, y, z] (NRHD, thesis eq. 66)", (0.3, -0.5, 0.81)),
+    ContextKey("shift", (), "beta of the off-specular reflection r_off (NRO, RO), a number in [0, 0.9]", 0.3,
+               (0.0, 0.9)),
+)}
+
+
+def example_context() -> dict:
+    """A valid value of every context key (dominant normalised): what tests trace every projection with."""
+    out = {}
+    for k in CONTEXT_KEYS.values():
+        a = np.asarray(k.example, np.float64)
+        out[k.name] = float(a) if k.shape == () else (a / np.linalg.norm(a) if k.name == "dominant" else a)
+    return out
+
+
+def check_context(name: str, value):
+    """``value`` of context key ``name`` as float32 (a number for a scalar key), or a one-line refusal."""
+    key = CONTEXT_KEYS.get(name)
+    if key is None:
+        raise HomofacError(f"unknown context key {name!r}; known: {', '.join(CONTEXT_KEYS)}")
+    numeric = not isinstance(value, (bool, str, dict)) and all(
+        isinstance(x, (int, float, np.floating, np.integer)) and not isinstance(x, bool) for x in np.ravel(
+            np.asarray(value, dtype=object)))
+    a = np.asarray(value, np.float64) if numeric else None
+    if a is None or a.shape != key.shape or not np.all(np.isfinite(a)) or (
+            key.bounds is not None and not np.all((a >= key.bounds[0]) & (a <= key.bounds[1]))):
+        raise HomofacError(f"context.{name} must be {key.doc}, got {value!r}")
+    return float(a) if key.shape == () else a.astype(np.float32)
 KINDS = ("brdf", "lighting")
 
 
@@ -65,7 +118,7 @@ def apply(name: str, a, b, context: dict | None = None):
     ctx = context or {}
     for key in p.context:
         if key not in ctx:
-            raise HomofacError(f"projection {name} needs context[{key!r}] (the dominant light direction, thesis eq. 66)")
+            raise HomofacError(f"projection {name} needs context[{key!r}] ({CONTEXT_KEYS[key].doc})")
     return p.fn(a, b, ctx)
 
 
@@ -121,6 +174,59 @@ def _nv(n, v, ctx):
     return _clamp01(sphere.dot(n, v))
 
 
+def _r_inverse(n, p, ctx):
+    """The view reflecting to ``p`` about ``n``: ``v = 2 (n.p) n - p`` (an isometry: density 1)."""
+    return 2.0 * np.sum(n * p, -1, keepdims=True) * n - p, np.ones(np.shape(p)[:-1])
+
+
+def _r_off(n, v, ctx):
+    """The off-specular reflection direction ``r' = normalize(r + beta (1 - n.v) n)``, beta = ``shift``.
+
+    Where the view grazes, a glossy lobe around ``r`` is cut by the horizon of ``n`` and what is left
+    of it peaks above the horizon, toward ``n`` (the off-specular peak; Lagarde & de Rousiers 2014 bend
+    ``r`` toward ``n`` for the same reason). A texture read at ``r'`` holds that shift, which a product
+    of a map of ``n`` and a map of ``r`` does not; at ``v = n`` (frontal) ``r' = r``. The elevation
+    ``e`` of ``r`` above the horizon of ``n`` maps to ``tan e' = (beta + (1 - beta) sin e) / cos e``,
+    monotone for ``beta`` in [0, 1): ``r'`` lies at least ``atan(beta)`` above the horizon (the context
+    key accepts [0, 0.9]: at 1 the map flattens at the horizon and the grid design's density degenerates).
+    """
+    r = sphere.reflect(v, n)
+    s = ctx["shift"] * (1.0 - _clamp01(sphere.dot(n, v)))
+    return sphere.normalize(r + s[..., None] * n)
+
+
+def _r_off_inverse(n, p, ctx):
+    """Inverse of :func:`_r_off` for fixed ``n``. With ``d = n.p`` and ``c = n.r``,
+    ``(beta + (1 - beta) c) sqrt(1 - d^2) = d sqrt(1 - c^2)``, a quadratic in ``c``; then
+    ``r = c n + sqrt(1 - c^2) t`` with ``t`` the tangent of ``p`` about ``n``. Both maps keep the azimuth
+    about ``n``, so d omega_r / d omega_p = dc / dd."""
+    beta = float(ctx["shift"])
+    n, p = np.asarray(n, np.float64), np.asarray(p, np.float64)
+    d = np.clip(np.sum(n * p, -1), -1.0, 1.0)
+    sd2 = 1.0 - d * d
+    a1, b1 = 1.0 - beta, beta
+    qa = a1 * a1 * sd2 + d * d
+    qb = a1 * b1 * sd2
+    disc = np.maximum(qb * qb - qa * (b1 * b1 * sd2 - d * d), 0.0)
+    c = (-qb + np.sqrt(disc)) / np.where(qa > 0, qa, 1.0)
+    ok = (d > 0) & (b1 * np.sqrt(sd2) < d)  # above the shifted horizon atan(beta)
+    c = np.where(ok, np.clip(c, 0.0, 1.0), 0.0)
+    t = p - d[..., None] * n
+    tl = np.linalg.norm(t, axis=-1, keepdims=True)
+    t = np.where(tl > 1e-12, t / np.where(tl > 1e-12, tl, 1.0), 0.0)
+    r = c[..., None] * n + np.sqrt(np.maximum(1.0 - c * c, 0.0))[..., None] * t
+    v = np.where(ok[..., None], 2.0 * c[..., None] * n - r, -n)
+
+    def dd_dc(cc):  # d(c) = u / sqrt(u^2 + 1 - c^2), u = beta + (1 - beta) c
+        u = b1 + a1 * cc
+        q = u * u + 1.0 - cc * cc
+        return a1 / np.sqrt(q) - u * (u * a1 - cc) / q ** 1.5
+
+    sup = 1.0 / np.min(dd_dc(np.linspace(0.0, 1.0, 1025)))
+    dens = np.where(ok, 1.0 / dd_dc(c) / sup, 0.0)
+    return v, np.clip(dens, 0.0, 1.0)
+
+
 def _h_dom(n, v, ctx):
     """Eq. 67-68: the half vector of the dominant light i and v, in the local frame of n."""
     i = sphere.constant(ctx["dominant"], n)
@@ -142,7 +248,10 @@ for _p in (
     Projection("cos_o", "brdf", _cos_o, True, "cos theta_o = wo.z clamped to [0, 1]", scalar=True),
     Projection("n", "lighting", _n, False, "surface normal n"),
     Projection("v", "lighting", _v, False, "view direction v"),
-    Projection("r", "lighting", _r, False, "reflected view r = 2 (n.v) n - v, eq. 40"),
+    Projection("r", "lighting", _r, False, "reflected view r = 2 (n.v) n - v, eq. 40", invert=_r_inverse),
+    Projection("r_off", "lighting", _r_off, False,
+               "off-specular reflection normalize(r + beta (1 - n.v) n), beta = context shift", context=("shift",),
+               invert=_r_off_inverse),
     Projection("nv", "lighting", _nv, False, "n.v clamped to [0, 1]", scalar=True),
     Projection("h_dom", "lighting", _h_dom, False, "half vector to the dominant light, eq. 67-68",
                context=("dominant",)),
@@ -151,4 +260,5 @@ for _p in (
 ):
     register(_p)
 
-__all__ = ["KINDS", "PROJECTIONS", "Projection", "apply", "get", "register"]
+__all__ = ["CONTEXT_KEYS", "KINDS", "PROJECTIONS", "ContextKey", "Projection", "apply", "check_context", "example_context",
+           "get", "register"]

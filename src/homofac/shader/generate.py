@@ -74,8 +74,10 @@ def helper_functions(lang: L.Language) -> list[str]:
     ]
 
 
-def _constant(value) -> np.ndarray:
-    return np.asarray(value, np.float64).reshape(3)
+def _constant(value):
+    """A context value baked into shader code: a float (r_off's shift) or a 3-vector (NRHD's dominant light)."""
+    a = np.asarray(value, np.float64)
+    return float(a) if a.ndim == 0 else a.reshape(3)
 
 
 def _term_graphs(model: Factorization, quantized: Quantized | None) -> list[Expr]:
