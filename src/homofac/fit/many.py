@@ -37,7 +37,7 @@ from ..light import Lighting, with_context
 from ..target import Target, evaluate
 from ..param import parametrizations as pz
 from . import cache, scene, transport
-from .draw import cache_settings, default_mapper, draw_pairs, grid_projection
+from .draw import cache_settings, default_mapper, draw_pairs
 from .options import FitOptions
 from .pipeline import factorize, options, quality_warnings, resolve_sampling
 from .product import zeros_rule
@@ -155,8 +155,9 @@ def factorize_many(targets: Sequence[Target], parametrization: str = "NR", *, co
     mapper = opts.mapper or default_mapper(kind)
     t0 = time.perf_counter()
     resolved = resolve_sampling(opts, kind, mapper)
-    if grid_projection(kind, opts.parametrization, resolved) != "r" and len(
-            {json.dumps(cache_settings(resolved, kind, opts.parametrization, t.context)) for t in targets}) > 1:
+    grids = {json.dumps(cache_settings(resolved, kind, opts.parametrization, t.context).get("grid_projection"))
+             for t in targets}  # one entry unless the grid lies on r_off with different shifts
+    if len(grids) > 1:
         raise HomofacError(f"{opts.parametrization} on grid samples: the materials' off-specular shifts differ, so "
                            f"they share no training pairs; fit them one by one or give them one shift (lighting_target(..., shift=))")
     samples, _ = _samples(targets, opts.parametrization, resolved, log)

@@ -47,7 +47,7 @@ class Projection(NamedTuple):
 
 
 PROJECTIONS: dict[str, Projection] = {}
-
+KINDS = ("brdf", "lighting")
 
 
 class ContextKey(NamedTuple):
@@ -69,11 +69,12 @@ CONTEXT_KEYS: dict[str, ContextKey] = {k.name: k for k in (
 
 
 def example_context() -> dict:
-    """A valid value of every context key (dominant normalised): what tests trace every projection with."""
+    """A valid value of every context key (vectors are directions, normalised): what tests trace every
+    projection with."""
     out = {}
     for k in CONTEXT_KEYS.values():
         a = np.asarray(k.example, np.float64)
-        out[k.name] = float(a) if k.shape == () else (a / np.linalg.norm(a) if k.name == "dominant" else a)
+        out[k.name] = float(a) if k.shape == () else a / np.linalg.norm(a)
     return out
 
 
@@ -82,15 +83,14 @@ def check_context(name: str, value):
     key = CONTEXT_KEYS.get(name)
     if key is None:
         raise HomofacError(f"unknown context key {name!r}; known: {', '.join(CONTEXT_KEYS)}")
-    numeric = not isinstance(value, (bool, str, dict)) and all(
-        isinstance(x, (int, float, np.floating, np.integer)) and not isinstance(x, bool) for x in np.ravel(
-            np.asarray(value, dtype=object)))
-    a = np.asarray(value, np.float64) if numeric else None
-    if a is None or a.shape != key.shape or not np.all(np.isfinite(a)) or (
+    try:
+        a = np.asarray(value)
+    except (TypeError, ValueError):  # ragged lists
+        a = None
+    if a is None or a.dtype.kind not in "iuf" or a.shape != key.shape or not np.all(np.isfinite(a)) or (
             key.bounds is not None and not np.all((a >= key.bounds[0]) & (a <= key.bounds[1]))):
         raise HomofacError(f"context.{name} must be {key.doc}, got {value!r}")
     return float(a) if key.shape == () else a.astype(np.float32)
-KINDS = ("brdf", "lighting")
 
 
 def register(p: Projection) -> Projection:
