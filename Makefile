@@ -37,8 +37,10 @@ system-packages:
 		$$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq $$MISSING; \
 	fi
 
-# Two workers (one per core); a test file's tests stay on one worker so module fixtures are built once.
-XDIST = -n 2 --dist loadfile
+# Two workers (one per core); a test file's tests stay on one worker so module fixtures are built once. A
+# worker that crashes ends the run with the test it crashed in: restarted, pytest-xdist 3.8's loadfile
+# scheduler can wait forever for work it already did (pytest-xdist issues 784, 1378).
+XDIST = -n 2 --dist loadfile --max-worker-restart 0
 
 test: $(STAMP) system-packages
 	$(PY) -m pytest -q $(XDIST) -m "not slow" $(PYTEST_ARGS)

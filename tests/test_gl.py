@@ -374,33 +374,75 @@ def test_fit_without_gl_warns_and_skips_the_preview(tmp_path, capsys, monkeypatc
     import yaml
 
     from homofac.app.cli import fit_main as main
-    from homofac.gl import engine as render_mod
+    from homofac.gl import device
 
     cfg = tmp_path / "c.yaml"
     cfg.write_text(yaml.safe_dump(SMALL_BRDF))
-
-    def no_egl():
-        raise HomofacError("no headless OpenGL (EGL) context: test")
-
-    monkeypatch.setattr(render_mod, "context", no_egl)
+    # A GL device process that cannot create a context (as on a machine without EGL): it says so first.
+    fake = tmp_path / "no_egl.py"
+    fake.write_text("import pickle, sys\npickle.dump(('error', 'context', 'test'), sys.stdout.buffer)\n")
+    device._stop()
+    monkeypatch.setattr(device, "SERVER", fake)
     assert main([str(cfg), "--quiet"]) == 0
     err = capsys.readouterr().err
     assert [ln for ln in err.splitlines() if "preview" in ln] == [
-        "homofac: warning: preview.png skipped: no headless OpenGL (EGL) context: test"]
+        "homofac: warning: preview.png skipped: no headless OpenGL (EGL) context: test (install libegl1 libgl1, "
+        "see Makefile)"]
     assert (tmp_path / "out" / "factorization.json").is_file()
     assert not (tmp_path / "out" / "preview.png").exists()
     monkeypatch.undo()
+    device._stop()
     # --no-preview: nothing rendered, nothing said
     assert main([str(cfg), "--quiet", "--no-preview"]) == 0
     assert "preview" not in capsys.readouterr().err
     assert not (tmp_path / "out" / "preview.png").exists()
 
 
-def test_window_viewer_renders_headless(lighting):
-    """The --window viewer's code path, on moderngl-window's headless (EGL) window for a few frames."""
-    from homofac.gl.window import show
-
-    img = show(lighting["facs"]["octahedral"], size=64, backend="headless", frames=2, exposure=1.0)
+def test_window_viewer_renders_headless(lighting, tmp_path):
+    """The --window viewer's code path, on moderngl-window's headless (EGL) window for a few frames. The
+    viewer draws in its own process (its window owns the context), so it runs in a child here: this
+    process must never load a GL driver (see the next test)."""
+    lighting["facs"]["octahedral"].save(tmp_path / "fac")
+    script = ("import sys, numpy as np, homofac as hf\n"
+              "from homofac.gl.window import show\n"
+              "img = show(hf.load(sys.argv[1]), size=64, backend='headless', frames=2, exposure=1.0)\n"
+              "np.save(sys.argv[2], img)\n")
+    r = subprocess.run([sys.executable, "-c", script, str(tmp_path / "fac"), str(tmp_path / "img.npy")],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    img = np.load(tmp_path / "img.npy")
     assert img.shape == (64, 64, 3)
     covered = (img != 32).any(axis=-1)
     assert 0.2 < covered.mean() < 0.9 and len(np.unique(img[covered], axis=0)) > 50
+
+
+def test_headless_renders_never_load_a_gl_driver_into_the_fitting_process(tmp_path):
+    """render / evaluate / preview run in the GL device process: after them, the process that fitted (and
+    compiles XLA programs afterwards) has neither moderngl nor a Mesa driver or its LLVM mapped, and the
+    device answers again after it died (a driver crash costs one call, not the session)."""
+    script = """
+import os, signal, sys, numpy as np, homofac as hf
+from homofac.errors import HomofacError
+from homofac.gl import device
+env = hf.light.load_environment("forest", resolution=8)
+t = hf.light.lighting_target(hf.brdf.ggx(roughness=0.4), env)
+fac = hf.fit.factorize(t, "NR", mapper="octahedral", texture_size=8, sampling={"kind": "texels", "size": 8})
+img = hf.gl.preview(fac, t, size=32)
+n = np.array([[0.0, 0.0, 1.0]]); v = np.array([[0.0, 0.6, 0.8]])
+gpu = hf.gl.evaluate(fac, n, v)
+assert np.allclose(gpu, np.asarray(fac.evaluate(n, v)), rtol=1e-4, atol=1e-6)
+maps = open("/proc/self/maps").read()
+loaded = sorted({w for line in maps.splitlines() for w in line.split()[-1:] if "LLVM" in w or "dri" in w.split("/")[-1] or "gallium" in w})
+assert "moderngl" not in sys.modules and not loaded, (sorted(m for m in sys.modules if "moderngl" in m), loaded)
+os.kill(device._child["proc"].pid, signal.SIGKILL)
+device._child["proc"].wait()
+try:
+    hf.gl.evaluate(fac, n, v)
+except HomofacError as e:
+    print("died:", e)
+assert np.allclose(hf.gl.evaluate(fac, n, v), gpu)
+print("ok", img.shape)
+"""
+    r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=600, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert "ok (" in r.stdout

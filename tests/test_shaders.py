@@ -40,7 +40,7 @@ import pytest
 import homofac as hf
 from homofac.factorization import Factor, Factorization, Term, Texture, decode_texels
 from homofac.fit.result import Result
-from homofac.gl import engine
+from homofac.gl import device, engine
 from homofac.output import shader_files
 from homofac.param import mappers
 from homofac.param import projections as pj
@@ -465,58 +465,29 @@ WIDTH = 64
 
 
 def render_pairs(fragment: str, fac, a, b, quantized: bool, names: dict | None = None, rgba8: bool = True) -> np.ndarray:
-    """Render a quad with ``fragment`` (one pair per pixel); ``names``: uniform of each sampler
-    (default ``hf_<texture>``, ``hf_pairs_a``, ``hf_pairs_b``); ``rgba8=False`` uploads the 8-bit
-    textures' values (RGBA / 255) as float textures. Returns (N, 3) float32."""
-    import moderngl
-
-    ctx = engine.context()
+    """Render a quad with ``fragment`` (one pair per pixel) in the GL device process; ``names``: uniform
+    of each sampler (default ``hf_<texture>``, ``hf_pairs_a``, ``hf_pairs_b``); ``rgba8=False`` uploads
+    the 8-bit textures' values (RGBA / 255) as float textures. Returns (N, 3) float32."""
     n = len(a)
     H = -(-n // WIDTH)
     names = names or {}
-    objs = []
-    try:
-        prog = ctx.program(vertex_shader=VERTEX_QUAD, fragment_shader=fragment)
-        objs.append(prog)
 
-        def upload(x):
-            d = np.zeros((H * WIDTH, 4), np.float32)
-            d[:n, :3] = x
-            t = ctx.texture((WIDTH, H), 4, data=d.tobytes(), dtype="f4")
-            t.filter = (moderngl.NEAREST, moderngl.NEAREST)
-            objs.append(t)
-            return t
+    def pairs_texture(x):
+        d = np.zeros((H * WIDTH, 4), np.float32)
+        d[:n, :3] = x
+        return d.reshape(H, WIDTH, 4)
 
-        q = fac.encoded() if quantized else None
-        if quantized and not rgba8:
-            texs = []
-            for r in gpu_textures(fac, True):
-                t = ctx.texture((r.shape[1], r.shape[0]), 4, data=np.ascontiguousarray(r).tobytes(), dtype="f4")
-                t.repeat_x = t.repeat_y = False
-                texs.append(t)
-        else:
-            texs = engine.model_textures(ctx, fac.model, q)
-        objs.extend(texs)
-        bind = [(names.get(f"hf_{t.name}", f"hf_{t.name}"), tex) for t, tex in zip(fac.model.textures, texs)]
-        bind += [(names.get("hf_pairs_a", "hf_pairs_a"), upload(a)), (names.get("hf_pairs_b", "hf_pairs_b"), upload(b))]
-        for unit, (uniform, tex) in enumerate(bind):
-            tex.use(unit)
-            assert uniform in prog, (uniform, fragment[:2000])
-            prog[uniform].value = unit
-        vbo = ctx.buffer(np.asarray([-1, -1, 3, -1, -1, 3], np.float32).tobytes())
-        vao = ctx.vertex_array(prog, [(vbo, "2f", "hf_in_pos")])
-        out = ctx.texture((WIDTH, H), 4, dtype="f4")
-        fbo = ctx.framebuffer(color_attachments=[out])
-        objs += [vbo, vao, out, fbo]
-        fbo.use()
-        fbo.clear(0.0, 0.0, 0.0, 0.0)
-        vao.render(moderngl.TRIANGLES)
-        ctx.finish()
-        px = np.frombuffer(fbo.read(components=4, dtype="f4"), np.float32).reshape(-1, 4)
-        return px[:n, :3].copy()
-    finally:
-        for o in reversed(objs):
-            o.release()
+    if quantized and not rgba8:
+        arrays = gpu_textures(fac, True)
+    else:
+        arrays = engine.texture_arrays(fac.model, fac.encoded() if quantized else None)
+    textures = engine.texture_specs([(names.get(f"hf_{t.name}", f"hf_{t.name}"), arr)
+                                     for t, arr in zip(fac.model.textures, arrays)])
+    textures += [(names.get(k, k), pairs_texture(x), "f4", "nearest") for k, x in (("hf_pairs_a", a), ("hf_pairs_b", b))]
+    (px,) = device.call("draw", vertex=VERTEX_QUAD, fragment=fragment,
+                        attributes=np.asarray([[-1, -1], [3, -1], [-1, 3]], np.float32), layout="2f",
+                        names=["hf_in_pos"], textures=textures, size=(WIDTH, H))
+    return px.reshape(-1, 4)[:n, :3].copy()
 
 
 N_PAIRS = 4096
@@ -717,8 +688,8 @@ def test_per_term_functions_sum_to_the_value():
 
 
 def _bound(fac, quantized=False):
-    texs = engine.model_textures(engine.context(), fac.model, fac.encoded() if quantized else None)
-    return [(f"hf_{t.name}", tex) for t, tex in zip(fac.model.textures, texs)]
+    arrays = engine.texture_arrays(fac.model, fac.encoded() if quantized else None)
+    return [(f"hf_{t.name}", arr) for t, arr in zip(fac.model.textures, arrays)]
 
 
 def test_y_up_define_swizzles_into_homofacs_frame():

@@ -5,9 +5,12 @@
   all with the exported shader of :mod:`homofac.shader` (the code a renderer gets);
 * :mod:`homofac.gl.picture`: :func:`preview`, the factorized render beside the exact target and an
   error heat map with a colour bar, as an image array; :func:`write_preview` writes it as a PNG;
-* :mod:`homofac.gl.window`: the interactive viewer (moderngl-window, orbit camera).
+* :mod:`homofac.gl.window`: the interactive viewer (moderngl-window, orbit camera);
+* :mod:`homofac.gl.device`: the child process that owns the headless GL context. Every headless render
+  runs there, so the GL driver (Mesa llvmpipe, with its own LLVM) never shares a process with XLA.
 
-Importing this package does not import moderngl; rendering does (the ``gl`` extra).
+Importing this package does not import moderngl; the headless renders import it in the GL device
+process, the viewer in this one (the ``gl`` extra).
 """
 
 from __future__ import annotations

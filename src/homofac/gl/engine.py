@@ -8,6 +8,11 @@ very code a renderer gets). It writes three float targets, the linear value, ``a
 CPU can evaluate the exact function (and the factorization) at exactly the same arguments. One
 sample per pixel; the textures are read with hardware bilinear filtering, clamp to edge, no mipmaps,
 as the pinned shader interface prescribes.
+
+The headless renders (:func:`render`, :func:`run_glsl`, :func:`evaluate`) run in the GL device
+process (:mod:`homofac.gl.device`): this module builds the programs, textures and uniforms as plain
+data and the child draws them, so the GL driver never shares a process with XLA. Only the interactive
+viewer draws in this process (:class:`Renderer`, on its window's context).
 """
 
 from __future__ import annotations
@@ -23,6 +28,7 @@ from jaxtyping import Bool, Float, Int
 from ..errors import HomofacError
 from ..factorization import Quantized
 from ..shader import generate
+from . import _server, device
 
 #: The GLSL version line of the preview programs (the exported GLSL is 330 core).
 GLSL_VERSION = "#version 330 core"
@@ -43,7 +49,9 @@ def _standalone():
 
 
 def context():
-    """The shared headless moderngl context (EGL); HomofacError (one line) when there is none."""
+    """A headless moderngl context (EGL) in *this* process, for callers' own GL objects; HomofacError
+    (one line) when there is none. homofac's own renders do not use it: they run in the GL device
+    process (:mod:`homofac.gl.device`), because a GL driver and XLA in one process have crashed."""
     try:
         import moderngl  # noqa: F401
     except ImportError as e:
@@ -203,11 +211,6 @@ def fragment_source(fac, quantized: Quantized | None = None) -> str:
     return "\n".join([GLSL_VERSION, generate.source(fac.model, "glsl", quantized=quantized), FRAGMENT_MAIN])
 
 
-def _set(prog, name: str, value) -> None:
-    if name in prog:  # unused uniforms are optimised away
-        prog[name].value = value
-
-
 class Light(NamedTuple):
     """The directional light of a BRDF preview: unit direction to the light (world) and irradiance (RGB)."""
 
@@ -220,31 +223,70 @@ class Light(NamedTuple):
         return d / np.linalg.norm(d)
 
 
+def texture_arrays(model, quantized: Quantized | None = None) -> list[np.ndarray]:
+    """The model's textures as the pinned interface uploads them: float32 RGB, or the RGBA8 texels
+    (uint8) when ``quantized``; rows in array order."""
+    if quantized is None:
+        return [np.ascontiguousarray(np.asarray(t.data, np.float32)[..., :3]) for t in model.textures]
+    return [np.ascontiguousarray(np.asarray(r, np.uint8)) for r in quantized.rgba]
+
+
+def texture_specs(textures) -> list[tuple]:
+    """``(uniform, array)`` pairs as the GL device binds them: ``(uniform, array, dtype, "linear")``,
+    ``dtype`` ``"f1"`` (normalised 8-bit) for uint8 arrays, else ``"f4"`` (float32)."""
+    out = []
+    for uniform, a in textures:
+        a = np.asarray(a)
+        out.append((uniform, a, "f1", "linear") if a.dtype == np.uint8
+                   else (uniform, np.asarray(a, np.float32), "f4", "linear"))
+    return out
+
+
+def program_inputs(fac, light: Light = Light(), quantized: bool = False) -> dict:
+    """What the preview program of ``fac`` needs besides the mesh and camera: its fragment source, its
+    textures (bound as the pinned interface says) and the uniforms of the light and mode."""
+    if fac.kind not in ("lighting", "brdf"):
+        raise HomofacError(f"cannot preview a factorization of kind {fac.kind!r}")
+    q = fac.encoded() if quantized else None
+    textures = texture_specs([(f"hf_{t.name}", a) for t, a in zip(fac.model.textures, texture_arrays(fac.model, q))])
+    uniforms = {
+        "u_mode": 0 if fac.kind == "lighting" else 1,
+        "u_light": tuple(float(c) for c in light.unit),
+        "u_light_rgb": tuple(float(c) for c in np.broadcast_to(light.irradiance, (3,))),
+        "u_times_cos": 1 if fac.quantity == "brdf" else 0,
+    }
+    return {"fragment": fragment_source(fac, q), "textures": textures, "uniforms": uniforms}
+
+
+def camera_uniforms(camera: Camera, aspect: float = 1.0, exposure: float = 0.0) -> dict:
+    """The uniforms of one view: the projection-view matrix (column-major bytes), the eye, the exposure."""
+    return {"u_mvp": _mat_bytes(camera.matrix(aspect)), "u_eye": tuple(float(c) for c in camera.eye),
+            "u_exposure": float(exposure)}
+
+
+def _mesh_attributes(mesh: Mesh) -> np.ndarray:
+    return np.concatenate([mesh.positions, mesh.normals], axis=1).astype(np.float32)
+
+
 class Renderer:
-    """A factorization's textures and program on a moderngl context, and a mesh to draw.
+    """A factorization's textures and program on a moderngl context of this process, and a mesh to draw:
+    the interactive viewer (:mod:`homofac.gl.window`), whose window owns its context. Headless renders
+    go through the GL device process instead (:func:`render`).
 
     ``quantized=True`` renders the 8-bit textures (RGBA8, decoded in the shader) instead of the float ones.
     """
 
     def __init__(self, ctx, fac, mesh: Mesh, light: Light = Light(), quantized: bool = False):
-        import moderngl
-
-        if fac.kind not in ("lighting", "brdf"):
-            raise HomofacError(f"cannot preview a factorization of kind {fac.kind!r}")
+        inputs = program_inputs(fac, light, quantized)
         self.ctx, self.fac, self.light = ctx, fac, light
-        q = fac.encoded() if quantized else None
         try:
-            self.prog = ctx.program(vertex_shader=VERTEX, fragment_shader=fragment_source(fac, q))
-        except moderngl.Error as e:
-            raise HomofacError(f"GLSL of {fac.parametrization} does not compile: {' '.join(str(e).split())[:300]}") from None
-        self.textures = model_textures(ctx, fac.model, q)
-        for k, t in enumerate(fac.model.textures):
-            _set(self.prog, f"hf_{t.name}", k)
-        _set(self.prog, "u_mode", 0 if fac.kind == "lighting" else 1)
-        _set(self.prog, "u_light", tuple(float(c) for c in light.unit))
-        _set(self.prog, "u_light_rgb", tuple(float(c) for c in np.broadcast_to(light.irradiance, (3,))))
-        _set(self.prog, "u_times_cos", 1 if fac.quantity == "brdf" else 0)
-        vbo = ctx.buffer(np.concatenate([mesh.positions, mesh.normals], axis=1).astype("f4").tobytes())
+            self.prog = _server.program(ctx, vertex_shader=VERTEX, fragment_shader=inputs["fragment"])
+        except _server._ProgramError as e:
+            raise HomofacError(f"GLSL of {fac.parametrization} does not compile: {str(e)[:300]}") from None
+        self.textures = [_server.texture(ctx, a, dtype, filt) for _, a, dtype, filt in inputs["textures"]]
+        self._units = [(uniform, k) for k, (uniform, *_rest) in enumerate(inputs["textures"])]
+        _server.set_uniforms(self.prog, {**inputs["uniforms"], **dict(self._units)})
+        vbo = ctx.buffer(_mesh_attributes(mesh).tobytes())
         ibo = ctx.buffer(np.ascontiguousarray(mesh.faces, np.int32).tobytes())
         self.vao = ctx.vertex_array(self.prog, [(vbo, "3f 3f", "in_position", "in_normal")], index_buffer=ibo,
                                     index_element_size=4)
@@ -255,28 +297,9 @@ class Renderer:
 
         for k, t in enumerate(self.textures):
             t.use(k)
-        self.prog["u_mvp"].write(_mat_bytes(camera.matrix(aspect)))
-        _set(self.prog, "u_eye", tuple(float(c) for c in camera.eye))
-        _set(self.prog, "u_exposure", float(exposure))
+        _server.set_uniforms(self.prog, camera_uniforms(camera, aspect, exposure))
         self.ctx.enable(moderngl.DEPTH_TEST)
         self.vao.render(moderngl.TRIANGLES)
-
-
-def model_textures(ctx, model, quantized: Quantized | None = None) -> list:
-    """The model's textures on ``ctx`` as the pinned interface binds them: float RGB (or RGBA8 when
-    ``quantized``), linear filtering, clamp to edge, no mipmaps, rows in array order."""
-    if quantized is None:
-        return [_texture(ctx, np.asarray(t.data, np.float32)[..., :3], "f4") for t in model.textures]
-    return [_texture(ctx, np.asarray(r, np.uint8), "f1") for r in quantized.rgba]  # f1: normalized RGBA8
-
-
-def _texture(ctx, a: np.ndarray, dtype: str):
-    import moderngl
-
-    t = ctx.texture((a.shape[1], a.shape[0]), a.shape[2], data=np.ascontiguousarray(a).tobytes(), dtype=dtype)
-    t.filter = (moderngl.LINEAR, moderngl.LINEAR)
-    t.repeat_x = t.repeat_y = False  # clamp to edge
-    return t
 
 
 class Frame(NamedTuple):
@@ -295,28 +318,24 @@ class Frame(NamedTuple):
 
 def render(fac, mesh: Mesh | str = "sphere", *, size: int = 256, camera: Camera = Camera(),
            light: Light = Light(), quantized: bool = False) -> Frame:
-    """Render ``fac`` on a mesh headless (EGL) into float targets and read them back (a :class:`Frame`).
+    """Render ``fac`` on a mesh headless (EGL, in the GL device process) into float targets and read
+    them back (a :class:`Frame`).
 
     ``quantized``: render the 8-bit textures with their decode rule (what the PNG files give a GPU)."""
     if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or not 8 <= size <= 4096:
         raise HomofacError(f"preview size must be an int in 8 ... 4096, got {size!r}")
-    ctx = context()
     mesh = load_mesh(mesh) if not isinstance(mesh, Mesh) else mesh
-    r = Renderer(ctx, fac, mesh, light, quantized=quantized)
+    inputs = program_inputs(fac, light, quantized)
     size = int(size)
-    targets = [ctx.texture((size, size), 4, dtype="f4") for _ in range(3)]
-    depth = ctx.depth_renderbuffer((size, size))
-    fbo = ctx.framebuffer(color_attachments=targets, depth_attachment=depth)
     try:
-        fbo.use()
-        fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
-        r.draw(camera)
-        ctx.finish()
-        out = [np.frombuffer(fbo.read(components=4, attachment=i, dtype="f4"), np.float32).reshape(size, size, 4)[::-1]
-               for i in range(3)]
-    finally:
-        for o in (fbo, depth, *targets, r.vao, r.prog, *r.textures):
-            o.release()
+        out = device.call("draw", vertex=VERTEX, fragment=inputs["fragment"], attributes=_mesh_attributes(mesh),
+                          layout="3f 3f", names=["in_position", "in_normal"],
+                          index=np.ascontiguousarray(mesh.faces, np.int32), textures=inputs["textures"],
+                          uniforms={**inputs["uniforms"], **camera_uniforms(camera)}, size=(size, size),
+                          targets=3, depth=True)
+    except device.GLSLError as e:
+        raise HomofacError(f"GLSL of {fac.parametrization} does not compile: {e}") from None
+    out = [o[::-1] for o in out]  # GL reads bottom row first
     mask = out[0][..., 3] > 0.5
     return Frame(np.ascontiguousarray(out[0][..., :3]), np.ascontiguousarray(out[1][..., :3]),
                  np.ascontiguousarray(out[2][..., :3]), mask)
@@ -330,14 +349,10 @@ def run_glsl(declarations: str, expression: str, a, b, *, textures=(), uniforms=
     """Evaluate the GLSL ``vec3`` ``expression`` of ``vec3 a, b`` at N input pairs on the GPU.
 
     ``declarations``: GLSL functions/uniforms the expression uses; ``textures``: ``(uniform name,
-    moderngl texture)`` pairs bound to units 0, 1, ...; ``uniforms``: name -> value. Returns float32
-    ``(N, 3)`` (transform feedback, no rasterisation).
+    array (H, W, C))`` pairs bound to units 0, 1, ... (float32 data, or uint8 as normalised RGBA8;
+    linear filtering, clamp to edge, as :func:`texture_arrays` gives them); ``uniforms``: name -> value.
+    Returns float32 ``(N, 3)`` (transform feedback in the GL device process, no rasterisation).
     """
-    import moderngl
-
-    ctx = context()
-    a = np.ascontiguousarray(np.asarray(a, np.float32).reshape(-1, 3))
-    b = np.ascontiguousarray(np.asarray(b, np.float32).reshape(-1, 3))
     src = f"""{GLSL_VERSION}
 {declarations}
 in vec3 in_a;
@@ -345,41 +360,18 @@ in vec3 in_b;
 out vec3 out_value;
 void main() {{ vec3 a = in_a; vec3 b = in_b; out_value = {expression}; }}
 """
-    prog = ctx.program(vertex_shader=src, varyings=["out_value"])
-    inp = ctx.buffer(np.concatenate([a, b], axis=1).tobytes())
-    out = ctx.buffer(reserve=max(1, len(a)) * 12)
-    used = [n for n in ("in_a", "in_b") if n in prog]  # an unused input is optimised away: skip its bytes
-    fmt = " ".join("3f" if n in prog else "3x4" for n in ("in_a", "in_b"))
-    vao = ctx.vertex_array(prog, [(inp, fmt, *used)] if used else [])
-    fbo = ctx.simple_framebuffer((1, 1))  # surfaceless EGL has no default framebuffer: draws would be dropped
-    try:
-        fbo.use()
-        for k, (name, t) in enumerate(textures):
-            t.use(k)
-            _set(prog, name, k)
-        for name, value in (uniforms or {}).items():
-            _set(prog, name, value)
-        vao.transform(out, mode=moderngl.POINTS, vertices=len(a))
-        return np.frombuffer(out.read(), np.float32).reshape(-1, 3)[: len(a)].copy()
-    finally:
-        for o in (vao, fbo, inp, out, prog):
-            o.release()
+    return device.call("transform", vertex=src, varyings=["out_value"], a=np.asarray(a, np.float32),
+                       b=np.asarray(b, np.float32), textures=texture_specs(textures), uniforms=dict(uniforms or {}))
 
 
 def evaluate(fac, a, b, *, quantized: bool = False, language: str = "glsl") -> Float[np.ndarray, "N 3"]:
     """``fac.evaluate(a, b)`` computed on the GPU by the exported shader (GLSL 330, or GLSL ES 3.00 run as
     GLSL 330 -- they share their code), with the textures bound as the pinned interface says."""
-    ctx = context()
     q = fac.encoded() if quantized else None
     decl = generate.source(fac.model, language, quantized=q)
-    texs = model_textures(ctx, fac.model, q)
-    try:
-        return run_glsl(decl, "homofac_value(a, b)", a, b,
-                        textures=[(f"hf_{t.name}", tex) for t, tex in zip(fac.model.textures, texs)])
-    finally:
-        for t in texs:
-            t.release()
+    textures = [(f"hf_{t.name}", arr) for t, arr in zip(fac.model.textures, texture_arrays(fac.model, q))]
+    return run_glsl(decl, "homofac_value(a, b)", a, b, textures=textures)
 
 
-__all__ = ["Camera", "Frame", "GLSL_VERSION", "Light", "Mesh", "Renderer", "SHAPES", "context", "evaluate", "load_mesh",
-           "model_textures", "render", "run_glsl"]
+__all__ = ["Camera", "Frame", "GLSL_VERSION", "Light", "Mesh", "Renderer", "SHAPES", "camera_uniforms", "context",
+           "evaluate", "load_mesh", "program_inputs", "render", "run_glsl", "texture_arrays", "texture_specs"]
