@@ -8,6 +8,13 @@ their CLI subprocesses shared one cache directory. Every entry of that cache des
 process of its own, so the crash is not one bad entry; a suite that can crash in a dependency's
 optimisation is worse than one that compiles. ``HOMOFAC_TEST_JAX_CACHE=<dir>`` turns it back on for a
 local run.
+
+Each compiled XLA program keeps about three memory mappings of its code for as long as JAX caches it,
+and Linux allows a process 65530 (``vm.max_map_count``): an xdist worker that compiles some twenty
+thousand programs (the slow suite does) crashes in its next compile, with a segfault inside
+``backend_compile_and_load`` when the mapping fails. So after any test that leaves the worker above
+half that, JAX's caches are cleared (:func:`homofac.fit.programs.bound_compiled_programs`, which the
+fitting entry points also call).
 """
 
 from __future__ import annotations
@@ -18,6 +25,8 @@ from pathlib import Path
 
 import jax
 import pytest
+
+from homofac.fit.programs import bound_compiled_programs
 
 # Samples cached by the tests go to a private directory, never to the user's ~/.cache.
 os.environ.setdefault("HOMOFAC_CACHE_DIR", tempfile.mkdtemp(prefix="homofac-test-cache-"))
@@ -50,3 +59,10 @@ def x64():
 def x64_module():
     """float64 for a whole module's fits and gradients (module-scoped fixtures built in it), restored afterwards."""
     yield from _float64()
+
+
+@pytest.fixture(autouse=True)
+def _bounded_mappings():
+    """Keep the worker's memory mappings below the kernel's limit (see the module docstring)."""
+    yield
+    bound_compiled_programs()

@@ -36,7 +36,7 @@ from ..errors import HomofacError
 from ..light import Lighting, with_context
 from ..target import Target, evaluate
 from ..param import parametrizations as pz
-from . import cache, scene, transport
+from . import cache, programs, scene, transport
 from .draw import cache_settings, default_mapper, draw_pairs
 from .options import FitOptions
 from .pipeline import factorize, options, quality_warnings, resolve_sampling
@@ -132,6 +132,7 @@ def factorize_many(targets: Sequence[Target], parametrization: str = "NR", *, co
     result. All targets must be of one kind.
     """
     log = log or (lambda msg: None)
+    programs.bound_compiled_programs()
     t_start = time.perf_counter()
     targets = list(targets)
     if not targets:

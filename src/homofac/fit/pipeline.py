@@ -20,7 +20,7 @@ from ..light import with_context
 from ..options import validate
 from ..param import parametrizations as pz
 from ..target import Target
-from . import auto, polish, scene, structures, sums
+from . import auto, polish, programs, scene, structures, sums
 from .draw import default_mapper, draw_samples, grid_projection
 from .metrics import measure
 from .options import AnalysisOptions, FitOptions, LinearOptions, SamplingOptions
@@ -124,6 +124,7 @@ def factorize(
     """
     log = log or (lambda msg: None)
     t_start = time.perf_counter()
+    programs.bound_compiled_programs()
     opts = options(parametrization, mapper=mapper, texture_size=texture_size, sampling=sampling, solver=solver,
                    target_error=target_error, baseline=baseline, analysis=analysis, terms=terms, diffuse=diffuse,
                    nv_factor=nv_factor, reflection=reflection, prefiltered=prefiltered, rw_terms=rw_terms,

@@ -45,7 +45,7 @@ from ..options import validate
 from ..param import mappers
 from ..param import parametrizations as pz
 from ..target import Target, evaluate
-from . import footprints, precision, solvers, sums, transport
+from . import footprints, precision, programs, solvers, sums, transport
 from .draw import default_mapper
 from .options import FitOptions, LinearOptions
 from .pipeline import quality_warnings, resolve_sampling
@@ -416,6 +416,7 @@ def refit(fac: Result, environment: Environment | None = None, brdf: BRDF | None
     if not isinstance(state, RefitState):
         raise HomofacError("refit: the result has no refit state (a factorization of this process has one; "
                            "for one read from disk use hf.fit.prepare_refit(fac))")
+    programs.bound_compiled_programs()
     t_start = time.perf_counter()
     tgt = new_target(fac, environment, brdf, target)
     if solve not in ("auto", "lsmr"):

@@ -1,0 +1,24 @@
+"""The bound on compiled programs (homofac.fit.programs): XLA keeps each program's code in memory
+mappings, the kernel allows a process 65530; above the bound the caches are cleared and the mappings
+go back."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import pytest
+
+from homofac.fit import programs
+
+
+@pytest.mark.skipif(programs.mappings() == 0, reason="no /proc/self/maps")
+def test_compiled_programs_hold_mappings_and_the_bound_releases_them():
+    before = programs.mappings()
+    for i in range(60):  # 60 distinct programs (each shape compiles anew)
+        jax.jit(lambda x, i=i: (jnp.sin(x) * (i + 1)).sum())(jnp.ones((i + 2,))).block_until_ready()
+    grown = programs.mappings()
+    assert grown - before >= 60  # about three per program on XLA:CPU
+    assert not programs.bound_compiled_programs(limit=grown + 1000)  # under the bound: nothing cleared
+    assert programs.mappings() >= grown - 5
+    assert programs.bound_compiled_programs(limit=before)  # over it: cleared
+    assert programs.mappings() < grown - 60
