@@ -7,7 +7,8 @@
   error heat map with a colour bar, as an image array; :func:`write_preview` writes it as a PNG;
 * :mod:`homofac.gl.window`: the interactive viewer (moderngl-window, orbit camera);
 * :mod:`homofac.gl.device`: the child process that owns the headless GL context. Every headless render
-  runs there, so the GL driver (Mesa llvmpipe, with its own LLVM) never shares a process with XLA.
+  runs there, so the GL driver (Mesa llvmpipe, with its own LLVM and JIT code) stays out of the process
+  that fits, and a driver crash costs one call.
 
 Importing this package does not import moderngl; the headless renders import it in the GL device
 process, the viewer in this one (the ``gl`` extra).

@@ -1,10 +1,11 @@
 """The GL device process: headless OpenGL (moderngl over EGL) in a process of its own.
 
-Mesa's llvmpipe JIT-compiles every shader with its own copy of LLVM, and XLA compiles every JAX program
-with another one. In one process the two have crashed: the slow suite segfaulted twice inside XLA's
-``backend_compile_and_load`` after a preview had rendered in the same process (jax 0.10.2, Mesa
-llvmpipe on LLVM 15), at no reproducible point. So the headless renders of :mod:`homofac.gl.engine` run
-here, in a child that never imports JAX, and the process that fits never loads a GL driver.
+The headless renders of :mod:`homofac.gl.engine` run here, in a child that never imports JAX, so the
+process that fits never loads a GL driver: Mesa's llvmpipe brings its own LLVM, JIT-compiles every
+shader into memory mappings of its own and keeps rasterizer threads, and a driver crash costs one
+call instead of the session (:mod:`homofac.gl.device` starts a new child). (This was first written
+for two segfaults of the slow suite inside XLA's compile after a preview; their cause was the
+process's mapping limit, :mod:`homofac.fit.programs`, not the driver.)
 
 This file is run as a script (``python _server.py``) and imports nothing but the standard library,
 numpy and moderngl; :mod:`homofac.gl.device` starts it and talks to it. The protocol is pickled

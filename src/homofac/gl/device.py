@@ -3,9 +3,9 @@
 Every headless render and GPU evaluation of :mod:`homofac.gl.engine` is a :func:`call` here: plain
 data (GLSL sources, numpy arrays, uniform values) goes to the child, numpy arrays come back. The child
 is started on the first call and kept for the life of this process (one per process, about 0.3 s to
-start); it imports numpy and moderngl only, so the GL driver (Mesa llvmpipe and its LLVM) and XLA
-never share a process (the reason is in :mod:`homofac.gl._server`). When the child dies (a driver
-crash), the call raises one line and the next call starts a new one.
+start); it imports numpy and moderngl only, so the GL driver (Mesa llvmpipe, its LLVM, its JIT
+code and threads) never enters the process that fits (:mod:`homofac.gl._server`). When the child
+dies (a driver crash), the call raises one line and the next call starts a new one.
 """
 
 from __future__ import annotations

@@ -11,8 +11,8 @@ as the pinned shader interface prescribes.
 
 The headless renders (:func:`render`, :func:`run_glsl`, :func:`evaluate`) run in the GL device
 process (:mod:`homofac.gl.device`): this module builds the programs, textures and uniforms as plain
-data and the child draws them, so the GL driver never shares a process with XLA. Only the interactive
-viewer draws in this process (:class:`Renderer`, on its window's context).
+data and the child draws them, so the GL driver never enters the process that fits. Only the
+interactive viewer draws in this process (:class:`Renderer`, on its window's context).
 """
 
 from __future__ import annotations
@@ -51,7 +51,7 @@ def _standalone():
 def context():
     """A headless moderngl context (EGL) in *this* process, for callers' own GL objects; HomofacError
     (one line) when there is none. homofac's own renders do not use it: they run in the GL device
-    process (:mod:`homofac.gl.device`), because a GL driver and XLA in one process have crashed."""
+    process (:mod:`homofac.gl.device`), which keeps the GL driver out of the process that fits."""
     try:
         import moderngl  # noqa: F401
     except ImportError as e:

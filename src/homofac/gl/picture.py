@@ -81,24 +81,12 @@ def _block_values(target, a, b, light: Light) -> np.ndarray:
     return np.asarray(y, np.float32)
 
 
-def warm_exact(target, light: Light = Light()) -> None:
-    """Compile (and run once) the programs of :func:`exact_values` on a dummy block.
-
-    :func:`preview` calls it before the GL render: XLA's CPU compiler then does not run right after
-    Mesa's llvmpipe, in whose wake a compile segfaulted twice in CI (two LLVMs in one process; the
-    slow suite's README test, ``hf.gl.preview``).
-    """
-    z = np.zeros((_BLOCK, 3), np.float32)
-    z[:, 2] = 1.0
-    _block_values(target, z, z, light)
-
-
 def exact_values(target, frame: Frame, light: Light = Light()) -> Float[np.ndarray, "N 3"]:
     """The exact target at the frame's covered pixels (same arguments as the shader), as displayed.
 
     Lighting: ``L(v, n)`` (0 where n.v <= 0). BRDF: ``f(wi, wo) cos(theta_i) E`` for the light's
     irradiance E (0 below either horizon). Padded to blocks of ``_BLOCK`` pairs in numpy, so that
-    every picture size runs the same compiled programs (:func:`warm_exact`).
+    every picture size runs the same compiled programs.
     """
     a = np.asarray(frame.a[frame.mask], np.float32)
     b = np.asarray(frame.b[frame.mask], np.float32)
@@ -198,8 +186,6 @@ def preview(
     if target is not None and target.kind != fac.kind:
         raise HomofacError(f"target kind {target.kind} does not match the factorization ({fac.kind})")
     name = mesh if isinstance(mesh, str) else "mesh"
-    if target is not None:
-        warm_exact(target, light)
     frame = render(fac, mesh, size=size, camera=camera, light=light)
     approx = frame.value[frame.mask]
     exact = exact_values(target, frame, light) if target is not None else None
@@ -235,5 +221,5 @@ def write_preview(fac, path, target=None, **kwargs) -> Path:
     return path
 
 
-__all__ = ["auto_exposure", "colormap", "compose", "exact_values", "preview", "warm_exact", "relative_error", "srgb",
+__all__ = ["auto_exposure", "colormap", "compose", "exact_values", "preview", "relative_error", "srgb",
            "to_display", "write_preview"]
