@@ -142,13 +142,13 @@ def test_nro_fits_end_to_end_and_beats_nr_on_a_glossy_metal_under_lamps(tmp_path
     kw = dict(texture_size=S, diffuse="fitted", nv_factor=True, sampling={"count": 20000, "validation": 3000})
     nr = hf.fit.factorize(target, "NR", **kw)
     nro = hf.fit.factorize(target, "NRO", **kw)
-    assert nro.model.context == {"shift": pytest.approx(0.3)} and nro.solver["method"] == "als"
+    assert nro.model.context == {"shift": pytest.approx(0.15)} and nro.solver["method"] == "als"
     assert [f.projection for f in nro.model.terms[1].factors] == ["n", "r_off", "nv"]
     e = {k: f.metrics["validation"]["float"]["nrmse"] for k, f in (("NR", nr), ("NRO", nro))}
     assert e["NRO"] < e["NR"], e
     nro.save(tmp_path / "out", shaders=["glsl"])
     doc = json.loads((tmp_path / "out" / "factorization.json").read_text())
-    assert doc["context"] == {"shift": pytest.approx(0.3)}
+    assert doc["context"] == {"shift": pytest.approx(0.15)}
     back = hf.load(tmp_path / "out")
     n, v = _pairs(500)
     np.testing.assert_allclose(np.asarray(back.evaluate(n, v)), np.asarray(nro.evaluate(n, v)), rtol=1e-5, atol=1e-6)
@@ -159,7 +159,7 @@ def test_shift_defaults_to_the_roughness_and_is_checked():
     env = hf.light.load_environment("interior", 8)
     gold = hf.brdf.cook_torrance(kd=0.05, ks=1.0, roughness=0.3, f0=0.9)
     mirror = hf.brdf.ggx(kd=0.0, ks=1.0, roughness=0.1, f0=0.95)
-    assert hf.light.lighting_target(gold, env, parametrization="NRO").context == {"shift": pytest.approx(0.3)}
+    assert hf.light.lighting_target(gold, env, parametrization="NRO").context == {"shift": pytest.approx(0.15)}
     assert hf.light.lighting_target(mirror, env, parametrization="RO").context == {"shift": pytest.approx(0.1)}
     lam = hf.brdf.lambert(kd=0.5)
     assert hf.light.lighting_target(lam, env, parametrization="NRO").context["shift"] == DEFAULT_SHIFT
@@ -222,7 +222,7 @@ def test_max_lookups_draws_grid_pairs_per_direction_and_keeps_the_chosen_structu
     d = np.asarray(pj.apply(proj, train.a, train.b, fac.model.context))
     assert als.single_texel("dual_paraboloid", S, d, lay.unknown_of_texel) is not None  # its own grid
     if proj == "r_off":
-        assert fac.model.context == {"shift": pytest.approx(0.3)} and fac.target.context == fac.model.context
+        assert fac.model.context == {"shift": pytest.approx(0.15)} and fac.target.context == fac.model.context
     # samples given: only the candidates on their direction
     s = hf.fit.draw_samples(target, "NR", {"kind": "grid", "size": S, "mapper": "dual_paraboloid", "count": 20000,
                                            "validation": 3000, "cache": False})

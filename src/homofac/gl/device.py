@@ -42,7 +42,6 @@ def _start() -> subprocess.Popen:
         if kind == "import":
             raise HomofacError(msg)
         raise HomofacError(f"no headless OpenGL (EGL) context: {msg} (install libegl1 libgl1, see Makefile)")
-    _child["renderer"] = status[1]
     return proc
 
 
@@ -84,12 +83,4 @@ def call(op: str, **kwargs):
     raise HomofacError(f"GL {op} failed: {answer[2][:300]}")
 
 
-def renderer() -> str:
-    """The GL_RENDERER string of the device (starts it)."""
-    with _lock:
-        if _child.get("proc") is None or _child["proc"].poll() is not None:
-            _child["proc"] = _start()
-        return _child["renderer"]
-
-
-__all__ = ["GLSLError", "SERVER", "call", "renderer"]
+__all__ = ["GLSLError", "SERVER", "call"]

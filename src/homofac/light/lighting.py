@@ -365,20 +365,21 @@ def lighting_target(brdf, env: Environment, *, parametrization: str | None = Non
 
 
 #: beta of ``r_off`` for a BRDF without a microfacet roughness (measured tables, Phong lobes).
-DEFAULT_SHIFT = 0.3
+DEFAULT_SHIFT = 0.15
 
 
 def off_specular_shift(brdf) -> float:
     """beta of the off-specular reflection ``r_off`` (:mod:`homofac.param.projections`) for ``brdf``:
-    its roughness (Beckmann m, GGX or Ward alpha: the lobe's angular width) clipped to [0.05, 0.3], else
-    :data:`DEFAULT_SHIFT`. ``r_off`` lifts a grazing ``r`` by ``atan(beta)``. Measured (grid ALS, S = 32,
-    nrmse against the converged ground truth): the roughness itself was best for gold (0.3; 0.5 worse)
-    and the near-mirror (0.1 against 0); for the plastic of roughness 0.6 under the studio's lamps 0.3
-    beat 0.6 (``E'+NROW`` 0.356 against 0.398, ``E'+ROW+R`` 0.378 against 0.511)."""
+    its roughness (Beckmann m, GGX or Ward alpha: the lobe's angular width) clipped to [0.05, 0.15],
+    else :data:`DEFAULT_SHIFT`. ``r_off`` lifts a grazing ``r`` by ``atan(beta)``. Measured (``E'+ROW+R``,
+    grid ALS, S = 32, nrmse against the converged ground truth; docs/sums.md#off-specular-products):
+    the near-mirror (roughness 0.1) is best at 0.1 (0.46; 0.15: 0.48, 0.3: 0.60), gold (0.3) at 0.2
+    (0.388; 0.15: 0.395, 0.3: 0.414), the plastic (0.6) at 0.1-0.15 (interior 0.192 / 0.199, 0.3:
+    0.268; studio 0.15: 0.284, 0.3: 0.378, 0.6: 0.511)."""
     rough = getattr(brdf, "params", {}).get("roughness") if brdf is not None else None
     if rough is None:
         return DEFAULT_SHIFT
-    return float(np.clip(np.mean(np.asarray(rough, np.float64)), 0.05, 0.3))
+    return float(np.clip(np.mean(np.asarray(rough, np.float64)), 0.05, 0.15))
 
 
 def with_context(target: Target, parametrization: str, *, shift: float | None = None) -> Target:
