@@ -35,11 +35,10 @@ def main(case: str, shifts: list[float], methods: list[str]) -> None:
         for m in methods:
             kw = dict(A.METHODS[m])
             p = kw.pop("parametrization")
-            kw.pop("sampling")
+            sampling = {"validation": 20000, **kw.pop("sampling"), "size": 32, "mapper": "dual_paraboloid"}
             t = hf.light.lighting_target(A.MATERIALS[material](), e32, parametrization=p, shift=beta)
-            cfg = {"kind": "grid", "count": 300000, "validation": 20000, "size": 32, "mapper": "dual_paraboloid"}
             t0 = time.perf_counter()
-            fac = hf.fit.factorize(t, p, texture_size=32, sampling=cfg, **kw)
+            fac = hf.fit.factorize(t, p, texture_size=32, sampling=sampling, **kw)
             e = A.errors(np.asarray(fac.evaluate(val.a, val.b), np.float64), gt, nv)
             print(json.dumps({"case": case, "method": m, "shift": beta, "nrmse": round(e["nrmse"], 4),
                               "frontal": round(e["nrmse_frontal"], 4),

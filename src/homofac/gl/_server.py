@@ -73,6 +73,10 @@ def bind(ctx, prog, textures) -> list:
     return made
 
 
+class _ProgramError(Exception):
+    """A program the driver did not compile; the message is its log on one line."""
+
+
 def program(ctx, **kwargs):
     """``ctx.program(**kwargs)``; a compile error becomes ``_ProgramError`` with the driver's message."""
     import moderngl
@@ -81,10 +85,6 @@ def program(ctx, **kwargs):
         return ctx.program(**kwargs)
     except moderngl.Error as e:
         raise _ProgramError(" ".join(str(e).split())) from None
-
-
-class _ProgramError(Exception):
-    pass
 
 
 def draw(ctx, *, vertex: str, fragment: str, attributes: np.ndarray, layout: str, names: list[str],
