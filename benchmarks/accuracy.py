@@ -93,6 +93,12 @@ METHODS = {
 }
 
 
+#: The README's columns (benchmarks/accuracy.md has every method of the run): the baselines, one product,
+#: the recommended 4- and 8-lookup modes and the fixed structures the README names.
+README_METHODS = ("split_sum", "kautz_mccool", "kautz_mccool_3d", "NR", "E'+NRW", "max_lookups 4", "E'+NRW x2+R",
+                  "E'+NRW x2+R pol8", "max_lookups 8", "E+NRW x5")
+
+
 def validation_pairs(count: int = 20000, seed: int = 12345):
     return sampling.grouped_random(count, seed)
 
@@ -221,8 +227,12 @@ def run_case(material: str, env: str, methods: list[str], fit_resolution: int, s
     return rows
 
 
-def report(rows: list[dict]) -> str:
-    """The markdown table: per case the nrmse of every method, and its ratio to split-sum."""
+def report(rows: list[dict], only: tuple[str, ...] | None = None) -> str:
+    """The markdown table: per case the nrmse of every method (or of those in ``only``), and its ratio to
+    split-sum, columns in the order of ``only``; then the n.v bins of the same methods, and (for the whole
+    table only) the error shares."""
+    if only is not None:
+        rows = sorted((r for r in rows if r["method"] in only), key=lambda r: only.index(r["method"]))
     methods = list(dict.fromkeys(r["method"] for r in rows))
     cases = list(dict.fromkeys((r["material"], r["environment"]) for r in rows))
     by = {(r["material"], r["environment"], r["method"]): r for r in rows}
@@ -241,7 +251,7 @@ def report(rows: list[dict]) -> str:
             cells.append(f"{r['nrmse']:.3f}{ratio}")
         lines.append(f"| {c[0]} / {c[1]} | " + " | ".join(cells) + " |")
     lines += ["", bins_table(rows)]
-    if any("share_top" in r for r in rows):
+    if only is None and any("share_top" in r for r in rows):
         lines += ["", shares_table(rows)]
     gt = sorted({(r["material"], r["environment"], r["ground_truth_resolution"], r["ground_truth_change"]) for r in rows})
     lines.append("")
@@ -337,17 +347,18 @@ def main(argv=None) -> int:
         if (material, env) in done:
             continue
         rows += run_case(material, env, methods, args.fit_resolution, args.size)
-        Path(args.json).write_text(json.dumps(rows, indent=1))
+        Path(args.json).write_text(json.dumps(rows, indent=1))  # after every case: a killed run keeps its rows
+    Path(args.json).write_text(json.dumps(rows, indent=1))  # also when every case came from --merge
     table = report(rows)
     out = Path(args.json)
     out.with_suffix(".md").write_text(table + "\n")  # the default run: benchmarks/accuracy.md
     if out.resolve() == (HERE / "accuracy.json").resolve():
-        plots(rows, HERE)  # a run into another JSON (a subset) leaves the committed plots alone
+        plots([r for r in rows if r["method"] in README_METHODS], HERE)  # a run into another JSON (a subset) leaves the committed plots alone
     if args.readme:
         readme = Path(args.readme)
         text = readme.read_text()
         if START in text and END in text:
-            block = f"{START}\n{table}\n\n![nrmse against lookups](benchmarks/accuracy_lookups.png)\n" \
+            block = f"{START}\n{report(rows, README_METHODS)}\n\n![nrmse against lookups](benchmarks/accuracy_lookups.png)\n" \
                     f"![nrmse against fit time](benchmarks/accuracy_time.png)\n{END}"
             readme.write_text(text[: text.index(START)] + block + text[text.index(END) + len(END):])
     print(table)
