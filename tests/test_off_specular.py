@@ -11,7 +11,7 @@ import pytest
 import homofac as hf
 from homofac.errors import HomofacError
 from homofac.factorization import Factor, Factorization, Term
-from homofac.fit import als, sampling, sums
+from homofac.fit import als, pipeline, sampling, sums
 from homofac.fit.options import LinearOptions
 from homofac.fit.samples import Samples
 from homofac.fit.structures import Structure
@@ -215,6 +215,7 @@ def test_max_lookups_draws_grid_pairs_per_direction_and_keeps_the_chosen_structu
     assert sum("training pairs" in m for m in logs) == 2  # one grid on r, one on r_off
     best = min(tried.values(), key=lambda t: t["validation_nrmse"])
     assert fac.selection["chosen"]["label"] == best["label"]
+    assert fac.solver["nv_balance"] == pipeline.CHOOSER_NV_BALANCE  # the chooser's default, not given
     chosen = fac.solver["structure"]["parametrization"]
     proj = pz.reflection_projection(chosen)
     lay = texture_layout("n", "dual_paraboloid", S)
@@ -226,5 +227,23 @@ def test_max_lookups_draws_grid_pairs_per_direction_and_keeps_the_chosen_structu
     # samples given: only the candidates on their direction
     s = hf.fit.draw_samples(target, "NR", {"kind": "grid", "size": S, "mapper": "dual_paraboloid", "count": 20000,
                                            "validation": 3000, "cache": False})
-    only = hf.fit.factorize(target, "NR", texture_size=S, max_lookups=4, samples=s, linear={"iterations": 8})
+    only = hf.fit.factorize(target, "NR", texture_size=S, max_lookups=4, samples=s,
+                            linear={"iterations": 8, "nv_balance": 0.0})
     assert [t["label"] for t in only.selection["tried"]] == ["E'+NRW x1"]
+    assert only.solver["nv_balance"] == 0.0  # given: kept
+
+
+def test_the_chooser_balances_the_nv_bins_where_the_brdf_has_a_diffuse_part():
+    """max_lookups / target_error fit their candidates with nv_balance 1 on lighting of a BRDF with
+    kd > 0, keep the plain objective for kd = 0 and for BRDF targets, and never override a given value."""
+    env = hf.light.load_environment("interior", 8)
+    plastic = hf.light.lighting_target(hf.brdf.cook_torrance(kd=0.3, ks=1.0, roughness=0.6, f0=0.04), env)
+    mirror = hf.light.lighting_target(hf.brdf.ggx(kd=0.0, ks=1.0, roughness=0.1, f0=0.9), env)
+    brdf = hf.fit.brdf_target(hf.brdf.cook_torrance(kd=0.3, ks=1.0, roughness=0.6, f0=0.04))
+    assert pipeline.chooser_linear(plastic, None).nv_balance == pipeline.CHOOSER_NV_BALANCE
+    given = LinearOptions(iterations=4)
+    assert pipeline.chooser_linear(plastic, given).nv_balance == pipeline.CHOOSER_NV_BALANCE
+    assert pipeline.chooser_linear(plastic, given).iterations == 4
+    assert pipeline.chooser_linear(plastic, LinearOptions(nv_balance=0.0)).nv_balance == 0.0
+    assert pipeline.chooser_linear(mirror, None).nv_balance == 0.0
+    assert pipeline.chooser_linear(brdf, None).nv_balance == 0.0

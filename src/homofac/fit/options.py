@@ -132,7 +132,9 @@ class LinearOptions(Options):
     ``nv_balance``: beta of the sample weights ``(mean of y^2 over the sample's n.v bin)^-beta``
     (8 bins of equal width, weights scaled to mean 1): 0 is the plain objective, where the bright
     grazing views dominate; 1 makes every bin's relative error count by its sample count
-    (:func:`homofac.fit.sums.nv_weights`). ``polish`` (after ``als``): that many Levenberg-Marquardt steps
+    (:func:`homofac.fit.sums.nv_weights`); when the structure is chosen (``max_lookups``,
+    ``target_error``) for a lighting target of a BRDF with kd > 0 and ``nv_balance`` is not given, the
+    candidates are fitted with 1 (:func:`homofac.fit.pipeline.chooser_linear`). ``polish`` (after ``als``): that many Levenberg-Marquardt steps
     on the grid pairs and texel-sampled pairs at ``polish_size`` between the texel centres the grid
     design sees (:mod:`homofac.fit.polish`); 0 (the default) is off.
     """
