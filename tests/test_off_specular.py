@@ -208,7 +208,7 @@ def test_max_lookups_draws_grid_pairs_per_direction_and_keeps_the_chosen_structu
     brdf = hf.brdf.cook_torrance(kd=(0.05, 0.04, 0.02), ks=1.0, roughness=0.3, f0=(1.0, 0.78, 0.34))
     target = hf.light.lighting_target(brdf, hf.light.load_environment("interior", 8))
     logs = []
-    fac = hf.fit.factorize(target, "NR", texture_size=S, max_lookups=4, linear={"iterations": 8},
+    fac = hf.fit.factorize(target, "NR", texture_size=S, max_lookups=4, linear={"iterations": 8, "polish": 0},
                            sampling={"count": 20000, "validation": 3000, "cache": False}, log=logs.append)
     tried = {t["label"]: t for t in fac.selection["tried"]}
     assert set(tried) == {"E'+NRW x1", "E'+NROW x1", "E'+ROW x1+R"}
@@ -247,3 +247,45 @@ def test_the_chooser_balances_the_nv_bins_where_the_brdf_has_a_diffuse_part():
     assert pipeline.chooser_linear(plastic, LinearOptions(nv_balance=0.0)).nv_balance == 0.0
     assert pipeline.chooser_linear(mirror, None).nv_balance == 0.0
     assert pipeline.chooser_linear(brdf, None).nv_balance == 0.0
+
+
+@pytest.mark.slow
+def test_the_chooser_polishes_the_structure_it_keeps_and_a_refit_repeats_it():
+    """max_lookups ranks the candidates on their grid ALS fits, then polishes the kept one off the grid
+    (CHOOSER_POLISH Levenberg-Marquardt steps); the selection records the validation error before and
+    after, linear.polish given (0 here) turns it off, and a fresh refit on the same target repeats it
+    (its solver record says what the full run did)."""
+    brdf = hf.brdf.cook_torrance(kd=(0.05, 0.04, 0.02), ks=1.0, roughness=0.3, f0=(1.0, 0.78, 0.34))
+    target = hf.light.lighting_target(brdf, hf.light.load_environment("interior", 8))
+    kw = dict(texture_size=S, max_lookups=4, sampling={"count": 20000, "validation": 3000, "cache": False})
+    fac = hf.fit.factorize(target, "NR", linear={"iterations": 8, "polish_size": 8}, **kw)
+    val = lambda r: r.metrics["validation"]["float"]["nrmse"]  # noqa: E731
+    note = fac.selection["polish"]
+    before, after = note["validation_nrmse_before"], note["validation_nrmse_after"]
+    assert note["steps"] == pipeline.CHOOSER_POLISH
+    assert before == pytest.approx(fac.selection["chosen"]["validation_nrmse"])
+    assert val(fac) == pytest.approx(after)
+    assert after < before  # small lamps: detail at the texel scale, which the grid fit never sees between centres
+    assert fac.solver["polish"]["steps"] == pipeline.CHOOSER_POLISH and fac.solver["polish"]["size"] == 8
+    assert fac.selection["chosen"]["label"] == Structure.of(fac.solver["structure"]).label()
+    off = hf.fit.factorize(target, "NR", linear={"iterations": 8, "polish": 0}, **kw)
+    assert "polish" not in off.selection and "polish" not in off.solver
+    assert val(off) == pytest.approx(before, rel=1e-5)  # the same ALS fits, the same choice
+    again = hf.fit.refit(fac, brdf=brdf, start="fresh")
+    assert again.solver["polish"]["steps"] == pipeline.CHOOSER_POLISH
+    assert again.solver["nv_balance"] == fac.solver["nv_balance"] == pipeline.CHOOSER_NV_BALANCE
+    assert val(again) == pytest.approx(val(fac), rel=1e-3)
+
+
+def test_chooser_polish_applies_to_lighting_als_fits_unless_polish_is_given():
+    env = hf.light.load_environment("interior", 8)
+    lighting = hf.light.lighting_target(hf.brdf.ggx(kd=0.0, ks=1.0, roughness=0.1, f0=0.9), env)
+    brdf = hf.fit.brdf_target(hf.brdf.cook_torrance(kd=0.3, ks=1.0, roughness=0.6, f0=0.04))
+    lin = LinearOptions()
+    assert pipeline.chooser_polish(lighting, None, lin) == pipeline.CHOOSER_POLISH
+    assert pipeline.chooser_polish(lighting, LinearOptions(iterations=3), lin) == pipeline.CHOOSER_POLISH
+    assert pipeline.chooser_polish(lighting, LinearOptions(polish=0), lin) == 0  # given: as asked
+    assert pipeline.chooser_polish(lighting, LinearOptions(polish=3), lin) == 0  # every candidate polished already
+    lm = LinearOptions(method="levenberg_marquardt")
+    assert pipeline.chooser_polish(lighting, lm, lm) == 0
+    assert pipeline.chooser_polish(brdf, None, lin) == 0

@@ -14,6 +14,7 @@ from homofac.errors import HomofacError
 from homofac.factorization import Factor, Factorization, Term, Texture
 from homofac.fit import als, pipeline, refine, sampling, structures, sums
 from homofac.fit.options import LinearOptions
+from homofac.fit.polish import recorded_linear
 from homofac.fit.samples import Samples, evaluate_grouped
 from homofac.fit.structures import Structure
 from homofac.fit.system import texture_layout
@@ -250,7 +251,10 @@ def test_max_lookups_picks_within_the_budget(plastic):
     assert fac.model.lookups <= 8 and sel["max_lookups"] == 8
     assert fac.analysis is not None and fac.analysis["pair"] == "nr"  # Mahajan analysis beside the choice
     errs = [t["validation_nrmse"] for t in sel["tried"]]
-    assert fac.metrics["validation"]["float"]["nrmse"] == pytest.approx(min(errs))
+    pol = sel.get("polish")  # the kept structure polished off the grid (ALS fits only)
+    assert pol is None or pol["validation_nrmse_before"] == pytest.approx(min(errs))
+    kept = min(errs) if pol is None else pol["validation_nrmse_after"]
+    assert fac.metrics["validation"]["float"]["nrmse"] == pytest.approx(kept)
     assert all(t["lookups"] <= 8 for t in sel["tried"]) and len(sel["tried"]) >= 2
 
 
@@ -484,6 +488,17 @@ def test_polish_needs_grid_samples(exact_sum):
     with pytest.raises(HomofacError, match="polish follows an als fit"):
         sums.fit_sum(target, Structure("NR", 1, None, True), "dual_paraboloid", S, s,
                      LinearOptions(method="levenberg_marquardt", polish=2, iterations=2))
+
+
+def test_a_refit_takes_the_linear_settings_the_fit_recorded():
+    """recorded_linear: nv_balance and the polish (steps, size) from the solver record, the rest from
+    the options; a record without a polish means none was done."""
+    lin = LinearOptions(iterations=4)
+    out = recorded_linear(lin, {"nv_balance": 1.0, "polish": {"steps": 8, "iterations": 5, "size": 12}})
+    assert (out.nv_balance, out.polish, out.polish_size, out.iterations) == (1.0, 8, 12, 4)
+    assert recorded_linear(LinearOptions(polish=3), {"nv_balance": 0.0}).polish == 0
+    assert recorded_linear(lin, {"polish": {"iterations": 6, "size": 16}}).polish == 6  # records before "steps"
+    assert recorded_linear(lin, None) == lin
 
 
 @pytest.mark.slow

@@ -52,7 +52,7 @@ def polish(target: Target, structure: Structure, mapper: str, size: int, fit: Su
     lm = lin.model_copy(update={"method": "levenberg_marquardt", "iterations": int(lin.polish), "polish": 0})
     log(f"polishing {structure.label()} off the grid: {lin.polish} Levenberg-Marquardt steps on {len(pairs.a)} pairs")
     out = fit_sum(target, structure, mapper, size, pairs, lm, log, previous=fit.model)
-    record = {**fit.solver, "polish": {"method": out.solver["method"], "backend": out.solver["backend"],
+    record = {**fit.solver, "polish": {"steps": int(lin.polish), "method": out.solver["method"], "backend": out.solver["backend"],
                                        "iterations": out.solver["iterations"], "converged": out.solver["converged"],
                                        "samples": int(len(pairs.a)), "size": int(lin.polish_size),
                                        "objective_start": out.solver["objective_start"],
@@ -61,4 +61,23 @@ def polish(target: Target, structure: Structure, mapper: str, size: int, fit: Su
                   tuple(fit.warnings) + tuple(out.warnings), out.unknowns)
 
 
-__all__ = ["polish", "polish_pairs"]
+def recorded_linear(lin: LinearOptions, solver: dict | None) -> LinearOptions:
+    """``lin`` with the ``nv_balance`` and polish (steps, size) a sum's solver record says its fit used.
+
+    A chooser (``max_lookups``, ``target_error``) fits with settings the options may not hold
+    (:func:`homofac.fit.pipeline.chooser_linear`, :func:`~homofac.fit.pipeline.chooser_polish`); a refit
+    of its result repeats them so that it equals the full run.
+    """
+    if not solver:
+        return lin
+    update: dict = {}
+    if "nv_balance" in solver:
+        update["nv_balance"] = float(solver["nv_balance"])
+    pol = solver.get("polish")
+    update["polish"] = int(pol.get("steps", pol.get("iterations", 0))) if isinstance(pol, dict) else 0
+    if isinstance(pol, dict) and "size" in pol:
+        update["polish_size"] = int(pol["size"])
+    return lin.model_copy(update=update)
+
+
+__all__ = ["polish", "polish_pairs", "recorded_linear"]

@@ -49,7 +49,7 @@ from . import footprints, precision, programs, solvers, sums, transport
 from .draw import default_mapper
 from .options import FitOptions, LinearOptions
 from .pipeline import quality_warnings, resolve_sampling
-from .polish import polish, polish_pairs
+from .polish import polish, polish_pairs, recorded_linear
 from .product import unpack, zeros_rule
 from .result import Result
 from .samples import check_values, evaluate_grouped
@@ -438,7 +438,7 @@ def refit(fac: Result, environment: Environment | None = None, brdf: BRDF | None
         model, record, solve_s = refit_product(state, fac, tgt, y, log, solve)
         warnings: tuple = ()
     elif state.mode == "sum":
-        lin = opts.linear or LinearOptions()
+        lin = recorded_linear(opts.linear or LinearOptions(), fac.solver)  # what the full run used
         if linear:
             lin = validate(LinearOptions, {**lin.model_dump(), **linear}, "linear")
         sf = sums.fit_sum(tgt, state.structure, state.mapper, state.texture_size, samples, lin, log,
