@@ -218,6 +218,7 @@ def run_case(material: str, env: str, methods: list[str], fit_resolution: int, s
         approx = np.asarray(fac.evaluate(val.a, val.b), np.float64)
         row = {"method": name, "material": material, "environment": env, "lookups": fac.model.lookups,
                "structure": fac.parametrization, "chosen": (fac.selection or {}).get("chosen", {}).get("label"),
+               "polished": "polish" in (fac.selection or {}),
                "texels": fac.model.texels, "fit_s": fit_s, **errors(approx, gt, nv),
                "image_nrmse": image_error(fac, material, env, r_gt), "ground_truth_resolution": r_gt,
                "ground_truth_change": change, "fit_resolution": fit_resolution, "texture_size": size}
