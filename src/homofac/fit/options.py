@@ -134,9 +134,10 @@ class LinearOptions(Options):
     grazing views dominate; 1 makes every bin's relative error count by its sample count
     (:func:`homofac.fit.sums.nv_weights`); when the structure is chosen (``max_lookups``,
     ``target_error``) for a lighting target of a BRDF with kd > 0 and ``nv_balance`` is not given, the
-    candidates are fitted with 1 (:func:`homofac.fit.pipeline.chooser_linear`). ``polish`` (after ``als``): that many Levenberg-Marquardt steps
-    on the grid pairs and texel-sampled pairs at ``polish_size`` between the texel centres the grid
-    design sees (:mod:`homofac.fit.polish`); 0 (the default) is off. When the structure is chosen and
+    candidates are fitted with 1 (:func:`homofac.fit.pipeline.chooser_linear`). ``polish`` (after
+    ``als``): that many Levenberg-Marquardt steps on the grid pairs and texel-sampled pairs at
+    ``polish_size`` between the texel centres the grid design sees (:mod:`homofac.fit.polish`); 0 (the
+    default) is off. When the structure is chosen and
     ``polish`` is not given, the candidates are ranked on their ALS fits and the kept one is then
     polished with 8 steps (:func:`homofac.fit.pipeline.chooser_polish`; ``selection.polish`` records
     the validation error before and after); given, every candidate is polished that much (0: none).

@@ -365,5 +365,6 @@ def _baseline(target: Target, opts: FitOptions, mapper: str, samples: Samples, r
                                   "unknowns": 0, "lights": int(getattr(target.fn, "n_lights", 0))})
 
 
-__all__ = ["CHOOSER_NV_BALANCE", "CHOOSER_POLISH", "DEFAULT_MAX_LOOKUPS", "chooser_linear", "chooser_polish", "default_mapper", "draw_samples", "factorize", "measure", "options",
-           "quality_warnings", "resolve_sampling"]
+__all__ = ["CHOOSER_NV_BALANCE", "CHOOSER_POLISH", "DEFAULT_MAX_LOOKUPS", "chooser_linear", "chooser_polish",
+           "default_mapper", "draw_samples", "factorize", "measure", "options", "quality_warnings",
+           "resolve_sampling"]

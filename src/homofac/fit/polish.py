@@ -52,7 +52,8 @@ def polish(target: Target, structure: Structure, mapper: str, size: int, fit: Su
     lm = lin.model_copy(update={"method": "levenberg_marquardt", "iterations": int(lin.polish), "polish": 0})
     log(f"polishing {structure.label()} off the grid: {lin.polish} Levenberg-Marquardt steps on {len(pairs.a)} pairs")
     out = fit_sum(target, structure, mapper, size, pairs, lm, log, previous=fit.model)
-    record = {**fit.solver, "polish": {"steps": int(lin.polish), "method": out.solver["method"], "backend": out.solver["backend"],
+    record = {**fit.solver, "polish": {"steps": int(lin.polish), "method": out.solver["method"],
+                                       "backend": out.solver["backend"],
                                        "iterations": out.solver["iterations"], "converged": out.solver["converged"],
                                        "samples": int(len(pairs.a)), "size": int(lin.polish_size),
                                        "objective_start": out.solver["objective_start"],
