@@ -90,13 +90,14 @@ METHODS = {
     "E+NRW x5": {"parametrization": "NR", "terms": 5, "diffuse": "exact", "nv_factor": True, "sampling": GRID},
     "max_lookups 4": {"parametrization": "NR", "max_lookups": 4, "sampling": GRID},
     "max_lookups 8": {"parametrization": "NR", "max_lookups": 8, "sampling": GRID},
+    "max_lookups 16": {"parametrization": "NR", "max_lookups": 16, "sampling": GRID},
 }
 
 
 #: The README's columns (benchmarks/accuracy.md has every method of the run): the baselines, one product,
 #: the recommended 4- and 8-lookup modes and the fixed structures the README names.
 README_METHODS = ("split_sum", "kautz_mccool", "kautz_mccool_3d", "NR", "E'+NRW", "max_lookups 4", "E'+NRW x2+R",
-                  "E'+NRW x2+R pol8", "max_lookups 8", "E+NRW x5")
+                  "E'+NRW x2+R pol8", "max_lookups 8", "E+NRW x5", "max_lookups 16")
 
 
 def validation_pairs(count: int = 20000, seed: int = 12345):
