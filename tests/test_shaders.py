@@ -96,7 +96,7 @@ def model(mapper: str, terms: int) -> Result:
     else:
         all_terms = [Term((Factor("n", "A"), Factor("h_dom", "B")), jnp.asarray([0.9, 0.8, 0.7])),
                      Term((Factor("r", "B"), Factor("nv", "W"), Factor("v", "A")), jnp.asarray([0.3, 0.2, 0.1]), "prefiltered"),
-                     Term((Factor("d_dom", "A"), Factor("r_off", "B")), jnp.asarray([0.1, 0.2, 0.3]))]
+                     Term((Factor("d_dom", "A"), Factor("r_off", "B"), Factor("nh_dom", "W")), jnp.asarray([0.1, 0.2, 0.3]))]
         ctx = {"dominant": jnp.asarray(DOMINANT, jnp.float32), "shift": 0.3}
     chosen = tuple(all_terms[:terms])
     used = {f.texture for t in chosen for f in t.factors}

@@ -2,10 +2,11 @@
 
 The model (per RGB channel c, in units of sigma_c, the RMS of what the terms fit)::
 
-    yhat_i = sum_t p_t(n_i) q_t(r_i) w_t(n.v_i)
+    yhat_i = sum_t p_t(n_i) q_t(r_i) w_t(n.v_i) d_t(x_i)
 
-with p_t, q_t textures of one direction mapper and w_t a ``line`` texture; a term may lack any of the
-three (then that factor is 1: an n-only "fitted diffuse" term, an r-only term). On ``grid`` samples
+with p_t, q_t textures of one direction mapper and w_t, d_t ``line`` textures (d_t read at a second
+scalar x_t, the ``nh_dom`` highlight coordinate of the term's light); a term may lack any of the
+four (then that factor is 1: an n-only "fitted diffuse" term, an r-only term, a highlight term d w). On ``grid`` samples
 (:func:`homofac.fit.sampling.grouped_grid`) every n- and r-lookup reads exactly one texel, so for
 fixed q and w the least-squares problem in p splits into one K x K system per texel and channel
 (and the same for q); w has K S_w unknowns per channel, a small dense system:
@@ -15,7 +16,7 @@ fixed q and w the least-squares problem in p splits into one K x K system per te
   the texel graph, weight ``mu = lambda N / texels``) by ``jacobi`` block-Jacobi passes;
 * P block: the same with ``c_ti = q_t(r_i) w_t(n.v_i)``, grouped by the n texel;
 * W block: the dense normal equations of the K S_w line unknowns (two texels per sample) with
-  first-difference smoothing ``lambda N / S_w``;
+  first-difference smoothing ``lambda N / S_w``; the D block the same for the lines read at x;
 * after each sweep every full term is rebalanced (mean |p_t| = mean |w_t| = 1 per channel, the scale
   moved into q_t), which removes the scale gauge freedom of the products.
 
@@ -48,14 +49,17 @@ class GridData(NamedTuple):
     nb: Int[Array, "n 4"]  # neighbour unknowns of each texel (0 where missing)
     nbm: Float[Array, "n 4"]  # 1 where the neighbour exists
     s: Float[Array, "N"]  # square roots of the sample weights (mean weight 1; ones: the plain objective)
+    hi: Int[Array, "N K 2"] | None = None  # line texels of each term's highlight scalar x (terms with a d factor)
+    hw: Float[Array, "N K 2"] | None = None  # their weights (0 for the other terms)
 
 
 class Flags(NamedTuple):
-    """Which factors each term has (static): p(n), q(r), w(n.v)."""
+    """Which factors each term has (static): p(n), q(r), w(n.v), d(x)."""
 
     p: tuple[bool, ...]
     q: tuple[bool, ...]
     w: tuple[bool, ...]
+    h: tuple[bool, ...] = ()  # empty: no term has a d factor
 
 
 def line_footprint(x, size: int) -> tuple[Int[Array, "N 2"], Float[Array, "N 2"]]:
@@ -76,10 +80,25 @@ def single_texel(mapper: str, size: int, d, unknown_of_texel: np.ndarray, tol: f
     return None if np.any(unk < 0) else unk.astype(np.int32)
 
 
+def _line(W, vi, vw, use):
+    """Line factors at the samples (K, N, 3): ``vi, vw`` (N, 2) shared by every term, or (N, K, 2) per term."""
+    if vi.ndim == 2:
+        w = jnp.einsum("nk,tnkc->tnc", vw, W[:, vi])
+    else:
+        w = jnp.einsum("ntk,ntkc->tnc", vw, W[jnp.arange(W.shape[0])[None, :, None], vi])
+    u = jnp.asarray(use, w.dtype)[:, None, None]
+    return w * u + (1 - u)
+
+
 def _wv(W, d: GridData, flags: Flags):
-    w = jnp.einsum("nk,tnkc->tnc", d.vw, W[:, d.vi])
-    use = jnp.asarray(flags.w, w.dtype)[:, None, None]
-    return w * use + (1 - use)
+    return _line(W, d.vi, d.vw, flags.w)
+
+
+def _hv(D, d: GridData, flags: Flags):
+    """The d factors at the samples (ones when no term has one)."""
+    if not any(flags.h):
+        return jnp.ones((len(flags.p), d.y.shape[0], 1), d.y.dtype)
+    return _line(D, d.hi, d.hw, flags.h)
 
 
 def _factor(X, idx, use):
@@ -87,9 +106,10 @@ def _factor(X, idx, use):
     return X[:, idx] * u + (1 - u)
 
 
-def predict(P, Q, W, d: GridData, flags: Flags) -> Float[Array, "N 3"]:
-    """``sum_t p_t(n_i) q_t(r_i) w_t(n.v_i)`` at the grid samples."""
-    return jnp.sum(_factor(P, d.a, flags.p) * _factor(Q, d.b, flags.q) * _wv(W, d, flags), axis=0)
+def predict(P, Q, W, d: GridData, flags: Flags, D=None) -> Float[Array, "N 3"]:
+    """``sum_t p_t(n_i) q_t(r_i) w_t(n.v_i) d_t(x_i)`` at the grid samples."""
+    out = _factor(P, d.a, flags.p) * _factor(Q, d.b, flags.q) * _wv(W, d, flags)
+    return jnp.sum(out * _hv(D, d, flags) if D is not None else out, axis=0)
 
 
 #: Bytes of the per-sample outer products one chunk of a block may hold (bounded memory at any K).
@@ -150,22 +170,27 @@ def _texel_block(X, c, idx, y, d: GridData, mu, jacobi: int, ridge: float = 1e-6
     return jnp.moveaxis(Xc, -1, 0)
 
 
-def _w_block(pq, W, d: GridData, flags: Flags, y, mu_w, ridge: float = 1e-6):
-    """Dense normal equations of the line unknowns (K S_w per channel) given p q at the samples."""
+def _w_block(pq, W, d: GridData, flags: Flags, y, mu_w, ridge: float = 1e-6, vi=None, vw=None, use=None):
+    """Dense normal equations of the line unknowns (K S_w per channel) given the other factors ``pq`` at
+    the samples; the lines read at n.v (``d.vi``, ``d.vw``, ``flags.w``) unless ``vi, vw, use`` say others."""
     K, Sw = W.shape[0], W.shape[1]
     M = K * Sw
-    use = jnp.asarray(flags.w, W.dtype)
+    vi = d.vi if vi is None else vi
+    vw = d.vw if vw is None else vw
+    use = jnp.asarray(flags.w if use is None else use, W.dtype)
 
-    def normal(pq, vi, vw, y):  # pq (N, K, 3) sample-major for chunking
+    def normal(pq, vi, vw, y):  # pq (N, K, 3) sample-major for chunking; vi, vw (N, 2) or (N, K, 2)
         N = y.shape[0]
-        cols = (jnp.arange(K)[None, :, None] * Sw + vi[:, None, :]).reshape(N, 2 * K)
-        coef = (pq[:, :, None, :] * vw[:, None, :, None] * use[None, :, None, None]).reshape(N, 2 * K, 3)
+        vi3 = vi[:, None, :] if vi.ndim == 2 else vi
+        vw3 = vw[:, None, :] if vw.ndim == 2 else vw
+        cols = (jnp.arange(K)[None, :, None] * Sw + vi3).reshape(N, 2 * K)
+        coef = (pq[:, :, None, :] * vw3[..., None] * use[None, :, None, None]).reshape(N, 2 * K, 3)
         flat = (cols[:, :, None] * M + cols[:, None, :]).reshape(-1)
         G = jax.ops.segment_sum((coef[:, :, None, :] * coef[:, None, :, :]).reshape(-1, 3), flat, num_segments=M * M)
         h = jax.ops.segment_sum((coef * y[:, None, :]).reshape(-1, 3), cols.reshape(-1), num_segments=M)
         return G, h
 
-    G, h = _chunked(normal, (jnp.moveaxis(pq, 0, 1), d.vi, d.vw, y), y.shape[0], 12 * K * K + 6 * K)
+    G, h = _chunked(normal, (jnp.moveaxis(pq, 0, 1), vi, vw, y), y.shape[0], 12 * K * K + 6 * K)
     G = jnp.moveaxis(G.reshape(M, M, 3), -1, 0)
     diff = np.diff(np.eye(Sw), axis=0)
     lap = jnp.asarray(np.kron(np.eye(K), diff.T @ diff), W.dtype)
@@ -178,20 +203,30 @@ def _w_block(pq, W, d: GridData, flags: Flags, y, mu_w, ridge: float = 1e-6):
     return Wn * u + W * (1 - u)
 
 
-def _balance(P, Q, W, flags: Flags):
-    """Rescale full terms so mean |p_t| = mean |w_t| = 1 per channel (the scale goes into q_t)."""
+def _balance(P, Q, W, flags: Flags, D=None):
+    """Rescale full terms so mean |p_t| = mean |w_t| = 1 per channel (the scale goes into q_t, or into
+    d_t for a term without q)."""
+    h = flags.h or (False,) * len(flags.p)
     full = jnp.asarray([p and q for p, q in zip(flags.p, flags.q)], P.dtype)[:, None, None]
     fw = jnp.asarray([w and q for w, q in zip(flags.w, flags.q)], P.dtype)[:, None, None]
     sp = jnp.maximum(jnp.mean(jnp.abs(P), axis=1, keepdims=True), 1e-12) * full + (1 - full)
     sw = jnp.maximum(jnp.mean(jnp.abs(W), axis=1, keepdims=True), 1e-12) * fw + (1 - fw)
-    return P / sp, Q * sp * sw, W / sw
+    P, Q, W = P / sp, Q * sp * sw, W / sw
+    if D is None:
+        return P, Q, W
+    hp = jnp.asarray([p and x and not q for p, q, x in zip(flags.p, flags.q, h)], P.dtype)[:, None, None]
+    hw = jnp.asarray([w and x and not q for w, q, x in zip(flags.w, flags.q, h)], P.dtype)[:, None, None]
+    sp = jnp.maximum(jnp.mean(jnp.abs(P), axis=1, keepdims=True), 1e-12) * hp + (1 - hp)
+    sw = jnp.maximum(jnp.mean(jnp.abs(W), axis=1, keepdims=True), 1e-12) * hw + (1 - hw)
+    return P / sp, Q, W / sw, D * sp * sw
 
 
 @functools.partial(jax.jit, static_argnames=("flags", "sweeps", "jacobi"))
-def run(P, Q, W, d: GridData, lam, *, flags: Flags, sweeps: int, jacobi: int = 3):
-    """``sweeps`` ALS sweeps from (P, Q, W) (K, n, 3), (K, n, 3), (K, S_w, 3); returns them and the data
-    objective ``sum_i s_i^2 ||yhat_i - y_i||^2`` (``d.s``: the square roots of the sample weights) after
-    each sweep."""
+def run(P, Q, W, d: GridData, lam, *, flags: Flags, sweeps: int, jacobi: int = 3, D=None):
+    """``sweeps`` ALS sweeps from (P, Q, W) (K, n, 3), (K, n, 3), (K, S_w, 3) and, when some term has a
+    d factor (``flags.h``), D (K, S_w, 3); returns them and the data objective
+    ``sum_i s_i^2 ||yhat_i - y_i||^2`` (``d.s``: the square roots of the sample weights) after each sweep:
+    ``(P, Q, W, hist)``, or ``(P, Q, W, D, hist)`` with D."""
     N, n, Sw = d.y.shape[0], P.shape[1], W.shape[1]
     mu = lam * N / n
     mu_w = lam * N / Sw
@@ -201,30 +236,42 @@ def run(P, Q, W, d: GridData, lam, *, flags: Flags, sweeps: int, jacobi: int = 3
     P = P * up + (1 - up)
     s1 = d.s[:, None]
     s3 = d.s[None, :, None]
+    has_d = D is not None and any(flags.h)
 
     def sweep(carry, _):
-        P, Q, W = carry
+        P, Q, W, D = carry
         wv = _wv(W, d, flags)
+        hv = _hv(D, d, flags) if has_d else 1.0
         # weighted least squares as row scaling: coefficients and targets times sqrt(weight)
         if any(flags.q):
-            c = _factor(P, d.a, flags.p) * wv
+            c = _factor(P, d.a, flags.p) * wv * hv
             fixed = jnp.sum(c * (1 - uq), axis=0)
             Q = _texel_block(Q, c * uq * s3, d.b, (d.y - fixed) * s1, d, mu, jacobi) * uq + (1 - uq)
         if any(flags.p):
-            c = _factor(Q, d.b, flags.q) * wv
+            c = _factor(Q, d.b, flags.q) * wv * hv
             fixed = jnp.sum(c * (1 - up), axis=0)
             P = _texel_block(P, c * up * s3, d.a, (d.y - fixed) * s1, d, mu, jacobi) * up + (1 - up)
+        if has_d:  # the highlight lines, given p q w
+            pqw = _factor(P, d.a, flags.p) * _factor(Q, d.b, flags.q) * wv
+            uh = jnp.asarray(flags.h, P.dtype)[:, None, None]
+            fixed = jnp.sum(pqw * (1 - uh), axis=0)
+            D = _w_block(pqw * s3, D, d, flags, (d.y - fixed) * s1, mu_w, vi=d.hi, vw=d.hw, use=flags.h)
+            hv = _hv(D, d, flags)
         if any(flags.w):
-            pq = _factor(P, d.a, flags.p) * _factor(Q, d.b, flags.q)
+            pq = _factor(P, d.a, flags.p) * _factor(Q, d.b, flags.q) * hv
             uw = jnp.asarray(flags.w, P.dtype)[:, None, None]
             fixed = jnp.sum(pq * (1 - uw), axis=0)
             W = _w_block(pq * s3, W, d, flags, (d.y - fixed) * s1, mu_w)
-        P, Q, W = _balance(P, Q, W, flags)
-        r = (predict(P, Q, W, d, flags) - d.y) * s1
-        return (P, Q, W), jnp.sum(r * r)
+        if has_d:
+            P, Q, W, D = _balance(P, Q, W, flags, D)
+            r = (predict(P, Q, W, d, flags, D) - d.y) * s1
+        else:
+            P, Q, W = _balance(P, Q, W, flags)
+            r = (predict(P, Q, W, d, flags) - d.y) * s1
+        return (P, Q, W, D), jnp.sum(r * r)
 
-    (P, Q, W), hist = jax.lax.scan(sweep, (P, Q, W), None, length=sweeps)
-    return P, Q, W, hist
+    (P, Q, W, D), hist = jax.lax.scan(sweep, (P, Q, W, D if has_d else jnp.zeros((), P.dtype)), None, length=sweeps)
+    return (P, Q, W, D, hist) if has_d else (P, Q, W, hist)
 
 
 __all__ = ["Flags", "GridData", "line_footprint", "predict", "run", "single_texel", "spd_solve"]

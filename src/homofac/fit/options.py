@@ -175,7 +175,8 @@ class FitOptions(Options):
     within that many texture lookups per pixel, by validation error; :mod:`homofac.fit.structures`),
     ``reflection`` (lighting: one more fitted term, an r-only texture), ``prefiltered`` (lighting: the split
     sum's P(r) W(n.v) computed and kept; the products fit corrections to it), ``rw_terms`` (lighting: J
-    more fitted terms q(r) w(n.v), without a normal texture, beside the K products).
+    more fitted terms q(r) w(n.v), without a normal texture, beside the K products), ``highlight_terms``
+    (lighting: J <= 3 more fitted terms d(nh_dom) w(n.v), the highlights of the J brightest lights).
     """
 
     parametrization: ParametrizationName = "NR"
@@ -192,6 +193,7 @@ class FitOptions(Options):
     reflection: bool = False
     prefiltered: bool = False
     rw_terms: int = Field(0, ge=0, le=MAX_TERMS)
+    highlight_terms: int = Field(0, ge=0, le=3)
     max_lookups: Optional[int] = Field(None, ge=1, le=256)
     linear: Optional[LinearOptions] = None
 
@@ -199,7 +201,7 @@ class FitOptions(Options):
     def is_sum(self) -> bool:
         """True when the fit is a linear-space sum of products rather than today's log-space product."""
         return (self.terms > 1 or self.diffuse is not None or self.nv_factor or self.reflection or self.rw_terms > 0
-                or self.prefiltered or self.max_lookups is not None or self.linear is not None)
+                or self.highlight_terms > 0 or self.prefiltered or self.max_lookups is not None or self.linear is not None)
 
 
 __all__ = ["AnalysisOptions", "CameraOptions", "MAX_CAMERAS", "MAX_CAMERA_SIDE", "MAX_SCENE_PIXELS", "FitOptions", "LinearOptions", "MAX_TERMS", "MAX_TEXTURE_SIZE", "MIN_TEXTURE_SIZE", "MapperName", "SamplingOptions"]

@@ -71,7 +71,9 @@ def chooser_polish(target: Target, linear: LinearOptions | None, lin: LinearOpti
     after. The polish is kept whatever the validation pairs say: they hold the lighting at the fit's
     resolution, and on metal / interior they rose (0.366 -> 0.376) where the error against the
     converged ground truth fell (0.373 -> 0.355); on the accuracy benchmark's 16 cases the polish
-    lowered that error on 15 (docs/sums.md).
+    lowered that error on 15 (docs/sums.md). A kept structure with a highlight term is not polished:
+    there the polish flattened the highlight's line (near-mirror / city 0.17 -> 0.27 against the
+    ground truth; docs/sums.md).
     """
     if target.kind != "lighting" or (linear is not None and "polish" in linear.model_fields_set):
         return 0
@@ -116,6 +118,7 @@ def factorize(
     reflection: bool | None = None,
     prefiltered: bool | None = None,
     rw_terms: int | None = None,
+    highlight_terms: int | None = None,
     max_lookups: int | None = None,
     linear: dict | None = None,
     baseline: dict | None = None,
@@ -149,6 +152,8 @@ def factorize(
         reflection: one more fitted term, an r-only texture (lighting).
         prefiltered: keep the split sum's P(r) W(n.v) (computed) and fit corrections to it (lighting).
         rw_terms: J more fitted terms q(r) w(n.v) without a normal texture, beside the K products (lighting).
+        highlight_terms: J more fitted terms d(nh_dom) w(n.v), the highlight of the brightest light of the
+            environment (context ``dominant``; lighting).
         max_lookups: choose the structure (terms, nv_factor, diffuse) within this many texture lookups
             per pixel by validation error (:func:`homofac.fit.sums.choose`).
         linear: :class:`~homofac.fit.options.LinearOptions` of the linear-space fit as a dict
@@ -171,7 +176,7 @@ def factorize(
     opts = options(parametrization, mapper=mapper, texture_size=texture_size, sampling=sampling, solver=solver,
                    target_error=target_error, baseline=baseline, analysis=analysis, terms=terms, diffuse=diffuse,
                    nv_factor=nv_factor, reflection=reflection, prefiltered=prefiltered, rw_terms=rw_terms,
-                   max_lookups=max_lookups, linear=linear)
+                   highlight_terms=highlight_terms, max_lookups=max_lookups, linear=linear)
     if not isinstance(target, Target):
         raise HomofacError(f"factorize needs a homofac Target (brdf_target or lighting_target), got {type(target).__name__}")
     mapper = opts.mapper or default_mapper(target.kind)
@@ -308,8 +313,9 @@ def _sums(target: Target, opts: FitOptions, mapper: str, samples: Samples, recor
         )
 
     def kept(result: Result) -> tuple[Result, Target, Samples]:
-        tgt, smp, _ = pool(Structure.of(result.solver["structure"]))
-        return result, tgt, smp
+        structure = Structure.of(result.solver["structure"])
+        tgt, smp, _ = pool(structure)
+        return result, sums.with_highlight_context(tgt, structure), smp
 
     if not choosing:
         return kept(fit(Structure.of(opts)))
@@ -320,7 +326,9 @@ def _sums(target: Target, opts: FitOptions, mapper: str, samples: Samples, recor
     # be 0) -- a near-mirror under lamps fits better with it; BRDF: the constant kd/pi term only when kd > 0
     has_d = sums.diffuse_albedo(target) is not None if target.kind == "lighting" else sums.has_diffuse(target)
     pick = structures.ladder if opts.target_error is not None else structures.candidates
-    cands = pick(target.kind, budget, parametrization=opts.parametrization, has_diffuse=has_d)
+    # the highlight term of the brightest light wherever the target's lighting is an environment
+    lit = target.kind == "lighting" and getattr(target.fn, "env", None) is not None
+    cands = pick(target.kind, budget, parametrization=opts.parametrization, has_diffuse=has_d, highlight=lit)
     if opts.diffuse is not None:  # a diffuse term asked for explicitly constrains the search
         cands = [c for c in cands if c.diffuse == opts.diffuse] or cands
     if given:  # samples given: only the candidates on their grid direction
@@ -335,8 +343,8 @@ def _sums(target: Target, opts: FitOptions, mapper: str, samples: Samples, recor
         analysis = baselines.analyse(target, a.pair, a.mapper, a.size).record()
     result = sums.choose(fit, cands, target_error=opts.target_error, max_lookups=budget, log=log)
     steps = chooser_polish(target, opts.linear, lin)
-    if steps and result.solver.get("method") == "als":
-        structure = Structure.of(result.solver["structure"])
+    structure = Structure.of(result.solver["structure"])
+    if steps and result.solver.get("method") == "als" and not structure.highlight_terms:
         tgt, smp, _ = pool(structure)
         plin = lin.model_copy(update={"polish": steps})
         sf = polish.polish(tgt, structure, mapper, opts.texture_size, fits[structure], smp, pairs(), plin, log)

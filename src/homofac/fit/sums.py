@@ -36,9 +36,10 @@ from ..baselines.base import centres, irradiance_map
 from ..brdf import BRDF, MODELS
 from ..errors import HomofacError
 from ..factorization import Factor, Factorization, Term, Texture
-from ..light import Lighting
+from ..light import Lighting, brightest_directions
 from ..param import mappers
 from ..param import parametrizations as pz
+from ..param import projections as pj
 from ..param.projections import apply as project
 from ..target import Target
 from . import als, precision, refine, solvers
@@ -48,6 +49,9 @@ from .samples import Samples
 from .structures import LINE_SIZE, Structure, TermSpec, TextureSpec, skeleton
 from .system import TextureLayout, texture_layout
 
+
+#: The projections of highlight terms (``highlight_terms``), brightest light first.
+HIGHLIGHT_PROJECTIONS = tuple(p for p, _ in pj.HIGHLIGHTS)
 
 #: Texture roles that are computed (not unknowns of the fit).
 FIXED_ROLES = ("diffuse", "cos", "prefiltered", "dfg")
@@ -220,7 +224,9 @@ def start(target: Target, structure: Structure, terms, layouts, samples, y_fit, 
         # an extra term: the first texture smooth and distinct per term, the second 0, the rest 1
         for pos, name in enumerate(dict.fromkeys(tex for _, tex in term.factors)):
             lay = layouts[name]
-            if pos == 0:
+            if term.factors[0][0] in HIGHLIGHT_PROJECTIONS:  # a highlight term d(x) w(n.v): d 0 (fitted first), w 1
+                out[name] = np.zeros((lay.n_valid, 3)) if pos == 0 else np.ones((lay.n_valid, 3))
+            elif pos == 0:
                 out[name] = np.repeat(_basis(_directions(lay), t)[:, None], 3, -1)
             else:
                 out[name] = np.zeros((lay.n_valid, 3)) if pos == 1 else np.ones((lay.n_valid, 3))
@@ -258,6 +264,22 @@ def warm_start(previous: Factorization, terms, layouts, sigma) -> dict:
     return out
 
 
+def with_highlight_context(target: Target, structure: Structure) -> Target:
+    """``target`` with the context its highlight terms read (``dominant``, ``dominant1``, ... for the J
+    brightest lights, :func:`~homofac.light.brightest_directions`), keys the target already has kept."""
+    keys = [key for _, key in pj.HIGHLIGHTS[:structure.highlight_terms]]
+    missing = [k for k in keys if k not in target.context]
+    if not missing:
+        return target
+    env = getattr(target.fn, "env", None)
+    if env is None:
+        raise HomofacError(f"highlight_terms read the brightest lights (context {', '.join(keys)}): give the "
+                           f"target those directions, or fit a lighting target of an environment")
+    found = brightest_directions(env, len(keys))
+    return Target(target.kind, target.fn, target.quantity,
+                  {**target.context, **{k: found[i] for i, k in enumerate(keys) if k in missing}})
+
+
 def _is_diffuse(term: TermSpec) -> bool:
     return len(term.factors) == 1 and term.factors[0] == ("n", "E")
 
@@ -288,6 +310,7 @@ def fit_sum(target: Target, structure: Structure, mapper: str, size: int, sample
     opts = options or LinearOptions()
     if opts.nv_balance > 0 and target.kind != "lighting":
         raise HomofacError(NV_BALANCE_NEEDS_LIGHTING)
+    target = with_highlight_context(target, structure)
     t0 = time.perf_counter()
     quantity = _quantity(target)
     specs, terms = skeleton(structure, target.kind, quantity, mapper, size)
@@ -326,7 +349,8 @@ def fit_sum(target: Target, structure: Structure, mapper: str, size: int, sample
     t1 = time.perf_counter()
     weights = nv_weights(a, b, y, NV_BINS, opts.nv_balance)
     if method == "als":
-        X, steps, hist = _fit_als(structure, specs, fitted_terms, layouts, x0, grid, a, b, y_fit / sigma, opts, weights)
+        X, steps, hist = _fit_als(structure, specs, fitted_terms, layouts, x0, grid, a, b, y_fit / sigma, opts, weights,
+                                  target.context)
         converged = True
         backend = "homofac"
     else:
@@ -403,48 +427,84 @@ def nv_weights(a, b, y, bins: int, beta: float) -> np.ndarray:
     return (w / np.mean(w)).astype(np.float32)
 
 
-def _fit_als(structure, specs, fitted_terms, layouts, x0, grid, a, b, y, opts: LinearOptions, weights):
+def _fit_als(structure, specs, fitted_terms, layouts, x0, grid, a, b, y, opts: LinearOptions, weights, context=None):
     ia, ib, lay = grid
     n = lay.n_valid
     flags_p, flags_q, flags_w, names = [], [], [], []
     rproj = pz.reflection_projection(structure.parametrization)  # r, or r_off for NRO and RO
+    flags_h, hprojs = [], []
     for term in fitted_terms:
         roles = {f[0]: f[1] for f in term.factors}
         flags_p.append("n" in roles)
         flags_q.append(rproj in roles)
         flags_w.append("nv" in roles)
-        names.append((roles.get("n"), roles.get(rproj), roles.get("nv")))
+        hproj = next((h for h in HIGHLIGHT_PROJECTIONS if h in roles), None)
+        flags_h.append(hproj is not None)
+        hprojs.append(hproj)
+        names.append((roles.get("n"), roles.get(rproj), roles.get("nv"), roles.get(hproj)))
     K = len(fitted_terms)
     P = np.ones((K, n, 3))
     Q = np.ones((K, n, 3))
     W = np.ones((K, LINE_SIZE, 3))
-    for t, (pn, qn, wn) in enumerate(names):
+    D = np.ones((K, LINE_SIZE, 3))
+    for t, (pn, qn, wn, hn) in enumerate(names):
         if pn:
             P[t] = x0[pn]
         if qn:
             Q[t] = x0[qn]
         if wn:
             W[t] = x0[wn]
+        if hn:
+            D[t] = x0[hn]
     nb = np.asarray(mappers.neighbours(lay.mapper, lay.size))[lay.texel_of_unknown]
     nb_unk = np.where(nb >= 0, lay.unknown_of_texel[np.maximum(nb, 0)], -1)
     nv = np.clip(np.sum(a * b, -1), 0.0, 1.0)
     vi, vw = als.line_footprint(jnp.asarray(nv, jnp.float32), LINE_SIZE)
+    hi = hw = None
+    if any(flags_h):  # each highlight line read at its light's nh_dom (N, K, 2), sample-major; others unused
+        hi, hw = np.zeros((len(a), K, 2), np.int32), np.zeros((len(a), K, 2), np.float32)
+        for t, hp in enumerate(hprojs):  # one projection per highlight term (at most three)
+            if hp is not None:
+                i_t, w_t = als.line_footprint(jnp.asarray(project(hp, a, b, context), jnp.float32), LINE_SIZE)
+                hi[:, t], hw[:, t] = np.asarray(i_t), np.asarray(w_t)
+        hi, hw = jnp.asarray(hi), jnp.asarray(hw)
     data = als.GridData(jnp.asarray(ia), jnp.asarray(ib), jnp.asarray(vi, jnp.int32), jnp.asarray(vw, jnp.float32),
                         jnp.asarray(y, jnp.float32), jnp.asarray(np.maximum(nb_unk, 0), jnp.int32),
-                        jnp.asarray(nb_unk >= 0, jnp.float32), jnp.asarray(np.sqrt(weights), jnp.float32))
-    flags = als.Flags(tuple(flags_p), tuple(flags_q), tuple(flags_w))
-    P, Q, W, hist = als.run(jnp.asarray(P, jnp.float32), jnp.asarray(Q, jnp.float32), jnp.asarray(W, jnp.float32),
-                            data, jnp.float32(opts.laplacian), flags=flags, sweeps=int(opts.iterations))
-    P, Q, W, hist = (np.asarray(v) for v in (P, Q, W, hist))
+                        jnp.asarray(nb_unk >= 0, jnp.float32), jnp.asarray(np.sqrt(weights), jnp.float32), hi, hw)
+    flags = als.Flags(tuple(flags_p), tuple(flags_q), tuple(flags_w), tuple(flags_h) if any(flags_h) else ())
+    if any(flags_h):
+        P, Q, W, D = _highlight_first(P, Q, W, D, data, flags, opts)
+    out = als.run(jnp.asarray(P, jnp.float32), jnp.asarray(Q, jnp.float32), jnp.asarray(W, jnp.float32),
+                  data, jnp.float32(opts.laplacian), flags=flags, sweeps=int(opts.iterations),
+                  D=jnp.asarray(D, jnp.float32) if any(flags_h) else None)
+    P, Q, W, hist = (np.asarray(v) for v in (out[:3] + out[-1:]))
+    D = np.asarray(out[3]) if any(flags_h) else None
     X = {}
-    for t, (pn, qn, wn) in enumerate(names):
+    for t, (pn, qn, wn, hn) in enumerate(names):
         if pn:
             X[pn] = P[t]
         if qn:
             X[qn] = Q[t]
         if wn:
             X[wn] = W[t]
+        if hn:
+            X[hn] = D[t]
     return X, int(opts.iterations), hist
+
+
+def _highlight_first(P, Q, W, D, data, flags, opts: LinearOptions):
+    """Start the highlight terms (and an n-only diffuse texture) on the data alone, the products absent:
+    started together, the products' maps of r take the sun's highlight first and the joint ALS stays
+    there (near-mirror / city: 0.50 nrmse against 0.2 from this start). Returns the full start."""
+    keep = [h or (p and not q and not w) for p, q, w, h in zip(flags.p, flags.q, flags.w, flags.h)]
+    idx = np.flatnonzero(keep)
+    sub = als.Flags(*(tuple(f[i] for i in idx) for f in flags))
+    data = data._replace(hi=data.hi[:, idx], hw=data.hw[:, idx])
+    Ps, Qs, Ws, Ds, _ = als.run(*(jnp.asarray(x[idx], jnp.float32) for x in (P, Q, W)), data, jnp.float32(opts.laplacian),
+                                flags=sub, sweeps=max(1, int(opts.iterations) // 2), D=jnp.asarray(D[idx], jnp.float32))
+    P, Q, W, D = (np.array(x) for x in (P, Q, W, D))
+    P[idx], Q[idx], W[idx], D[idx] = (np.asarray(x) for x in (Ps, Qs, Ws, Ds))
+    return P, Q, W, D
 
 
 def _fit_lm(target, fitted_specs, fitted_terms, layouts, x0, a, b, y, opts: LinearOptions, method: str, weights):

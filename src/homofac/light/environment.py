@@ -19,6 +19,7 @@ from typing import Optional
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
 from ..errors import HomofacError
@@ -81,4 +82,45 @@ def dominant_direction(env: Environment) -> Float[Array, "3"]:
     return s / n
 
 
-__all__ = ["Environment", "LUMINANCE", "dominant_direction", "luminance", "total_power"]
+#: Angular radius (degrees) of the cap :func:`brightest_direction` sums power over.
+PEAK_CAP_DEGREES = 8.0
+
+
+def brightest_directions(env: Environment, count: int = 1, cap_degrees: float = PEAK_CAP_DEGREES) -> np.ndarray:
+    """The directions ``(count, 3)`` of the brightest lights, brightest first: the power-weighted mean
+    direction of the texels within ``cap_degrees`` of the texel whose cap holds the most power (``e_k``
+    of :func:`dominant_direction`); then the same with those texels left out, ``count`` times.
+
+    Eq. 66's mean direction lies between the sun and the sky that surrounds it (9 degrees off the sun
+    under the bundled city sky, 43 degrees off the brightest lamp of the interior); a highlight term of
+    one light (projection ``nh_dom``) needs the light itself. The bundled interior's three brightest
+    caps hold 22, 13 and 6 % of its power. Float32 NumPy; a one-line refusal when the environment
+    holds no power.
+    """
+    d = np.asarray(env.directions, np.float64)
+    e = np.maximum(np.asarray(luminance(env.radiance), np.float64), 0.0) * np.asarray(env.solid_angle, np.float64)
+    if not np.sum(e) > 0:
+        raise HomofacError(f"{env.info.get('source', 'environment')}: no light to find the brightest direction of")
+    cos_cap = np.cos(np.radians(cap_degrees))
+    out = []
+    for _ in range(int(count)):  # a few lights: each pass one vectorised cap sum over the lit texels
+        lit = np.flatnonzero(e >= 1e-3 * e.max())  # candidate centres: the texels that could hold a peak
+        power = np.concatenate([((d[c] @ d.T) >= cos_cap) @ e for c in np.array_split(lit, max(1, len(lit) // 512))])
+        near = (d @ d[lit[np.argmax(power)]]) >= cos_cap
+        s = (e[near, None] * d[near]).sum(0)
+        out.append(s / np.linalg.norm(s))
+        e = np.where(near, 0.0, e)
+        if not np.any(e > 0):
+            out += [out[-1]] * (int(count) - len(out))
+            break
+    return np.asarray(out, np.float32)
+
+
+def brightest_direction(env: Environment, cap_degrees: float = PEAK_CAP_DEGREES) -> np.ndarray:
+    """The direction ``(3,)`` of the brightest light (:func:`brightest_directions`)."""
+    return brightest_directions(env, 1, cap_degrees)[0]
+
+
+__all__ = ["Environment", "LUMINANCE", "PEAK_CAP_DEGREES", "brightest_direction", "brightest_directions",
+           "dominant_direction", "luminance",
+           "total_power"]

@@ -11,7 +11,9 @@ Names (pinned, docs/format.md):
   ``cos_i`` = wi.z and ``cos_o`` = wo.z, clamped to [0, 1].
 * Lighting (a = n, b = v, world frame): ``n``, ``v``, ``r`` (eq. 40), ``h_dom`` (eq. 67-68) and
   ``d_dom`` (eq. 69), which use the dominant light direction ``i`` (eq. 66) from the context; the
-  scalar ``nv`` = n.v clamped to [0, 1]; ``r_off``, the off-specular reflection direction
+  scalar ``nv`` = n.v clamped to [0, 1]; the scalar ``nh_dom`` = ``1 - (1 - n.h')^(1/4)`` of the dominant
+  light's half vector h' (:func:`_nh_light`, the highlight of that light), and ``nh_dom1``, ``nh_dom2``
+  the same for the second and third light (context ``dominant1``, ``dominant2``); ``r_off``, the off-specular reflection direction
   ``normalize(r + beta (1 - n.v) n)`` with ``beta`` the context key ``shift`` (:func:`_r_off`).
 
 Scalar projections are looked up with the ``line`` mapper; direction projections with any other. A
@@ -63,9 +65,16 @@ class ContextKey(NamedTuple):
 #: The context keys projections read; :func:`check_context` validates a value of each.
 CONTEXT_KEYS: dict[str, ContextKey] = {k.name: k for k in (
     ContextKey("dominant", (3,), "the dominant light direction [x, y, z] (NRHD, thesis eq. 66)", (0.3, -0.5, 0.81)),
+    ContextKey("dominant1", (3,), "the second-brightest light direction [x, y, z] (projection nh_dom1)",
+               (-0.6, 0.1, 0.78)),
+    ContextKey("dominant2", (3,), "the third-brightest light direction [x, y, z] (projection nh_dom2)",
+               (0.85, 0.25, 0.45)),
     ContextKey("shift", (), "beta of the off-specular reflection r_off (NRO, RO), a number in [0, 0.9]", 0.3,
                (0.0, 0.9)),
 )}
+
+#: The highlight projections, brightest light first, and the context key each reads (``highlight_terms``).
+HIGHLIGHTS = (("nh_dom", "dominant"), ("nh_dom1", "dominant1"), ("nh_dom2", "dominant2"))
 
 
 def example_context() -> dict:
@@ -233,6 +242,38 @@ def _h_dom(n, v, ctx):
     return sphere.local(sphere.half_vector(i, v), n)
 
 
+def _nh_light(n, v, ctx, key: str):
+    """``1 - (1 - clamp(n.h', 0, 1))^(1/4)`` with ``h' = half(i, v)``, ``i`` the context's dominant light:
+    the NDF argument of that light's highlight (eq. 67's half vector, read as one scalar). A microfacet
+    BRDF's highlight of a light at ``i`` is ``D(n.h') F(v.h') G / (4 n.v)``, so a ``line`` texture of
+    this scalar times w(n.v) holds its shape at every view, which a product of maps of n and r cannot
+    (the lobe narrows and stretches with n.v). The fourth root spreads the peak: the half angle at
+    ``1 - x`` is ``theta_h = sqrt 2 (1 - x)^2``, so a 32-texel line puts six texels inside the half
+    maximum of a GGX lobe of alpha 0.1 (tan theta_h = 0.064) and still 15 over theta_h < 30 degrees.
+    ``1 - n.h'`` is computed as ``|n - h'|^2 / 2`` (no cancellation near the peak, where the fourth root
+    would magnify float32 rounding: GPU and CPU agree to 1e-6 there)."""
+    i = sphere.constant(ctx[key], n)
+    d = n - sphere.half_vector(i, v)
+    xp = sphere.namespace(d)
+    e = xp.clip(xp.sqrt(0.5 * sphere.dot(d, d)), 0.0, 1.0)  # (1 - n.h')^(1/2), n.h' clamped at 0
+    return 1.0 - xp.sqrt(e)
+
+
+def _nh_dom(n, v, ctx):
+    """:func:`_nh_light` of the dominant light (context ``dominant``)."""
+    return _nh_light(n, v, ctx, "dominant")
+
+
+def _nh_dom1(n, v, ctx):
+    """:func:`_nh_light` of the second light (context ``dominant1``)."""
+    return _nh_light(n, v, ctx, "dominant1")
+
+
+def _nh_dom2(n, v, ctx):
+    """:func:`_nh_light` of the third light (context ``dominant2``)."""
+    return _nh_light(n, v, ctx, "dominant2")
+
+
 def _d_dom(n, v, ctx):
     """Eq. 69: i in the Gram-Schmidt frame of the half vector h' = half(i, v) and the tangent t(n)."""
     i = sphere.constant(ctx["dominant"], n)
@@ -257,8 +298,15 @@ for _p in (
                context=("dominant",)),
     Projection("d_dom", "lighting", _d_dom, False, "difference vector of the dominant light, eq. 69",
                context=("dominant",)),
+    Projection("nh_dom", "lighting", _nh_dom, False,
+               "1 - (1 - n.h')^(1/4) with h' the half vector of the dominant light and v (eq. 67), clamped",
+               scalar=True, context=("dominant",)),
+    Projection("nh_dom1", "lighting", _nh_dom1, False, "nh_dom of the second light, context dominant1",
+               scalar=True, context=("dominant1",)),
+    Projection("nh_dom2", "lighting", _nh_dom2, False, "nh_dom of the third light, context dominant2",
+               scalar=True, context=("dominant2",)),
 ):
     register(_p)
 
-__all__ = ["CONTEXT_KEYS", "KINDS", "PROJECTIONS", "ContextKey", "Projection", "apply", "check_context", "example_context",
+__all__ = ["CONTEXT_KEYS", "HIGHLIGHTS", "KINDS", "PROJECTIONS", "ContextKey", "Projection", "apply", "check_context", "example_context",
            "get", "register"]

@@ -1,0 +1,125 @@
+"""The highlight term of the brightest light (issue 13): the scalar projection ``nh_dom``, the direction
+of the brightest light, the ALS block of a ``line`` factor read at it, and ``highlight_terms`` in a sum
+and among the ``max_lookups`` candidates."""
+
+from __future__ import annotations
+
+import equinox as eqx
+import numpy as np
+import pytest
+
+import homofac as hf
+from homofac.errors import HomofacError
+from homofac.fit import als, structures
+from homofac.fit.structures import Structure
+from homofac.param import projections as pj
+
+SUN = np.array([0.5, -0.3, 0.81])
+SUN /= np.linalg.norm(SUN)
+GRID = {"kind": "grid", "size": 8, "mapper": "dual_paraboloid", "count": 20000, "validation": 3000, "cache": False}
+
+
+def _pairs(count: int, seed: int = 3):
+    rng = np.random.default_rng(seed)
+    n = rng.normal(size=(count, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    v = rng.normal(size=(count, 3))
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    return n, np.where(np.sum(n * v, 1, keepdims=True) < 0, -v, v)
+
+
+def test_nh_dom_is_one_on_the_mirror_configuration_and_falls_with_the_half_angle():
+    n, v = _pairs(3000)
+    ctx = {"dominant": SUN}
+    x = np.asarray(pj.apply("nh_dom", n, v, ctx))
+    assert np.all((x >= 0) & (x <= 1))
+    # v the mirror image of the light about n: h' = n, the peak of the highlight
+    mirror = 2 * np.sum(n * SUN, 1, keepdims=True) * n - SUN
+    up = np.sum(n * SUN, 1) > 0.05
+    np.testing.assert_allclose(np.asarray(pj.apply("nh_dom", n[up], mirror[up], ctx)), 1.0, atol=2e-3)
+    # monotone in n.h' with the pinned warp 1 - (1 - c)^(1/4)
+    h = SUN + v
+    h /= np.linalg.norm(h, axis=1, keepdims=True)
+    c = np.clip(np.sum(n * h, 1), 0, 1)
+    np.testing.assert_allclose(x, 1 - (1 - c) ** 0.25, atol=1e-5)
+    assert pj.get("nh_dom").scalar and pj.get("nh_dom").context == ("dominant",)
+
+
+def test_brightest_direction_finds_the_sun_where_eq_66_is_pulled_toward_the_sky():
+    env = hf.light.sun_sky(SUN, sun_radiance=2.0e3, sun_angle_deg=3.0, sky=(0.4, 0.5, 0.8), sky_gradient=0.8,
+                           resolution=16)
+    peak = hf.light.brightest_direction(env)
+    mean = np.asarray(hf.light.dominant_direction(env))
+    assert np.degrees(np.arccos(np.clip(peak @ SUN, -1, 1))) < 3.0
+    assert np.degrees(np.arccos(np.clip(mean @ SUN, -1, 1))) > 5.0  # the sky's pull on eq. 66
+    dark = eqx.tree_at(lambda e: e.radiance, env, env.radiance * 0.0)  # the loaders refuse it; the function too
+    with pytest.raises(HomofacError, match="no light"):
+        hf.light.brightest_direction(dark)
+
+
+def test_als_d_block_recovers_a_line_factor_read_at_a_second_scalar():
+    """y = d(x) w(n.v) exactly (two lines, no p or q): the ALS with the D block reaches it."""
+    rng = np.random.default_rng(0)
+    N, Sw = 4000, 16
+    nv, x = rng.uniform(0, 1, N), rng.uniform(0, 1, N)
+    vi, vw = (np.asarray(u) for u in als.line_footprint(nv.astype(np.float32), Sw))
+    hi, hw = (np.asarray(u) for u in als.line_footprint(x.astype(np.float32), Sw))
+    w_true = 0.5 + np.linspace(0, 1, Sw)[:, None] * np.ones(3)
+    d_true = np.exp(-((np.linspace(0, 1, Sw) - 0.8) / 0.2) ** 2)[:, None] * np.array([1.0, 0.7, 0.4])
+    y = np.einsum("nk,nkc->nc", vw, w_true[vi]) * np.einsum("nk,nkc->nc", hw, d_true[hi])
+    n1 = 4
+    data = als.GridData(np.zeros(N, np.int32), np.zeros(N, np.int32), vi.astype(np.int32), vw.astype(np.float32),
+                        y.astype(np.float32), np.zeros((n1, 4), np.int32), np.zeros((n1, 4), np.float32),
+                        np.ones(N, np.float32), hi[:, None].astype(np.int32), hw[:, None].astype(np.float32))
+    flags = als.Flags((False,), (False,), (True,), (True,))
+    P, Q, W, D, hist = als.run(np.ones((1, n1, 3), np.float32), np.ones((1, n1, 3), np.float32),
+                               np.ones((1, Sw, 3), np.float32), data, np.float32(0.0), flags=flags, sweeps=20,
+                               D=np.zeros((1, Sw, 3), np.float32))
+    pred = als.predict(P, Q, W, data, flags, D)
+    assert float(np.max(np.abs(np.asarray(pred) - y))) < 1e-3 * float(np.max(y))
+    assert np.all(np.diff(np.asarray(hist)) <= 1e-6 * float(hist[0]))  # ALS never increases the objective
+
+
+def test_highlight_terms_in_the_skeleton_label_record_and_lookup_count():
+    s = Structure("RO", 1, "fitted", False, highlight_terms=1)
+    textures, terms = structures.skeleton(s, "lighting", "lighting", "dual_paraboloid", 8)
+    assert terms[-1].factors == (("nh_dom", "d1"), ("nv", "w1"))
+    assert [t.mapper for t in textures if t.name in ("d1", "w1")] == ["line", "line"]
+    assert structures.lookups(s, "lighting") == structures.lookups(s._replace(highlight_terms=0), "lighting") + 2
+    assert s.label() == "E'+RO x1+HW x1"
+    assert Structure.of(s.record()) == s
+    with pytest.raises(HomofacError, match="lighting"):
+        structures.skeleton(Structure("PQP", 1, highlight_terms=1), "brdf", "brdf", "parabolic", 8)
+
+
+def test_candidates_try_the_highlight_term_only_when_asked():
+    with_h = structures.candidates("lighting", 4)
+    without = structures.candidates("lighting", 4, highlight=False)
+    assert any(c.highlight_terms for c in with_h) and not any(c.highlight_terms for c in without)
+    assert all(structures.lookups(c, "lighting") <= 4 for c in with_h)
+    assert not any(c.highlight_terms for c in structures.candidates("brdf", 8))
+
+
+def test_a_glossy_metal_under_a_sun_fits_better_with_the_highlight_term():
+    """The property the term is for: the sun's highlight of a near-mirror, which a map of r smears."""
+    env = hf.light.sun_sky(SUN, sun_radiance=3.0e3, sun_angle_deg=4.0, sky=(0.3, 0.4, 0.6), resolution=8)
+    brdf = hf.brdf.ggx(kd=0.0, ks=1.0, roughness=0.15, f0=(0.95, 0.93, 0.88))
+    target = hf.light.lighting_target(brdf, env, parametrization="RO")
+    samples = hf.fit.draw_samples(target, "RO", GRID)
+    plain = hf.fit.factorize(target, "RO", texture_size=8, samples=samples, diffuse="fitted", nv_factor=True,
+                             reflection=True)
+    lit = hf.fit.factorize(target, "RO", texture_size=8, samples=samples, diffuse="fitted", highlight_terms=1)
+    assert lit.model.lookups == plain.model.lookups == 4
+    e_plain = plain.metrics["validation"]["float"]["nrmse"]
+    e_lit = lit.metrics["validation"]["float"]["nrmse"]
+    assert e_lit < 0.7 * e_plain, (e_lit, e_plain)
+    # the model records the light it was fitted for, and reproduces its fit after a save / load
+    assert np.degrees(np.arccos(np.clip(np.asarray(lit.model.context["dominant"]) @ SUN, -1, 1))) < 5.0
+    n, v = _pairs(500)
+    np.testing.assert_allclose(np.asarray(lit.evaluate(n, v)), np.asarray(lit.model.evaluate(n, v)), rtol=1e-5)
+
+
+def test_highlight_terms_refuse_a_brdf_target():
+    target = hf.fit.brdf_target(hf.brdf.ggx())
+    with pytest.raises(HomofacError, match="lighting"):
+        hf.fit.factorize(target, "PQP", texture_size=8, highlight_terms=1)
