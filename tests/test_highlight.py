@@ -10,7 +10,7 @@ import pytest
 
 import homofac as hf
 from homofac.errors import HomofacError
-from homofac.fit import als, structures
+from homofac.fit import als, structures, sums
 from homofac.fit.structures import Structure
 from homofac.param import projections as pj
 
@@ -100,7 +100,7 @@ def test_candidates_try_the_highlight_term_only_when_asked():
     assert not any(c.highlight_terms for c in structures.candidates("brdf", 8))
 
 
-def test_a_glossy_metal_under_a_sun_fits_better_with_the_highlight_term():
+def test_a_glossy_metal_under_a_sun_fits_better_with_the_highlight_term(tmp_path):
     """The property the term is for: the sun's highlight of a near-mirror, which a map of r smears."""
     env = hf.light.sun_sky(SUN, sun_radiance=3.0e3, sun_angle_deg=4.0, sky=(0.3, 0.4, 0.6), resolution=8)
     brdf = hf.brdf.ggx(kd=0.0, ks=1.0, roughness=0.15, f0=(0.95, 0.93, 0.88))
@@ -116,10 +116,31 @@ def test_a_glossy_metal_under_a_sun_fits_better_with_the_highlight_term():
     # the model records the light it was fitted for, and reproduces its fit after a save / load
     assert np.degrees(np.arccos(np.clip(np.asarray(lit.model.context["dominant"]) @ SUN, -1, 1))) < 5.0
     n, v = _pairs(500)
-    np.testing.assert_allclose(np.asarray(lit.evaluate(n, v)), np.asarray(lit.model.evaluate(n, v)), rtol=1e-5)
+    lit.save(tmp_path / "out")
+    back = hf.output.load(tmp_path / "out")
+    assert set(back.model.context) == {"dominant", "shift"}
+    np.testing.assert_allclose(np.asarray(back.model.evaluate(n, v)), np.asarray(lit.model.evaluate(n, v)),
+                               rtol=1e-5, atol=1e-6)
 
 
 def test_highlight_terms_refuse_a_brdf_target():
     target = hf.fit.brdf_target(hf.brdf.ggx())
     with pytest.raises(HomofacError, match="lighting"):
         hf.fit.factorize(target, "PQP", texture_size=8, highlight_terms=1)
+
+
+def test_brightest_directions_find_two_lamps_brightest_first_and_the_terms_read_one_each():
+    a, b = np.array([0.6, 0.0, 0.8]), np.array([-0.5, 0.5, 0.707])
+    b /= np.linalg.norm(b)
+    env = hf.light.painted_lights([(a, 6.0, (50.0, 50.0, 50.0)), (b, 6.0, (20.0, 20.0, 20.0))], 16, background=0.1)
+    found = hf.light.brightest_directions(env, 2)
+    assert np.degrees(np.arccos(np.clip(found[0] @ a, -1, 1))) < 3.0
+    assert np.degrees(np.arccos(np.clip(found[1] @ b, -1, 1))) < 3.0
+    _, terms = structures.skeleton(Structure("RO", 1, "fitted", True, highlight_terms=2), "lighting", "lighting",
+                                   "dual_paraboloid", 8)
+    assert [t.factors[0][0] for t in terms[-2:]] == ["nh_dom", "nh_dom1"]
+    target = hf.light.lighting_target(hf.brdf.ggx(kd=0.0, roughness=0.15), env)
+    ctx = sums.with_highlight_context(target, Structure("RO", 1, highlight_terms=2)).context
+    np.testing.assert_allclose(np.stack([ctx["dominant"], ctx["dominant1"]]), found)
+    with pytest.raises(HomofacError, match="highlight_terms"):
+        hf.fit.factorize(target, "RO", texture_size=8, highlight_terms=4)

@@ -211,8 +211,8 @@ def test_max_lookups_draws_grid_pairs_per_direction_and_keeps_the_chosen_structu
     fac = hf.fit.factorize(target, "NR", texture_size=S, max_lookups=4, linear={"iterations": 8, "polish": 0},
                            sampling={"count": 20000, "validation": 3000, "cache": False}, log=logs.append)
     tried = {t["label"]: t for t in fac.selection["tried"]}
-    assert set(tried) == {"E'+NRW x1", "E'+NROW x1", "E'+ROW x1+R"}
-    assert sum("training pairs" in m for m in logs) == 2  # one grid on r, one on r_off
+    assert set(tried) == {"E'+NRW x1", "E'+NROW x1", "E'+ROW x1+R", "E'+RO x1+HW x1"}
+    assert sum("training pairs" in m for m in logs) == 2  # one grid on r, one on r_off (RO's with or without HW)
     best = min(tried.values(), key=lambda t: t["validation_nrmse"])
     assert fac.selection["chosen"]["label"] == best["label"]
     assert fac.solver["nv_balance"] == pipeline.CHOOSER_NV_BALANCE  # the chooser's default, not given
@@ -223,7 +223,10 @@ def test_max_lookups_draws_grid_pairs_per_direction_and_keeps_the_chosen_structu
     d = np.asarray(pj.apply(proj, train.a, train.b, fac.model.context))
     assert als.single_texel("dual_paraboloid", S, d, lay.unknown_of_texel) is not None  # its own grid
     if proj == "r_off":
-        assert fac.model.context == {"shift": pytest.approx(0.15)} and fac.target.context == fac.model.context
+        assert fac.model.context["shift"] == pytest.approx(0.15)
+        assert set(fac.target.context) == set(fac.model.context)  # with the light of a highlight term, if kept
+        for k, v in fac.model.context.items():
+            np.testing.assert_allclose(np.asarray(fac.target.context[k]), np.asarray(v))
     # samples given: only the candidates on their direction
     s = hf.fit.draw_samples(target, "NR", {"kind": "grid", "size": S, "mapper": "dual_paraboloid", "count": 20000,
                                            "validation": 3000, "cache": False})

@@ -48,7 +48,6 @@ from homofac.shader import LANGUAGES, generate
 from helpers import smooth_texture
 
 RNG = np.random.default_rng(14)
-DOMINANT = np.asarray([0.3, -0.5, 0.81]) / np.linalg.norm([0.3, -0.5, 0.81])
 
 #: Debian package of each external tool (the Makefile's SYSTEM_PACKAGES installs them).
 PACKAGES = {"glslangValidator": "glslang-tools", "spirv-val": "spirv-tools", "spirv-cross": "spirv-cross",
@@ -96,8 +95,9 @@ def model(mapper: str, terms: int) -> Result:
     else:
         all_terms = [Term((Factor("n", "A"), Factor("h_dom", "B")), jnp.asarray([0.9, 0.8, 0.7])),
                      Term((Factor("r", "B"), Factor("nv", "W"), Factor("v", "A")), jnp.asarray([0.3, 0.2, 0.1]), "prefiltered"),
-                     Term((Factor("d_dom", "A"), Factor("r_off", "B"), Factor("nh_dom", "W")), jnp.asarray([0.1, 0.2, 0.3]))]
-        ctx = {"dominant": jnp.asarray(DOMINANT, jnp.float32), "shift": 0.3}
+                     Term((Factor("d_dom", "A"), Factor("r_off", "B"), Factor("nh_dom", "W"), Factor("nh_dom1", "W"),
+                           Factor("nh_dom2", "W")), jnp.asarray([0.1, 0.2, 0.3]))]
+        ctx = {k: jnp.asarray(v, jnp.float32) if np.ndim(v) else v for k, v in pj.example_context().items()}
     chosen = tuple(all_terms[:terms])
     used = {f.texture for t in chosen for f in t.factors}
     textures = tuple(t for t in (A, B, W) if t.name in used)

@@ -77,10 +77,14 @@ def test_candidates_fit_the_budget_cheapest_first():
     assert structures.candidates("lighting", 4, has_diffuse=False)[0].diffuse is None
     # the products read at the off-specular reflection (NRO) and those without p(n) at it (q(r') w(n.v),
     # parametrization RO) compete within each budget
-    assert [s.label() for s in structures.candidates("lighting", 4)] == ["E'+NRW x1", "E'+NROW x1", "E'+ROW x1+R"]
-    assert [s.label() for s in structures.candidates("lighting", 3)] == ["E'+ROW x1"]
-    assert [s.label() for s in structures.candidates("lighting", 8, parametrization="NRO")] == [
+    assert [s.label() for s in structures.candidates("lighting", 4, highlight=False)] == [
+        "E'+NRW x1", "E'+NROW x1", "E'+ROW x1+R"]
+    assert [s.label() for s in structures.candidates("lighting", 3, highlight=False)] == ["E'+ROW x1"]
+    assert [s.label() for s in structures.candidates("lighting", 8, parametrization="NRO", highlight=False)] == [
         "E'+SS+NROW x1+R", "E'+NROW x2+R", "E'+ROW x3+R"]
+    # and each family again with the highlight term of the brightest light (test_highlight.py)
+    assert [s.label() for s in structures.candidates("lighting", 4)] == [
+        "E'+NRW x1", "E'+NROW x1", "E'+ROW x1+R", "E'+RO x1+HW x1"]
     assert not any(s.rw_terms for b in (4, 8, 16) for s in structures.ladder("lighting", b))
     with pytest.raises(HomofacError, match="max_lookups 1"):
         structures.candidates("lighting", 1)
