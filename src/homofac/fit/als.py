@@ -262,12 +262,8 @@ def run(P, Q, W, d: GridData, lam, *, flags: Flags, sweeps: int, jacobi: int = 3
             uw = jnp.asarray(flags.w, P.dtype)[:, None, None]
             fixed = jnp.sum(pq * (1 - uw), axis=0)
             W = _w_block(pq * s3, W, d, flags, (d.y - fixed) * s1, mu_w)
-        if has_d:
-            P, Q, W, D = _balance(P, Q, W, flags, D)
-            r = (predict(P, Q, W, d, flags, D) - d.y) * s1
-        else:
-            P, Q, W = _balance(P, Q, W, flags)
-            r = (predict(P, Q, W, d, flags) - d.y) * s1
+        P, Q, W, D = _balance(P, Q, W, flags, D if has_d else None) + (() if has_d else (D,))
+        r = (predict(P, Q, W, d, flags, D if has_d else None) - d.y) * s1
         return (P, Q, W, D), jnp.sum(r * r)
 
     (P, Q, W, D), hist = jax.lax.scan(sweep, (P, Q, W, D if has_d else jnp.zeros((), P.dtype)), None, length=sweeps)

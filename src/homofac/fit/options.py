@@ -17,6 +17,7 @@ from .. import baselines
 from ..options import Options
 from ..param import mappers
 from ..param import parametrizations as pz
+from ..param import projections as pj
 from . import solvers
 
 #: Direction mapper names, from the registry (the scalar ``line`` mapper is for 1D factors only).
@@ -176,7 +177,8 @@ class FitOptions(Options):
     ``reflection`` (lighting: one more fitted term, an r-only texture), ``prefiltered`` (lighting: the split
     sum's P(r) W(n.v) computed and kept; the products fit corrections to it), ``rw_terms`` (lighting: J
     more fitted terms q(r) w(n.v), without a normal texture, beside the K products), ``highlight_terms``
-    (lighting: J <= 3 more fitted terms d(nh_dom) w(n.v), the highlights of the J brightest lights).
+    (lighting: J more fitted terms d(nh_dom) w(n.v), the highlights of the J brightest lights; at most one
+    per highlight projection, ``projections.HIGHLIGHTS``).
     """
 
     parametrization: ParametrizationName = "NR"
@@ -193,7 +195,7 @@ class FitOptions(Options):
     reflection: bool = False
     prefiltered: bool = False
     rw_terms: int = Field(0, ge=0, le=MAX_TERMS)
-    highlight_terms: int = Field(0, ge=0, le=3)
+    highlight_terms: int = Field(0, ge=0, le=len(pj.HIGHLIGHTS))
     max_lookups: Optional[int] = Field(None, ge=1, le=256)
     linear: Optional[LinearOptions] = None
 

@@ -152,8 +152,8 @@ def factorize(
         reflection: one more fitted term, an r-only texture (lighting).
         prefiltered: keep the split sum's P(r) W(n.v) (computed) and fit corrections to it (lighting).
         rw_terms: J more fitted terms q(r) w(n.v) without a normal texture, beside the K products (lighting).
-        highlight_terms: J more fitted terms d(nh_dom) w(n.v), the highlight of the brightest light of the
-            environment (context ``dominant``; lighting).
+        highlight_terms: J more fitted terms d(nh_dom_j) w(n.v), the highlights of the J brightest lights of
+            the environment (context ``dominant``, ``dominant1``, ...; lighting).
         max_lookups: choose the structure (terms, nv_factor, diffuse) within this many texture lookups
             per pixel by validation error (:func:`homofac.fit.sums.choose`).
         linear: :class:`~homofac.fit.options.LinearOptions` of the linear-space fit as a dict

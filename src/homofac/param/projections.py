@@ -24,6 +24,7 @@ and needs the view that projects there.
 
 from __future__ import annotations
 
+import functools
 from typing import Callable, NamedTuple
 
 import numpy as np
@@ -259,21 +260,6 @@ def _nh_light(n, v, ctx, key: str):
     return 1.0 - xp.sqrt(e)
 
 
-def _nh_dom(n, v, ctx):
-    """:func:`_nh_light` of the dominant light (context ``dominant``)."""
-    return _nh_light(n, v, ctx, "dominant")
-
-
-def _nh_dom1(n, v, ctx):
-    """:func:`_nh_light` of the second light (context ``dominant1``)."""
-    return _nh_light(n, v, ctx, "dominant1")
-
-
-def _nh_dom2(n, v, ctx):
-    """:func:`_nh_light` of the third light (context ``dominant2``)."""
-    return _nh_light(n, v, ctx, "dominant2")
-
-
 def _d_dom(n, v, ctx):
     """Eq. 69: i in the Gram-Schmidt frame of the half vector h' = half(i, v) and the tangent t(n)."""
     i = sphere.constant(ctx["dominant"], n)
@@ -298,15 +284,15 @@ for _p in (
                context=("dominant",)),
     Projection("d_dom", "lighting", _d_dom, False, "difference vector of the dominant light, eq. 69",
                context=("dominant",)),
-    Projection("nh_dom", "lighting", _nh_dom, False,
-               "1 - (1 - n.h')^(1/4) with h' the half vector of the dominant light and v (eq. 67), clamped",
-               scalar=True, context=("dominant",)),
-    Projection("nh_dom1", "lighting", _nh_dom1, False, "nh_dom of the second light, context dominant1",
-               scalar=True, context=("dominant1",)),
-    Projection("nh_dom2", "lighting", _nh_dom2, False, "nh_dom of the third light, context dominant2",
-               scalar=True, context=("dominant2",)),
 ):
     register(_p)
+
+# the highlight coordinates, one record per light of HIGHLIGHTS (the same math, its own context key)
+for _j, (_name, _key) in enumerate(HIGHLIGHTS):
+    register(Projection(_name, "lighting", functools.partial(_nh_light, key=_key), False,
+                        ("1 - (1 - n.h')^(1/4) with h' the half vector of the dominant light and v (eq. 67), clamped"
+                         if _j == 0 else f"nh_dom of light {_j + 1} (brightest first), context {_key}"),
+                        scalar=True, context=(_key,)))
 
 __all__ = ["CONTEXT_KEYS", "HIGHLIGHTS", "KINDS", "PROJECTIONS", "ContextKey", "Projection", "apply", "check_context", "example_context",
            "get", "register"]
