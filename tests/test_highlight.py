@@ -10,7 +10,7 @@ import pytest
 
 import homofac as hf
 from homofac.errors import HomofacError
-from homofac.fit import als, structures, sums
+from homofac.fit import als, pipeline, structures, sums
 from homofac.fit.structures import Structure
 from homofac.param import projections as pj
 
@@ -98,6 +98,19 @@ def test_candidates_try_the_highlight_term_only_when_asked():
     assert any(c.highlight_terms for c in with_h) and not any(c.highlight_terms for c in without)
     assert all(structures.lookups(c, "lighting") <= 4 for c in with_h)
     assert not any(c.highlight_terms for c in structures.candidates("brdf", 8))
+
+
+def test_a_given_highlight_count_constrains_the_chooser():
+    cands = structures.candidates("lighting", 8)
+    counts = {c.highlight_terms for c in cands}
+    assert counts == {0, 1, 2}
+    assert pipeline.constrained(cands, pipeline.options(max_lookups=8)) == cands  # not given: all of them
+    for j in counts:
+        kept = pipeline.constrained(cands, pipeline.options(max_lookups=8, highlight_terms=j))
+        assert kept and all(c.highlight_terms == j for c in kept)
+        assert len(kept) == sum(c.highlight_terms == j for c in cands)
+    both = pipeline.constrained(cands, pipeline.options(max_lookups=8, highlight_terms=1, diffuse="fitted"))
+    assert both and all(c.highlight_terms == 1 and c.diffuse == "fitted" for c in both)
 
 
 def test_a_glossy_metal_under_a_sun_fits_better_with_the_highlight_term(tmp_path):

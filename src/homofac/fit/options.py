@@ -178,7 +178,8 @@ class FitOptions(Options):
     sum's P(r) W(n.v) computed and kept; the products fit corrections to it), ``rw_terms`` (lighting: J
     more fitted terms q(r) w(n.v), without a normal texture, beside the K products), ``highlight_terms``
     (lighting: J more fitted terms d(nh_dom) w(n.v), the highlights of the J brightest lights; at most one
-    per highlight projection, ``projections.HIGHLIGHTS``).
+    per highlight projection, ``projections.HIGHLIGHTS``; with ``max_lookups`` it restricts the candidates
+    to that count, 0 turns the highlight candidates off).
     """
 
     parametrization: ParametrizationName = "NR"

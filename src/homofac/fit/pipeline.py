@@ -97,6 +97,17 @@ def quality_warnings(metrics: dict) -> list[str]:
     return out
 
 
+def constrained(cands: list[Structure], opts: FitOptions) -> list[Structure]:
+    """The chooser's candidates that a ``diffuse`` or ``highlight_terms`` given in ``opts`` allows (all of
+    them where none does): a diffuse term or a highlight count asked for explicitly constrains the search
+    (``highlight_terms: 0``: no highlight candidate)."""
+    if opts.diffuse is not None:
+        cands = [c for c in cands if c.diffuse == opts.diffuse] or cands
+    if "highlight_terms" in opts.model_fields_set:
+        cands = [c for c in cands if c.highlight_terms == opts.highlight_terms] or cands
+    return cands
+
+
 def options(parametrization: str = "NR", **kwargs) -> FitOptions:
     """The validated :class:`FitOptions` of ``factorize``'s keywords (``None`` values mean the default)."""
     data = {"parametrization": parametrization, **{k: v for k, v in kwargs.items() if v is not None}}
@@ -153,7 +164,9 @@ def factorize(
         prefiltered: keep the split sum's P(r) W(n.v) (computed) and fit corrections to it (lighting).
         rw_terms: J more fitted terms q(r) w(n.v) without a normal texture, beside the K products (lighting).
         highlight_terms: J more fitted terms d(nh_dom_j) w(n.v), the highlights of the J brightest lights of
-            the environment (context ``dominant``, ``dominant1``, ...; lighting).
+            the environment (context ``dominant``, ``dominant1``, ...; lighting). With ``max_lookups``,
+            given, only candidates with J highlight terms are tried (0: none); not given, the chooser
+            tries 0-2 where the lighting is an environment.
         max_lookups: choose the structure (terms, nv_factor, diffuse) within this many texture lookups
             per pixel by validation error (:func:`homofac.fit.sums.choose`).
         linear: :class:`~homofac.fit.options.LinearOptions` of the linear-space fit as a dict
@@ -329,8 +342,7 @@ def _sums(target: Target, opts: FitOptions, mapper: str, samples: Samples, recor
     # the highlight term of the brightest light wherever the target's lighting is an environment
     lit = target.kind == "lighting" and getattr(target.fn, "env", None) is not None
     cands = pick(target.kind, budget, parametrization=opts.parametrization, has_diffuse=has_d, highlight=lit)
-    if opts.diffuse is not None:  # a diffuse term asked for explicitly constrains the search
-        cands = [c for c in cands if c.diffuse == opts.diffuse] or cands
+    cands = constrained(cands, opts)
     if given:  # samples given: only the candidates on their grid direction
         own = grid_projection(target.kind, opts.parametrization, resolved)
         cands = [c for c in cands if grid_projection(target.kind, c.parametrization, resolved) == own] or cands
@@ -374,5 +386,5 @@ def _baseline(target: Target, opts: FitOptions, mapper: str, samples: Samples, r
 
 
 __all__ = ["CHOOSER_NV_BALANCE", "CHOOSER_POLISH", "DEFAULT_MAX_LOOKUPS", "chooser_linear", "chooser_polish",
-           "default_mapper", "draw_samples", "factorize", "measure", "options", "quality_warnings",
+           "constrained", "default_mapper", "draw_samples", "factorize", "measure", "options", "quality_warnings",
            "resolve_sampling"]
