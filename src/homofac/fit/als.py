@@ -82,10 +82,15 @@ def single_texel(mapper: str, size: int, d, unknown_of_texel: np.ndarray, tol: f
 
 def _line(W, vi, vw, use):
     """Line factors at the samples (K, N, 3): ``vi, vw`` (N, 2) shared by every term, or (N, K, 2) per term."""
+    # two texels each: multiply and add, not einsum (XLA lowers a contraction of 2 batched over N x K to
+    # a tiny-matmul fusion that took 1.5 s per call here, against milliseconds)
     if vi.ndim == 2:
-        w = jnp.einsum("nk,tnkc->tnc", vw, W[:, vi])
+        g = W[:, vi]  # (K, N, 2, 3)
+        w = g[:, :, 0] * vw[None, :, 0, None] + g[:, :, 1] * vw[None, :, 1, None]
     else:
-        w = jnp.einsum("ntk,ntkc->tnc", vw, W[jnp.arange(W.shape[0])[None, :, None], vi])
+        g = jnp.moveaxis(W[jnp.arange(W.shape[0])[None, :, None], vi], 1, 0)  # (K, N, 2, 3)
+        vt = jnp.moveaxis(vw, 1, 0)  # (K, N, 2)
+        w = g[:, :, 0] * vt[..., 0, None] + g[:, :, 1] * vt[..., 1, None]
     u = jnp.asarray(use, w.dtype)[:, None, None]
     return w * u + (1 - u)
 
@@ -106,10 +111,21 @@ def _factor(X, idx, use):
     return X[:, idx] * u + (1 - u)
 
 
+def _sum_terms(x, which: tuple[bool, ...]):
+    """``sum_t x[t]`` over the terms ``which`` marks (static), added one by one: a masked ``jnp.sum`` over
+    the term axis of (K, N, 3) became an XLA CPU reduce fusion that took 1.5 s a call here (against
+    milliseconds), three times per sweep."""
+    out = None
+    for t, use in enumerate(which):
+        if use:
+            out = x[t] if out is None else out + x[t]
+    return jnp.zeros(x.shape[1:], x.dtype) if out is None else out
+
+
 def predict(P, Q, W, d: GridData, flags: Flags, D=None) -> Float[Array, "N 3"]:
     """``sum_t p_t(n_i) q_t(r_i) w_t(n.v_i) d_t(x_i)`` at the grid samples."""
     out = _factor(P, d.a, flags.p) * _factor(Q, d.b, flags.q) * _wv(W, d, flags)
-    return jnp.sum(out * _hv(D, d, flags) if D is not None else out, axis=0)
+    return _sum_terms(out * _hv(D, d, flags) if D is not None else out, (True,) * len(flags.p))
 
 
 #: Bytes of the per-sample outer products one chunk of a block may hold (bounded memory at any K).
@@ -171,20 +187,28 @@ def _texel_block(X, c, idx, y, d: GridData, mu, jacobi: int, ridge: float = 1e-6
 
 
 def _w_block(pq, W, d: GridData, flags: Flags, y, mu_w, ridge: float = 1e-6, vi=None, vw=None, use=None):
-    """Dense normal equations of the line unknowns (K S_w per channel) given the other factors ``pq`` at
-    the samples; the lines read at n.v (``d.vi``, ``d.vw``, ``flags.w``) unless ``vi, vw, use`` say others."""
-    K, Sw = W.shape[0], W.shape[1]
-    M = K * Sw
+    """Dense normal equations of the line unknowns (S_w per term and channel) of the terms that carry the
+    line, given the other factors ``pq`` at the samples; the lines read at n.v (``d.vi``, ``d.vw``,
+    ``flags.w``) unless ``vi, vw, use`` say others. Only the terms with the line are unknowns (``use`` is
+    static): a highlight line of one term is a 32 x 32 system, not one of every term's size."""
     vi = d.vi if vi is None else vi
     vw = d.vw if vw is None else vw
-    use = jnp.asarray(flags.w if use is None else use, W.dtype)
+    on = tuple(int(t) for t in np.flatnonzero(np.asarray(flags.w if use is None else use, bool)))
+    if not on:
+        return W
+    K, Sw = len(on), W.shape[1]
+    M = K * Sw
+    sel = np.asarray(on)
+    pq = pq[sel]
+    if vi.ndim == 3:
+        vi, vw = vi[:, sel], vw[:, sel]
 
     def normal(pq, vi, vw, y):  # pq (N, K, 3) sample-major for chunking; vi, vw (N, 2) or (N, K, 2)
         N = y.shape[0]
         vi3 = vi[:, None, :] if vi.ndim == 2 else vi
         vw3 = vw[:, None, :] if vw.ndim == 2 else vw
         cols = (jnp.arange(K)[None, :, None] * Sw + vi3).reshape(N, 2 * K)
-        coef = (pq[:, :, None, :] * vw3[..., None] * use[None, :, None, None]).reshape(N, 2 * K, 3)
+        coef = (pq[:, :, None, :] * vw3[..., None]).reshape(N, 2 * K, 3)
         flat = (cols[:, :, None] * M + cols[:, None, :]).reshape(-1)
         G = jax.ops.segment_sum((coef[:, :, None, :] * coef[:, None, :, :]).reshape(-1, 3), flat, num_segments=M * M)
         h = jax.ops.segment_sum((coef * y[:, None, :]).reshape(-1, 3), cols.reshape(-1), num_segments=M)
@@ -198,9 +222,7 @@ def _w_block(pq, W, d: GridData, flags: Flags, y, mu_w, ridge: float = 1e-6, vi=
     tr = jnp.trace(G, axis1=-2, axis2=-1)[:, None, None] / M
     G = G + (ridge * tr + 1e-9) * jnp.eye(M, dtype=W.dtype)[None]
     sol = jnp.linalg.solve(G, jnp.moveaxis(h, -1, 0)[..., None])[..., 0]  # (3, M)
-    Wn = jnp.moveaxis(sol.reshape(3, K, Sw), 0, -1)
-    u = use[:, None, None]
-    return Wn * u + W * (1 - u)
+    return W.at[sel].set(jnp.moveaxis(sol.reshape(3, K, Sw), 0, -1))
 
 
 def _balance(P, Q, W, flags: Flags, D=None):
@@ -241,26 +263,24 @@ def run(P, Q, W, d: GridData, lam, *, flags: Flags, sweeps: int, jacobi: int = 3
     def sweep(carry, _):
         P, Q, W, D = carry
         wv = _wv(W, d, flags)
-        hv = _hv(D, d, flags) if has_d else 1.0
+        hv = jax.lax.optimization_barrier(_hv(D, d, flags)) if has_d else 1.0
         # weighted least squares as row scaling: coefficients and targets times sqrt(weight)
         if any(flags.q):
             c = _factor(P, d.a, flags.p) * wv * hv
-            fixed = jnp.sum(c * (1 - uq), axis=0)
+            fixed = _sum_terms(c, tuple(not q for q in flags.q))
             Q = _texel_block(Q, c * uq * s3, d.b, (d.y - fixed) * s1, d, mu, jacobi) * uq + (1 - uq)
         if any(flags.p):
             c = _factor(Q, d.b, flags.q) * wv * hv
-            fixed = jnp.sum(c * (1 - up), axis=0)
+            fixed = _sum_terms(c, tuple(not p for p in flags.p))
             P = _texel_block(P, c * up * s3, d.a, (d.y - fixed) * s1, d, mu, jacobi) * up + (1 - up)
         if has_d:  # the highlight lines, given p q w
             pqw = _factor(P, d.a, flags.p) * _factor(Q, d.b, flags.q) * wv
-            uh = jnp.asarray(flags.h, P.dtype)[:, None, None]
-            fixed = jnp.sum(pqw * (1 - uh), axis=0)
+            fixed = _sum_terms(pqw, tuple(not h for h in flags.h))
             D = _w_block(pqw * s3, D, d, flags, (d.y - fixed) * s1, mu_w, vi=d.hi, vw=d.hw, use=flags.h)
-            hv = _hv(D, d, flags)
+            hv = jax.lax.optimization_barrier(_hv(D, d, flags))
         if any(flags.w):
             pq = _factor(P, d.a, flags.p) * _factor(Q, d.b, flags.q) * hv
-            uw = jnp.asarray(flags.w, P.dtype)[:, None, None]
-            fixed = jnp.sum(pq * (1 - uw), axis=0)
+            fixed = _sum_terms(pq, tuple(not w for w in flags.w))
             W = _w_block(pq * s3, W, d, flags, (d.y - fixed) * s1, mu_w)
         P, Q, W, D = _balance(P, Q, W, flags, D if has_d else None) + (() if has_d else (D,))
         r = (predict(P, Q, W, d, flags, D if has_d else None) - d.y) * s1
