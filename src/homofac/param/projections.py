@@ -252,12 +252,15 @@ def _nh_light(n, v, ctx, key: str):
     ``1 - x`` is ``theta_h = sqrt 2 (1 - x)^2``, so a 32-texel line puts six texels inside the half
     maximum of a GGX lobe of alpha 0.1 (tan theta_h = 0.064) and still 15 over theta_h < 30 degrees.
     ``1 - n.h'`` is computed as ``|n - h'|^2 / 2`` (no cancellation near the peak, where the fourth root
-    would magnify float32 rounding: GPU and CPU agree to 1e-6 there)."""
+    would magnify float32 rounding: GPU and CPU agree to 1e-6 there). Where the light is below the
+    horizon of ``n`` (``n.i <= 0``) the coordinate is 0, the far tail of the line, where the fit puts no
+    light: the highlight ends at the light's horizon as the lighting does (gold under the city sun at 16
+    lookups: 0.157 -> 0.144 nrmse; unclamped, pairs whose sun had set carried 23 % of the squared error)."""
     i = sphere.constant(ctx[key], n)
     d = n - sphere.half_vector(i, v)
     xp = sphere.namespace(d)
     e = xp.clip(xp.sqrt(0.5 * sphere.dot(d, d)), 0.0, 1.0)  # (1 - n.h')^(1/2), n.h' clamped at 0
-    return 1.0 - xp.sqrt(e)
+    return xp.where(sphere.dot(n, i) > 0.0, 1.0 - xp.sqrt(e), 0.0)
 
 
 def _d_dom(n, v, ctx):
@@ -290,7 +293,8 @@ for _p in (
 # the highlight coordinates, one record per light of HIGHLIGHTS (the same math, its own context key)
 for _j, (_name, _key) in enumerate(HIGHLIGHTS):
     register(Projection(_name, "lighting", functools.partial(_nh_light, key=_key), False,
-                        ("1 - (1 - n.h')^(1/4) with h' the half vector of the dominant light and v (eq. 67), clamped"
+                        ("1 - (1 - n.h')^(1/4) with h' the half vector of the dominant light and v (eq. 67), clamped; "
+                         "0 where n.i <= 0"
                          if _j == 0 else f"nh_dom of light {_j + 1} (brightest first), context {_key}"),
                         scalar=True, context=(_key,)))
 
