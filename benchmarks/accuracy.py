@@ -255,7 +255,9 @@ def report(rows: list[dict], only: tuple[str, ...] | None = None) -> str:
     lines += ["", bins_table(rows)]
     if only is None and any("share_top" in r for r in rows):
         lines += ["", shares_table(rows)]
-    gt = sorted({(r["material"], r["environment"], r["ground_truth_resolution"], r["ground_truth_change"]) for r in rows})
+    # one entry a case (runs of the same case may differ in the change's last float digits)
+    gt = sorted({(r["material"], r["environment"]): (r["material"], r["environment"], r["ground_truth_resolution"],
+                                                     r["ground_truth_change"]) for r in rows}.values())
     lines.append("")
     lines.append("Ground truth light resolution (and nrmse change at the last doubling): " + ", ".join(
         f"{m}/{e} {res} ({ch:.2%})" for m, e, res, ch in gt if ch is not None))
