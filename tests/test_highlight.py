@@ -161,3 +161,62 @@ def test_brightest_directions_find_two_lamps_brightest_first_and_the_terms_read_
     np.testing.assert_allclose(np.stack([ctx["dominant"], ctx["dominant1"]]), found)
     with pytest.raises(HomofacError, match="highlight_terms"):
         hf.fit.factorize(target, "RO", texture_size=8, highlight_terms=4)
+
+
+def test_vh_dom_is_the_fresnel_argument_of_the_light_and_n_v_at_the_peak():
+    n, v = _pairs(3000)
+    ctx = {"dominant": SUN}
+    h = SUN + v
+    h /= np.linalg.norm(h, axis=1, keepdims=True)
+    np.testing.assert_allclose(np.asarray(pj.apply("vh_dom", n, v, ctx)), np.clip(np.sum(v * h, 1), 0, 1), atol=1e-6)
+    # a function of the view alone: the same for every normal
+    np.testing.assert_allclose(np.asarray(pj.apply("vh_dom", n[::-1], v, ctx)), np.asarray(pj.apply("vh_dom", n, v, ctx)))
+    # at the peak of the highlight (v the mirror image of the light about n) v.h' = n.v
+    up = np.sum(n * SUN, 1) > 0.05
+    mirror = 2 * np.sum(n * SUN, 1, keepdims=True) * n - SUN
+    np.testing.assert_allclose(np.asarray(pj.apply("vh_dom", n[up], mirror[up], ctx)), np.sum(n[up] * mirror[up], 1),
+                               atol=1e-5)
+    assert pj.get("vh_dom").scalar and pj.get("vh_dom2").context == ("dominant2",)
+
+
+def test_the_fresnel_line_in_the_skeleton_label_record_candidates_and_refusals():
+    s = Structure("RO", 1, "fitted", True, highlight_terms=1, highlight_fresnel=True)
+    textures, terms = structures.skeleton(s, "lighting", "lighting", "dual_paraboloid", 8)
+    assert terms[-1].factors == (("nh_dom", "d1"), ("vh_dom", "f1"), ("nv", "w1"))
+    assert [t.mapper for t in textures if t.name in ("d1", "f1", "w1")] == ["line", "line", "line"]
+    assert structures.lookups(s, "lighting") == structures.lookups(s._replace(highlight_fresnel=False), "lighting") + 1
+    assert s.label() == "E'+ROW x1+HFW x1"
+    assert Structure.of(s.record()) == s
+    with pytest.raises(HomofacError, match="highlight_fresnel"):
+        structures.skeleton(Structure("RO", 1, "fitted", True, highlight_fresnel=True), "lighting", "lighting",
+                            "dual_paraboloid", 8)
+    # the chooser tries it where a budget has room (not at 4 lookups), and a given value constrains it
+    assert not any(c.highlight_fresnel for c in structures.candidates("lighting", 4))
+    cands = structures.candidates("lighting", 8)
+    assert any(c.highlight_fresnel for c in cands) and any(c.highlight_terms and not c.highlight_fresnel for c in cands)
+    off = pipeline.constrained(cands, pipeline.options(max_lookups=8, highlight_fresnel=False))
+    on = pipeline.constrained(cands, pipeline.options(max_lookups=8, highlight_fresnel=True))
+    assert not any(c.highlight_fresnel for c in off) and any(c.highlight_terms for c in off)
+    assert all(c.highlight_fresnel for c in on if c.highlight_terms) and any(not c.highlight_terms for c in on)
+
+
+def test_a_dielectric_under_a_sun_fits_better_with_the_fresnel_line(tmp_path):
+    """The property the line is for: a dielectric's highlight rises toward grazing v.h' (F0 0.04 -> 1),
+    which d(nh_dom) w(n.v) alone cannot follow; the line is fitted by the same ALS and survives a save."""
+    env = hf.light.sun_sky(SUN, sun_radiance=3.0e3, sun_angle_deg=4.0, sky=(0.3, 0.4, 0.6), resolution=8)
+    brdf = hf.brdf.ggx(kd=0.3, ks=1.0, roughness=0.4, f0=0.04)
+    target = hf.light.lighting_target(brdf, env, parametrization="RO")
+    samples = hf.fit.draw_samples(target, "RO", GRID)
+    kw = dict(texture_size=8, samples=samples, diffuse="fitted", nv_factor=True, highlight_terms=1)
+    plain = hf.fit.factorize(target, "RO", **kw)
+    fres = hf.fit.factorize(target, "RO", highlight_fresnel=True, **kw)
+    assert fres.model.lookups == plain.model.lookups + 1
+    assert fres.solver["method"] == "als" and fres.solver["structure"]["highlight_fresnel"]
+    e_plain = plain.metrics["validation"]["float"]["nrmse"]
+    e_fres = fres.metrics["validation"]["float"]["nrmse"]
+    assert e_fres < 0.85 * e_plain, (e_fres, e_plain)
+    n, v = _pairs(500)
+    fres.save(tmp_path / "out")
+    back = hf.output.load(tmp_path / "out")
+    np.testing.assert_allclose(np.asarray(back.model.evaluate(n, v)), np.asarray(fres.model.evaluate(n, v)),
+                               rtol=1e-5, atol=1e-6)

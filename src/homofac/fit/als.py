@@ -51,6 +51,8 @@ class GridData(NamedTuple):
     s: Float[Array, "N"]  # square roots of the sample weights (mean weight 1; ones: the plain objective)
     hi: Int[Array, "N K 2"] | None = None  # line texels of each term's highlight scalar x (terms with a d factor)
     hw: Float[Array, "N K 2"] | None = None  # their weights (0 for the other terms)
+    ci: Int[Array, "N K 2"] | None = None  # line texels of each term's second scalar (terms with a c factor)
+    cw: Float[Array, "N K 2"] | None = None  # their weights
 
 
 class Flags(NamedTuple):
@@ -60,6 +62,7 @@ class Flags(NamedTuple):
     q: tuple[bool, ...]
     w: tuple[bool, ...]
     h: tuple[bool, ...] = ()  # empty: no term has a d factor
+    c: tuple[bool, ...] = ()  # empty: no term has a c factor (a second line beside d, at its own scalar)
 
 
 def line_footprint(x, size: int) -> tuple[Int[Array, "N 2"], Float[Array, "N 2"]]:
@@ -99,11 +102,12 @@ def _wv(W, d: GridData, flags: Flags):
     return _line(W, d.vi, d.vw, flags.w)
 
 
-def _hv(D, d: GridData, flags: Flags):
-    """The d factors at the samples (ones when no term has one)."""
+def _hv(D, d: GridData, flags: Flags, C=None):
+    """The d factors (times the c factors, with C) at the samples (ones when no term has one)."""
     if not any(flags.h):
         return jnp.ones((len(flags.p), d.y.shape[0], 1), d.y.dtype)
-    return _line(D, d.hi, d.hw, flags.h)
+    out = _line(D, d.hi, d.hw, flags.h)
+    return out * _line(C, d.ci, d.cw, flags.c) if C is not None and any(flags.c) else out
 
 
 def _factor(X, idx, use):
@@ -122,10 +126,10 @@ def _sum_terms(x, which: tuple[bool, ...]):
     return jnp.zeros(x.shape[1:], x.dtype) if out is None else out
 
 
-def predict(P, Q, W, d: GridData, flags: Flags, D=None) -> Float[Array, "N 3"]:
-    """``sum_t p_t(n_i) q_t(r_i) w_t(n.v_i) d_t(x_i)`` at the grid samples."""
+def predict(P, Q, W, d: GridData, flags: Flags, D=None, C=None) -> Float[Array, "N 3"]:
+    """``sum_t p_t(n_i) q_t(r_i) w_t(n.v_i) d_t(x_i) c_t(z_i)`` at the grid samples."""
     out = _factor(P, d.a, flags.p) * _factor(Q, d.b, flags.q) * _wv(W, d, flags)
-    return _sum_terms(out * _hv(D, d, flags) if D is not None else out, (True,) * len(flags.p))
+    return _sum_terms(out * _hv(D, d, flags, C) if D is not None else out, (True,) * len(flags.p))
 
 
 #: Bytes of the per-sample outer products one chunk of a block may hold (bounded memory at any K).
@@ -225,9 +229,9 @@ def _w_block(pq, W, d: GridData, flags: Flags, y, mu_w, ridge: float = 1e-6, vi=
     return W.at[sel].set(jnp.moveaxis(sol.reshape(3, K, Sw), 0, -1))
 
 
-def _balance(P, Q, W, flags: Flags, D=None):
+def _balance(P, Q, W, flags: Flags, D=None, C=None):
     """Rescale full terms so mean |p_t| = mean |w_t| = 1 per channel (the scale goes into q_t, or into
-    d_t for a term without q)."""
+    d_t for a term without q; a term's c line also to mean |c_t| = 1, its scale into d_t)."""
     h = flags.h or (False,) * len(flags.p)
     full = jnp.asarray([p and q for p, q in zip(flags.p, flags.q)], P.dtype)[:, None, None]
     fw = jnp.asarray([w and q for w, q in zip(flags.w, flags.q)], P.dtype)[:, None, None]
@@ -240,15 +244,21 @@ def _balance(P, Q, W, flags: Flags, D=None):
     hw = jnp.asarray([w and x and not q for w, q, x in zip(flags.w, flags.q, h)], P.dtype)[:, None, None]
     sp = jnp.maximum(jnp.mean(jnp.abs(P), axis=1, keepdims=True), 1e-12) * hp + (1 - hp)
     sw = jnp.maximum(jnp.mean(jnp.abs(W), axis=1, keepdims=True), 1e-12) * hw + (1 - hw)
-    return P / sp, Q, W / sw, D * sp * sw
+    P, W, D = P / sp, W / sw, D * sp * sw
+    if C is None:
+        return P, Q, W, D
+    hc = jnp.asarray([x and c for x, c in zip(h, flags.c)], P.dtype)[:, None, None]
+    sc = jnp.maximum(jnp.mean(jnp.abs(C), axis=1, keepdims=True), 1e-12) * hc + (1 - hc)
+    return P, Q, W, D * sc, C / sc
 
 
 @functools.partial(jax.jit, static_argnames=("flags", "sweeps", "jacobi"))
-def run(P, Q, W, d: GridData, lam, *, flags: Flags, sweeps: int, jacobi: int = 3, D=None):
+def run(P, Q, W, d: GridData, lam, *, flags: Flags, sweeps: int, jacobi: int = 3, D=None, C=None):
     """``sweeps`` ALS sweeps from (P, Q, W) (K, n, 3), (K, n, 3), (K, S_w, 3) and, when some term has a
-    d factor (``flags.h``), D (K, S_w, 3); returns them and the data objective
-    ``sum_i s_i^2 ||yhat_i - y_i||^2`` (``d.s``: the square roots of the sample weights) after each sweep:
-    ``(P, Q, W, hist)``, or ``(P, Q, W, D, hist)`` with D."""
+    d factor (``flags.h``), D (K, S_w, 3) and, when some term also has a c factor (``flags.c``), C
+    (K, S_w, 3); returns them and the data objective ``sum_i s_i^2 ||yhat_i - y_i||^2`` (``d.s``: the
+    square roots of the sample weights) after each sweep: ``(P, Q, W, hist)``, ``(P, Q, W, D, hist)``
+    with D, ``(P, Q, W, D, C, hist)`` with C."""
     N, n, Sw = d.y.shape[0], P.shape[1], W.shape[1]
     mu = lam * N / n
     mu_w = lam * N / Sw
@@ -259,11 +269,15 @@ def run(P, Q, W, d: GridData, lam, *, flags: Flags, sweeps: int, jacobi: int = 3
     s1 = d.s[:, None]
     s3 = d.s[None, :, None]
     has_d = D is not None and any(flags.h)
+    has_c = has_d and C is not None and any(flags.c)
+    zero = jnp.zeros((), P.dtype)
 
     def sweep(carry, _):
-        P, Q, W, D = carry
+        P, Q, W, D, C = carry
+        Dx, Cx = (D if has_d else None), (C if has_c else None)
         wv = _wv(W, d, flags)
-        hv = jax.lax.optimization_barrier(_hv(D, d, flags)) if has_d else 1.0
+        # the barrier keeps XLA from fusing the line gathers into every consumer
+        hv = jax.lax.optimization_barrier(_hv(Dx, d, flags, Cx)) if has_d else 1.0
         # weighted least squares as row scaling: coefficients and targets times sqrt(weight)
         if any(flags.q):
             c = _factor(P, d.a, flags.p) * wv * hv
@@ -273,21 +287,32 @@ def run(P, Q, W, d: GridData, lam, *, flags: Flags, sweeps: int, jacobi: int = 3
             c = _factor(Q, d.b, flags.q) * wv * hv
             fixed = _sum_terms(c, tuple(not p for p in flags.p))
             P = _texel_block(P, c * up * s3, d.a, (d.y - fixed) * s1, d, mu, jacobi) * up + (1 - up)
-        if has_d:  # the highlight lines, given p q w
+        if has_d:  # the highlight lines, given p q w (and c)
             pqw = _factor(P, d.a, flags.p) * _factor(Q, d.b, flags.q) * wv
-            fixed = _sum_terms(pqw, tuple(not h for h in flags.h))
-            D = _w_block(pqw * s3, D, d, flags, (d.y - fixed) * s1, mu_w, vi=d.hi, vw=d.hw, use=flags.h)
-            hv = jax.lax.optimization_barrier(_hv(D, d, flags))
+            fixed = _sum_terms(pqw * hv, tuple(not h for h in flags.h))
+            cv = _line(Cx, d.ci, d.cw, flags.c) if has_c else 1.0
+            D = _w_block(pqw * cv * s3, D, d, flags, (d.y - fixed) * s1, mu_w, vi=d.hi, vw=d.hw, use=flags.h)
+            if has_c:  # the second lines, given p q w d
+                dv = _line(D, d.hi, d.hw, flags.h)
+                C = _w_block(pqw * dv * s3, C, d, flags, (d.y - fixed) * s1, mu_w, vi=d.ci, vw=d.cw, use=flags.c)
+            Dx, Cx = D, (C if has_c else None)
+            hv = jax.lax.optimization_barrier(_hv(Dx, d, flags, Cx))
         if any(flags.w):
             pq = _factor(P, d.a, flags.p) * _factor(Q, d.b, flags.q) * hv
             fixed = _sum_terms(pq, tuple(not w for w in flags.w))
             W = _w_block(pq * s3, W, d, flags, (d.y - fixed) * s1, mu_w)
-        P, Q, W, D = _balance(P, Q, W, flags, D if has_d else None) + (() if has_d else (D,))
-        r = (predict(P, Q, W, d, flags, D if has_d else None) - d.y) * s1
-        return (P, Q, W, D), jnp.sum(r * r)
+        if has_c:
+            P, Q, W, D, C = _balance(P, Q, W, flags, D, C)
+        elif has_d:
+            P, Q, W, D = _balance(P, Q, W, flags, D)
+        else:
+            P, Q, W = _balance(P, Q, W, flags)
+        r = (predict(P, Q, W, d, flags, D if has_d else None, C if has_c else None) - d.y) * s1
+        return (P, Q, W, D, C), jnp.sum(r * r)
 
-    (P, Q, W, D), hist = jax.lax.scan(sweep, (P, Q, W, D if has_d else jnp.zeros((), P.dtype)), None, length=sweeps)
-    return (P, Q, W, D, hist) if has_d else (P, Q, W, hist)
+    init = (P, Q, W, D if has_d else zero, C if has_c else zero)
+    (P, Q, W, D, C), hist = jax.lax.scan(sweep, init, None, length=sweeps)
+    return (P, Q, W) + ((D,) if has_d else ()) + ((C,) if has_c else ()) + (hist,)
 
 
 __all__ = ["Flags", "GridData", "line_footprint", "predict", "run", "single_texel", "spd_solve"]

@@ -53,6 +53,9 @@ from .system import TextureLayout, texture_layout
 #: The projections of highlight terms (``highlight_terms``), brightest light first.
 HIGHLIGHT_PROJECTIONS = tuple(p for p, _ in pj.HIGHLIGHTS)
 
+#: The Fresnel projections of highlight terms (``highlight_fresnel``), brightest light first.
+FRESNEL_PROJECTIONS = tuple(p for p, _ in pj.HIGHLIGHT_FRESNEL)
+
 #: Texture roles that are computed (not unknowns of the fit).
 FIXED_ROLES = ("diffuse", "cos", "prefiltered", "dfg")
 
@@ -432,79 +435,88 @@ def _fit_als(structure, specs, fitted_terms, layouts, x0, grid, a, b, y, opts: L
     n = lay.n_valid
     flags_p, flags_q, flags_w, names = [], [], [], []
     rproj = pz.reflection_projection(structure.parametrization)  # r, or r_off for NRO and RO
-    flags_h, hprojs = [], []
+    flags_h, hprojs, flags_c, cprojs = [], [], [], []
     for term in fitted_terms:
         roles = {f[0]: f[1] for f in term.factors}
         flags_p.append("n" in roles)
         flags_q.append(rproj in roles)
         flags_w.append("nv" in roles)
         hproj = next((h for h in HIGHLIGHT_PROJECTIONS if h in roles), None)
+        cproj = next((c for c in FRESNEL_PROJECTIONS if c in roles), None)
         flags_h.append(hproj is not None)
         hprojs.append(hproj)
-        names.append((roles.get("n"), roles.get(rproj), roles.get("nv"), roles.get(hproj)))
+        flags_c.append(cproj is not None)
+        cprojs.append(cproj)
+        names.append((roles.get("n"), roles.get(rproj), roles.get("nv"), roles.get(hproj), roles.get(cproj)))
     K = len(fitted_terms)
     P = np.ones((K, n, 3))
     Q = np.ones((K, n, 3))
     W = np.ones((K, LINE_SIZE, 3))
     D = np.ones((K, LINE_SIZE, 3))
-    for t, (pn, qn, wn, hn) in enumerate(names):
-        if pn:
-            P[t] = x0[pn]
-        if qn:
-            Q[t] = x0[qn]
-        if wn:
-            W[t] = x0[wn]
-        if hn:
-            D[t] = x0[hn]
+    C = np.ones((K, LINE_SIZE, 3))
+    for t, names_t in enumerate(names):
+        for name, arr in zip(names_t, (P, Q, W, D, C)):
+            if name:
+                arr[t] = x0[name]
     nb = np.asarray(mappers.neighbours(lay.mapper, lay.size))[lay.texel_of_unknown]
     nb_unk = np.where(nb >= 0, lay.unknown_of_texel[np.maximum(nb, 0)], -1)
     nv = np.clip(np.sum(a * b, -1), 0.0, 1.0)
     vi, vw = als.line_footprint(jnp.asarray(nv, jnp.float32), LINE_SIZE)
-    hi = hw = None
-    if any(flags_h):  # each highlight line read at its light's nh_dom (N, K, 2), sample-major; others unused
-        hi, hw = np.zeros((len(a), K, 2), np.int32), np.zeros((len(a), K, 2), np.float32)
-        for t, hp in enumerate(hprojs):  # one projection per highlight term (at most three)
-            if hp is not None:
-                i_t, w_t = als.line_footprint(jnp.asarray(project(hp, a, b, context), jnp.float32), LINE_SIZE)
-                hi[:, t], hw[:, t] = np.asarray(i_t), np.asarray(w_t)
-        hi, hw = jnp.asarray(hi), jnp.asarray(hw)
+    hi, hw = _scalar_footprints(hprojs, a, b, context)  # each highlight line at its light's nh_dom
+    ci, cw = _scalar_footprints(cprojs, a, b, context)  # ... and its Fresnel line at the light's v.h'
     data = als.GridData(jnp.asarray(ia), jnp.asarray(ib), jnp.asarray(vi, jnp.int32), jnp.asarray(vw, jnp.float32),
                         jnp.asarray(y, jnp.float32), jnp.asarray(np.maximum(nb_unk, 0), jnp.int32),
-                        jnp.asarray(nb_unk >= 0, jnp.float32), jnp.asarray(np.sqrt(weights), jnp.float32), hi, hw)
-    flags = als.Flags(tuple(flags_p), tuple(flags_q), tuple(flags_w), tuple(flags_h) if any(flags_h) else ())
-    if any(flags_h):
-        P, Q, W, D = _highlight_first(P, Q, W, D, data, flags, opts)
+                        jnp.asarray(nb_unk >= 0, jnp.float32), jnp.asarray(np.sqrt(weights), jnp.float32), hi, hw,
+                        ci, cw)
+    has_h, has_c = any(flags_h), any(flags_c)
+    flags = als.Flags(tuple(flags_p), tuple(flags_q), tuple(flags_w), tuple(flags_h) if has_h else (),
+                      tuple(flags_c) if has_c else ())
+    if has_h:
+        P, Q, W, D, C = _highlight_first(P, Q, W, D, C, data, flags, opts)
     out = als.run(jnp.asarray(P, jnp.float32), jnp.asarray(Q, jnp.float32), jnp.asarray(W, jnp.float32),
                   data, jnp.float32(opts.laplacian), flags=flags, sweeps=int(opts.iterations),
-                  D=jnp.asarray(D, jnp.float32) if any(flags_h) else None)
+                  D=jnp.asarray(D, jnp.float32) if has_h else None, C=jnp.asarray(C, jnp.float32) if has_c else None)
     P, Q, W, hist = (np.asarray(v) for v in (out[:3] + out[-1:]))
-    D = np.asarray(out[3]) if any(flags_h) else None
+    D = np.asarray(out[3]) if has_h else None
+    C = np.asarray(out[4]) if has_c else None
     X = {}
-    for t, (pn, qn, wn, hn) in enumerate(names):
-        if pn:
-            X[pn] = P[t]
-        if qn:
-            X[qn] = Q[t]
-        if wn:
-            X[wn] = W[t]
-        if hn:
-            X[hn] = D[t]
+    for t, names_t in enumerate(names):
+        for name, arr in zip(names_t, (P, Q, W, D, C)):
+            if name:
+                X[name] = arr[t]
     return X, int(opts.iterations), hist
 
 
-def _highlight_first(P, Q, W, D, data, flags, opts: LinearOptions):
+def _scalar_footprints(projs, a, b, context):
+    """The line footprints (N, K, 2) of each term's scalar projection (None: the term has none; all None:
+    (None, None)), sample-major as :class:`~homofac.fit.als.GridData` holds them."""
+    if all(p is None for p in projs):
+        return None, None
+    idx, wts = np.zeros((len(a), len(projs), 2), np.int32), np.zeros((len(a), len(projs), 2), np.float32)
+    for t, proj in enumerate(projs):  # one projection per term (at most three lights)
+        if proj is not None:
+            i_t, w_t = als.line_footprint(jnp.asarray(project(proj, a, b, context), jnp.float32), LINE_SIZE)
+            idx[:, t], wts[:, t] = np.asarray(i_t), np.asarray(w_t)
+    return jnp.asarray(idx), jnp.asarray(wts)
+
+
+def _highlight_first(P, Q, W, D, C, data, flags, opts: LinearOptions):
     """Start the highlight terms (and an n-only diffuse texture) on the data alone, the products absent:
     started together, the products' maps of r take the sun's highlight first and the joint ALS stays
     there (near-mirror / city: 0.50 nrmse against 0.2 from this start). Returns the full start."""
     keep = [h or (p and not q and not w) for p, q, w, h in zip(flags.p, flags.q, flags.w, flags.h)]
     idx = np.flatnonzero(keep)
-    sub = als.Flags(*(tuple(f[i] for i in idx) for f in flags))
-    data = data._replace(hi=data.hi[:, idx], hw=data.hw[:, idx])
-    Ps, Qs, Ws, Ds, _ = als.run(*(jnp.asarray(x[idx], jnp.float32) for x in (P, Q, W)), data, jnp.float32(opts.laplacian),
-                                flags=sub, sweeps=max(1, int(opts.iterations) // 2), D=jnp.asarray(D[idx], jnp.float32))
-    P, Q, W, D = (np.array(x) for x in (P, Q, W, D))
-    P[idx], Q[idx], W[idx], D[idx] = (np.asarray(x) for x in (Ps, Qs, Ws, Ds))
-    return P, Q, W, D
+    sub = als.Flags(*(tuple(f[i] for i in idx) if f else f for f in flags))
+    has_c = bool(flags.c)
+    data = data._replace(hi=data.hi[:, idx], hw=data.hw[:, idx],
+                         ci=data.ci[:, idx] if has_c else None, cw=data.cw[:, idx] if has_c else None)
+    out = als.run(*(jnp.asarray(x[idx], jnp.float32) for x in (P, Q, W)), data, jnp.float32(opts.laplacian),
+                  flags=sub, sweeps=max(1, int(opts.iterations) // 2), D=jnp.asarray(D[idx], jnp.float32),
+                  C=jnp.asarray(C[idx], jnp.float32) if has_c else None)
+    P, Q, W, D, C = (np.array(x) for x in (P, Q, W, D, C))
+    for arr, new in zip((P, Q, W, D, C), out[:-1]):
+        arr[idx] = np.asarray(new)
+    return P, Q, W, D, C
 
 
 def _fit_lm(target, fitted_specs, fitted_terms, layouts, x0, a, b, y, opts: LinearOptions, method: str, weights):

@@ -263,6 +263,15 @@ def _nh_light(n, v, ctx, key: str):
     return xp.where(sphere.dot(n, i) > 0.0, 1.0 - xp.sqrt(e), 0.0)
 
 
+def _vh_light(n, v, ctx, key: str):
+    """``v.h'`` clamped to [0, 1], ``h' = half(i, v)`` with ``i`` the context's light ``key``: the Fresnel
+    argument of that light's highlight ``D(n.h') F(v.h') G / (4 n.v)`` (a function of the view alone for a
+    fixed light). At the peak (``h' = n``) it equals ``n.v``; off the peak of a broad lobe it does not, and
+    a dielectric's F rises from F0 to 1 toward grazing ``v.h'``."""
+    i = sphere.constant(ctx[key], n)
+    return _clamp01(sphere.dot(v, sphere.half_vector(i, v)))
+
+
 def _d_dom(n, v, ctx):
     """Eq. 69: i in the Gram-Schmidt frame of the half vector h' = half(i, v) and the tangent t(n)."""
     i = sphere.constant(ctx["dominant"], n)
@@ -298,5 +307,12 @@ for _j, (_name, _key) in enumerate(HIGHLIGHTS):
                          if _j == 0 else f"nh_dom of light {_j + 1} (brightest first), context {_key}"),
                         scalar=True, context=(_key,)))
 
-__all__ = ["CONTEXT_KEYS", "HIGHLIGHTS", "KINDS", "PROJECTIONS", "ContextKey", "Projection", "apply", "check_context", "example_context",
+#: The Fresnel coordinates of highlight terms, one per light of HIGHLIGHTS (projection, context key).
+HIGHLIGHT_FRESNEL = (("vh_dom", "dominant"), ("vh_dom1", "dominant1"), ("vh_dom2", "dominant2"))
+for _j, (_name, _key) in enumerate(HIGHLIGHT_FRESNEL):
+    register(Projection(_name, "lighting", functools.partial(_vh_light, key=_key), False,
+                        f"v.h' with h' the half vector of light {_j + 1} (brightest first, context {_key}) and v, "
+                        f"clamped to [0, 1]", scalar=True, context=(_key,)))
+
+__all__ = ["CONTEXT_KEYS", "HIGHLIGHTS", "HIGHLIGHT_FRESNEL", "KINDS", "PROJECTIONS", "ContextKey", "Projection", "apply", "check_context", "example_context",
            "get", "register"]
