@@ -174,7 +174,11 @@ def test_sharded_sampling_equals_unsharded(tmp_path):
     np.testing.assert_array_equal(out[1]["a"], out[2]["a"])
     for k in ("y", "val_y"):
         assert out[1][k].shape == out[2][k].shape and len(out[1][k]) > 0
-        np.testing.assert_allclose(out[2][k], out[1][k], rtol=1e-6, atol=1e-7)
+        # equal up to float32 rounding: split over devices, a batch is cut at other places, and XLA CPU
+        # evaluates exp / pow in vector code with a scalar remainder loop, so a value computed on the other
+        # path moves by a few float32 ulps of its terms (seen: 4e-6 relative on 6 of 8214 values); a shard
+        # lost, repeated or out of order moves values by O(1)
+        np.testing.assert_allclose(out[2][k], out[1][k], rtol=2e-5, atol=1e-6)
 
 
 @pytest.mark.slow
