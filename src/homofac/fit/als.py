@@ -231,7 +231,8 @@ def _w_block(pq, W, d: GridData, flags: Flags, y, mu_w, ridge: float = 1e-6, vi=
 
 def _balance(P, Q, W, flags: Flags, D=None, C=None):
     """Rescale full terms so mean |p_t| = mean |w_t| = 1 per channel (the scale goes into q_t, or into
-    d_t for a term without q; a term's c line also to mean |c_t| = 1, its scale into d_t)."""
+    d_t for a term without q; a term's c line also to mean |c_t| = 1, its scale into d_t). Returns
+    ``(P, Q, W, D, C)``, D and C None where they were not given."""
     h = flags.h or (False,) * len(flags.p)
     full = jnp.asarray([p and q for p, q in zip(flags.p, flags.q)], P.dtype)[:, None, None]
     fw = jnp.asarray([w and q for w, q in zip(flags.w, flags.q)], P.dtype)[:, None, None]
@@ -239,14 +240,14 @@ def _balance(P, Q, W, flags: Flags, D=None, C=None):
     sw = jnp.maximum(jnp.mean(jnp.abs(W), axis=1, keepdims=True), 1e-12) * fw + (1 - fw)
     P, Q, W = P / sp, Q * sp * sw, W / sw
     if D is None:
-        return P, Q, W
+        return P, Q, W, None, None
     hp = jnp.asarray([p and x and not q for p, q, x in zip(flags.p, flags.q, h)], P.dtype)[:, None, None]
     hw = jnp.asarray([w and x and not q for w, q, x in zip(flags.w, flags.q, h)], P.dtype)[:, None, None]
     sp = jnp.maximum(jnp.mean(jnp.abs(P), axis=1, keepdims=True), 1e-12) * hp + (1 - hp)
     sw = jnp.maximum(jnp.mean(jnp.abs(W), axis=1, keepdims=True), 1e-12) * hw + (1 - hw)
     P, W, D = P / sp, W / sw, D * sp * sw
     if C is None:
-        return P, Q, W, D
+        return P, Q, W, D, None
     hc = jnp.asarray([x and c for x, c in zip(h, flags.c)], P.dtype)[:, None, None]
     sc = jnp.maximum(jnp.mean(jnp.abs(C), axis=1, keepdims=True), 1e-12) * hc + (1 - hc)
     return P, Q, W, D * sc, C / sc
@@ -274,10 +275,10 @@ def run(P, Q, W, d: GridData, lam, *, flags: Flags, sweeps: int, jacobi: int = 3
 
     def sweep(carry, _):
         P, Q, W, D, C = carry
-        Dx, Cx = (D if has_d else None), (C if has_c else None)
+        D, C = (D if has_d else None), (C if has_c else None)  # None: no such factor (the carry holds 0)
         wv = _wv(W, d, flags)
         # the barrier keeps XLA from fusing the line gathers into every consumer
-        hv = jax.lax.optimization_barrier(_hv(Dx, d, flags, Cx)) if has_d else 1.0
+        hv = jax.lax.optimization_barrier(_hv(D, d, flags, C)) if has_d else 1.0
         # weighted least squares as row scaling: coefficients and targets times sqrt(weight)
         if any(flags.q):
             c = _factor(P, d.a, flags.p) * wv * hv
@@ -289,26 +290,21 @@ def run(P, Q, W, d: GridData, lam, *, flags: Flags, sweeps: int, jacobi: int = 3
             P = _texel_block(P, c * up * s3, d.a, (d.y - fixed) * s1, d, mu, jacobi) * up + (1 - up)
         if has_d:  # the highlight lines, given p q w (and c)
             pqw = _factor(P, d.a, flags.p) * _factor(Q, d.b, flags.q) * wv
-            fixed = _sum_terms(pqw * hv, tuple(not h for h in flags.h))
-            cv = _line(Cx, d.ci, d.cw, flags.c) if has_c else 1.0
+            fixed = _sum_terms(pqw, tuple(not h for h in flags.h))
+            cv = _line(C, d.ci, d.cw, flags.c) if has_c else 1.0
             D = _w_block(pqw * cv * s3, D, d, flags, (d.y - fixed) * s1, mu_w, vi=d.hi, vw=d.hw, use=flags.h)
+            hv = _line(D, d.hi, d.hw, flags.h)
             if has_c:  # the second lines, given p q w d
-                dv = _line(D, d.hi, d.hw, flags.h)
-                C = _w_block(pqw * dv * s3, C, d, flags, (d.y - fixed) * s1, mu_w, vi=d.ci, vw=d.cw, use=flags.c)
-            Dx, Cx = D, (C if has_c else None)
-            hv = jax.lax.optimization_barrier(_hv(Dx, d, flags, Cx))
+                C = _w_block(pqw * hv * s3, C, d, flags, (d.y - fixed) * s1, mu_w, vi=d.ci, vw=d.cw, use=flags.c)
+                hv = hv * _line(C, d.ci, d.cw, flags.c)
+            hv = jax.lax.optimization_barrier(hv)
         if any(flags.w):
             pq = _factor(P, d.a, flags.p) * _factor(Q, d.b, flags.q) * hv
             fixed = _sum_terms(pq, tuple(not w for w in flags.w))
             W = _w_block(pq * s3, W, d, flags, (d.y - fixed) * s1, mu_w)
-        if has_c:
-            P, Q, W, D, C = _balance(P, Q, W, flags, D, C)
-        elif has_d:
-            P, Q, W, D = _balance(P, Q, W, flags, D)
-        else:
-            P, Q, W = _balance(P, Q, W, flags)
-        r = (predict(P, Q, W, d, flags, D if has_d else None, C if has_c else None) - d.y) * s1
-        return (P, Q, W, D, C), jnp.sum(r * r)
+        P, Q, W, D, C = _balance(P, Q, W, flags, D, C)
+        r = (predict(P, Q, W, d, flags, D, C) - d.y) * s1
+        return (P, Q, W, zero if D is None else D, zero if C is None else C), jnp.sum(r * r)
 
     init = (P, Q, W, D if has_d else zero, C if has_c else zero)
     (P, Q, W, D, C), hist = jax.lax.scan(sweep, init, None, length=sweeps)
