@@ -4,6 +4,8 @@ go back."""
 
 from __future__ import annotations
 
+import gc
+
 import jax
 import jax.numpy as jnp
 import pytest
@@ -13,12 +15,14 @@ from homofac.fit import programs
 
 @pytest.mark.skipif(programs.mappings() == 0, reason="no /proc/self/maps")
 def test_compiled_programs_hold_mappings_and_the_bound_releases_them():
+    gc.collect()  # programs of earlier tests in this worker freed now, not in the middle of the checks
     before = programs.mappings()
     for i in range(60):  # 60 distinct programs (each shape compiles anew)
         jax.jit(lambda x, i=i: (jnp.sin(x) * (i + 1)).sum())(jnp.ones((i + 2,))).block_until_ready()
+    gc.collect()
     grown = programs.mappings()
     assert grown - before >= 60  # about three per program on XLA:CPU
     assert not programs.bound_compiled_programs(limit=grown + 1000)  # under the bound: nothing cleared
-    assert programs.mappings() >= grown - 5
+    assert programs.mappings() >= grown - 20  # allocator noise (a cleared cache frees 3 a program: > 180)
     assert programs.bound_compiled_programs(limit=before)  # over it: cleared
     assert programs.mappings() < grown - 60

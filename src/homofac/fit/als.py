@@ -2,11 +2,12 @@
 
 The model (per RGB channel c, in units of sigma_c, the RMS of what the terms fit)::
 
-    yhat_i = sum_t p_t(n_i) q_t(r_i) w_t(n.v_i) d_t(x_i)
+    yhat_i = sum_t p_t(n_i) q_t(r_i) w_t(n.v_i) d_t(x_i) prod_e c_et(z_ei)
 
-with p_t, q_t textures of one direction mapper and w_t, d_t ``line`` textures (d_t read at a second
-scalar x_t, the ``nh_dom`` highlight coordinate of the term's light); a term may lack any of the
-four (then that factor is 1: an n-only "fitted diffuse" term, an r-only term, a highlight term d w). On ``grid`` samples
+with p_t, q_t textures of one direction mapper and w_t, d_t, c_et ``line`` textures (d_t read at a second
+scalar x_t, the ``nh_dom`` highlight coordinate of the term's light; a highlight term's extra lines c_et at
+their own scalars, the light's ``vh_dom`` and ``ni_dom``); a term may lack any of them (then that factor
+is 1: an n-only "fitted diffuse" term, an r-only term, a highlight term d w). On ``grid`` samples
 (:func:`homofac.fit.sampling.grouped_grid`) every n- and r-lookup reads exactly one texel, so for
 fixed q and w the least-squares problem in p splits into one K x K system per texel and channel
 (and the same for q); w has K S_w unknowns per channel, a small dense system:
@@ -16,7 +17,8 @@ fixed q and w the least-squares problem in p splits into one K x K system per te
   the texel graph, weight ``mu = lambda N / texels``) by ``jacobi`` block-Jacobi passes;
 * P block: the same with ``c_ti = q_t(r_i) w_t(n.v_i)``, grouped by the n texel;
 * W block: the dense normal equations of the K S_w line unknowns (two texels per sample) with
-  first-difference smoothing ``lambda N / S_w``; the D block the same for the lines read at x;
+  first-difference smoothing ``lambda N / S_w``; the D block the same for the lines read at x, and each
+  extra line's block for its lines, given all the other factors;
 * after each sweep every full term is rebalanced (mean |p_t| = mean |w_t| = 1 per channel, the scale
   moved into q_t), which removes the scale gauge freedom of the products.
 
@@ -51,8 +53,8 @@ class GridData(NamedTuple):
     s: Float[Array, "N"]  # square roots of the sample weights (mean weight 1; ones: the plain objective)
     hi: Int[Array, "N K 2"] | None = None  # line texels of each term's highlight scalar x (terms with a d factor)
     hw: Float[Array, "N K 2"] | None = None  # their weights (0 for the other terms)
-    ci: Int[Array, "N K 2"] | None = None  # line texels of each term's second scalar (terms with a c factor)
-    cw: Float[Array, "N K 2"] | None = None  # their weights
+    ci: tuple = ()  # per extra line of the highlight terms (Fresnel, cosine): (N, K, 2) texels at its scalar
+    cw: tuple = ()  # their weights
 
 
 class Flags(NamedTuple):
@@ -62,7 +64,7 @@ class Flags(NamedTuple):
     q: tuple[bool, ...]
     w: tuple[bool, ...]
     h: tuple[bool, ...] = ()  # empty: no term has a d factor
-    c: tuple[bool, ...] = ()  # empty: no term has a c factor (a second line beside d, at its own scalar)
+    c: tuple[tuple[bool, ...], ...] = ()  # per extra line beside d (at its own scalar): which terms carry it
 
 
 def line_footprint(x, size: int) -> tuple[Int[Array, "N 2"], Float[Array, "N 2"]]:
@@ -102,12 +104,23 @@ def _wv(W, d: GridData, flags: Flags):
     return _line(W, d.vi, d.vw, flags.w)
 
 
+def _cv(C, d: GridData, flags: Flags) -> list:
+    """The extra lines' factors at the samples (K, N, 3), one per extra line (none without C)."""
+    return [] if C is None else [_line(Ce, ci, cw, fc) for Ce, ci, cw, fc in zip(C, d.ci, d.cw, flags.c)]
+
+
+def _product(xs, start=1.0):
+    out = start
+    for x in xs:
+        out = out * x
+    return out
+
+
 def _hv(D, d: GridData, flags: Flags, C=None):
-    """The d factors (times the c factors, with C) at the samples (ones when no term has one)."""
+    """The d factors (times the extra lines' factors, with C) at the samples (ones when no term has one)."""
     if not any(flags.h):
         return jnp.ones((len(flags.p), d.y.shape[0], 1), d.y.dtype)
-    out = _line(D, d.hi, d.hw, flags.h)
-    return out * _line(C, d.ci, d.cw, flags.c) if C is not None and any(flags.c) else out
+    return _product(_cv(C, d, flags), _line(D, d.hi, d.hw, flags.h))
 
 
 def _factor(X, idx, use):
@@ -127,7 +140,7 @@ def _sum_terms(x, which: tuple[bool, ...]):
 
 
 def predict(P, Q, W, d: GridData, flags: Flags, D=None, C=None) -> Float[Array, "N 3"]:
-    """``sum_t p_t(n_i) q_t(r_i) w_t(n.v_i) d_t(x_i) c_t(z_i)`` at the grid samples."""
+    """``sum_t p_t(n_i) q_t(r_i) w_t(n.v_i) d_t(x_i) prod_e c_et(z_ei)`` at the grid samples."""
     out = _factor(P, d.a, flags.p) * _factor(Q, d.b, flags.q) * _wv(W, d, flags)
     return _sum_terms(out * _hv(D, d, flags, C) if D is not None else out, (True,) * len(flags.p))
 
@@ -231,8 +244,8 @@ def _w_block(pq, W, d: GridData, flags: Flags, y, mu_w, ridge: float = 1e-6, vi=
 
 def _balance(P, Q, W, flags: Flags, D=None, C=None):
     """Rescale full terms so mean |p_t| = mean |w_t| = 1 per channel (the scale goes into q_t, or into
-    d_t for a term without q; a term's c line also to mean |c_t| = 1, its scale into d_t). Returns
-    ``(P, Q, W, D, C)``, D and C None where they were not given."""
+    d_t for a term without q; a term's extra lines also to mean |c_et| = 1, their scale into d_t). Returns
+    ``(P, Q, W, D, C)``, D and C None where they were not given (C: a tuple, one array per extra line)."""
     h = flags.h or (False,) * len(flags.p)
     full = jnp.asarray([p and q for p, q in zip(flags.p, flags.q)], P.dtype)[:, None, None]
     fw = jnp.asarray([w and q for w, q in zip(flags.w, flags.q)], P.dtype)[:, None, None]
@@ -248,18 +261,23 @@ def _balance(P, Q, W, flags: Flags, D=None, C=None):
     P, W, D = P / sp, W / sw, D * sp * sw
     if C is None:
         return P, Q, W, D, None
-    hc = jnp.asarray([x and c for x, c in zip(h, flags.c)], P.dtype)[:, None, None]
-    sc = jnp.maximum(jnp.mean(jnp.abs(C), axis=1, keepdims=True), 1e-12) * hc + (1 - hc)
-    return P, Q, W, D * sc, C / sc
+    out = []
+    for Ce, fc in zip(C, flags.c):
+        hc = jnp.asarray([x and c for x, c in zip(h, fc)], P.dtype)[:, None, None]
+        sc = jnp.maximum(jnp.mean(jnp.abs(Ce), axis=1, keepdims=True), 1e-12) * hc + (1 - hc)
+        D, Ce = D * sc, Ce / sc
+        out.append(Ce)
+    return P, Q, W, D, tuple(out)
 
 
 @functools.partial(jax.jit, static_argnames=("flags", "sweeps", "jacobi"))
 def run(P, Q, W, d: GridData, lam, *, flags: Flags, sweeps: int, jacobi: int = 3, D=None, C=None):
     """``sweeps`` ALS sweeps from (P, Q, W) (K, n, 3), (K, n, 3), (K, S_w, 3) and, when some term has a
-    d factor (``flags.h``), D (K, S_w, 3) and, when some term also has a c factor (``flags.c``), C
-    (K, S_w, 3); returns them and the data objective ``sum_i s_i^2 ||yhat_i - y_i||^2`` (``d.s``: the
-    square roots of the sample weights) after each sweep: ``(P, Q, W, hist)``, ``(P, Q, W, D, hist)``
-    with D, ``(P, Q, W, D, C, hist)`` with C."""
+    d factor (``flags.h``), D (K, S_w, 3) and, when highlight terms also carry extra lines (``flags.c``,
+    one entry per line: the Fresnel line, the cosine line), C, a tuple of (K, S_w, 3), one per extra line;
+    returns them and the data objective ``sum_i s_i^2 ||yhat_i - y_i||^2`` (``d.s``: the square roots of
+    the sample weights) after each sweep: ``(P, Q, W, hist)``, ``(P, Q, W, D, hist)`` with D,
+    ``(P, Q, W, D, C, hist)`` with C."""
     N, n, Sw = d.y.shape[0], P.shape[1], W.shape[1]
     mu = lam * N / n
     mu_w = lam * N / Sw
@@ -270,7 +288,7 @@ def run(P, Q, W, d: GridData, lam, *, flags: Flags, sweeps: int, jacobi: int = 3
     s1 = d.s[:, None]
     s3 = d.s[None, :, None]
     has_d = D is not None and any(flags.h)
-    has_c = has_d and C is not None and any(flags.c)
+    has_c = has_d and C is not None and len(flags.c) > 0
     zero = jnp.zeros((), P.dtype)
 
     def sweep(carry, _):
@@ -288,16 +306,22 @@ def run(P, Q, W, d: GridData, lam, *, flags: Flags, sweeps: int, jacobi: int = 3
             c = _factor(Q, d.b, flags.q) * wv * hv
             fixed = _sum_terms(c, tuple(not p for p in flags.p))
             P = _texel_block(P, c * up * s3, d.a, (d.y - fixed) * s1, d, mu, jacobi) * up + (1 - up)
-        if has_d:  # the highlight lines, given p q w (and c)
+        if has_d:  # the highlight lines, given p q w (and the extra lines)
             pqw = _factor(P, d.a, flags.p) * _factor(Q, d.b, flags.q) * wv
             fixed = _sum_terms(pqw, tuple(not h for h in flags.h))
-            cv = _line(C, d.ci, d.cw, flags.c) if has_c else 1.0
-            D = _w_block(pqw * cv * s3, D, d, flags, (d.y - fixed) * s1, mu_w, vi=d.hi, vw=d.hw, use=flags.h)
-            hv = _line(D, d.hi, d.hw, flags.h)
-            if has_c:  # the second lines, given p q w d
-                C = _w_block(pqw * hv * s3, C, d, flags, (d.y - fixed) * s1, mu_w, vi=d.ci, vw=d.cw, use=flags.c)
-                hv = hv * _line(C, d.ci, d.cw, flags.c)
-            hv = jax.lax.optimization_barrier(hv)
+            cv = _cv(C, d, flags)
+            D = _w_block(pqw * _product(cv) * s3, D, d, flags, (d.y - fixed) * s1, mu_w, vi=d.hi, vw=d.hw,
+                         use=flags.h)
+            dv = _line(D, d.hi, d.hw, flags.h)
+            if has_c:  # each extra line, given p q w d and the others
+                C = list(C)
+                for e in range(len(C)):
+                    rest = _product(cv[:e] + cv[e + 1:], dv)
+                    C[e] = _w_block(pqw * rest * s3, C[e], d, flags, (d.y - fixed) * s1, mu_w, vi=d.ci[e],
+                                    vw=d.cw[e], use=flags.c[e])
+                    cv[e] = _line(C[e], d.ci[e], d.cw[e], flags.c[e])
+                C = tuple(C)
+            hv = jax.lax.optimization_barrier(_product(cv, dv))
         if any(flags.w):
             pq = _factor(P, d.a, flags.p) * _factor(Q, d.b, flags.q) * hv
             fixed = _sum_terms(pq, tuple(not w for w in flags.w))

@@ -180,7 +180,9 @@ class FitOptions(Options):
     (lighting: J more fitted terms d(nh_dom) w(n.v), the highlights of the J brightest lights; at most one
     per highlight projection, ``projections.HIGHLIGHTS``; with ``max_lookups`` it restricts the candidates
     to that count, 0 turns the highlight candidates off), ``highlight_fresnel`` (lighting: each highlight
-    term also reads a ``line`` texture f(v.h') of its light's Fresnel argument, three lookups a term).
+    term also reads a ``line`` texture f(v.h') of its light's Fresnel argument, one lookup more a term),
+    ``highlight_cosine`` (lighting: each highlight term also reads a ``line`` texture c(n.i) of its light's
+    cosine, the shadowing G1(n.i) and the light's horizon, one lookup more a term).
     """
 
     parametrization: ParametrizationName = "NR"
@@ -199,6 +201,7 @@ class FitOptions(Options):
     rw_terms: int = Field(0, ge=0, le=MAX_TERMS)
     highlight_terms: int = Field(0, ge=0, le=len(pj.HIGHLIGHTS))
     highlight_fresnel: bool = False
+    highlight_cosine: bool = False
     max_lookups: Optional[int] = Field(None, ge=1, le=256)
     linear: Optional[LinearOptions] = None
 
@@ -206,7 +209,8 @@ class FitOptions(Options):
     def is_sum(self) -> bool:
         """True when the fit is a linear-space sum of products rather than today's log-space product."""
         return (self.terms > 1 or self.diffuse is not None or self.nv_factor or self.reflection or self.rw_terms > 0
-                or self.highlight_terms > 0 or self.highlight_fresnel or self.prefiltered or self.max_lookups is not None or self.linear is not None)
+                or self.highlight_terms > 0 or self.highlight_fresnel or self.highlight_cosine
+                or self.prefiltered or self.max_lookups is not None or self.linear is not None)
 
 
 __all__ = ["AnalysisOptions", "CameraOptions", "MAX_CAMERAS", "MAX_CAMERA_SIDE", "MAX_SCENE_PIXELS", "FitOptions", "LinearOptions", "MAX_TERMS", "MAX_TEXTURE_SIZE", "MIN_TEXTURE_SIZE", "MapperName", "SamplingOptions"]

@@ -98,16 +98,18 @@ def quality_warnings(metrics: dict) -> list[str]:
 
 
 def constrained(cands: list[Structure], opts: FitOptions) -> list[Structure]:
-    """The chooser's candidates that a ``diffuse``, ``highlight_terms`` or ``highlight_fresnel`` given in
-    ``opts`` allows (all of them where none does): a diffuse term, a highlight count or the Fresnel line
-    asked for explicitly constrains the search (``highlight_terms: 0``: no highlight candidate;
-    ``highlight_fresnel: false``: highlight candidates without the Fresnel line)."""
+    """The chooser's candidates that a ``diffuse``, ``highlight_terms``, ``highlight_fresnel`` or
+    ``highlight_cosine`` given in ``opts`` allows (all of them where none does): a diffuse term, a highlight
+    count or an extra highlight line asked for explicitly constrains the search (``highlight_terms: 0``: no
+    highlight candidate; ``highlight_fresnel: false``: highlight candidates without the Fresnel line)."""
     if opts.diffuse is not None:
         cands = [c for c in cands if c.diffuse == opts.diffuse] or cands
     if "highlight_terms" in opts.model_fields_set:
         cands = [c for c in cands if c.highlight_terms == opts.highlight_terms] or cands
     if "highlight_fresnel" in opts.model_fields_set:
         cands = [c for c in cands if c.highlight_fresnel == opts.highlight_fresnel or not c.highlight_terms] or cands
+    if "highlight_cosine" in opts.model_fields_set:
+        cands = [c for c in cands if c.highlight_cosine == opts.highlight_cosine or not c.highlight_terms] or cands
     return cands
 
 
@@ -134,6 +136,7 @@ def factorize(
     rw_terms: int | None = None,
     highlight_terms: int | None = None,
     highlight_fresnel: bool | None = None,
+    highlight_cosine: bool | None = None,
     max_lookups: int | None = None,
     linear: dict | None = None,
     baseline: dict | None = None,
@@ -172,7 +175,9 @@ def factorize(
             given, only candidates with J highlight terms are tried (0: none); not given, the chooser
             tries 0-2 where the lighting is an environment.
         highlight_fresnel: each highlight term also reads f(v.h'_j), a line texture of its light's Fresnel
-            argument (three lookups a term; lighting).
+            argument (one lookup more a term; lighting).
+        highlight_cosine: each highlight term also reads c(n.i_j), a line texture of its light's cosine (the
+            shadowing G1(n.i) and the light's horizon; one lookup more a term; lighting).
         max_lookups: choose the structure (terms, nv_factor, diffuse) within this many texture lookups
             per pixel by validation error (:func:`homofac.fit.sums.choose`).
         linear: :class:`~homofac.fit.options.LinearOptions` of the linear-space fit as a dict
@@ -195,7 +200,8 @@ def factorize(
     opts = options(parametrization, mapper=mapper, texture_size=texture_size, sampling=sampling, solver=solver,
                    target_error=target_error, baseline=baseline, analysis=analysis, terms=terms, diffuse=diffuse,
                    nv_factor=nv_factor, reflection=reflection, prefiltered=prefiltered, rw_terms=rw_terms,
-                   highlight_terms=highlight_terms, highlight_fresnel=highlight_fresnel, max_lookups=max_lookups,
+                   highlight_terms=highlight_terms, highlight_fresnel=highlight_fresnel,
+                   highlight_cosine=highlight_cosine, max_lookups=max_lookups,
                    linear=linear)
     if not isinstance(target, Target):
         raise HomofacError(f"factorize needs a homofac Target (brdf_target or lighting_target), got {type(target).__name__}")

@@ -207,13 +207,14 @@ def grouped_pairs(sampling_kind: str, size: int, *, mapper: str, count: int = 0,
     raise HomofacError(f"sampling.kind must be texels, latlong, random or grid, got {sampling_kind!r}")
 
 
-def grouped_random(count: int, seed: int) -> Grouped:
-    """``count`` random valid lighting pairs: about sqrt(count) uniform normals, each with uniform
-    views on its upper hemisphere (the same distribution as uniform pairs conditioned on n . v > 0)."""
+def grouped_random(count: int, seed: int, views: int | None = None) -> Grouped:
+    """``count`` random valid lighting pairs: about sqrt(count) uniform normals (``count / views`` with
+    ``views``), each with uniform views on its upper hemisphere (the same distribution as uniform pairs
+    conditioned on n . v > 0)."""
     rng = np.random.default_rng(seed)
     if count <= 0:
         return Grouped(np.zeros((0, 3), np.float32), np.zeros((0, 1, 3), np.float32), np.zeros((0, 1), bool))
-    g = max(1, int(round(np.sqrt(count))))
+    g = max(1, int(round(np.sqrt(count) if views is None else count / max(int(views), 1))))
     p = -(-count // g)
     n = random_directions(rng, g, False)
     v = _normalize(rng.normal(size=(g, p, 3)))

@@ -53,8 +53,9 @@ from .system import TextureLayout, texture_layout
 #: The projections of highlight terms (``highlight_terms``), brightest light first.
 HIGHLIGHT_PROJECTIONS = tuple(p for p, _ in pj.HIGHLIGHTS)
 
-#: The Fresnel projections of highlight terms (``highlight_fresnel``), brightest light first.
-FRESNEL_PROJECTIONS = tuple(p for p, _ in pj.HIGHLIGHT_FRESNEL)
+#: The extra lines a highlight term may read beside d(nh_dom): per kind (``highlight_fresnel``,
+#: ``highlight_cosine``) its projections, brightest light first; the ALS fits each as a line block.
+EXTRA_LINE_PROJECTIONS = (tuple(p for p, _ in pj.HIGHLIGHT_FRESNEL), tuple(p for p, _ in pj.HIGHLIGHT_COSINE))
 
 #: Texture roles that are computed (not unknowns of the fit).
 FIXED_ROLES = ("diffuse", "cos", "prefiltered", "dfg")
@@ -435,27 +436,28 @@ def _fit_als(structure, specs, fitted_terms, layouts, x0, grid, a, b, y, opts: L
     n = lay.n_valid
     flags_p, flags_q, flags_w, names = [], [], [], []
     rproj = pz.reflection_projection(structure.parametrization)  # r, or r_off for NRO and RO
-    flags_h, hprojs, flags_c, cprojs = [], [], [], []
+    flags_h, hprojs, cprojs, cnames = [], [], [], []
     for term in fitted_terms:
         roles = {f[0]: f[1] for f in term.factors}
         flags_p.append("n" in roles)
         flags_q.append(rproj in roles)
         flags_w.append("nv" in roles)
         hproj = next((h for h in HIGHLIGHT_PROJECTIONS if h in roles), None)
-        cproj = next((c for c in FRESNEL_PROJECTIONS if c in roles), None)
         flags_h.append(hproj is not None)
         hprojs.append(hproj)
-        flags_c.append(cproj is not None)
-        cprojs.append(cproj)
-        names.append((roles.get("n"), roles.get(rproj), roles.get("nv"), roles.get(hproj), roles.get(cproj)))
+        # the extra lines of a highlight term (per kind: its projection, or None)
+        cprojs.append([next((c for c in kind if c in roles), None) for kind in EXTRA_LINE_PROJECTIONS])
+        cnames.append([roles.get(c) for c in cprojs[-1]])
+        names.append((roles.get("n"), roles.get(rproj), roles.get("nv"), roles.get(hproj)))
+    kinds = [e for e in range(len(EXTRA_LINE_PROJECTIONS)) if any(c[e] for c in cprojs)]  # the extra lines present
     K = len(fitted_terms)
     P = np.ones((K, n, 3))
     Q = np.ones((K, n, 3))
     W = np.ones((K, LINE_SIZE, 3))
     D = np.ones((K, LINE_SIZE, 3))
-    C = np.ones((K, LINE_SIZE, 3))
+    C = np.ones((len(kinds), K, LINE_SIZE, 3))
     for t, names_t in enumerate(names):
-        for name, arr in zip(names_t, (P, Q, W, D, C)):
+        for name, arr in zip(names_t + tuple(cnames[t][e] for e in kinds), (P, Q, W, D, *C)):
             if name:
                 arr[t] = x0[name]
     nb = np.asarray(mappers.neighbours(lay.mapper, lay.size))[lay.texel_of_unknown]
@@ -463,25 +465,27 @@ def _fit_als(structure, specs, fitted_terms, layouts, x0, grid, a, b, y, opts: L
     nv = np.clip(np.sum(a * b, -1), 0.0, 1.0)
     vi, vw = als.line_footprint(jnp.asarray(nv, jnp.float32), LINE_SIZE)
     hi, hw = _scalar_footprints(hprojs, a, b, context)  # each highlight line at its light's nh_dom
-    ci, cw = _scalar_footprints(cprojs, a, b, context)  # ... and its Fresnel line at the light's v.h'
+    # ... and its extra lines at their scalars (the light's v.h', n.i)
+    extra = [_scalar_footprints([c[e] for c in cprojs], a, b, context) for e in kinds]
     data = als.GridData(jnp.asarray(ia), jnp.asarray(ib), jnp.asarray(vi, jnp.int32), jnp.asarray(vw, jnp.float32),
                         jnp.asarray(y, jnp.float32), jnp.asarray(np.maximum(nb_unk, 0), jnp.int32),
                         jnp.asarray(nb_unk >= 0, jnp.float32), jnp.asarray(np.sqrt(weights), jnp.float32), hi, hw,
-                        ci, cw)
-    has_h, has_c = any(flags_h), any(flags_c)
+                        tuple(i for i, _ in extra), tuple(w for _, w in extra))
+    has_h, has_c = any(flags_h), bool(kinds)
     flags = als.Flags(tuple(flags_p), tuple(flags_q), tuple(flags_w), tuple(flags_h) if has_h else (),
-                      tuple(flags_c) if has_c else ())
+                      tuple(tuple(c[e] is not None for c in cprojs) for e in kinds))
     if has_h:
         P, Q, W, D, C = _highlight_first(P, Q, W, D, C, data, flags, opts)
     out = als.run(jnp.asarray(P, jnp.float32), jnp.asarray(Q, jnp.float32), jnp.asarray(W, jnp.float32),
                   data, jnp.float32(opts.laplacian), flags=flags, sweeps=int(opts.iterations),
-                  D=jnp.asarray(D, jnp.float32) if has_h else None, C=jnp.asarray(C, jnp.float32) if has_c else None)
+                  D=jnp.asarray(D, jnp.float32) if has_h else None,
+                  C=tuple(jnp.asarray(c, jnp.float32) for c in C) if has_c else None)
     P, Q, W, hist = (np.asarray(v) for v in (out[:3] + out[-1:]))
     D = np.asarray(out[3]) if has_h else None
-    C = np.asarray(out[4]) if has_c else None
+    C = [np.asarray(c) for c in out[4]] if has_c else []
     X = {}
     for t, names_t in enumerate(names):
-        for name, arr in zip(names_t, (P, Q, W, D, C)):
+        for name, arr in zip(names_t + tuple(cnames[t][e] for e in kinds), (P, Q, W, D, *C)):
             if name:
                 X[name] = arr[t]
     return X, int(opts.iterations), hist
@@ -506,16 +510,23 @@ def _highlight_first(P, Q, W, D, C, data, flags, opts: LinearOptions):
     there (near-mirror / city: 0.50 nrmse against 0.2 from this start). Returns the full start."""
     keep = [h or (p and not q and not w) for p, q, w, h in zip(flags.p, flags.q, flags.w, flags.h)]
     idx = np.flatnonzero(keep)
-    sub = als.Flags(*(tuple(f[i] for i in idx) if f else f for f in flags))
+
+    def pick(f):
+        return tuple(f[i] for i in idx)
+
+    sub = als.Flags(pick(flags.p), pick(flags.q), pick(flags.w), pick(flags.h), tuple(pick(c) for c in flags.c))
     has_c = bool(flags.c)
-    data = data._replace(hi=data.hi[:, idx], hw=data.hw[:, idx],
-                         ci=data.ci[:, idx] if has_c else None, cw=data.cw[:, idx] if has_c else None)
+    data = data._replace(hi=data.hi[:, idx], hw=data.hw[:, idx], ci=tuple(c[:, idx] for c in data.ci),
+                         cw=tuple(c[:, idx] for c in data.cw))
     out = als.run(*(jnp.asarray(x[idx], jnp.float32) for x in (P, Q, W)), data, jnp.float32(opts.laplacian),
                   flags=sub, sweeps=max(1, int(opts.iterations) // 2), D=jnp.asarray(D[idx], jnp.float32),
-                  C=jnp.asarray(C[idx], jnp.float32) if has_c else None)
+                  C=tuple(jnp.asarray(c[idx], jnp.float32) for c in C) if has_c else None)
     P, Q, W, D, C = (np.array(x) for x in (P, Q, W, D, C))
-    for arr, new in zip((P, Q, W, D, C), out[:-1]):
+    for arr, new in zip((P, Q, W, D), out[:4]):
         arr[idx] = np.asarray(new)
+    if has_c:
+        for e, new in enumerate(out[4]):
+            C[e][idx] = np.asarray(new)
     return P, Q, W, D, C
 
 

@@ -272,6 +272,15 @@ def _vh_light(n, v, ctx, key: str):
     return _clamp01(sphere.dot(v, sphere.half_vector(i, v)))
 
 
+def _ni_light(n, v, ctx, key: str):
+    """``n.i`` clamped to [0, 1] with ``i`` the context's light ``key``: the light's cosine, the argument of
+    the shadowing term ``G1(n.i)`` in ``D(n.h') F(v.h') G1(n.v) G1(n.i) / (4 n.v)`` (the cosine factor of the
+    rendering equation cancels the BRDF's ``1 / n.i``). It falls to 0 at the light's horizon, where a
+    highlight of a light low over ``n`` fades; ``d(nh_dom) w(n.v)`` alone keeps the peak's height there."""
+    i = sphere.constant(ctx[key], n)
+    return _clamp01(sphere.dot(n, i))
+
+
 def _d_dom(n, v, ctx):
     """Eq. 69: i in the Gram-Schmidt frame of the half vector h' = half(i, v) and the tangent t(n)."""
     i = sphere.constant(ctx["dominant"], n)
@@ -314,5 +323,12 @@ for _j, (_name, _key) in enumerate(HIGHLIGHT_FRESNEL):
                         f"v.h' with h' the half vector of light {_j + 1} (brightest first, context {_key}) and v, "
                         f"clamped to [0, 1]", scalar=True, context=(_key,)))
 
-__all__ = ["CONTEXT_KEYS", "HIGHLIGHTS", "HIGHLIGHT_FRESNEL", "KINDS", "PROJECTIONS", "ContextKey", "Projection", "apply", "check_context", "example_context",
+#: The cosine coordinates of highlight terms (``highlight_cosine``), one per light of HIGHLIGHTS.
+HIGHLIGHT_COSINE = (("ni_dom", "dominant"), ("ni_dom1", "dominant1"), ("ni_dom2", "dominant2"))
+for _j, (_name, _key) in enumerate(HIGHLIGHT_COSINE):
+    register(Projection(_name, "lighting", functools.partial(_ni_light, key=_key), False,
+                        f"n.i with i light {_j + 1} (brightest first, context {_key}), clamped to [0, 1]",
+                        scalar=True, context=(_key,)))
+
+__all__ = ["CONTEXT_KEYS", "HIGHLIGHTS", "HIGHLIGHT_COSINE", "HIGHLIGHT_FRESNEL", "KINDS", "PROJECTIONS", "ContextKey", "Projection", "apply", "check_context", "example_context",
            "get", "register"]
