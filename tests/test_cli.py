@@ -12,7 +12,9 @@ import numpy as np
 import pytest
 import yaml
 
+from homofac.app.cli import fit_epilog
 from homofac.app.cli import fit_main as main
+from homofac.fit.options import FitOptions, LinearOptions
 
 SMALL_BRDF = {
     "target": {"kind": "brdf", "brdf": {"model": "cook_torrance", "kd": 0.1, "ks": 1.0, "roughness": 0.3,
@@ -179,6 +181,13 @@ def test_help_documents_options():
     assert r.returncode == 0
     for word in ("--out", "--debug", "--quiet", "parametrization", "sampling", "solver", "texture_size"):
         assert word in r.stdout
+
+
+def test_help_names_every_key_of_the_fit_and_of_its_linear_fit():
+    """--help's config summary is derived from the option models: every FitOptions and LinearOptions key."""
+    text = fit_epilog()
+    missing = [k for k in (*FitOptions.model_fields, *LinearOptions.model_fields) if k not in text]
+    assert not missing, missing
 
 
 @pytest.mark.slow

@@ -12,6 +12,7 @@ import argparse
 import os
 import signal
 import sys
+import textwrap
 import time
 from pathlib import Path
 from typing import Callable
@@ -24,6 +25,7 @@ from rich.console import Console
 from .. import baselines, gl
 from ..errors import HomofacError
 from ..fit import solvers
+from ..fit.options import FitOptions, LinearOptions
 from ..gl.picture import auto_exposure
 from ..gl.window import require_display, show
 from ..io.files import write_atomically
@@ -104,6 +106,12 @@ def fit_epilog() -> str:
     lighting = " | ".join(pz.names("lighting"))
     brdfs = " | ".join(pz.names("brdf"))
     maps = " | ".join(m for m, r in mappers.MAPPERS.items() if not r.scalar)
+    # the keys of a sum of products: FitOptions' fields that the lines above do not name
+    named = {"parametrization", "baseline", "analysis", "mapper", "texture_size", "sampling", "solver",
+             "target_error", "linear"}
+    pad = "\n" + " " * 19
+    sums = pad.join(textwrap.wrap(", ".join(k for k in FitOptions.model_fields if k not in named) + " (docs/sums.md)", 78))
+    linear = pad.join(textwrap.wrap("{" + ", ".join(LinearOptions.model_fields) + "}: the linear-space fit of a sum", 78))
     return f"""\
 config keys (docs/config.md; unknown keys are errors):
   target:          kind (brdf | lighting), brdf {{model, ...its parameters}} (docs/models.md)
@@ -118,6 +126,8 @@ config keys (docs/config.md; unknown keys are errors):
   sampling:        {{kind: texels | latlong | random, size, view_size, validation, seed, count, mapper, cache}}
   solver:          {{method: {' | '.join(solvers.SOLVERS)}, tolerance, max_iterations, laplacian, epsilon, levels}}
   target_error:    validation nrmse to meet with the cheapest candidate
+  sums:            {sums}
+  linear:          {linear}
   output:          {{dir, png, samples, exr (float32 | half), alpha, prescale [w0 .. wT], preview,
                    shaders [{' | '.join(LANGUAGES)}]}}
   limits:          {{memory_gb}}
