@@ -84,6 +84,36 @@ def test_als_d_block_recovers_a_line_factor_read_at_a_second_scalar():
     assert np.all(np.diff(np.asarray(hist)) <= 1e-6 * float(hist[0]))  # ALS never increases the objective
 
 
+def test_als_extra_line_blocks_recover_a_product_of_four_lines():
+    """y = d(x) f(z) c(u) w(n.v) exactly (a highlight term with both extra lines, the Fresnel and the
+    cosine line): the ALS with the D block and a tuple of two extra line blocks reaches it, monotonely."""
+    rng = np.random.default_rng(1)
+    N, Sw = 6000, 16
+    s = np.linspace(0, 1, Sw)[:, None]
+    lines = [0.5 + s * np.ones(3), np.exp(-((s - 0.8) / 0.2) ** 2) * np.array([1.0, 0.7, 0.4]),
+             0.2 + s ** 2 * np.array([1.0, 1.0, 0.5]), np.sqrt(s) * np.ones(3)]  # w, d, f, c
+    feet = [[np.asarray(u) for u in als.line_footprint(rng.uniform(0, 1, N).astype(np.float32), Sw)] for _ in lines]
+    y = np.prod([np.einsum("nk,nkc->nc", w, t[i]) for (i, w), t in zip(feet, lines)], axis=0)
+    n1 = 4
+
+    def col(u, dtype):  # one term: (N, 1, 2)
+        return u[:, None].astype(dtype)
+
+    data = als.GridData(np.zeros(N, np.int32), np.zeros(N, np.int32), feet[0][0].astype(np.int32),
+                        feet[0][1].astype(np.float32), y.astype(np.float32), np.zeros((n1, 4), np.int32),
+                        np.zeros((n1, 4), np.float32), np.ones(N, np.float32), col(feet[1][0], np.int32),
+                        col(feet[1][1], np.float32), (col(feet[2][0], np.int32), col(feet[3][0], np.int32)),
+                        (col(feet[2][1], np.float32), col(feet[3][1], np.float32)))
+    flags = als.Flags((False,), (False,), (True,), (True,), ((True,), (True,)))
+    ones = np.ones((1, Sw, 3), np.float32)
+    P, Q, W, D, C, hist = als.run(np.ones((1, n1, 3), np.float32), np.ones((1, n1, 3), np.float32), ones, data,
+                                  np.float32(0.0), flags=flags, sweeps=60, D=ones, C=(ones, ones))
+    assert len(C) == 2
+    pred = np.asarray(als.predict(P, Q, W, data, flags, D, C))
+    assert float(np.max(np.abs(pred - y))) < 2e-3 * float(np.max(y))
+    assert np.all(np.diff(np.asarray(hist)) <= 1e-6 * float(hist[0]))  # ALS never increases the objective
+
+
 def test_highlight_terms_in_the_skeleton_label_record_and_lookup_count():
     s = Structure("RO", 1, "fitted", False, highlight_terms=1)
     textures, terms = structures.skeleton(s, "lighting", "lighting", "dual_paraboloid", 8)

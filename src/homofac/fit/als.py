@@ -110,6 +110,7 @@ def _cv(C, d: GridData, flags: Flags) -> list:
 
 
 def _product(xs, start=1.0):
+    """``start`` times every factor of ``xs`` (the factors of a term's lines at the samples)."""
     out = start
     for x in xs:
         out = out * x
