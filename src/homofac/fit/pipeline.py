@@ -28,7 +28,7 @@ from .product import fit_product
 from .result import Result
 from .samples import Samples, check_values
 from .state import from_fit
-from .structures import Structure
+from .structures import HIGHLIGHT_LINES, Structure
 
 
 #: The lookup budget of ``target_error`` with sum keys but no ``max_lookups``.
@@ -106,10 +106,8 @@ def constrained(cands: list[Structure], opts: FitOptions) -> list[Structure]:
         cands = [c for c in cands if c.diffuse == opts.diffuse] or cands
     if "highlight_terms" in opts.model_fields_set:
         cands = [c for c in cands if c.highlight_terms == opts.highlight_terms] or cands
-    if "highlight_fresnel" in opts.model_fields_set:
-        cands = [c for c in cands if c.highlight_fresnel == opts.highlight_fresnel or not c.highlight_terms] or cands
-    if "highlight_cosine" in opts.model_fields_set:
-        cands = [c for c in cands if c.highlight_cosine == opts.highlight_cosine or not c.highlight_terms] or cands
+    for key in (line.key for line in HIGHLIGHT_LINES if line.key in opts.model_fields_set):
+        cands = [c for c in cands if getattr(c, key) == getattr(opts, key) or not c.highlight_terms] or cands
     return cands
 
 

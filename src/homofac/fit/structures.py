@@ -46,6 +46,27 @@ from ..param import projections as pj
 LINE_SIZE = 32
 
 
+class HighlightLine(NamedTuple):
+    """An extra line a highlight term may read beside ``d(nh_dom)``: the Structure field that turns it on,
+    its projection per light (brightest first), its texture's name prefix, role and label letter, and
+    the scalar it reads (for the refusal)."""
+
+    key: str
+    projections: tuple[str, ...]
+    prefix: str
+    role: str
+    letter: str
+    reads: str
+
+
+#: The extra lines of highlight terms, in factor order: ``f(v.h')`` (``highlight_fresnel``, the Fresnel
+#: argument) and ``c(n.i)`` (``highlight_cosine``, the light's cosine: shadowing and horizon).
+HIGHLIGHT_LINES = (
+    HighlightLine("highlight_fresnel", tuple(p for p, _ in pj.HIGHLIGHT_FRESNEL), "f", "fresnel", "F", "v.h'"),
+    HighlightLine("highlight_cosine", tuple(p for p, _ in pj.HIGHLIGHT_COSINE), "c", "cosine", "C", "n.i"),
+)
+
+
 class TextureSpec(NamedTuple):
     """A texture of the skeleton: name, mapper, size, and the role its unknowns play."""
 
@@ -91,7 +112,7 @@ class Structure(NamedTuple):
         d = {None: "", "exact": "E+", "fitted": "E'+"}[self.diffuse] + ("SS+" if self.prefiltered else "")
         w = "W" if self.nv_factor and not _has_nv(self.parametrization) else ""
         rw = f"+RW x{self.rw_terms}" if self.rw_terms else ""
-        lines = ("F" if self.highlight_fresnel else "") + ("C" if self.highlight_cosine else "")
+        lines = "".join(line.letter for line in HIGHLIGHT_LINES if getattr(self, line.key))
         hw = f"+H{lines}W x{self.highlight_terms}" if self.highlight_terms else ""
         return f"{d}{self.parametrization}{w} x{self.terms}{rw}{'+R' if self.reflection else ''}{hw}"
 
@@ -166,22 +187,19 @@ def skeleton(structure: Structure, kind: str, quantity: str, mapper: str, size: 
     if structure.highlight_terms > len(pj.HIGHLIGHTS):
         raise HomofacError(f"highlight_terms: at most {len(pj.HIGHLIGHTS)} (one per light: "
                            f"{', '.join(p for p, _ in pj.HIGHLIGHTS)}), got {structure.highlight_terms}")
-    if structure.highlight_fresnel and not structure.highlight_terms:
-        raise HomofacError("highlight_fresnel: the v.h' line is a factor of highlight terms; set highlight_terms")
-    if structure.highlight_cosine and not structure.highlight_terms:
-        raise HomofacError("highlight_cosine: the n.i line is a factor of highlight terms; set highlight_terms")
+    lines = [line for line in HIGHLIGHT_LINES if getattr(structure, line.key)]
+    for line in lines:
+        if not structure.highlight_terms:
+            raise HomofacError(f"{line.key}: the {line.reads} line is a factor of highlight terms; set highlight_terms")
     first = structure.terms + structure.rw_terms
     for j in range(structure.highlight_terms):
         t = first + j
-        h, f, c, w = f"d{t}", f"f{t}", f"c{t}", f"w{t}"
+        h, w = f"d{t}", f"w{t}"
         textures.append(TextureSpec(h, "line", line_size, "highlight"))
         factors = [(pj.HIGHLIGHTS[j][0], h)]
-        if structure.highlight_fresnel:
-            textures.append(TextureSpec(f, "line", line_size, "fresnel"))
-            factors.append((pj.HIGHLIGHT_FRESNEL[j][0], f))
-        if structure.highlight_cosine:
-            textures.append(TextureSpec(c, "line", line_size, "cosine"))
-            factors.append((pj.HIGHLIGHT_COSINE[j][0], c))
+        for line in lines:
+            textures.append(TextureSpec(f"{line.prefix}{t}", "line", line_size, line.role))
+            factors.append((line.projections[j], f"{line.prefix}{t}"))
         textures.append(TextureSpec(w, "line", line_size, "nv"))
         terms.append(TermSpec(tuple(factors) + (("nv", w),), "fitted", True))
     return tuple(textures), tuple(terms)
@@ -281,4 +299,4 @@ def _sorted(structures):
                                              s.highlight_terms, s.highlight_fresnel, s.highlight_cosine))
 
 
-__all__ = ["LINE_SIZE", "Structure", "TermSpec", "TextureSpec", "candidates", "ladder", "lookups", "skeleton"]
+__all__ = ["HIGHLIGHT_LINES", "LINE_SIZE", "HighlightLine", "Structure", "TermSpec", "TextureSpec", "candidates", "ladder", "lookups", "skeleton"]

@@ -46,16 +46,16 @@ from . import als, precision, refine, solvers
 from .options import LinearOptions
 from .product import fit_product
 from .samples import Samples
-from .structures import LINE_SIZE, Structure, TermSpec, TextureSpec, skeleton
+from .structures import HIGHLIGHT_LINES, LINE_SIZE, Structure, TermSpec, TextureSpec, skeleton
 from .system import TextureLayout, texture_layout
 
 
 #: The projections of highlight terms (``highlight_terms``), brightest light first.
 HIGHLIGHT_PROJECTIONS = tuple(p for p, _ in pj.HIGHLIGHTS)
 
-#: The extra lines a highlight term may read beside d(nh_dom): per kind (``highlight_fresnel``,
-#: ``highlight_cosine``) its projections, brightest light first; the ALS fits each as a line block.
-EXTRA_LINE_PROJECTIONS = (tuple(p for p, _ in pj.HIGHLIGHT_FRESNEL), tuple(p for p, _ in pj.HIGHLIGHT_COSINE))
+#: The extra lines a highlight term may read beside d(nh_dom) (:data:`~homofac.fit.structures.HIGHLIGHT_LINES`):
+#: per kind its projections, brightest light first; the ALS fits each as a line block.
+EXTRA_LINE_PROJECTIONS = tuple(line.projections for line in HIGHLIGHT_LINES)
 
 #: Texture roles that are computed (not unknowns of the fit).
 FIXED_ROLES = ("diffuse", "cos", "prefiltered", "dfg")
