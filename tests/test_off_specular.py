@@ -12,7 +12,9 @@ import homofac as hf
 from homofac.errors import HomofacError
 from homofac.factorization import Factor, Factorization, Term
 from homofac.fit import als, pipeline, sampling, sums
-from homofac.fit.options import LinearOptions
+from homofac.app import budget
+from homofac.app.config import Config
+from homofac.fit.options import FitOptions, LinearOptions
 from homofac.fit.samples import Samples
 from homofac.fit.structures import Structure
 from homofac.fit.system import texture_layout
@@ -238,18 +240,41 @@ def test_max_lookups_draws_grid_pairs_per_direction_and_keeps_the_chosen_structu
 
 def test_the_chooser_balances_the_nv_bins_where_the_brdf_has_a_diffuse_part():
     """max_lookups / target_error fit their candidates with nv_balance 1 on lighting of a BRDF with
-    kd > 0, keep the plain objective for kd = 0 and for BRDF targets, and never override a given value."""
+    kd > 0 at budgets up to 8 lookups, keep the plain objective for kd = 0, for BRDF targets and in the
+    quality mode (above 8), and never override a given value."""
     env = hf.light.load_environment("interior", 8)
     plastic = hf.light.lighting_target(hf.brdf.cook_torrance(kd=0.3, ks=1.0, roughness=0.6, f0=0.04), env)
     mirror = hf.light.lighting_target(hf.brdf.ggx(kd=0.0, ks=1.0, roughness=0.1, f0=0.9), env)
     brdf = hf.fit.brdf_target(hf.brdf.cook_torrance(kd=0.3, ks=1.0, roughness=0.6, f0=0.04))
-    assert pipeline.chooser_linear(plastic, None).nv_balance == pipeline.CHOOSER_NV_BALANCE
+    assert pipeline.chooser_linear(plastic, None, 8).nv_balance == pipeline.CHOOSER_NV_BALANCE
     given = LinearOptions(iterations=4)
-    assert pipeline.chooser_linear(plastic, given).nv_balance == pipeline.CHOOSER_NV_BALANCE
-    assert pipeline.chooser_linear(plastic, given).iterations == 4
-    assert pipeline.chooser_linear(plastic, LinearOptions(nv_balance=0.0)).nv_balance == 0.0
-    assert pipeline.chooser_linear(mirror, None).nv_balance == 0.0
-    assert pipeline.chooser_linear(brdf, None).nv_balance == 0.0
+    assert pipeline.chooser_linear(plastic, given, 4).nv_balance == pipeline.CHOOSER_NV_BALANCE
+    assert pipeline.chooser_linear(plastic, given, 4).iterations == 4
+    assert pipeline.chooser_linear(plastic, LinearOptions(nv_balance=0.0), 8).nv_balance == 0.0
+    assert pipeline.chooser_linear(mirror, None, 8).nv_balance == 0.0
+    assert pipeline.chooser_linear(brdf, None, 8).nv_balance == 0.0
+    quality = pipeline.QUALITY_LOOKUPS + 1
+    assert pipeline.chooser_linear(plastic, None, quality).nv_balance == 0.0
+    assert pipeline.chooser_linear(plastic, LinearOptions(nv_balance=0.5), quality).nv_balance == 0.5
+
+
+def test_the_quality_mode_draws_more_grid_pairs_unless_the_count_is_given():
+    """Above 8 lookups the chooser's grid design draws QUALITY_GRID_COUNT pairs; a given count, a
+    budget of 8 or one structure keep theirs; the memory estimate reads the same count."""
+    q = pipeline.QUALITY_LOOKUPS
+    assert pipeline.grid_count(FitOptions(max_lookups=q + 1)) == pipeline.QUALITY_GRID_COUNT
+    assert pipeline.grid_count(FitOptions(target_error=0.1, terms=2)) == pipeline.QUALITY_GRID_COUNT  # budget 16
+    assert pipeline.grid_count(FitOptions(max_lookups=q)) == sampling.GRID_COUNT
+    assert pipeline.grid_count(FitOptions(terms=6, nv_factor=True)) == sampling.GRID_COUNT
+    assert pipeline.grid_count(FitOptions(max_lookups=16, sampling={"count": 1000})) == 1000
+    assert pipeline.resolve_sampling(FitOptions(max_lookups=16), "lighting", "dual_paraboloid").count \
+        == pipeline.QUALITY_GRID_COUNT
+    assert pipeline.resolve_sampling(FitOptions(max_lookups=8), "lighting", "dual_paraboloid").count == 0
+    assert pipeline.QUALITY_GRID_COUNT > sampling.GRID_COUNT
+    gold = {"kind": "lighting", "brdf": {"model": "cook_torrance", "roughness": 0.3}, "environment": {"file": "forest"}}
+    small = budget.estimate(Config.model_validate({"target": gold, "max_lookups": 8}))
+    large = budget.estimate(Config.model_validate({"target": gold, "max_lookups": 16}))
+    assert large["samples"] > small["samples"]
 
 
 @pytest.mark.slow

@@ -34,8 +34,8 @@ import numpy as np
 from .. import baselines
 from ..errors import HomofacError
 from ..fit import als, solvers
-from ..fit.sampling import GRID_COUNT
 from ..fit.draw import default_mapper
+from ..fit.pipeline import grid_count
 from ..io.limits import image_info
 from ..light import bundled
 from ..light.lighting import STEP_TERMS
@@ -150,7 +150,7 @@ def estimate(cfg: Config, base: Path = Path(".")) -> dict:
     smapper = s.mapper or default_mapper(kind)
     grid = s.kind == "grid" or (s.kind == "auto" and cfg.is_sum and kind == "lighting")
     if grid:
-        m = s.count or GRID_COUNT
+        m = grid_count(cfg)
     elif s.kind == "random":
         m = s.count or s.size**2 * (s.view_size or s.size) ** 2 // 4
     elif s.kind == "latlong":

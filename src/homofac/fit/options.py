@@ -67,7 +67,8 @@ class SamplingOptions(Options):
 
     ``kind``: ``texels`` (reverse-projected texel grids of ``mapper``, default parabolic for BRDFs and
     dual_paraboloid for lighting, of ``size`` and ``view_size``), ``latlong`` (a lat-long grid),
-    ``random`` (``count`` uniform pairs) or ``grid`` (lighting: ``count`` pairs, default 300000, of texel
+    ``random`` (``count`` uniform pairs) or ``grid`` (lighting: ``count`` pairs, default 300000, 600000 for a
+    ``max_lookups`` above 8 (:func:`homofac.fit.pipeline.grid_count`), of texel
     centres (n, r) of the fitted textures' own grid, drawn by solid angle, so alternating least squares
     decouples per texel; :func:`homofac.fit.sampling.grouped_grid`). ``auto`` (the default) is ``grid``
     for linear-space sums of lighting products and ``texels`` otherwise. ``validation``: the number of
