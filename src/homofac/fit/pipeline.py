@@ -63,8 +63,8 @@ def grid_count(opts: FitOptions) -> int:
     :data:`QUALITY_GRID_COUNT` for a chooser budget above :data:`QUALITY_LOOKUPS`, else
     :data:`homofac.fit.sampling.GRID_COUNT`.
 
-    A 16-lookup sum has twice the map texels of an 8-lookup one, and its grid fit reads only texel
-    centres: on 300 000 pairs gold under the forest's low sun (``E'+NROW x4+HFW x1``) read 0.079 nrmse on
+    A 16-lookup sum fits more map texels (nine maps in ``E'+NROW x4+HFW x1``, six in ``E'+NROW x2+R`` at
+    8 lookups), and its grid fit reads only texel centres: on 300 000 pairs gold under the forest's low sun (``E'+NROW x4+HFW x1``) read 0.079 nrmse on
     its training pairs and 0.103 on its validation pairs; on 600 000 the error against the converged
     ground truth (90 000 pairs of 3000 normals) fell 0.106 -> 0.101, the plastic's 0.053 -> 0.049, and
     1 200 000 gave no more (0.1015) at twice the time (docs/sums.md, "The quality mode").
@@ -90,7 +90,7 @@ def chooser_linear(target: Target, linear: LinearOptions | None, budget: int) ->
     split-sum's on the plastics (1.14x and 1.24x on two before), totals within 0.03x; on the kd = 0
     near-mirror it moved the totals the wrong way (studio 0.60x -> 0.63x) with frontal errors already
     below split-sum's, so a BRDF without a diffuse part keeps the plain objective. Above 8 lookups
-    the frontal error is a fraction of split-sum's either way and the balance costs the total
+    the frontal error is below split-sum's either way and the balance costs the total
     (16 lookups, ``E'+NROW x4+HFW x1`` on 600 000 pairs, nrmse against the ground truth on 90 000 pairs:
     plastic / forest 0.049 -> 0.055 with it, frontal 0.016 -> 0.013), so the quality mode keeps the
     plain objective.
