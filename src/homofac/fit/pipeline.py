@@ -391,7 +391,7 @@ def _sums(target: Target, opts: FitOptions, mapper: str, samples: Samples, recor
         return kept(fit(Structure.of(opts)))
     if len(samples.val_a) == 0:
         raise HomofacError("max_lookups and target_error choose by validation error: sampling.validation must be > 0")
-    budget = opts.max_lookups or DEFAULT_MAX_LOOKUPS
+    budget = chooser_budget(opts) or DEFAULT_MAX_LOOKUPS
     # lighting: a fitted n-only texture wherever the model has a kd (it starts at kd/pi E(n), which may
     # be 0) -- a near-mirror under lamps fits better with it; BRDF: the constant kd/pi term only when kd > 0
     has_d = sums.diffuse_albedo(target) is not None if target.kind == "lighting" else sums.has_diffuse(target)
