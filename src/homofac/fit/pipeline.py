@@ -334,8 +334,9 @@ def _sums(target: Target, opts: FitOptions, mapper: str, samples: Samples, recor
     ``r_off`` for NRO and RO): candidates on another direction than the options' parametrization get
     grid samples of their own, drawn once per direction (the validation pairs are the same for all),
     unless the samples were given (then only the candidates on their direction are tried)."""
-    choosing = opts.max_lookups is not None or opts.target_error is not None
-    lin = chooser_linear(target, opts.linear, chooser_budget(opts) or 0) if choosing else opts.linear or LinearOptions()
+    budget = chooser_budget(opts)  # opts is a sum here: None exactly when one structure is named
+    choosing = budget is not None
+    lin = chooser_linear(target, opts.linear, budget) if choosing else opts.linear or LinearOptions()
     eps = float(opts.solver.epsilon)
     polished: dict = {}
     pools = {grid_projection(target.kind, opts.parametrization, resolved): (target, samples, sample_s)}
@@ -391,7 +392,6 @@ def _sums(target: Target, opts: FitOptions, mapper: str, samples: Samples, recor
         return kept(fit(Structure.of(opts)))
     if len(samples.val_a) == 0:
         raise HomofacError("max_lookups and target_error choose by validation error: sampling.validation must be > 0")
-    budget = chooser_budget(opts) or DEFAULT_MAX_LOOKUPS
     # lighting: a fitted n-only texture wherever the model has a kd (it starts at kd/pi E(n), which may
     # be 0) -- a near-mirror under lamps fits better with it; BRDF: the constant kd/pi term only when kd > 0
     has_d = sums.diffuse_albedo(target) is not None if target.kind == "lighting" else sums.has_diffuse(target)
