@@ -14,7 +14,7 @@ from homofac.factorization import Factor, Factorization, Term
 from homofac.fit import als, pipeline, sampling, sums
 from homofac.app import budget
 from homofac.app.config import Config
-from homofac.fit.options import FitOptions, LinearOptions
+from homofac.fit.options import FitOptions, LinearOptions, SamplingOptions
 from homofac.fit.samples import Samples
 from homofac.fit.structures import Structure
 from homofac.fit.system import texture_layout
@@ -277,6 +277,28 @@ def test_the_quality_mode_draws_more_grid_pairs_unless_the_count_is_given():
     assert large["samples"] > small["samples"]
 
 
+def test_the_quality_mode_draws_more_validation_pairs_unless_their_count_is_given():
+    """Above 8 lookups the chooser ranks on QUALITY_VALIDATION pairs; a given count (even the default's
+    value), a budget of 8 or one structure keep theirs; resolve_sampling and the memory estimate agree."""
+    q = pipeline.QUALITY_LOOKUPS
+    default = SamplingOptions().validation
+    assert pipeline.validation_count(FitOptions(max_lookups=q + 1)) == pipeline.QUALITY_VALIDATION > default
+    assert pipeline.validation_count(FitOptions(target_error=0.1, terms=2)) == pipeline.QUALITY_VALIDATION
+    assert pipeline.validation_count(FitOptions(max_lookups=q)) == default
+    assert pipeline.validation_count(FitOptions(terms=6, nv_factor=True)) == default
+    assert pipeline.validation_count(FitOptions(max_lookups=16, sampling={"validation": default})) == default
+    assert pipeline.validation_count(FitOptions(max_lookups=16, sampling={"validation": 0})) == 0
+    for kind, expect in (("grid", pipeline.QUALITY_VALIDATION), ("texels", pipeline.QUALITY_VALIDATION)):
+        opts = FitOptions(max_lookups=16, sampling={"kind": kind})
+        assert pipeline.resolve_sampling(opts, "lighting", "dual_paraboloid").validation == expect
+    assert pipeline.resolve_sampling(FitOptions(max_lookups=8), "lighting", "dual_paraboloid").validation == default
+    gold = {"kind": "lighting", "brdf": {"model": "cook_torrance", "roughness": 0.3}, "environment": {"file": "forest"}}
+    given = {"count": pipeline.QUALITY_GRID_COUNT, "validation": default}
+    own = budget.estimate(Config.model_validate({"target": gold, "max_lookups": 16, "sampling": given}))
+    rule = budget.estimate(Config.model_validate({"target": gold, "max_lookups": 16}))
+    assert rule["samples"] - own["samples"] == (pipeline.QUALITY_VALIDATION - default) * 72
+
+
 @pytest.mark.slow
 def test_the_chooser_polishes_the_structure_it_keeps_and_a_refit_repeats_it():
     """max_lookups ranks the candidates on their grid ALS fits, then polishes the kept one off the grid
@@ -305,6 +327,35 @@ def test_the_chooser_polishes_the_structure_it_keeps_and_a_refit_repeats_it():
     assert again.solver["polish"]["steps"] == pipeline.CHOOSER_POLISH
     assert again.solver["nv_balance"] == fac.solver["nv_balance"] == pipeline.CHOOSER_NV_BALANCE
     assert val(again) == pytest.approx(val(fac), rel=1e-3)
+
+
+def test_polish_rule_keeps_plain_structures_and_votes_on_highlights_only_in_the_quality_mode():
+    plain = Structure.of({"parametrization": "NR", "terms": 2, "nv_factor": True, "diffuse": "fitted"})
+    lit = Structure.of({"parametrization": "NR", "terms": 2, "nv_factor": True, "diffuse": "fitted",
+                        "highlight_terms": 1, "highlight_fresnel": True})
+    q = pipeline.QUALITY_LOOKUPS
+    assert [pipeline.polish_rule(plain, b) for b in (4, q, q + 1, 16)] == ["keep"] * 4
+    assert [pipeline.polish_rule(lit, b) for b in (4, q, q + 1, 16)] == [None, None, "vote", "vote"]
+
+
+@pytest.mark.slow
+def test_the_quality_mode_polishes_a_kept_highlight_structure_where_the_validation_error_falls():
+    """Above QUALITY_LOOKUPS a kept structure with a highlight term is polished, and the polish is kept
+    exactly when its validation error is below the ALS fit's; the result is the kept one."""
+    brdf = hf.brdf.cook_torrance(kd=(0.3, 0.05, 0.05), ks=1.0, roughness=0.2, f0=0.04)
+    target = hf.light.lighting_target(brdf, hf.light.load_environment("city", 8))
+    fac = hf.fit.factorize(target, "NR", texture_size=S, max_lookups=pipeline.QUALITY_LOOKUPS + 1,
+                           highlight_terms=1, highlight_fresnel=True, highlight_cosine=True, diffuse="fitted",
+                           linear={"iterations": 6, "polish_size": 8},
+                           sampling={"count": 20000, "validation": 3000, "cache": False})
+    assert Structure.of(fac.solver["structure"]).highlight_terms == 1
+    note = fac.selection["polish"]
+    assert note["rule"] == "vote" and note["steps"] == pipeline.CHOOSER_POLISH
+    assert note["validation_nrmse_before"] == pytest.approx(fac.selection["chosen"]["validation_nrmse"])
+    assert note["kept"] == (note["validation_nrmse_after"] < note["validation_nrmse_before"])
+    kept = note["validation_nrmse_after"] if note["kept"] else note["validation_nrmse_before"]
+    assert fac.metrics["validation"]["float"]["nrmse"] == pytest.approx(kept)
+    assert ("polish" in fac.solver) == note["kept"]  # a refit repeats what was kept
 
 
 def test_chooser_polish_applies_to_lighting_als_fits_unless_polish_is_given():

@@ -35,7 +35,7 @@ from .. import baselines
 from ..errors import HomofacError
 from ..fit import als, solvers
 from ..fit.draw import default_mapper
-from ..fit.pipeline import grid_count
+from ..fit.pipeline import grid_count, validation_count
 from ..io.limits import image_info
 from ..light import bundled
 from ..light.lighting import STEP_TERMS
@@ -159,7 +159,7 @@ def estimate(cfg: Config, base: Path = Path(".")) -> dict:
         hemi = kind == "brdf"
         m = _grid_count(smapper, s.size, hemi) * _grid_count(smapper, s.view_size or s.size, hemi)
         m = m if hemi else m // 2
-    v = s.validation
+    v = validation_count(cfg)
     mapper = cfg.mapper or default_mapper(kind)
     n = t * int(np.prod(mappers.texture_shape(mappers.get(mapper), cfg.texture_size)))
     k = 4 * j

@@ -222,6 +222,11 @@ def _summary(fac, out, seconds: float | None) -> None:
     if fac.selection is not None and "max_lookups" in fac.selection:
         tried = "; ".join(f"{t['label']} ({t['lookups']}) {t['validation_nrmse']:.4g}" for t in fac.selection["tried"])
         print(f"structure: {fac.selection['reason']} (tried: {tried})")
+        pol = fac.selection.get("polish")
+        if pol is not None:  # records from before 2026-12-05 have no "kept": the polish was always kept then
+            kept = "kept" if pol.get("kept", True) else "not kept"
+            print(f"polish: {pol['steps']} Levenberg-Marquardt steps off the grid, validation nrmse "
+                  f"{pol['validation_nrmse_before']:.4g} -> {pol['validation_nrmse_after']:.4g} ({kept})")
     if fac.analysis is not None:
         a = fac.analysis
         ranks = ", ".join(f"{t}: K = {k}" for t, k in a["rank_for"].items())

@@ -72,7 +72,8 @@ class SamplingOptions(Options):
     centres (n, r) of the fitted textures' own grid, drawn by solid angle, so alternating least squares
     decouples per texel; :func:`homofac.fit.sampling.grouped_grid`). ``auto`` (the default) is ``grid``
     for linear-space sums of lighting products and ``texels`` otherwise. ``validation``: the number of
-    random validation pairs (seed ``seed + 1``). ``cache``: reuse the samples of an identical (target,
+    random validation pairs (seed ``seed + 1``; default 20000, 80000 for a ``max_lookups`` above 8,
+    :func:`homofac.fit.pipeline.validation_count`). ``cache``: reuse the samples of an identical (target,
     sampling) from disk.
 
     ``scene`` (lighting): the (n, v) pairs that ``cameras`` see of the mesh ``mesh`` (an OBJ, glTF/GLB
