@@ -205,9 +205,10 @@ def run_case(material: str, env: str, methods: list[str], fit_resolution: int, s
         if res not in targets:
             targets[res] = hf.light.lighting_target(MATERIALS[material](), hf.light.load_environment(env, res))
         target = targets[res]
-        # the fits' own validation pairs (at the fit's light resolution) choose structures; rows are
+        # the fits' own validation pairs (at the fit's light resolution; the package's count, 20000 or
+        # the quality mode's 80000: homofac.fit.pipeline.validation_count) choose structures; rows are
         # measured on the ground-truth pairs below
-        sampling_cfg = {"kind": "texels", "size": 24, "validation": 20000, **kw.pop("sampling", {})}
+        sampling_cfg = {"kind": "texels", "size": 24, **kw.pop("sampling", {})}
         if sampling_cfg["kind"] == "grid":
             sampling_cfg.update(size=size, mapper="dual_paraboloid")
         # the grid design of the off-specular products (NRO, RO) puts r_off on texel centres: their own pairs

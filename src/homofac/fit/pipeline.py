@@ -137,8 +137,9 @@ def chooser_polish(target: Target, linear: LinearOptions | None, lin: LinearOpti
     after. The polish is kept whatever the validation pairs say: they hold the lighting at the fit's
     resolution, and on metal / interior they rose (0.366 -> 0.376) where the error against the
     converged ground truth fell (0.373 -> 0.355); on the accuracy benchmark's 16 cases the polish
-    lowered that error on 15 (docs/sums.md). A kept structure with a highlight term is not polished:
-    there the polish flattened the highlight's line (near-mirror / city 0.17 -> 0.27 against the
+    lowered that error on 15 (docs/sums.md). A kept structure with a highlight term is polished only in
+    the quality mode, and kept there only where the validation error falls (:func:`polish_rule`): at 4
+    lookups the polish flattened the highlight's line (near-mirror / city 0.17 -> 0.27 against the
     ground truth; docs/sums.md).
     """
     if target.kind != "lighting" or (linear is not None and "polish" in linear.model_fields_set):
