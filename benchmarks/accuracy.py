@@ -224,9 +224,10 @@ def run_case(material: str, env: str, methods: list[str], fit_resolution: int, s
             fac = hf.fit.factorize(target_p, p, texture_size=size, samples=samples_cache[skey], **kw)
         fit_s = time.perf_counter() - t0
         approx = np.asarray(fac.evaluate(val.a, val.b), np.float64)
+        pol = (fac.selection or {}).get("polish")  # the chooser's polish of the kept structure (kept or not)
         row = {"method": name, "material": material, "environment": env, "lookups": fac.model.lookups,
                "structure": fac.parametrization, "chosen": (fac.selection or {}).get("chosen", {}).get("label"),
-               "polished": "polish" in (fac.selection or {}),
+               "polished": bool(pol is not None and pol.get("kept", True)),
                "texels": fac.model.texels, "fit_s": fit_s, **errors(approx, gt, nv),
                "image_nrmse": image_error(fac, material, env, r_gt), "ground_truth_resolution": r_gt,
                "ground_truth_change": change, "fit_resolution": res, "texture_size": size}
