@@ -11,10 +11,10 @@ import pytest
 import homofac as hf
 from homofac.errors import HomofacError
 from homofac.factorization import Factor, Factorization, Term
-from homofac.fit import als, pipeline, sampling, sums
-from homofac.app import budget
+from homofac.fit import als, draw, pipeline, sampling, sums
+from homofac.app import budget, run
 from homofac.app.config import Config
-from homofac.fit.options import FitOptions, LinearOptions, SamplingOptions
+from homofac.fit.options import DEFAULT_VALIDATION, FitOptions, LinearOptions, SamplingOptions
 from homofac.fit.samples import Samples
 from homofac.fit.structures import Structure
 from homofac.fit.system import texture_layout
@@ -281,7 +281,7 @@ def test_the_quality_mode_draws_more_validation_pairs_unless_their_count_is_give
     """Above 8 lookups the chooser ranks on QUALITY_VALIDATION pairs; a given count (even the default's
     value), a budget of 8 or one structure keep theirs; resolve_sampling and the memory estimate agree."""
     q = pipeline.QUALITY_LOOKUPS
-    default = SamplingOptions().validation
+    default = DEFAULT_VALIDATION
     assert pipeline.validation_count(FitOptions(max_lookups=q + 1)) == pipeline.QUALITY_VALIDATION > default
     assert pipeline.validation_count(FitOptions(target_error=0.1, terms=2)) == pipeline.QUALITY_VALIDATION
     assert pipeline.validation_count(FitOptions(max_lookups=q)) == default
@@ -297,6 +297,30 @@ def test_the_quality_mode_draws_more_validation_pairs_unless_their_count_is_give
     own = budget.estimate(Config.model_validate({"target": gold, "max_lookups": 16, "sampling": given}))
     rule = budget.estimate(Config.model_validate({"target": gold, "max_lookups": 16}))
     assert rule["samples"] - own["samples"] == (pipeline.QUALITY_VALIDATION - default) * 72
+
+
+
+def test_a_recorded_config_keeps_the_validation_count_unset_so_a_refit_applies_the_same_rule():
+    """Not given, ``sampling.validation`` is recorded as null: the recorded quality-mode config, read back
+    (as a refit from disk reads it), still draws QUALITY_VALIDATION pairs, and the refit's layout check
+    compares the counts the rule gives (a record with the default's value written out agrees with a
+    config that leaves it out; one with another count does not)."""
+    gold = {"kind": "lighting", "brdf": {"model": "cook_torrance", "roughness": 0.3}, "environment": {"file": "forest"}}
+    cfg = Config.model_validate({"target": gold, "max_lookups": 16})
+    record = cfg.model_dump(mode="json")
+    assert record["sampling"]["validation"] is None
+    back = pipeline.options(**{k: v for k, v in record.items() if k in FitOptions.model_fields})
+    assert pipeline.validation_count(back) == pipeline.QUALITY_VALIDATION
+    assert run.layout_difference(record, cfg, "lighting") is None
+    plain = Config.model_validate({"target": gold, "terms": 2, "nv_factor": True})
+    old = plain.model_dump(mode="json")
+    old["sampling"]["validation"] = DEFAULT_VALIDATION  # how results saved before 2026-12-05 record it
+    assert run.layout_difference(old, plain, "lighting") is None
+    old["sampling"]["validation"] = 5000
+    assert "sampling.validation: 20000 in the config, 5000 in the saved" in run.layout_difference(old, plain, "lighting")
+    # outside the pipeline (hf.fit.draw_samples) a count not given is the default's
+    assert draw.counted(SamplingOptions()).validation == DEFAULT_VALIDATION
+    assert draw.counted(SamplingOptions(validation=0)).validation == 0
 
 
 @pytest.mark.slow

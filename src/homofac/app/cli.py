@@ -222,6 +222,10 @@ def _summary(fac, out, seconds: float | None) -> None:
     if fac.selection is not None and "max_lookups" in fac.selection:
         tried = "; ".join(f"{t['label']} ({t['lookups']}) {t['validation_nrmse']:.4g}" for t in fac.selection["tried"])
         print(f"structure: {fac.selection['reason']} (tried: {tried})")
+        lines = fac.selection.get("lines")
+        if lines is not None:
+            voted = ", ".join(f"{n} texels {e:.4g}" for n, e in zip(lines["sizes"], lines["validation_nrmse"]))
+            print(f"lines: {voted}; {lines['kept']} kept")
         pol = fac.selection.get("polish")
         if pol is not None:  # records from before 2026-12-05 have no "kept": the polish was always kept then
             kept = "kept" if pol.get("kept", True) else "not kept"

@@ -24,6 +24,7 @@ from ..fit.draw import default_mapper
 from ..fit.options import FitOptions
 from ..fit.metrics import measure
 from ..fit.precision import prescale_factors
+from ..fit.pipeline import validation_count
 from ..fit.result import Result
 from ..gl.picture import preview
 from ..io.files import write_atomically
@@ -205,8 +206,9 @@ def layout_difference(saved: dict, cfg: Config, kind: str) -> str | None:
         raise HomofacError(f"--refit: the saved factorization's recorded config is not valid here: {e}") from None
     a = cfg.model_dump(mode="json", include=set(FitOptions.model_fields))
     b = old.model_dump(mode="json")
-    for d in (a, b):
+    for d, opts in ((a, cfg), (b, old)):
         d["mapper"] = d.get("mapper") or default_mapper(kind)
+        d["sampling"]["validation"] = validation_count(opts)  # not given: the rule's count (None in records)
     la, lb = _leaves(a), _leaves(b)
     for key in list(dict.fromkeys(list(lb) + list(la))):
         if any(key == n or key.startswith(n + ".") for n in NOT_LAYOUT):

@@ -16,7 +16,7 @@ from ..param import parametrizations as pz
 from ..param import projections as pj
 from ..target import Target
 from . import cache, sampling, scene
-from .options import SamplingOptions
+from .options import DEFAULT_VALIDATION, SamplingOptions
 from .samples import Samples, evaluate, evaluate_grouped
 
 #: Views per normal of the lighting validation pairs (``count / VALIDATION_VIEWS`` random normals). Under a
@@ -42,7 +42,7 @@ def draw_samples(target: Target, parametrization: str, options: SamplingOptions 
     the pairs).
     """
     log = log or (lambda msg: None)
-    s = validate(SamplingOptions, options, "sampling")
+    s = counted(validate(SamplingOptions, options, "sampling"))
     settings = cache_settings(s, target.kind, parametrization, target.context)
     if s.kind == "scene":  # the mesh file's content and the cameras (a bundled scene's own), not only names
         settings["mesh_sha256"] = scene.fingerprint(s)
@@ -68,6 +68,12 @@ def grid_projection(kind: str, parametrization: str, s: SamplingOptions) -> str:
     return pz.reflection_projection(parametrization)
 
 
+def counted(s: SamplingOptions) -> SamplingOptions:
+    """``s`` with its validation count: not given (None), :data:`~homofac.fit.options.DEFAULT_VALIDATION`
+    (the pipeline resolves the quality mode's count before: :func:`homofac.fit.pipeline.validation_count`)."""
+    return s if s.validation is not None else s.model_copy(update={"validation": DEFAULT_VALIDATION})
+
+
 def cache_settings(s: SamplingOptions, kind: str, parametrization: str, context: dict) -> dict:
     """The sampling settings that key the sample cache: the options, and for a grid design on another
     projection than ``r`` that projection and its context (``r_off``'s beta)."""
@@ -84,6 +90,7 @@ def draw_pairs(kind: str, parametrization: str, s: SamplingOptions, context: dic
     (:class:`~homofac.fit.sampling.Pairs`; for lighting targets also the pairs grouped by normal, whose
     flattening they are). Deterministic: the same settings give the same pairs (refits rely on it).
     ``context``: the target's projection context (the grid design of NRO reads ``shift``)."""
+    s = counted(s)
     smapper = s.mapper or default_mapper(kind)
     if s.kind == "scene":
         if kind != "lighting":
@@ -130,4 +137,4 @@ def _draw(target: Target, parametrization: str, s: SamplingOptions, log: Callabl
     return Samples(pairs.a, pairs.b, y, val.a, val.b, val_y)
 
 
-__all__ = ["cache_settings", "default_mapper", "draw_pairs", "draw_samples", "grid_projection"]
+__all__ = ["cache_settings", "counted", "default_mapper", "draw_pairs", "draw_samples", "grid_projection"]

@@ -62,6 +62,10 @@ class CameraOptions(Options):
         return self
 
 
+#: Validation pairs where ``sampling.validation`` is not given (and not the quality mode's).
+DEFAULT_VALIDATION = 20_000
+
+
 class SamplingOptions(Options):
     """``sampling``: the training pairs (thesis §4.2) and the seeded validation set.
 
@@ -72,8 +76,9 @@ class SamplingOptions(Options):
     centres (n, r) of the fitted textures' own grid, drawn by solid angle, so alternating least squares
     decouples per texel; :func:`homofac.fit.sampling.grouped_grid`). ``auto`` (the default) is ``grid``
     for linear-space sums of lighting products and ``texels`` otherwise. ``validation``: the number of
-    random validation pairs (seed ``seed + 1``; default 20000, 80000 for a ``max_lookups`` above 8,
-    :func:`homofac.fit.pipeline.validation_count`). ``cache``: reuse the samples of an identical (target,
+    random validation pairs (seed ``seed + 1``; not given: :data:`DEFAULT_VALIDATION`, 80000 for a
+    ``max_lookups`` above 8, :func:`homofac.fit.pipeline.validation_count`; a recorded config keeps it
+    unset, so a refit from disk draws what the fit drew). ``cache``: reuse the samples of an identical (target,
     sampling) from disk.
 
     ``scene`` (lighting): the (n, v) pairs that ``cameras`` see of the mesh ``mesh`` (an OBJ, glTF/GLB
@@ -87,7 +92,7 @@ class SamplingOptions(Options):
     kind: Literal["auto", "texels", "latlong", "random", "grid", "scene"] = "auto"
     size: int = Field(24, ge=2, le=512)
     view_size: Optional[int] = Field(None, ge=2, le=512)
-    validation: int = Field(20000, ge=0, le=10_000_000)
+    validation: Optional[int] = Field(None, ge=0, le=10_000_000)
     seed: int = Field(0, ge=0, le=2**31 - 2)
     count: int = Field(0, ge=0, le=100_000_000)
     mapper: Optional[MapperName] = None
@@ -184,7 +189,10 @@ class FitOptions(Options):
     to that count, 0 turns the highlight candidates off), ``highlight_fresnel`` (lighting: each highlight
     term also reads a ``line`` texture f(v.h') of its light's Fresnel argument, one lookup more a term),
     ``highlight_cosine`` (lighting: each highlight term also reads a ``line`` texture c(n.i) of its light's
-    cosine, the shadowing G1(n.i) and the light's horizon, one lookup more a term).
+    cosine, the shadowing G1(n.i) and the light's horizon, one lookup more a term). ``line_size``: texels
+    of a sum's ``line`` textures (w(n.v) and the highlight lines; default 32; for a ``max_lookups`` above 8
+    a vote between 32 and 4 x ``texture_size``: :func:`homofac.fit.pipeline.line_sizes`); a single log-space product's scalar factor has
+    ``texture_size`` texels.
     """
 
     parametrization: ParametrizationName = "NR"
@@ -205,6 +213,7 @@ class FitOptions(Options):
     highlight_fresnel: bool = False
     highlight_cosine: bool = False
     max_lookups: Optional[int] = Field(None, ge=1, le=256)
+    line_size: Optional[int] = Field(None, ge=2, le=4096)
     linear: Optional[LinearOptions] = None
 
     @property
@@ -215,4 +224,4 @@ class FitOptions(Options):
                 or self.prefiltered or self.max_lookups is not None or self.linear is not None)
 
 
-__all__ = ["AnalysisOptions", "CameraOptions", "MAX_CAMERAS", "MAX_CAMERA_SIDE", "MAX_SCENE_PIXELS", "FitOptions", "LinearOptions", "MAX_TERMS", "MAX_TEXTURE_SIZE", "MIN_TEXTURE_SIZE", "MapperName", "SamplingOptions"]
+__all__ = ["AnalysisOptions", "CameraOptions", "DEFAULT_VALIDATION", "MAX_CAMERAS", "MAX_CAMERA_SIDE", "MAX_SCENE_PIXELS", "FitOptions", "LinearOptions", "MAX_TERMS", "MAX_TEXTURE_SIZE", "MIN_TEXTURE_SIZE", "MapperName", "SamplingOptions"]

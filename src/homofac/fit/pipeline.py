@@ -23,7 +23,7 @@ from ..target import Target
 from . import auto, polish, programs, scene, structures, sums
 from .draw import default_mapper, draw_samples, grid_projection
 from .metrics import measure
-from .options import AnalysisOptions, FitOptions, LinearOptions, SamplingOptions
+from .options import DEFAULT_VALIDATION, AnalysisOptions, FitOptions, LinearOptions, SamplingOptions
 from .product import fit_product
 from .result import Result
 from .samples import Samples, check_values
@@ -51,6 +51,14 @@ QUALITY_GRID_COUNT = 600_000
 
 #: Validation pairs of the quality mode when ``sampling.validation`` is not set (:func:`validation_count`).
 QUALITY_VALIDATION = 80_000
+
+#: Texels of a sum's ``line`` textures per texel of ``texture_size`` in the quality mode when ``line_size``
+#: is not set: the finer size of the line vote (:func:`line_sizes`), 128 at the default size 32.
+QUALITY_LINE_RATIO = 4
+
+#: Why ``line_size`` is refused for a single log-space product.
+LINE_SIZE_NEEDS_SUM = ("line_size sizes the line textures of a sum of products; a single product's scalar factor "
+                       "has texture_size texels")
 
 
 def chooser_budget(opts: FitOptions) -> int | None:
@@ -88,7 +96,9 @@ def _quality(opts: FitOptions) -> bool:
 
 def validation_count(opts: FitOptions) -> int:
     """Validation pairs: ``sampling.validation`` when given, else :data:`QUALITY_VALIDATION` in the
-    quality mode (a chooser budget above :data:`QUALITY_LOOKUPS`), else the option's default (20 000).
+    quality mode (a chooser budget above :data:`QUALITY_LOOKUPS`), else
+    :data:`~homofac.fit.options.DEFAULT_VALIDATION` (20 000). Not given, the option stays None in the
+    recorded config, so a refit from disk applies the same rule.
 
     The chooser ranks its candidates by their validation error. Under a small bright sun 20 000 random
     pairs hold few of the highlight's, and the ranking moved with them more than the candidates differ:
@@ -98,7 +108,42 @@ def validation_count(opts: FitOptions) -> int:
     halve that spread for a few seconds of lighting per sampling (19.5 s -> 24 s at resolution 64).
     """
     s = opts.sampling
-    return QUALITY_VALIDATION if "validation" not in s.model_fields_set and _quality(opts) else int(s.validation)
+    if s.validation is not None:
+        return int(s.validation)
+    return QUALITY_VALIDATION if _quality(opts) else DEFAULT_VALIDATION
+
+
+def line_sizes(opts: FitOptions) -> tuple[int, ...]:
+    """Texels of a sum's ``line`` textures (w(n.v), the highlight lines d, f, c) that the fit tries, the
+    candidates' first: ``(line_size,)`` when given; in the quality mode (a chooser budget above
+    :data:`QUALITY_LOOKUPS`) ``(32, QUALITY_LINE_RATIO x texture_size)``: the candidates are fitted with
+    32-texel lines and the kept structure once more with the finer ones, kept where the validation error
+    falls (the *line vote*, recorded as ``selection.lines``); else ``(32,)``
+    (:data:`homofac.fit.structures.LINE_SIZE`).
+
+    Where the view grazes, a dielectric's specular rises with the Fresnel factor and the microfacet
+    highlight of a light carries ``1 / (4 n.v)``: its lines climb steeply over the last few hundredths
+    of n.v, which 32 texels (width 0.031, the first centre at 0.016) cannot follow. Under the city sun
+    the plastic's error lived there (83 % of the squared error at n.v < 0.1, with r within 26 degrees of
+    the sun). One fit, ``E'+SS+NRW x3+HFCW x1`` on 600 000 grid pairs, read 0.055 / 0.044 / 0.038 /
+    0.038 nrmse against the converged ground truth on 90 000 pairs with lines of 32 / 64 / 128 / 256
+    texels; plastic / forest's ``E'+NROW x4+HFW x1`` 0.049 -> 0.044 with 128. But the near-mirror gold
+    under the same sun went the other way (``E'+ROW x3+R+HFCW x2``: 0.061 -> 0.095): its highlight lines
+    are read at the sharp peak of a sun, where the grid pairs fall sparsely, and a fine line follows
+    them between the pairs. The validation pairs said so in all three cases (0.068 -> 0.059, 0.086 ->
+    0.081, 0.062 -> 0.080), hence the vote (docs/sums.md, "Lines of 128 texels, by vote"). A line is one
+    row: 128 texels cost a renderer nothing it notices.
+
+    The ratio to ``texture_size``: the grid design puts the normals on the texel centres of the n map,
+    so a line read at a function of n alone (the light's cosine n.i) sees as many distinct values as
+    the map has texels, and a line much finer than that is left to its smoothing between them (at
+    ``texture_size`` 8, 128 normals, lines of 128 texels fitted the training pairs of a dielectric
+    under a sun better and its validation pairs worse: ``E'+ROW x1+HFCW x1`` 0.061 -> 0.16 nrmse).
+    """
+    if opts.line_size is not None:
+        return (int(opts.line_size),)
+    fine = QUALITY_LINE_RATIO * int(opts.texture_size)
+    return (structures.LINE_SIZE, fine) if _quality(opts) and fine != structures.LINE_SIZE else (structures.LINE_SIZE,)
 
 
 def chooser_linear(target: Target, linear: LinearOptions | None, budget: int) -> LinearOptions:
@@ -221,6 +266,7 @@ def factorize(
     highlight_fresnel: bool | None = None,
     highlight_cosine: bool | None = None,
     max_lookups: int | None = None,
+    line_size: int | None = None,
     linear: dict | None = None,
     baseline: dict | None = None,
     analysis: dict | None = None,
@@ -263,6 +309,8 @@ def factorize(
             shadowing G1(n.i) and the light's horizon; one lookup more a term; lighting).
         max_lookups: choose the structure (terms, nv_factor, diffuse) within this many texture lookups
             per pixel by validation error (:func:`homofac.fit.sums.choose`).
+        line_size: texels of a sum's ``line`` textures (default 32; for a ``max_lookups`` above 8 a vote
+            between 32 and 4 x texture_size: :func:`line_sizes`).
         linear: :class:`~homofac.fit.options.LinearOptions` of the linear-space fit as a dict
             (``method``, ``backend``, ``iterations``, ``laplacian``, ``start``).
         baseline: options of a baseline ``parametrization`` (``split_sum``: irradiance, weighting,
@@ -284,7 +332,7 @@ def factorize(
                    target_error=target_error, baseline=baseline, analysis=analysis, terms=terms, diffuse=diffuse,
                    nv_factor=nv_factor, reflection=reflection, prefiltered=prefiltered, rw_terms=rw_terms,
                    highlight_terms=highlight_terms, highlight_fresnel=highlight_fresnel,
-                   highlight_cosine=highlight_cosine, max_lookups=max_lookups,
+                   highlight_cosine=highlight_cosine, max_lookups=max_lookups, line_size=line_size,
                    linear=linear)
     if not isinstance(target, Target):
         raise HomofacError(f"factorize needs a homofac Target (brdf_target or lighting_target), got {type(target).__name__}")
@@ -300,6 +348,8 @@ def factorize(
                            f"{opts.parametrization} is a baseline (computed, not fitted)")
     if opts.is_sum:
         pz.get(opts.parametrization, target.kind)
+    if opts.line_size is not None and not opts.is_sum:
+        raise HomofacError(LINE_SIZE_NEEDS_SUM)
     if target.kind == "lighting" and opts.parametrization in pz.PARAMETRIZATIONS:
         target = with_context(target, opts.parametrization)  # NRHD's dominant light, NRO's shift
     t0 = time.perf_counter()
@@ -382,6 +432,7 @@ def _sums(target: Target, opts: FitOptions, mapper: str, samples: Samples, recor
     choosing = budget is not None
     lin = chooser_linear(target, opts.linear, budget) if choosing else opts.linear or LinearOptions()
     eps = float(opts.solver.epsilon)
+    sizes = line_sizes(opts)  # the candidates' line size first; in the quality mode the kept one's vote
     polished: dict = {}
     pools = {grid_projection(target.kind, opts.parametrization, resolved): (target, samples, sample_s)}
 
@@ -403,14 +454,14 @@ def _sums(target: Target, opts: FitOptions, mapper: str, samples: Samples, recor
             polished["sample_s"] = time.perf_counter() - t0
         return polished["pairs"]
 
-    fits: dict = {}  # structure -> its SumFit (the chooser polishes the one it keeps)
+    fits: dict = {}  # (structure, line size) -> its SumFit (the chooser polishes the one it keeps)
 
-    def fit(structure: Structure) -> Result:
+    def fit(structure: Structure, line: int = sizes[0]) -> Result:
         tgt, smp, _ = pool(structure)
-        sf = sums.fit_sum(tgt, structure, mapper, opts.texture_size, smp, lin, log)
+        sf = sums.fit_sum(tgt, structure, mapper, opts.texture_size, smp, lin, log, line_size=line)
         if lin.polish > 0:
             sf = polish.polish(tgt, structure, mapper, opts.texture_size, sf, smp, pairs(), lin, log)
-        fits[structure] = sf
+        fits[structure, line] = sf
         return as_result(structure, sf)
 
     def as_result(structure: Structure, sf) -> Result:
@@ -455,13 +506,16 @@ def _sums(target: Target, opts: FitOptions, mapper: str, samples: Samples, recor
         log(f"in-out analysis ({a.pair}) on {a.mapper} {a.size}")
         analysis = baselines.analyse(target, a.pair, a.mapper, a.size).record()
     result = sums.choose(fit, cands, target_error=opts.target_error, max_lookups=budget, log=log)
-    steps = chooser_polish(target, opts.linear, lin)
     structure = Structure.of(result.solver["structure"])
+    if len(sizes) > 1:
+        result = _line_vote(result, structure, sizes, fit, log)
+    line = sums.line_size_of(result.model)
+    steps = chooser_polish(target, opts.linear, lin)
     rule = polish_rule(structure, budget)
     if steps and result.solver.get("method") == "als" and rule is not None:
         tgt, smp, _ = pool(structure)
         plin = lin.model_copy(update={"polish": steps})
-        sf = polish.polish(tgt, structure, mapper, opts.texture_size, fits[structure], smp, pairs(), plin, log)
+        sf = polish.polish(tgt, structure, mapper, opts.texture_size, fits[structure, line], smp, pairs(), plin, log)
         polished_result = as_result(structure, sf)
         before = float(result.metrics["validation"]["float"]["nrmse"])
         after = float(polished_result.metrics["validation"]["float"]["nrmse"])
@@ -472,6 +526,22 @@ def _sums(target: Target, opts: FitOptions, mapper: str, samples: Samples, recor
                 "rule": rule, "kept": keep}
         result = (polished_result if keep else result).replace(selection={**result.selection, "polish": note})
     return kept(result if analysis is None else result.replace(analysis=analysis))
+
+
+def _line_vote(result: Result, structure: Structure, sizes: tuple[int, ...], fit: Callable, log) -> Result:
+    """The kept ``structure`` (``result``, fitted with ``sizes[0]``-texel lines) fitted again with each
+    further line size, the one of lowest validation error kept (ties: the first); ``selection.lines``
+    records the sizes, their validation nrmse and the kept size (:func:`line_sizes`)."""
+    tried = [(sizes[0], result)]
+    for size in sizes[1:]:
+        log(f"line vote: {structure.label()} with {size}-texel lines")
+        tried.append((size, fit(structure, size)))
+    errs = [float(r.metrics["validation"]["float"]["nrmse"]) for _, r in tried]
+    k = int(np.argmin(errs))
+    log("line vote: validation nrmse " + ", ".join(f"{e:.4g} ({n} texels)" for (n, _), e in zip(tried, errs))
+        + f": {tried[k][0]} kept")
+    note = {"sizes": [int(n) for n, _ in tried], "validation_nrmse": errs, "kept": int(tried[k][0])}
+    return tried[k][1].replace(selection={**result.selection, "lines": note})
 
 
 def _baseline(target: Target, opts: FitOptions, mapper: str, samples: Samples, record: dict, log) -> Result:
@@ -492,6 +562,6 @@ def _baseline(target: Target, opts: FitOptions, mapper: str, samples: Samples, r
 
 __all__ = ["CHOOSER_NV_BALANCE", "CHOOSER_POLISH", "DEFAULT_MAX_LOOKUPS", "QUALITY_GRID_COUNT", "QUALITY_LOOKUPS",
            "QUALITY_VALIDATION", "chooser_budget", "chooser_linear", "chooser_polish", "grid_count", "polish_rule",
-           "validation_count",
+           "LINE_SIZE_NEEDS_SUM", "QUALITY_LINE_RATIO", "line_sizes", "validation_count",
            "constrained", "default_mapper", "draw_samples", "factorize", "measure", "options", "quality_warnings",
            "resolve_sampling"]

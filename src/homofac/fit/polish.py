@@ -30,7 +30,7 @@ from .draw import draw_samples
 from .options import LinearOptions
 from .samples import Samples
 from .structures import Structure
-from .sums import SumFit, fit_sum
+from .sums import SumFit, fit_sum, line_size_of
 
 
 def polish_pairs(target: Target, parametrization: str, lin: LinearOptions, seed: int, cache: bool,
@@ -51,7 +51,7 @@ def polish(target: Target, structure: Structure, mapper: str, size: int, fit: Su
                     samples.val_a, samples.val_b, samples.val_y)
     lm = lin.model_copy(update={"method": "levenberg_marquardt", "iterations": int(lin.polish), "polish": 0})
     log(f"polishing {structure.label()} off the grid: {lin.polish} Levenberg-Marquardt steps on {len(pairs.a)} pairs")
-    out = fit_sum(target, structure, mapper, size, pairs, lm, log, previous=fit.model)
+    out = fit_sum(target, structure, mapper, size, pairs, lm, log, previous=fit.model, line_size=line_size_of(fit.model))
     record = {**fit.solver, "polish": {"steps": int(lin.polish), "method": out.solver["method"],
                                        "backend": out.solver["backend"],
                                        "iterations": out.solver["iterations"], "converged": out.solver["converged"],

@@ -442,7 +442,7 @@ def refit(fac: Result, environment: Environment | None = None, brdf: BRDF | None
         if linear:
             lin = validate(LinearOptions, {**lin.model_dump(), **linear}, "linear")
         sf = sums.fit_sum(tgt, state.structure, state.mapper, state.texture_size, samples, lin, log,
-                          previous=fac.model if start == "previous" else None)
+                          previous=fac.model if start == "previous" else None, line_size=sums.line_size_of(fac.model))
         if lin.polish > 0:  # the same off-grid pairs as the full run (deterministic), the new target's values
             pairs = polish_pairs(tgt, opts.parametrization, lin, opts.sampling.seed, opts.sampling.cache, log)
             sf = polish(tgt, state.structure, state.mapper, state.texture_size, sf, samples, pairs, lin, log)

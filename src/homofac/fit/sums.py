@@ -161,7 +161,9 @@ def _split_sum_start(target, first: TermSpec, layouts, sigma) -> dict:
     """Term 1 = the split sum's P(r) W(n.v) / sigma (p = 1); a missing w is folded into q by its mean."""
     brdf, env = target.fn.brdf, target.fn.env
     micro = MODELS[brdf.model].microfacet
-    x = (np.arange(LINE_SIZE) + 0.5) / LINE_SIZE
+    line = next((name for proj, name in first.factors if proj == "nv"), None)
+    size = layouts[line].size if line is not None else LINE_SIZE
+    x = (np.arange(size) + 0.5) / size
     a, b = ss.dfg(brdf, x)
     ks, f0 = np.asarray(brdf.params["ks"], np.float64), np.asarray(brdf.params["f0"], np.float64)
     w_line = ks * (f0 * a + b)  # (S_w, 3)
@@ -268,6 +270,13 @@ def warm_start(previous: Factorization, terms, layouts, sigma) -> dict:
     return out
 
 
+def line_size_of(model: Factorization) -> int:
+    """Texels of a sum's ``line`` textures (every line of a sum has one size: :func:`fit_sum`'s
+    ``line_size``), :data:`~homofac.fit.structures.LINE_SIZE` when it has none: what a polish or a refit
+    of ``model`` keeps."""
+    return next((t.size for t in model.textures if t.mapper == "line"), LINE_SIZE)
+
+
 def with_highlight_context(target: Target, structure: Structure) -> Target:
     """``target`` with the context its highlight terms read (``dominant``, ``dominant1``, ... for the J
     brightest lights, :func:`~homofac.light.brightest_directions`), keys the target already has kept."""
@@ -304,8 +313,11 @@ def _split_sum_possible(target, structure) -> bool:
 
 def fit_sum(target: Target, structure: Structure, mapper: str, size: int, samples: Samples,
             options: LinearOptions | None = None, log: Callable[[str], None] | None = None,
-            previous: Factorization | None = None) -> SumFit:
+            previous: Factorization | None = None, line_size: int = LINE_SIZE) -> SumFit:
     """Fit ``structure`` to the training samples in linear space (see the module docstring).
+
+    ``line_size``: texels of the ``line`` textures (w(n.v), the highlight lines;
+    :func:`homofac.fit.pipeline.line_sizes`).
 
     ``previous``: a model of the same structure (a refit, :mod:`homofac.fit.refit`): the fitted textures
     start from its texels (:func:`warm_start`) instead of step 2's start.
@@ -317,7 +329,7 @@ def fit_sum(target: Target, structure: Structure, mapper: str, size: int, sample
     target = with_highlight_context(target, structure)
     t0 = time.perf_counter()
     quantity = _quantity(target)
-    specs, terms = skeleton(structure, target.kind, quantity, mapper, size)
+    specs, terms = skeleton(structure, target.kind, quantity, mapper, size, line_size)
     if structure.diffuse is not None and diffuse_albedo(target) is None:
         _fixed_correction(target, terms[0])
     a, b, y = (np.asarray(v, np.float32) for v in (samples.a, samples.b, samples.y))
@@ -451,11 +463,12 @@ def _fit_als(structure, specs, fitted_terms, layouts, x0, grid, a, b, y, opts: L
         names.append((roles.get("n"), roles.get(rproj), roles.get("nv"), roles.get(hproj)))
     kinds = [e for e in range(len(EXTRA_LINE_PROJECTIONS)) if any(c[e] for c in cprojs)]  # the extra lines present
     K = len(fitted_terms)
+    line = next((s.size for s in specs if s.mapper == "line"), LINE_SIZE)  # every line of a sum has one size
     P = np.ones((K, n, 3))
     Q = np.ones((K, n, 3))
-    W = np.ones((K, LINE_SIZE, 3))
-    D = np.ones((K, LINE_SIZE, 3))
-    C = np.ones((len(kinds), K, LINE_SIZE, 3))
+    W = np.ones((K, line, 3))
+    D = np.ones((K, line, 3))
+    C = np.ones((len(kinds), K, line, 3))
     for t, names_t in enumerate(names):
         for name, arr in zip(names_t + tuple(cnames[t][e] for e in kinds), (P, Q, W, D, *C)):
             if name:
@@ -463,10 +476,10 @@ def _fit_als(structure, specs, fitted_terms, layouts, x0, grid, a, b, y, opts: L
     nb = np.asarray(mappers.neighbours(lay.mapper, lay.size))[lay.texel_of_unknown]
     nb_unk = np.where(nb >= 0, lay.unknown_of_texel[np.maximum(nb, 0)], -1)
     nv = np.clip(np.sum(a * b, -1), 0.0, 1.0)
-    vi, vw = als.line_footprint(jnp.asarray(nv, jnp.float32), LINE_SIZE)
-    hi, hw = _scalar_footprints(hprojs, a, b, context)  # each highlight line at its light's nh_dom
+    vi, vw = als.line_footprint(jnp.asarray(nv, jnp.float32), line)
+    hi, hw = _scalar_footprints(hprojs, a, b, context, line)  # each highlight line at its light's nh_dom
     # ... and its extra lines at their scalars (the light's v.h', n.i)
-    extra = [_scalar_footprints([c[e] for c in cprojs], a, b, context) for e in kinds]
+    extra = [_scalar_footprints([c[e] for c in cprojs], a, b, context, line) for e in kinds]
     data = als.GridData(jnp.asarray(ia), jnp.asarray(ib), jnp.asarray(vi, jnp.int32), jnp.asarray(vw, jnp.float32),
                         jnp.asarray(y, jnp.float32), jnp.asarray(np.maximum(nb_unk, 0), jnp.int32),
                         jnp.asarray(nb_unk >= 0, jnp.float32), jnp.asarray(np.sqrt(weights), jnp.float32), hi, hw,
@@ -491,15 +504,15 @@ def _fit_als(structure, specs, fitted_terms, layouts, x0, grid, a, b, y, opts: L
     return X, int(opts.iterations), hist
 
 
-def _scalar_footprints(projs, a, b, context):
-    """The line footprints (N, K, 2) of each term's scalar projection (None: the term has none; all None:
+def _scalar_footprints(projs, a, b, context, size: int):
+    """The line footprints (N, K, 2) on ``size`` texels of each term's scalar projection (None: the term has none; all None:
     (None, None)), sample-major as :class:`~homofac.fit.als.GridData` holds them."""
     if all(p is None for p in projs):
         return None, None
     idx, wts = np.zeros((len(a), len(projs), 2), np.int32), np.zeros((len(a), len(projs), 2), np.float32)
     for t, proj in enumerate(projs):  # one projection per term (at most three lights)
         if proj is not None:
-            i_t, w_t = als.line_footprint(jnp.asarray(project(proj, a, b, context), jnp.float32), LINE_SIZE)
+            i_t, w_t = als.line_footprint(jnp.asarray(project(proj, a, b, context), jnp.float32), size)
             idx[:, t], wts[:, t] = np.asarray(i_t), np.asarray(w_t)
     return jnp.asarray(idx), jnp.asarray(wts)
 
@@ -643,4 +656,4 @@ def _selected(res, tried, reason, target_error, max_lookups, met, analysis):
     })
 
 
-__all__ = ["SumFit", "choose", "diffuse_albedo", "fit_sum", "nv_weights", "has_diffuse", "start", "warm_start"]
+__all__ = ["SumFit", "choose", "diffuse_albedo", "fit_sum", "nv_weights", "has_diffuse", "line_size_of", "start", "warm_start"]
