@@ -228,6 +228,7 @@ def run_case(material: str, env: str, methods: list[str], fit_resolution: int, s
         row = {"method": name, "material": material, "environment": env, "lookups": fac.model.lookups,
                "structure": fac.parametrization, "chosen": (fac.selection or {}).get("chosen", {}).get("label"),
                "polished": bool(pol is not None and pol.get("kept", True)),
+               "line_size": max((t.size for t in fac.model.textures if t.mapper == "line"), default=None),
                "texels": fac.model.texels, "fit_s": fit_s, **errors(approx, gt, nv),
                "image_nrmse": image_error(fac, material, env, r_gt), "ground_truth_resolution": r_gt,
                "ground_truth_change": change, "fit_resolution": res, "texture_size": size}
