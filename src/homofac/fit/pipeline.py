@@ -507,9 +507,9 @@ def _sums(target: Target, opts: FitOptions, mapper: str, samples: Samples, recor
         analysis = baselines.analyse(target, a.pair, a.mapper, a.size).record()
     result = sums.choose(fit, cands, target_error=opts.target_error, max_lookups=budget, log=log)
     structure = Structure.of(result.solver["structure"])
-    if len(sizes) > 1:
-        result = _line_vote(result, structure, sizes, fit, log)
-    line = sums.line_size_of(result.model)
+    line = sizes[0]  # the kept fit's line size (fits[structure, line] is its SumFit)
+    if len(sizes) > 1 and any(t.mapper == "line" for t in result.model.textures):
+        result, line = _line_vote(result, structure, sizes, fit, log)
     steps = chooser_polish(target, opts.linear, lin)
     rule = polish_rule(structure, budget)
     if steps and result.solver.get("method") == "als" and rule is not None:
@@ -528,10 +528,11 @@ def _sums(target: Target, opts: FitOptions, mapper: str, samples: Samples, recor
     return kept(result if analysis is None else result.replace(analysis=analysis))
 
 
-def _line_vote(result: Result, structure: Structure, sizes: tuple[int, ...], fit: Callable, log) -> Result:
+def _line_vote(result: Result, structure: Structure, sizes: tuple[int, ...], fit: Callable,
+               log) -> tuple[Result, int]:
     """The kept ``structure`` (``result``, fitted with ``sizes[0]``-texel lines) fitted again with each
-    further line size, the one of lowest validation error kept (ties: the first); ``selection.lines``
-    records the sizes, their validation nrmse and the kept size (:func:`line_sizes`)."""
+    further line size, the one of lowest validation error kept (ties: the first), with its size;
+    ``selection.lines`` records the sizes, their validation nrmse and the kept size (:func:`line_sizes`)."""
     tried = [(sizes[0], result)]
     for size in sizes[1:]:
         log(f"line vote: {structure.label()} with {size}-texel lines")
@@ -541,7 +542,7 @@ def _line_vote(result: Result, structure: Structure, sizes: tuple[int, ...], fit
     log("line vote: validation nrmse " + ", ".join(f"{e:.4g} ({n} texels)" for (n, _), e in zip(tried, errs))
         + f": {tried[k][0]} kept")
     note = {"sizes": [int(n) for n, _ in tried], "validation_nrmse": errs, "kept": int(tried[k][0])}
-    return tried[k][1].replace(selection={**result.selection, "lines": note})
+    return tried[k][1].replace(selection={**result.selection, "lines": note}), int(tried[k][0])
 
 
 def _baseline(target: Target, opts: FitOptions, mapper: str, samples: Samples, record: dict, log) -> Result:
