@@ -380,6 +380,9 @@ def test_the_quality_mode_polishes_a_kept_highlight_structure_where_the_validati
     kept = note["validation_nrmse_after"] if note["kept"] else note["validation_nrmse_before"]
     assert fac.metrics["validation"]["float"]["nrmse"] == pytest.approx(kept)
     assert ("polish" in fac.solver) == note["kept"]  # a refit repeats what was kept
+    assert note["ridge"] == pipeline.QUALITY_RIDGE  # the quality mode's polish draws the ridge pairs
+    if note["kept"]:
+        assert fac.solver["polish"]["ridge"]["pairs"] == pipeline.QUALITY_RIDGE
 
 
 def test_chooser_polish_applies_to_lighting_als_fits_unless_polish_is_given():

@@ -229,7 +229,8 @@ def _summary(fac, out, seconds: float | None) -> None:
         pol = fac.selection.get("polish")
         if pol is not None:  # records from before 2026-12-05 have no "kept": the polish was always kept then
             kept = "kept" if pol.get("kept", True) else "not kept"
-            print(f"polish: {pol['steps']} Levenberg-Marquardt steps off the grid, validation nrmse "
+            ridge = f" and {pol['ridge']} ridge pairs" if pol.get("ridge") else ""
+            print(f"polish: {pol['steps']} Levenberg-Marquardt steps off the grid{ridge}, validation nrmse "
                   f"{pol['validation_nrmse_before']:.4g} -> {pol['validation_nrmse_after']:.4g} ({kept})")
     if fac.analysis is not None:
         a = fac.analysis

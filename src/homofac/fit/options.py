@@ -149,6 +149,11 @@ class LinearOptions(Options):
     ``polish`` is not given, the candidates are ranked on their ALS fits and the kept one is then
     polished with 8 steps (:func:`homofac.fit.pipeline.chooser_polish`; ``selection.polish`` records
     the validation error before and after); given, every candidate is polished that much (0: none).
+    ``ridge``: that many more pairs in the polish, drawn on the grazing ridge of the brightest light(s)
+    with weights that keep the objective that of uniform pairs (:mod:`homofac.fit.ridge`); 0 is off; in
+    the quality mode the chooser's polish draws :data:`homofac.fit.pipeline.QUALITY_RIDGE` when it is
+    not given (:func:`homofac.fit.pipeline.chooser_ridge`). It needs the plain objective
+    (``nv_balance`` 0) and a polish.
     """
 
     method: Literal["auto", "als", "levenberg_marquardt", "gauss_newton"] = "auto"
@@ -160,6 +165,18 @@ class LinearOptions(Options):
     nv_balance: float = Field(0.0, ge=0, le=1, allow_inf_nan=False)
     polish: int = Field(0, ge=0, le=1000)
     polish_size: int = Field(24, ge=4, le=256)
+    ridge: int = Field(0, ge=0, le=1_000_000)
+
+    @model_validator(mode="after")
+    def _ridge_objective(self):
+        if self.ridge > 0 and self.nv_balance > 0:
+            raise ValueError(RIDGE_NEEDS_PLAIN)
+        return self
+
+
+#: Why ``linear.ridge`` with ``linear.nv_balance`` is refused.
+RIDGE_NEEDS_PLAIN = ("linear.ridge weighs its pairs as a share of uniform pairs, which the n.v-bin weights of "
+                     "nv_balance would change: set one of them")
 
 
 #: Largest number of fitted terms accepted (the packed shaders and the ALS blocks grow as K^2).

@@ -445,7 +445,8 @@ def refit(fac: Result, environment: Environment | None = None, brdf: BRDF | None
                           previous=fac.model if start == "previous" else None, line_size=sums.line_size_of(fac.model))
         if lin.polish > 0:  # the same off-grid pairs as the full run (deterministic), the new target's values
             pairs = polish_pairs(tgt, opts.parametrization, lin, opts.sampling.seed, opts.sampling.cache, log)
-            sf = polish(tgt, state.structure, state.mapper, state.texture_size, sf, samples, pairs, lin, log)
+            sf = polish(tgt, state.structure, state.mapper, state.texture_size, sf, samples, pairs, lin, log,
+                        seed=opts.sampling.seed)
         model, record, solve_s, warnings = sf.model, {**sf.solver, "refit": True}, sf.solve_s, sf.warnings
     else:
         t1 = time.perf_counter()

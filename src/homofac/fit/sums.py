@@ -313,8 +313,12 @@ def _split_sum_possible(target, structure) -> bool:
 
 def fit_sum(target: Target, structure: Structure, mapper: str, size: int, samples: Samples,
             options: LinearOptions | None = None, log: Callable[[str], None] | None = None,
-            previous: Factorization | None = None, line_size: int = LINE_SIZE) -> SumFit:
+            previous: Factorization | None = None, line_size: int = LINE_SIZE,
+            sample_weights: np.ndarray | None = None) -> SumFit:
     """Fit ``structure`` to the training samples in linear space (see the module docstring).
+
+    ``sample_weights``: a weight per training sample (the polish's ridge pairs, :mod:`homofac.fit.ridge`),
+    times the ``nv_balance`` weights, scaled to mean 1.
 
     ``line_size``: texels of the ``line`` textures (w(n.v), the highlight lines;
     :func:`homofac.fit.pipeline.line_sizes`).
@@ -364,6 +368,9 @@ def fit_sum(target: Target, structure: Structure, mapper: str, size: int, sample
         f"unknowns x 3 channels, {len(a)} samples, start {rule})")
     t1 = time.perf_counter()
     weights = nv_weights(a, b, y, NV_BINS, opts.nv_balance)
+    if sample_weights is not None:
+        weights = np.asarray(weights, np.float64) * np.asarray(sample_weights, np.float64)
+        weights = (weights / np.mean(weights)).astype(np.float32)
     if method == "als":
         X, steps, hist = _fit_als(structure, specs, fitted_terms, layouts, x0, grid, a, b, y_fit / sigma, opts, weights,
                                   target.context)
