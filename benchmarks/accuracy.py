@@ -112,7 +112,7 @@ def validation_pairs(count: int = 20000, seed: int = 12345):
 
 #: The dense pair set: 9000 normals with 30 views each (the table's 20000 pairs have 141 normals). Under a sun
 #: a few pairs whose reflection grazes the normal's horizon next to the sun hold most of the squared error, so
-#: the nrmse of 141 normals is a noisy estimate (docs/sums.md, "How noisy one pair set is"); this set has 64
+#: the nrmse of 141 normals is a noisy estimate (docs/sums.md, "The grazing ridge of the sun"); this set has 64
 #: times as many normals, and its three disjoint thirds (3000 normals each) show the spread.
 DENSE_NORMALS, DENSE_VIEWS, DENSE_SEED, DENSE_PARTS = 9000, 30, 2026, 3
 
@@ -124,7 +124,8 @@ def dense_pairs():
 def dense_errors(approx: np.ndarray, exact: np.ndarray, groups) -> dict:
     """nrmse on the dense pairs (``exact`` its converged ground truth), the nrmse of each of its
     :data:`DENSE_PARTS` disjoint parts (whole normals each) and the frontal bin's."""
-    nv = np.sum(groups.flatten().a * groups.flatten().b, axis=1)
+    flat = groups.flatten()
+    nv = np.sum(flat.a * flat.b, axis=1)
     per = np.cumsum(groups.mask.sum(axis=1))  # flattened pairs are grouped by normal
     cuts = [0] + [int(per[len(per) * (k + 1) // DENSE_PARTS - 1]) for k in range(DENSE_PARTS)]
     e = errors(approx, exact, nv)
@@ -233,7 +234,7 @@ def run_case(material: str, env: str, methods: list[str], fit_resolution: int, s
     gt, r_gt, change = ground_truth(material, env, groups, log)
     dense = dense_pairs()
     dval = dense.flatten()
-    dgt, dr, dchange = ground_truth(material, env, dense, log)
+    dgt, dr, _ = ground_truth(material, env, dense, log)
     targets = {}  # light resolution -> target
     samples_cache = {}
     rows = []

@@ -35,6 +35,7 @@ from typing import NamedTuple
 import numpy as np
 from jaxtyping import Float
 
+from .. import sphere
 from .sampling import MIN_COS
 
 #: Half angle (degrees) of the cone of reflections around a light that the ridge holds.
@@ -60,9 +61,8 @@ def in_ridge(a: Float[np.ndarray, "N 3"], b: Float[np.ndarray, "N 3"], light: Fl
              below: float = RIDGE_BELOW) -> np.ndarray:
     """Whether the lighting pairs ``(n, v) = (a, b)`` lie on the ridge of ``light`` (see the module doc)."""
     a, b, light = (np.asarray(x, np.float64) for x in (a, b, light))
-    nv = np.sum(a * b, axis=-1)
-    r = 2.0 * nv[:, None] * a - b
-    return (nv < band) & (r @ light > np.cos(np.radians(cap_degrees))) & (a @ light > -below)
+    r = sphere.reflect(b, a)
+    return (sphere.dot(a, b) < band) & (r @ light > np.cos(np.radians(cap_degrees))) & (a @ light > -below)
 
 
 def _frame(d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -77,11 +77,11 @@ def _one_light(rng: np.random.Generator, light: np.ndarray, count: int, cap: flo
     """``count`` pairs uniform on the ridge of one light and its probability ``P_j``: drawn in rounds of
     twice what is missing (the horizon rejection keeps about half, or all for a high light)."""
     got_a, got_b, tried, kept = [], [], 0, 0
+    e1, e2 = _frame(light[None])
     while kept < count:
         k = 2 * (count - kept) + 64
         ct = rng.uniform(np.cos(np.radians(cap)), 1.0, k)
         phi = rng.uniform(0.0, 2.0 * np.pi, k)
-        e1, e2 = _frame(np.broadcast_to(light, (1, 3)))
         r = ct[:, None] * light + np.sqrt(1.0 - ct * ct)[:, None] * (np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2)
         t = rng.uniform(MIN_COS, band, k)
         psi = rng.uniform(0.0, 2.0 * np.pi, k)
