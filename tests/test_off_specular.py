@@ -364,8 +364,10 @@ def test_polish_rule_keeps_plain_structures_and_votes_on_highlights_only_in_the_
 
 @pytest.mark.slow
 def test_the_quality_mode_polishes_a_kept_highlight_structure_where_the_validation_error_falls():
-    """Above QUALITY_LOOKUPS a kept structure with a highlight term is polished, and the polish is kept
-    exactly when its validation error is below the ALS fit's; the result is the kept one."""
+    """Above QUALITY_LOOKUPS a kept structure with a highlight term is polished in two stages (without,
+    then with the ridge pairs), and the better stage is kept exactly when its validation error (with the
+    ridge stratum) is below the ALS fit's; the result is the kept one. The structure, the line size and
+    the polish are all chosen on that estimate."""
     brdf = hf.brdf.cook_torrance(kd=(0.3, 0.05, 0.05), ks=1.0, roughness=0.2, f0=0.04)
     target = hf.light.lighting_target(brdf, hf.light.load_environment("city", 8))
     fac = hf.fit.factorize(target, "NR", texture_size=S, max_lookups=pipeline.QUALITY_LOOKUPS + 1,
@@ -375,14 +377,56 @@ def test_the_quality_mode_polishes_a_kept_highlight_structure_where_the_validati
     assert Structure.of(fac.solver["structure"]).highlight_terms == 1
     note = fac.selection["polish"]
     assert note["rule"] == "vote" and note["steps"] == pipeline.CHOOSER_POLISH
-    assert note["validation_nrmse_before"] == pytest.approx(fac.selection["chosen"]["validation_nrmse"])
-    assert note["kept"] == (note["validation_nrmse_after"] < note["validation_nrmse_before"])
+    key = sums.RIDGE_METRIC
+    sel = fac.selection
+    assert sel["metric"] == key and sel["chosen"][key] == min(t[key] for t in sel["tried"])
+    assert "lines" not in sel  # 32-texel lines are QUALITY_LINE_RATIO x 8: no line vote
+    assert note["validation_nrmse_before"] == pytest.approx(sel["chosen"]["validation_nrmse"])
+    assert note[key + "_before"] == pytest.approx(sel["chosen"][key])
+    # two stages: without, then with the quality mode's ridge pairs; the better one is voted on
+    stages = note["stages"]
+    assert [st["ridge"] for st in stages] == [0, pipeline.QUALITY_RIDGE]
+    best = int(np.argmin([st[key] for st in stages]))
+    assert note[key + "_after"] == stages[best][key]
+    assert note["kept"] == (note[key + "_after"] < note[key + "_before"])
     kept = note["validation_nrmse_after"] if note["kept"] else note["validation_nrmse_before"]
     assert fac.metrics["validation"]["float"]["nrmse"] == pytest.approx(kept)
     assert ("polish" in fac.solver) == note["kept"]  # a refit repeats what was kept
-    assert note["ridge"] == pipeline.QUALITY_RIDGE  # the quality mode's polish draws the ridge pairs
-    if note["kept"]:
+    assert note["stage"] == (best if note["kept"] else None)
+    assert note["ridge"] == (pipeline.QUALITY_RIDGE if note["stage"] == 1 else 0)
+    if note["stage"] == 1:
         assert fac.solver["polish"]["ridge"]["pairs"] == pipeline.QUALITY_RIDGE
+        assert "ridge" not in fac.solver["polish"]["first"]
+    elif note["stage"] == 0:
+        assert "ridge" not in fac.solver["polish"]
+
+
+class _Voted:
+    """The part of a Result the line vote reads: its plain validation nrmse and its selection."""
+
+    def __init__(self, plain: float, ridge: float, selection: dict | None = None):
+        self.metrics = {"validation": {"float": {"nrmse": plain}}}
+        self.ridge, self.selection = ridge, selection or {}
+
+    def replace(self, selection):
+        return _Voted(self.metrics["validation"]["float"]["nrmse"], self.ridge, selection)
+
+
+def test_the_line_vote_keeps_the_lowest_score_and_records_both_figures():
+    """With the ridge stratum's score the line vote keeps the size of lowest score, not of lowest plain
+    validation nrmse, and records both (the gold under the city sun: plain 0.062 / 0.080, the ridge
+    stratum the other way)."""
+    fitted = {128: _Voted(0.080, 0.110)}
+    first = _Voted(0.062, 0.128, {"metric": sums.RIDGE_METRIC})
+    structure = Structure.of({"parametrization": "NR", "terms": 1, "nv_factor": True})
+    kept, line = pipeline._line_vote(first, structure, (32, 128), lambda st, size: fitted[size], lambda m: None,
+                                     lambda r: r.ridge)
+    assert line == 128 and kept.ridge == 0.110
+    assert kept.selection["lines"] == {"sizes": [32, 128], "validation_nrmse": [0.062, 0.080], "kept": 128,
+                                       sums.RIDGE_METRIC: [0.128, 0.110]}
+    assert kept.selection["metric"] == sums.RIDGE_METRIC
+    plain, line = pipeline._line_vote(first, structure, (32, 128), lambda st, size: fitted[size], lambda m: None)
+    assert line == 32 and sums.RIDGE_METRIC not in plain.selection["lines"]
 
 
 def test_chooser_polish_applies_to_lighting_als_fits_unless_polish_is_given():

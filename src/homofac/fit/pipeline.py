@@ -535,44 +535,74 @@ def _sums(target: Target, opts: FitOptions, mapper: str, samples: Samples, recor
         a = opts.analysis or AnalysisOptions()
         log(f"in-out analysis ({a.pair}) on {a.mapper} {a.size}")
         analysis = baselines.analyse(target, a.pair, a.mapper, a.size).record()
-    result = sums.choose(fit, cands, target_error=opts.target_error, max_lookups=budget, log=log)
+    ridge = chooser_ridge(target, opts, lin)
+    rv = None
+    if ridge > 0:  # every choice below reads the validation estimate with the ridge stratum (polish.ridge_nrmse)
+        rv = polish.ridge_validation(target, samples, ridge, opts.sampling.seed + 1)
+        log(f"validation: {len(rv.pairs.a)} ridge pairs stand in for the {int(rv.inside.sum())} validation pairs on "
+            f"the ridges of the {len(rv.lights)} brightest lights")
+    score = None if rv is None else (lambda res: polish.ridge_nrmse(res, samples, rv))
+    result = sums.choose(fit, cands, target_error=opts.target_error, max_lookups=budget, log=log, score=score)
     structure = Structure.of(result.solver["structure"])
     line = sizes[0]  # the kept fit's line size (fits[structure, line] is its SumFit)
     if len(sizes) > 1 and any(t.mapper == "line" for t in result.model.textures):
-        result, line = _line_vote(result, structure, sizes, fit, log)
+        result, line = _line_vote(result, structure, sizes, fit, log, score)
     steps = chooser_polish(target, opts.linear, lin)
     rule = polish_rule(structure, budget)
     if steps and result.solver.get("method") == "als" and rule is not None:
         tgt, smp, _ = pool(structure)
-        plin = lin.model_copy(update={"polish": steps, "ridge": chooser_ridge(target, opts, lin)})
-        sf = polish.polish(tgt, structure, mapper, opts.texture_size, fits[structure, line], smp, pairs(), plin, log,
-                           seed=opts.sampling.seed)
-        polished_result = as_result(structure, sf)
-        before = float(result.metrics["validation"]["float"]["nrmse"])
-        after = float(polished_result.metrics["validation"]["float"]["nrmse"])
-        keep = rule == "keep" or after < before
-        log(f"polish of {structure.label()}: validation nrmse {before:.4g} -> {after:.4g}"
-            + ("" if keep else ": not kept (the validation error did not fall)"))
-        note = {"steps": steps, "validation_nrmse_before": before, "validation_nrmse_after": after,
-                "rule": rule, "kept": keep, "ridge": int(plin.ridge)}
-        result = (polished_result if keep else result).replace(selection={**result.selection, "polish": note})
+        plin = lin.model_copy(update={"polish": steps, "ridge": ridge})
+        stages = [as_result(structure, sf) for sf in polish.polish_stages(
+            tgt, structure, mapper, opts.texture_size, fits[structure, line], smp, pairs(), plin, log,
+            seed=opts.sampling.seed)]
+        result = _polish_vote(result, stages, rule, score, steps, ridge, structure.label(), log)
     return kept(result if analysis is None else result.replace(analysis=analysis))
 
 
+def _polish_vote(result: Result, stages: list[Result], rule: str, score: Callable | None, steps: int, ridge: int,
+                 label: str, log) -> Result:
+    """The kept structure's ALS fit (``result``) or one of its polish ``stages`` (:func:`polish.polish_stages`:
+    without, then with the ridge pairs): the stage of lowest validation error (``score``, the ridge
+    stratum's, where given), kept where ``rule`` is ``"keep"`` or its error is below the ALS fit's.
+    ``selection.polish`` records the steps, the rule, each stage's errors, the ones before and after and
+    what was kept (``kept``, ``stage``: the kept stage's index, ``ridge``: its ridge pairs)."""
+    def errs(res: Result) -> dict:
+        plain = {"validation_nrmse": float(res.metrics["validation"]["float"]["nrmse"])}
+        return plain if score is None else {**plain, sums.RIDGE_METRIC: float(score(res))}
+
+    key = "validation_nrmse" if score is None else sums.RIDGE_METRIC
+    before, figures = errs(result), [errs(r) for r in stages]
+    best = int(np.argmin([f[key] for f in figures]))
+    keep = rule == "keep" or figures[best][key] < before[key]
+    what = "validation nrmse" if score is None else sums.RIDGE_WORDS
+    log(f"polish of {label}: {what} {before[key]:.4g} -> " + " / ".join(f"{f[key]:.4g}" for f in figures)
+        + (f": stage {best + 1} kept" if keep else ": not kept (the validation error did not fall)"))
+    note = {"steps": steps, **{f"{k}_before": v for k, v in before.items()},
+            **{f"{k}_after": v for k, v in figures[best].items()},
+            "stages": [{"ridge": ridge if i else 0, **f} for i, f in enumerate(figures)],
+            "rule": rule, "kept": keep, "stage": best if keep else None, "ridge": ridge if keep and best else 0}
+    return (stages[best] if keep else result).replace(selection={**result.selection, "polish": note})
+
+
 def _line_vote(result: Result, structure: Structure, sizes: tuple[int, ...], fit: Callable,
-               log) -> tuple[Result, int]:
+               log, score: Callable | None = None) -> tuple[Result, int]:
     """The kept ``structure`` (``result``, fitted with ``sizes[0]``-texel lines) fitted again with each
     further line size, the one of lowest validation error kept (ties: the first), with its size;
-    ``selection.lines`` records the sizes, their validation nrmse and the kept size (:func:`line_sizes`)."""
+    ``selection.lines`` records the sizes, their validation nrmse and the kept size (:func:`line_sizes`).
+    ``score(result)``: the validation error the vote uses instead of the plain one (the ridge stratum's,
+    recorded beside it)."""
     tried = [(sizes[0], result)]
     for size in sizes[1:]:
         log(f"line vote: {structure.label()} with {size}-texel lines")
         tried.append((size, fit(structure, size)))
-    errs = [float(r.metrics["validation"]["float"]["nrmse"]) for _, r in tried]
+    plain = [float(r.metrics["validation"]["float"]["nrmse"]) for _, r in tried]
+    errs = plain if score is None else [float(score(r)) for _, r in tried]
     k = int(np.argmin(errs))
-    log("line vote: validation nrmse " + ", ".join(f"{e:.4g} ({n} texels)" for (n, _), e in zip(tried, errs))
+    what = "validation nrmse" if score is None else sums.RIDGE_WORDS
+    log(f"line vote: {what} " + ", ".join(f"{e:.4g} ({n} texels)" for (n, _), e in zip(tried, errs))
         + f": {tried[k][0]} kept")
-    note = {"sizes": [int(n) for n, _ in tried], "validation_nrmse": errs, "kept": int(tried[k][0])}
+    note = {"sizes": [int(n) for n, _ in tried], "validation_nrmse": plain, "kept": int(tried[k][0]),
+            **({} if score is None else {sums.RIDGE_METRIC: errs})}
     return tried[k][1].replace(selection={**result.selection, "lines": note}), int(tried[k][0])
 
 

@@ -126,4 +126,24 @@ def in_any_ridge(a, b, lights, cap_degrees: float = RIDGE_CAP_DEGREES, band: flo
     return out
 
 
-__all__ = ["RIDGE_BAND", "RIDGE_BELOW", "RIDGE_CAP_DEGREES", "RidgePairs", "in_any_ridge", "in_ridge", "ridge_pairs"]
+def stratified_nrmse(approx: Float[np.ndarray, "N 3"], exact: Float[np.ndarray, "N 3"], inside: np.ndarray,
+                     approx_ridge: Float[np.ndarray, "M 3"], exact_ridge: Float[np.ndarray, "M 3"],
+                     weight: Float[np.ndarray, "M"]) -> float:
+    """The nrmse of N uniform validation pairs (``approx`` against ``exact``) with the ridge as its own
+    stratum: the pairs ``inside`` it are left out and the ridge pairs stand in for them, each weighing
+    ``N * weight`` validation pairs (:class:`RidgePairs`). Per channel
+    ``sqrt((sum_out d^2 + N sum_ridge w d^2) / (sum_out e^2 + N sum_ridge w e^2))``, averaged over RGB as
+    the pinned ``nrmse``: the same quantity, without the few dozen ridge pairs of a validation set
+    deciding it (plastic under the city sun: 0.071 against 0.072 on 270 000 uniform pairs, where the
+    80 000 validation pairs read 0.054)."""
+    approx, exact = np.asarray(approx, np.float64), np.asarray(exact, np.float64)
+    approx_ridge, exact_ridge = np.asarray(approx_ridge, np.float64), np.asarray(exact_ridge, np.float64)
+    out = ~np.asarray(inside, bool)[:, None]
+    w = len(exact) * np.asarray(weight, np.float64)[:, None]
+    num = np.sum(out * (approx - exact) ** 2, axis=0) + np.sum(w * (approx_ridge - exact_ridge) ** 2, axis=0)
+    den = np.sum(out * exact ** 2, axis=0) + np.sum(w * exact_ridge ** 2, axis=0)
+    return float(np.mean(np.sqrt(num / np.maximum(den, 1e-30))))
+
+
+__all__ = ["RIDGE_BAND", "RIDGE_BELOW", "RIDGE_CAP_DEGREES", "RidgePairs", "in_any_ridge", "in_ridge", "ridge_pairs",
+           "stratified_nrmse"]

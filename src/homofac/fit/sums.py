@@ -619,48 +619,65 @@ def _model(target, structure, specs, terms, fixed_data, fitted, *, sigma, layout
 # choosing the structure (max_lookups, target_error)
 
 
+#: ``selection.metric`` when a :func:`choose` scores with the ridge stratum (``score``), and the key of
+#: each candidate's figure in ``selection.tried``.
+RIDGE_METRIC = "validation_ridge_nrmse"
+#: How logs and reasons name that figure.
+RIDGE_WORDS = "validation nrmse with the ridge stratum"
+
+
 def choose(fit: Callable, structures: list, *, target_error: float | None, max_lookups: int | None,
-           analysis: dict | None = None, log: Callable[[str], None] | None = None):
+           analysis: dict | None = None, log: Callable[[str], None] | None = None,
+           score: Callable | None = None):
     """Fit ``structures`` (cheapest first) with ``fit(structure) -> Result`` and keep one.
 
     With ``target_error``: the first whose validation nrmse meets it (else the best, with a warning);
     otherwise (``max_lookups`` alone) the one with the lowest validation nrmse. The choice, every
     candidate's error and lookups, and the analysis that bounded it are recorded as ``selection``.
+    ``score(result)``, when given, is the validation nrmse the choice uses instead of the plain one
+    (the quality mode's estimate with the ridge stratum, :func:`homofac.fit.polish.ridge_nrmse`),
+    recorded beside it as :data:`RIDGE_METRIC`.
     """
     log = log or (lambda msg: None)
+    what = "validation nrmse" if score is None else RIDGE_WORDS
     tried, best = [], None
     for s in structures:
         log(f"structure {s.label()}: fitting")
         res = fit(s)
-        err = float(res.metrics["validation"]["float"]["nrmse"])
+        plain = float(res.metrics["validation"]["float"]["nrmse"])
+        err = plain if score is None else float(score(res))
         met = target_error is not None and err <= target_error
-        tried.append({**s.record(), "label": s.label(), "lookups": int(res.model.lookups), "validation_nrmse": err,
+        tried.append({**s.record(), "label": s.label(), "lookups": int(res.model.lookups), "validation_nrmse": plain,
+                      **({} if score is None else {RIDGE_METRIC: err}),
                       "fit_s": float(res.timings.get("solve_s", 0.0)), "met": met})
-        log(f"structure {s.label()}: {res.model.lookups} lookups, validation nrmse {err:.4g}")
+        log(f"structure {s.label()}: {res.model.lookups} lookups, validation nrmse {plain:.4g}"
+            + ("" if score is None else f", {RIDGE_WORDS} {err:.4g}"))
         if best is None or err < best[1]:
             best = (res, err, s)
         if met:
-            reason = f"{s.label()} is the cheapest structure with validation nrmse {err:.4g} <= {target_error:g}"
-            return _selected(res, tried, reason, target_error, max_lookups, True, analysis)
+            reason = f"{s.label()} is the cheapest structure with {what} {err:.4g} <= {target_error:g}"
+            return _selected(res, tried, reason, target_error, max_lookups, True, analysis, score is not None)
     res, err, s = best
     if target_error is not None:
         reason = (f"no structure within {max_lookups} lookups meets target_error {target_error:g}; the best is "
-                  f"{s.label()} with validation nrmse {err:.4g}")
+                  f"{s.label()} with {what} {err:.4g}")
         log("warning: " + reason)
         res = res.replace(warnings=tuple(res.warnings) + (reason,))
-        return _selected(res, tried, reason, target_error, max_lookups, False, analysis)
-    reason = f"{s.label()} has the lowest validation nrmse ({err:.4g}) within {max_lookups} lookups"
+        return _selected(res, tried, reason, target_error, max_lookups, False, analysis, score is not None)
+    reason = f"{s.label()} has the lowest {what} ({err:.4g}) within {max_lookups} lookups"
     log(reason)
-    return _selected(res, tried, reason, target_error, max_lookups, True, analysis)
+    return _selected(res, tried, reason, target_error, max_lookups, True, analysis, score is not None)
 
 
-def _selected(res, tried, reason, target_error, max_lookups, met, analysis):
+def _selected(res, tried, reason, target_error, max_lookups, met, analysis, ridge: bool):
+    key = RIDGE_METRIC if ridge else "validation_nrmse"
     return res.replace(selection={
         "target_error": None if target_error is None else float(target_error), "max_lookups": max_lookups,
-        "metric": "validation.float.nrmse", "met": met, "chosen": tried[-1] if met and target_error is not None
-        else min(tried, key=lambda t: t["validation_nrmse"]), "reason": reason, "tried": tried,
+        "metric": RIDGE_METRIC if ridge else "validation.float.nrmse", "met": met,
+        "chosen": tried[-1] if met and target_error is not None else min(tried, key=lambda t: t[key]),
+        "reason": reason, "tried": tried,
         **({"analysis": analysis} if analysis else {}),
     })
 
 
-__all__ = ["SumFit", "choose", "diffuse_albedo", "fit_sum", "nv_weights", "has_diffuse", "line_size_of", "start", "warm_start"]
+__all__ = ["RIDGE_METRIC", "RIDGE_WORDS", "SumFit", "choose", "diffuse_albedo", "fit_sum", "nv_weights", "has_diffuse", "line_size_of", "start", "warm_start"]
