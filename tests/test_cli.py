@@ -230,3 +230,24 @@ def test_python_api_refuses_exactly_as_the_cli(tmp_path, capsys, key, value, nee
     assert main([str(path), "--quiet"]) == 2
     err = capsys.readouterr().err.strip()
     assert err == f"homofac: error: {path}: {api}"
+
+
+def test_the_polish_line_reads_every_record_generation():
+    """The run summary's polish line: two stages voted on with the ridge stratum, the one-stage records of
+    2026-12-05 and the older ones without ``kept`` (the polish was always kept then)."""
+    from homofac.app.cli import polish_line
+
+    two = {"steps": 8, "validation_nrmse_before": 0.062, "validation_ridge_nrmse_before": 0.128,
+           "validation_nrmse_after": 0.076, "validation_ridge_nrmse_after": 0.110, "rule": "vote", "kept": True,
+           "stage": 0, "ridge": 0, "stages": [{"ridge": 0, "validation_nrmse": 0.076, "validation_ridge_nrmse": 0.110},
+                                             {"ridge": 20000, "validation_nrmse": 0.118,
+                                              "validation_ridge_nrmse": 0.141}]}
+    assert polish_line(two) == ("polish: 8 Levenberg-Marquardt steps off the grid, then 8 more with 20000 ridge "
+                                "pairs, validation nrmse with the ridge stratum 0.128 -> 0.11 / 0.141 (stage 1 kept)")
+    assert polish_line({**two, "kept": False, "stage": None}).endswith("(not kept)")
+    one = {"steps": 8, "validation_nrmse_before": 0.062, "validation_nrmse_after": 0.118, "rule": "vote",
+           "kept": False, "ridge": 20000}
+    assert polish_line(one) == ("polish: 8 Levenberg-Marquardt steps off the grid and 20000 ridge pairs, "
+                                "validation nrmse 0.062 -> 0.118 (not kept)")
+    old = {"steps": 8, "validation_nrmse_before": 0.3, "validation_nrmse_after": 0.2}
+    assert polish_line(old) == "polish: 8 Levenberg-Marquardt steps off the grid, validation nrmse 0.3 -> 0.2 (kept)"

@@ -24,7 +24,7 @@ from rich.console import Console
 
 from .. import baselines, gl
 from ..errors import HomofacError
-from ..fit import solvers
+from ..fit import solvers, sums
 from ..fit.options import FitOptions, LinearOptions
 from ..gl.picture import auto_exposure
 from ..gl.window import require_display, show
@@ -43,6 +43,26 @@ from .view import write_viewer
 # --------------------------------------------------------------------------------------------------
 # shared
 
+
+def polish_line(pol: dict) -> str:
+    """The run summary's line for ``selection.polish``: the steps, the errors voted on (with the ridge
+    stratum where recorded: before, and after each stage) and what was kept. Records from before
+    2026-12-05 have no ``kept`` (the polish was always kept then) and older quality-mode records one stage."""
+    key = sums.RIDGE_METRIC if f"{sums.RIDGE_METRIC}_before" in pol else "validation_nrmse"
+    words = sums.RIDGE_WORDS if key == sums.RIDGE_METRIC else "validation nrmse"
+    stages = pol.get("stages")
+    if stages:
+        ridge = max(st["ridge"] for st in stages)
+        how = f"{pol['steps']} Levenberg-Marquardt steps off the grid" + (
+            f", then {pol['steps']} more with {ridge} ridge pairs" if len(stages) > 1 else "")
+        after = " / ".join(f"{st[key]:.4g}" for st in stages)
+        kept = f"stage {pol['stage'] + 1} kept" if pol.get("kept") else "not kept"
+    else:
+        ridge = f" and {pol['ridge']} ridge pairs" if pol.get("ridge") else ""
+        how = f"{pol['steps']} Levenberg-Marquardt steps off the grid{ridge}"
+        after = f"{pol[key + '_after']:.4g}"
+        kept = "kept" if pol.get("kept", True) else "not kept"
+    return f"polish: {how}, {words} {pol[key + '_before']:.4g} -> {after} ({kept})"
 
 def compilation_cache_dir() -> Path | None:
     """``$HOMOFAC_JAX_CACHE`` (``0`` turns the cache off) or ``~/.cache/homofac/jax``; None when off or
@@ -220,18 +240,16 @@ def _summary(fac, out, seconds: float | None) -> None:
         pixels = (fac.counts or {}).get("scene_pixels", 0)
         print(f"scene (image space, {pixels} covered pixels): nrmse {sc['nrmse']:.4g} avg_rel {sc['avg_rel']:.4g}")
     if fac.selection is not None and "max_lookups" in fac.selection:
-        tried = "; ".join(f"{t['label']} ({t['lookups']}) {t['validation_nrmse']:.4g}" for t in fac.selection["tried"])
+        key = sums.RIDGE_METRIC if fac.selection.get("metric") == sums.RIDGE_METRIC else "validation_nrmse"
+        tried = "; ".join(f"{t['label']} ({t['lookups']}) {t[key]:.4g}" for t in fac.selection["tried"])
         print(f"structure: {fac.selection['reason']} (tried: {tried})")
         lines = fac.selection.get("lines")
         if lines is not None:
-            voted = ", ".join(f"{n} texels {e:.4g}" for n, e in zip(lines["sizes"], lines["validation_nrmse"]))
+            voted = ", ".join(f"{n} texels {e:.4g}" for n, e in zip(lines["sizes"], lines.get(key, lines["validation_nrmse"])))
             print(f"lines: {voted}; {lines['kept']} kept")
         pol = fac.selection.get("polish")
-        if pol is not None:  # records from before 2026-12-05 have no "kept": the polish was always kept then
-            kept = "kept" if pol.get("kept", True) else "not kept"
-            ridge = f" and {pol['ridge']} ridge pairs" if pol.get("ridge") else ""
-            print(f"polish: {pol['steps']} Levenberg-Marquardt steps off the grid{ridge}, validation nrmse "
-                  f"{pol['validation_nrmse_before']:.4g} -> {pol['validation_nrmse_after']:.4g} ({kept})")
+        if pol is not None:
+            print(polish_line(pol))
     if fac.analysis is not None:
         a = fac.analysis
         ranks = ", ".join(f"{t}: K = {k}" for t, k in a["rank_for"].items())
