@@ -48,8 +48,7 @@ def polish_line(pol: dict) -> str:
     """The run summary's line for ``selection.polish``: the steps, the errors voted on (with the ridge
     stratum where recorded: before, and after each stage) and what was kept. Records from before
     2026-12-05 have no ``kept`` (the polish was always kept then) and older quality-mode records one stage."""
-    key = sums.RIDGE_METRIC if f"{sums.RIDGE_METRIC}_before" in pol else "validation_nrmse"
-    words = sums.RIDGE_WORDS if key == sums.RIDGE_METRIC else "validation nrmse"
+    key, words = sums.scored_by(f"{sums.RIDGE_METRIC}_before" in pol)
     stages = pol.get("stages")
     if stages:
         ridge = max(st["ridge"] for st in stages)
@@ -63,6 +62,7 @@ def polish_line(pol: dict) -> str:
         after = f"{pol[key + '_after']:.4g}"
         kept = "kept" if pol.get("kept", True) else "not kept"
     return f"polish: {how}, {words} {pol[key + '_before']:.4g} -> {after} ({kept})"
+
 
 def compilation_cache_dir() -> Path | None:
     """``$HOMOFAC_JAX_CACHE`` (``0`` turns the cache off) or ``~/.cache/homofac/jax``; None when off or
@@ -240,12 +240,13 @@ def _summary(fac, out, seconds: float | None) -> None:
         pixels = (fac.counts or {}).get("scene_pixels", 0)
         print(f"scene (image space, {pixels} covered pixels): nrmse {sc['nrmse']:.4g} avg_rel {sc['avg_rel']:.4g}")
     if fac.selection is not None and "max_lookups" in fac.selection:
-        key = sums.RIDGE_METRIC if fac.selection.get("metric") == sums.RIDGE_METRIC else "validation_nrmse"
+        key, _ = sums.scored_by(fac.selection.get("metric") == sums.RIDGE_METRIC)
         tried = "; ".join(f"{t['label']} ({t['lookups']}) {t[key]:.4g}" for t in fac.selection["tried"])
         print(f"structure: {fac.selection['reason']} (tried: {tried})")
         lines = fac.selection.get("lines")
         if lines is not None:
-            voted = ", ".join(f"{n} texels {e:.4g}" for n, e in zip(lines["sizes"], lines.get(key, lines["validation_nrmse"])))
+            errs = lines.get(key, lines["validation_nrmse"])
+            voted = ", ".join(f"{n} texels {e:.4g}" for n, e in zip(lines["sizes"], errs))
             print(f"lines: {voted}; {lines['kept']} kept")
         pol = fac.selection.get("polish")
         if pol is not None:

@@ -576,11 +576,10 @@ def _polish_vote(result: Result, stages: list[Result], rule: str, score: Callabl
         plain = {"validation_nrmse": float(res.metrics["validation"]["float"]["nrmse"])}
         return plain if score is None else {**plain, sums.RIDGE_METRIC: float(score(res))}
 
-    key = "validation_nrmse" if score is None else sums.RIDGE_METRIC
+    key, what = sums.scored_by(score is not None)
     before, figures = errs(result), [errs(r) for r in stages]
     best = int(np.argmin([f[key] for f in figures]))
     keep = rule == "keep" or figures[best][key] < before[key]
-    what = "validation nrmse" if score is None else sums.RIDGE_WORDS
     log(f"polish of {label}: {what} {before[key]:.4g} -> " + " / ".join(f"{f[key]:.4g}" for f in figures)
         + (f": stage {best + 1} kept" if keep else ": not kept (the validation error did not fall)"))
     note = {"steps": steps, **{f"{k}_before": v for k, v in before.items()},
@@ -604,7 +603,7 @@ def _line_vote(result: Result, structure: Structure, sizes: tuple[int, ...], fit
     plain = [float(r.metrics["validation"]["float"]["nrmse"]) for _, r in tried]
     errs = plain if score is None else [float(score(r)) for _, r in tried]
     k = int(np.argmin(errs))
-    what = "validation nrmse" if score is None else sums.RIDGE_WORDS
+    _, what = sums.scored_by(score is not None)
     log(f"line vote: {what} " + ", ".join(f"{e:.4g} ({n} texels)" for (n, _), e in zip(tried, errs))
         + f": {tried[k][0]} kept")
     note = {"sizes": [int(n) for n, _ in tried], "validation_nrmse": plain, "kept": int(tried[k][0]),

@@ -188,5 +188,5 @@ def recorded_linear(lin: LinearOptions, solver: dict | None) -> LinearOptions:
     return lin.model_copy(update=update)
 
 
-__all__ = ["RIDGE_NEEDS_ENVIRONMENT", "RidgeValidation", "VALIDATION_RIDGE_LIGHTS", "polish", "polish_pairs", "polish_stages",
-           "recorded_linear", "ridge_lights", "ridge_nrmse", "ridge_validation"]
+__all__ = ["RIDGE_NEEDS_ENVIRONMENT", "RidgeValidation", "VALIDATION_RIDGE_LIGHTS", "polish", "polish_pairs",
+           "polish_stages", "recorded_linear", "ridge_lights", "ridge_nrmse", "ridge_validation"]

@@ -626,6 +626,12 @@ RIDGE_METRIC = "validation_ridge_nrmse"
 RIDGE_WORDS = "validation nrmse with the ridge stratum"
 
 
+def scored_by(ridge: bool) -> tuple[str, str]:
+    """The record key and the words of the figure the choices read: the ridge stratum's
+    (:data:`RIDGE_METRIC`) or the plain validation nrmse."""
+    return (RIDGE_METRIC, RIDGE_WORDS) if ridge else ("validation_nrmse", "validation nrmse")
+
+
 def choose(fit: Callable, structures: list, *, target_error: float | None, max_lookups: int | None,
            analysis: dict | None = None, log: Callable[[str], None] | None = None,
            score: Callable | None = None):
@@ -639,7 +645,7 @@ def choose(fit: Callable, structures: list, *, target_error: float | None, max_l
     recorded beside it as :data:`RIDGE_METRIC`.
     """
     log = log or (lambda msg: None)
-    what = "validation nrmse" if score is None else RIDGE_WORDS
+    _, what = scored_by(score is not None)
     tried, best = [], None
     for s in structures:
         log(f"structure {s.label()}: fitting")
@@ -670,7 +676,7 @@ def choose(fit: Callable, structures: list, *, target_error: float | None, max_l
 
 
 def _selected(res, tried, reason, target_error, max_lookups, met, analysis, ridge: bool):
-    key = RIDGE_METRIC if ridge else "validation_nrmse"
+    key, _ = scored_by(ridge)
     return res.replace(selection={
         "target_error": None if target_error is None else float(target_error), "max_lookups": max_lookups,
         "metric": RIDGE_METRIC if ridge else "validation.float.nrmse", "met": met,
@@ -680,4 +686,5 @@ def _selected(res, tried, reason, target_error, max_lookups, met, analysis, ridg
     })
 
 
-__all__ = ["RIDGE_METRIC", "RIDGE_WORDS", "SumFit", "choose", "diffuse_albedo", "fit_sum", "nv_weights", "has_diffuse", "line_size_of", "start", "warm_start"]
+__all__ = ["RIDGE_METRIC", "RIDGE_WORDS", "SumFit", "choose", "diffuse_albedo", "fit_sum", "nv_weights", "has_diffuse",
+           "line_size_of", "scored_by", "start", "warm_start"]
