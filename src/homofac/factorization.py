@@ -113,7 +113,7 @@ class Factorization(eqx.Module):
                         f"term {i}: projection {f.projection} is {'a scalar' if proj.scalar else 'a direction'}, "
                         f"but texture {f.texture} uses mapper {m.name}"
                     )
-                if not proj.scalar and self.kind == "lighting" and not m.covers_sphere:
+                if not proj.scalar and not proj.hemisphere and self.kind == "lighting" and not m.covers_sphere:
                     raise HomofacError(
                         f"term {i}: lighting projection {f.projection} spans the sphere; mapper {m.name} covers "
                         "only the upper hemisphere (use dual_paraboloid, cube or octahedral)"

@@ -22,6 +22,12 @@ A :class:`Structure` is the pinned config of a sum (``terms: K``, ``diffuse: exa
   microfacet highlight of one light is ``D(n.h') F G / (4 n.v)``: a function of ``x`` times one of n.v,
   which keeps its shape at every view where a map of r smears it (the near-mirror under the city sun:
   the sun alone holds 71 % of the squared lighting; docs/sums.md);
+* ``highlight_table`` (lighting): each highlight term reads a 2D table ``T_t(n.i, n.v)`` of its light's
+  cosine and the view's (projection ``ninv_dom``, ``ninv_dom1``, ``ninv_dom2``: :func:`homofac.param.projections.table_point`,
+  a ``parabolic`` texture of :data:`TABLE_SIZE`) in place of ``c_t(n.i) w_t(n.v)``: one lookup fewer, and
+  the highlight's ``min(1, n.i / n.v)`` near the mirror direction, which no product of the two lines holds
+  (docs/sums.md, "A 2D table of (n.i, n.v)"). The ALS fits the lines (:func:`lined`), which
+  :func:`homofac.fit.table.tabulate` turns into the table for the polish to refine;
 * ``reflection`` (lighting): one more fitted term, an r-only texture ``R`` (one lookup). Within a lookup
   budget it is worth more than an n.v-only or n-only term (gold under lamps: 0.83 -> 0.78 of
   split-sum at 8 lookups);
@@ -44,6 +50,10 @@ from ..param import projections as pj
 
 #: The line texture read by ``nv_factor`` (and by a BRDF ``brdf_cos`` diffuse term).
 LINE_SIZE = 32
+
+#: The ``parabolic`` size of a highlight term's 2D table (``highlight_table``): its square holds
+#: ``TABLE_SPAN x 96 = 58`` texels per axis of (sqrt(n.i), sqrt(n.v)).
+TABLE_SIZE = 96
 
 
 class HighlightLine(NamedTuple):
@@ -97,6 +107,7 @@ class Structure(NamedTuple):
     highlight_terms: int = 0  # lighting: this many more fitted terms d(nh_dom) w(n.v) (two lookups each)
     highlight_fresnel: bool = False  # lighting: each highlight term also reads f(v.h') of its light (one lookup more)
     highlight_cosine: bool = False  # lighting: each highlight term also reads c(n.i) of its light (one lookup more)
+    highlight_table: bool = False  # lighting: each highlight term reads T(n.i, n.v) in place of c(n.i) w(n.v)
 
     @classmethod
     def of(cls, rec) -> "Structure":
@@ -106,14 +117,14 @@ class Structure(NamedTuple):
         return cls(get("parametrization"), int(get("terms", 1)), get("diffuse"), bool(get("nv_factor", False)),
                    bool(get("reflection", False)), bool(get("prefiltered", False)), int(get("rw_terms", 0) or 0),
                    int(get("highlight_terms", 0) or 0), bool(get("highlight_fresnel", False) or False),
-                   bool(get("highlight_cosine", False) or False))
+                   bool(get("highlight_cosine", False) or False), bool(get("highlight_table", False) or False))
 
     def label(self) -> str:
         d = {None: "", "exact": "E+", "fitted": "E'+"}[self.diffuse] + ("SS+" if self.prefiltered else "")
         w = "W" if self.nv_factor and not _has_nv(self.parametrization) else ""
         rw = f"+RW x{self.rw_terms}" if self.rw_terms else ""
         lines = "".join(line.letter for line in HIGHLIGHT_LINES if getattr(self, line.key))
-        hw = f"+H{lines}W x{self.highlight_terms}" if self.highlight_terms else ""
+        hw = f"+H{lines}{'T' if self.highlight_table else 'W'} x{self.highlight_terms}" if self.highlight_terms else ""
         return f"{d}{self.parametrization}{w} x{self.terms}{rw}{'+R' if self.reflection else ''}{hw}"
 
     def record(self) -> dict:
@@ -121,7 +132,21 @@ class Structure(NamedTuple):
                 "nv_factor": bool(self.nv_factor or _has_nv(self.parametrization)), "reflection": bool(self.reflection),
                 "prefiltered": bool(self.prefiltered), "rw_terms": int(self.rw_terms),
                 "highlight_terms": int(self.highlight_terms), "highlight_fresnel": bool(self.highlight_fresnel),
-                "highlight_cosine": bool(self.highlight_cosine)}
+                "highlight_cosine": bool(self.highlight_cosine), "highlight_table": bool(self.highlight_table)}
+
+
+def lined(structure: Structure) -> Structure:
+    """The structure whose highlight terms read the lines ``c(n.i) w(n.v)`` where ``structure``'s read a
+    table ``T(n.i, n.v)`` (what the ALS fits; :func:`homofac.fit.table.separate` goes there)."""
+    return structure._replace(highlight_table=False, highlight_cosine=True) if structure.highlight_table else structure
+
+
+def tabled(structure: Structure) -> Structure:
+    """The structure whose highlight terms read a table ``T(n.i, n.v)`` where ``structure``'s read the lines
+    ``c(n.i) w(n.v)`` (:func:`homofac.fit.table.tabulate` goes there)."""
+    if not (structure.highlight_terms and structure.highlight_cosine):
+        raise HomofacError(f"{structure.label()}: only highlight terms with the cosine line c(n.i) become tables")
+    return structure._replace(highlight_cosine=False, highlight_table=True)
 
 
 def _reads_n(parametrization: str) -> bool:
@@ -191,6 +216,11 @@ def skeleton(structure: Structure, kind: str, quantity: str, mapper: str, size: 
     for line in lines:
         if not structure.highlight_terms:
             raise HomofacError(f"{line.key}: the {line.reads} line is a factor of highlight terms; set highlight_terms")
+    if structure.highlight_table and not structure.highlight_terms:
+        raise HomofacError("highlight_table: the (n.i, n.v) table is a factor of highlight terms; set highlight_terms")
+    if structure.highlight_table and structure.highlight_cosine:
+        raise HomofacError("highlight_table holds the light's cosine n.i with n.v in one table: set highlight_table "
+                           "or highlight_cosine, not both")
     first = structure.terms + structure.rw_terms
     for j in range(structure.highlight_terms):
         t = first + j
@@ -200,8 +230,13 @@ def skeleton(structure: Structure, kind: str, quantity: str, mapper: str, size: 
         for line in lines:
             textures.append(TextureSpec(f"{line.prefix}{t}", "line", line_size, line.role))
             factors.append((line.projections[j], f"{line.prefix}{t}"))
-        textures.append(TextureSpec(w, "line", line_size, "nv"))
-        terms.append(TermSpec(tuple(factors) + (("nv", w),), "fitted", True))
+        if structure.highlight_table:  # T(n.i, n.v) in place of c(n.i) w(n.v)
+            textures.append(TextureSpec(f"T{t}", "parabolic", TABLE_SIZE, "table"))
+            factors.append((pj.HIGHLIGHT_TABLE[j][0], f"T{t}"))
+        else:
+            textures.append(TextureSpec(w, "line", line_size, "nv"))
+            factors.append(("nv", w))
+        terms.append(TermSpec(tuple(factors), "fitted", True))
     return tuple(textures), tuple(terms)
 
 
@@ -296,7 +331,9 @@ def _variants(kind, max_lookups, parametrization, has_diffuse, max_terms, larges
 def _sorted(structures):
     return sorted(structures, key=lambda s: (lookups(s, "lighting" if pz.get(s.parametrization).kind == "lighting"
                                                        else "brdf"), s.terms, not s.nv_factor, str(s.diffuse),
-                                             s.highlight_terms, s.highlight_fresnel, s.highlight_cosine))
+                                             s.highlight_terms, s.highlight_fresnel, s.highlight_cosine,
+                                             s.highlight_table))
 
 
-__all__ = ["HIGHLIGHT_LINES", "LINE_SIZE", "HighlightLine", "Structure", "TermSpec", "TextureSpec", "candidates", "ladder", "lookups", "skeleton"]
+__all__ = ["HIGHLIGHT_LINES", "LINE_SIZE", "TABLE_SIZE", "HighlightLine", "Structure", "TermSpec", "TextureSpec", "candidates",
+           "ladder", "lined", "lookups", "skeleton", "tabled"]

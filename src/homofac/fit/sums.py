@@ -42,11 +42,11 @@ from ..param import parametrizations as pz
 from ..param import projections as pj
 from ..param.projections import apply as project
 from ..target import Target
-from . import als, precision, refine, solvers
+from . import als, precision, refine, solvers, table
 from .options import LinearOptions
 from .product import fit_product
 from .samples import Samples
-from .structures import HIGHLIGHT_LINES, LINE_SIZE, Structure, TermSpec, TextureSpec, skeleton
+from .structures import HIGHLIGHT_LINES, LINE_SIZE, Structure, TermSpec, TextureSpec, lined, skeleton
 from .system import TextureLayout, texture_layout
 
 
@@ -362,6 +362,11 @@ def fit_sum(target: Target, structure: Structure, mapper: str, size: int, sample
         method = "als" if grid is not None else "levenberg_marquardt"
     if opts.polish > 0 and method != "als":
         raise HomofacError(f"{POLISH_NEEDS_GRID}, not {method}")
+    if method == "als" and structure.highlight_table:  # the ALS fits the lines; the table is their product
+        prev = None if previous is None else table.separate(previous, line_size)
+        sf = fit_sum(target, lined(structure), mapper, size, samples, opts, log, previous=prev, line_size=line_size,
+                     sample_weights=sample_weights)
+        return tabulated(sf, structure, sum(lay.n_valid for lay in layouts.values()))
     assemble_s = time.perf_counter() - t0
     fitted_terms = [t for t in terms if t.fitted]
     log(f"fitting {structure.label()} in linear space with {method} ({sum(l.n_valid for l in layouts.values())} "
@@ -395,6 +400,19 @@ def fit_sum(target: Target, structure: Structure, mapper: str, size: int, sample
         "objective_start": float(hist[0]) if len(hist) else None, "sigma": [float(s) for s in sigma],
     }
     return SumFit(model, record, assemble_s, solve_s, tuple(warnings), int(sum(l.n_valid for l in layouts.values())))
+
+
+def tabulated(fit: SumFit, structure: Structure, unknowns: int | None = None) -> SumFit:
+    """``fit`` (of :func:`~homofac.fit.structures.lined` ``(structure)``) with its highlight terms' lines
+    ``c(n.i) w(n.v)`` written into the tables of ``structure`` (:func:`homofac.fit.table.tabulate`); the
+    record names ``structure`` and keeps the lines' as ``table.lines``. ``unknowns``: the table
+    structure's (default: the lines' fit's)."""
+    model = table.tabulate(fit.model, structure)
+    record = {**fit.solver, "structure": structure.record(), "lookups": int(model.lookups),
+              "table": {"lines": fit.solver["structure"], "size": int(model.texture(next(
+                  t.name for t in model.textures if t.name.startswith("T"))).size)}}
+    return SumFit(model, record, fit.assemble_s, fit.solve_s, fit.warnings,
+                  fit.unknowns if unknowns is None else int(unknowns))
 
 
 def _grid_indices(target, structure, specs, layouts, a, b):
@@ -687,4 +705,4 @@ def _selected(res, tried, reason, target_error, max_lookups, met, analysis, ridg
 
 
 __all__ = ["RIDGE_METRIC", "RIDGE_WORDS", "SumFit", "choose", "diffuse_albedo", "fit_sum", "nv_weights", "has_diffuse",
-           "line_size_of", "scored_by", "start", "warm_start"]
+           "line_size_of", "scored_by", "start", "tabulated", "warm_start"]

@@ -281,6 +281,45 @@ def _ni_light(n, v, ctx, key: str):
     return _clamp01(sphere.dot(n, i))
 
 
+#: Half-width of the square of the paraboloid disk that :func:`_table_light` fills: the corner lies at radius
+#: 0.6 sqrt 2 = 0.85, so the four texels of every bilinear lookup are inside the disk (valid) from 32 texels up.
+TABLE_SPAN = 0.6
+
+
+def table_point(s, t):
+    """The direction whose ``parabolic`` coordinates are ``TABLE_SPAN (2s - 1, 2t - 1)`` (reverse thesis eq. 46
+    in closed form: ``(2p, 2q, 1 - p^2 - q^2) / (1 + p^2 + q^2)``): a point (s, t) of the unit square placed
+    in a parabolic map, where ``((x/(1+z)+1)/2, (y/(1+z)+1)/2)`` reads it back exactly."""
+    xp = sphere.namespace(s, t)
+    p, q = TABLE_SPAN * (2.0 * s - 1.0), TABLE_SPAN * (2.0 * t - 1.0)
+    k = 1.0 / (1.0 + p * p + q * q)
+    return xp.stack([2.0 * p * k, 2.0 * q * k, (1.0 - p * p - q * q) * k], axis=-1)
+
+
+def table_cosines(u, v):
+    """Inverse of :func:`_table_light` on the texture square: ``(n.i, n.v)`` of ``parabolic`` coordinates
+    (u, v) (clamped to the table's square); what a table texel centre stands for."""
+    xp = sphere.namespace(u, v)
+    s = xp.clip(((2.0 * u - 1.0) / TABLE_SPAN + 1.0) / 2.0, 0.0, 1.0)
+    t = xp.clip(((2.0 * v - 1.0) / TABLE_SPAN + 1.0) / 2.0, 0.0, 1.0)
+    return s * s, t * t
+
+
+def _table_light(n, v, ctx, key: str):
+    """``(sqrt(n.i), sqrt(n.v))`` of the context's light ``key`` placed in a parabolic map
+    (:func:`table_point`): the coordinate of a 2D table T(n.i, n.v) in a highlight term
+    ``d(nh_dom) f(v.h') T(n.i, n.v)`` (``highlight_table``). Near the mirror direction a light's highlight
+    is ``D F n.h'^2 min(n.v, n.i) / (n.v (n.v + n.i))`` (the height-correlated shadowing over 4 n.v), and
+    ``min(1, n.i / n.v)`` is no product of a function of n.i and one of n.v: c(n.i) w(n.v) holds it only on
+    average, the table exactly. Square roots spread the grazing end, where the highlight climbs
+    (``sqrt(max(x, 1e-12))``: finite gradients at 0)."""
+    i = sphere.constant(ctx[key], n)
+    xp = sphere.namespace(n)
+    s = xp.sqrt(xp.maximum(_clamp01(sphere.dot(n, i)), 1e-12))
+    t = xp.sqrt(xp.maximum(_clamp01(sphere.dot(n, v)), 1e-12))
+    return table_point(s, t)
+
+
 def _d_dom(n, v, ctx):
     """Eq. 69: i in the Gram-Schmidt frame of the half vector h' = half(i, v) and the tangent t(n)."""
     i = sphere.constant(ctx["dominant"], n)
@@ -330,5 +369,15 @@ for _j, (_name, _key) in enumerate(HIGHLIGHT_COSINE):
                         f"n.i with i light {_j + 1} (brightest first, context {_key}), clamped to [0, 1]",
                         scalar=True, context=(_key,)))
 
-__all__ = ["CONTEXT_KEYS", "HIGHLIGHTS", "HIGHLIGHT_COSINE", "HIGHLIGHT_FRESNEL", "KINDS", "PROJECTIONS", "ContextKey", "Projection", "apply", "check_context", "example_context",
+#: The table coordinates of highlight terms (``highlight_table``), one per light of HIGHLIGHTS: read with the
+#: ``parabolic`` mapper.
+HIGHLIGHT_TABLE = (("ninv_dom", "dominant"), ("ninv_dom1", "dominant1"), ("ninv_dom2", "dominant2"))
+for _j, (_name, _key) in enumerate(HIGHLIGHT_TABLE):
+    register(Projection(_name, "lighting", functools.partial(_table_light, key=_key), True,
+                        f"(sqrt(n.i), sqrt(n.v)) with i light {_j + 1} (brightest first, context {_key}) as the "
+                        f"parabolic-map direction of TABLE_SPAN (2s-1, 2t-1), a 2D table's coordinate",
+                        context=(_key,)))
+
+__all__ = ["CONTEXT_KEYS", "HIGHLIGHTS", "HIGHLIGHT_COSINE", "HIGHLIGHT_FRESNEL", "HIGHLIGHT_TABLE", "TABLE_SPAN",
+           "table_cosines", "table_point", "KINDS", "PROJECTIONS", "ContextKey", "Projection", "apply", "check_context", "example_context",
            "get", "register"]
