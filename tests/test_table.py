@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 
 import homofac as hf
-from homofac.app.cli import table_line
 from homofac.errors import HomofacError
 from homofac.fit import pipeline, structures, sums, table
 from homofac.fit.options import FitOptions
@@ -135,37 +134,16 @@ def test_a_refit_of_a_table_repeats_its_run_and_starts_from_the_separated_lines(
     assert warm.metrics["validation"]["float"]["nrmse"] < 1.1 * tab.metrics["validation"]["float"]["nrmse"]
 
 
-class _Voted:
-    """The part of a Result the table vote reads: its plain validation nrmse and its selection."""
-
-    def __init__(self, plain: float, ridge: float, selection: dict | None = None):
-        self.metrics = {"validation": {"float": {"nrmse": plain}}}
-        self.ridge, self.selection = ridge, selection or {}
-
-    def replace(self, selection):
-        return _Voted(self.metrics["validation"]["float"]["nrmse"], self.ridge, selection)
-
-
-def test_the_table_vote_keeps_the_tables_only_where_the_score_falls_and_records_it():
-    lines = _Voted(0.047, 0.059, {"polish": {"kept": True}})
-    stages = [_Voted(0.037, 0.052), _Voted(0.056, 0.069)]
-    kept = pipeline._table_vote(lines, stages, lambda r: r.ridge, TABLE.label(), lambda m: None)
-    assert kept.ridge == 0.052 and kept.selection["polish"] == {"kept": True}
-    note = kept.selection["table"]
-    assert note["kept"] and note["stage"] == 0 and note[f"{sums.RIDGE_METRIC}_before"] == 0.059
-    assert table_line(note) == ("table: validation nrmse with the ridge stratum 0.059 with lines c(n.i) w(n.v) -> "
-                                "0.052 / 0.069 as tables (E'+ROW x1+HFT x1 (stage 1) kept)")
-    worse = pipeline._table_vote(_Voted(0.047, 0.050), stages, lambda r: r.ridge, TABLE.label(), lambda m: None)
-    assert worse.ridge == 0.050 and not worse.selection["table"]["kept"]
-    assert table_line(worse.selection["table"]).endswith("(the lines kept)")
-    plain = pipeline._table_vote(_Voted(0.040, 0.0), stages, None, TABLE.label(), lambda m: None)
-    assert plain.metrics["validation"]["float"]["nrmse"] == 0.037 and sums.RIDGE_METRIC not in plain.selection["table"]
-
-
-def test_the_table_vote_runs_where_the_kept_structure_has_the_cosine_line():
+def test_the_quality_mode_candidates_read_tables_where_they_would_read_the_cosine_line():
     opts = FitOptions(max_lookups=16)
-    assert pipeline.table_wanted(LINES, 16, opts)
-    assert not pipeline.table_wanted(LINES, 8, opts)  # no polish of highlight structures there
-    assert not pipeline.table_wanted(LINES._replace(highlight_cosine=False), 16, opts)
-    assert not pipeline.table_wanted(LINES, 16, FitOptions(max_lookups=16, highlight_table=False))
-    assert pipeline.table_wanted(LINES, 8, FitOptions(max_lookups=8, highlight_table=True))
+    assert pipeline.table_wanted(16, opts) and not pipeline.table_wanted(8, FitOptions(max_lookups=8))
+    assert not pipeline.table_wanted(16, FitOptions(max_lookups=16, highlight_table=False))
+    assert pipeline.table_wanted(8, FitOptions(max_lookups=8, highlight_table=True))
+    lines = structures.candidates("lighting", 16)
+    tables = structures.candidates("lighting", 16, table=True)
+    assert any(c.highlight_cosine for c in lines) and not any(c.highlight_table for c in lines)
+    assert not any(c.highlight_cosine for c in tables) and any(c.highlight_table for c in tables)
+    assert all(structures.lookups(c, "lighting") <= 16 for c in tables)
+    # the lookup a table saves goes to a term: gold's E'+ROW x3+R+HFCW x2 becomes E'+ROW x4+R+HFT x2
+    gold = Structure("RO", 3, "fitted", True, True, highlight_terms=2, highlight_fresnel=True, highlight_cosine=True)
+    assert gold in lines and structures.tabled(gold)._replace(terms=4) in tables

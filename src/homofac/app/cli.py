@@ -64,15 +64,6 @@ def polish_line(pol: dict) -> str:
     return f"polish: {how}, {words} {pol[key + '_before']:.4g} -> {after} ({kept})"
 
 
-def table_line(tab: dict) -> str:
-    """The run summary's line for ``selection.table``: the kept structure's error with its highlight lines,
-    each polish stage's with them as tables (``highlight_table``), and what was kept."""
-    key, words = sums.scored_by(f"{sums.RIDGE_METRIC}_before" in tab)
-    after = " / ".join(f"{st[key]:.4g}" for st in tab["stages"])
-    kept = f"{tab['label']} (stage {tab['stage'] + 1}) kept" if tab["kept"] else "the lines kept"
-    return f"table: {words} {tab[key + '_before']:.4g} with lines c(n.i) w(n.v) -> {after} as tables ({kept})"
-
-
 def compilation_cache_dir() -> Path | None:
     """``$HOMOFAC_JAX_CACHE`` (``0`` turns the cache off) or ``~/.cache/homofac/jax``; None when off or
     when the user configured JAX's own ``JAX_COMPILATION_CACHE_DIR`` (then JAX uses that)."""
@@ -260,9 +251,6 @@ def _summary(fac, out, seconds: float | None) -> None:
         pol = fac.selection.get("polish")
         if pol is not None:
             print(polish_line(pol))
-        tab = fac.selection.get("table")
-        if tab is not None:
-            print(table_line(tab))
     if fac.analysis is not None:
         a = fac.analysis
         ranks = ", ".join(f"{t}: K = {k}" for t, k in a["rank_for"].items())

@@ -338,8 +338,8 @@ def factorize(
         highlight_cosine: each highlight term also reads c(n.i_j), a line texture of its light's cosine (the
             shadowing G1(n.i) and the light's horizon; one lookup more a term; lighting).
         highlight_table: each highlight term reads a 2D table T(n.i_j, n.v) in place of c(n.i_j) w(n.v) (one
-            lookup fewer; lighting; :mod:`homofac.fit.table`). With ``max_lookups`` above 8 the chooser
-            tries it on the kept structure when that has the cosine line (:func:`table_vote`).
+            lookup fewer; lighting; :mod:`homofac.fit.table`). With ``max_lookups`` above 8 the chooser's
+            highlight candidates read tables where they would read the cosine line (:func:`table_wanted`).
         max_lookups: choose the structure (terms, nv_factor, diffuse) within this many texture lookups
             per pixel by validation error (:func:`homofac.fit.sums.choose`).
         line_size: texels of a sum's ``line`` textures (default 32; for a ``max_lookups`` above 8 a vote
@@ -534,7 +534,8 @@ def _sums(target: Target, opts: FitOptions, mapper: str, samples: Samples, recor
     pick = structures.ladder if opts.target_error is not None else structures.candidates
     # the highlight term of the brightest light wherever the target's lighting is an environment
     lit = target.kind == "lighting" and getattr(target.fn, "env", None) is not None
-    cands = pick(target.kind, budget, parametrization=opts.parametrization, has_diffuse=has_d, highlight=lit)
+    cands = pick(target.kind, budget, parametrization=opts.parametrization, has_diffuse=has_d, highlight=lit,
+                 table=table_wanted(budget, opts))
     cands = constrained(cands, opts)
     if given:  # samples given: only the candidates on their grid direction
         own = grid_projection(target.kind, opts.parametrization, resolved)
@@ -567,29 +568,22 @@ def _sums(target: Target, opts: FitOptions, mapper: str, samples: Samples, recor
             tgt, structure, mapper, opts.texture_size, fits[structure, line], smp, pairs(), plin, log,
             seed=opts.sampling.seed)]
         result = _polish_vote(result, stages, rule, score, steps, ridge, structure.label(), log)
-        if table_wanted(structure, budget, opts):  # its lines c(n.i) w(n.v) as a table, polished the same way
-            tstruct = structures.tabled(structure)
-            log(f"table vote: {tstruct.label()} from the ALS fit of {structure.label()}")
-            tstages = [as_result(tstruct, sf) for sf in polish.polish_stages(
-                tgt, tstruct, mapper, opts.texture_size, sums.tabulated(fits[structure, line], tstruct), smp, pairs(),
-                plin, log, seed=opts.sampling.seed)]
-            result = _table_vote(result, tstages, score, tstruct.label(), log)
     return kept(result if analysis is None else result.replace(analysis=analysis))
 
 
-def table_wanted(structure: Structure, budget: int, opts: FitOptions) -> bool:
-    """Whether the chooser also tries the kept ``structure`` with its highlight terms' lines c(n.i) w(n.v) as
-    tables T(n.i, n.v) (``highlight_table``, :func:`_table_vote`): where the structure has the cosine line,
-    in the quality mode (``budget`` above :data:`QUALITY_LOOKUPS`, where the polish that fits the tables
-    runs) unless the options set ``highlight_table: false``; wherever the kept structure is polished when
-    they set ``true``.
+def table_wanted(budget: int, opts: FitOptions) -> bool:
+    """Whether the chooser's highlight candidates read their light's cosine and the view's in a 2D table
+    T(n.i, n.v) instead of the lines c(n.i) w(n.v) (``highlight_table``, :func:`homofac.fit.structures.candidates`):
+    as the options say where they set ``highlight_table``, else in the quality mode (``budget`` above
+    :data:`QUALITY_LOOKUPS`), where the polish that refines the tables runs.
 
-    Near the mirror direction the highlight is ``D F n.h'^2 min(n.v, n.i) / (n.v (n.v + n.i))``: refitting
-    only that factor of the saved city fits as a 64 x 64 table on the grid and ridge pairs took plastic /
-    city from 0.072 to 0.055 nrmse on 270 000 uniform pairs and gold / city's first highlight term from
-    0.148 to 0.122 (docs/sums.md, "A 2D table of (n.i, n.v)")."""
-    if not (structure.highlight_terms and structure.highlight_cosine):
-        return False
+    The ALS fits the lines and the table starts as their product (:func:`homofac.fit.sums.tabulated`), so
+    a candidate with tables is ranked on the function of its lines at one lookup fewer per highlight
+    term, which the budget gives to more terms. Near the mirror direction the highlight is
+    ``D F n.h'^2 min(n.v, n.i) / (n.v (n.v + n.i))``, which no product of the two lines holds: refitting
+    only that factor of the saved city fits as a table took plastic / city from 0.072 to 0.055 nrmse on
+    270 000 uniform pairs and gold / city's first highlight term from 0.148 to 0.122 (docs/sums.md,
+    "A 2D table of (n.i, n.v), again")."""
     if "highlight_table" in opts.model_fields_set:
         return bool(opts.highlight_table)
     return budget > QUALITY_LOOKUPS
@@ -599,22 +593,6 @@ def _figures(res: Result, score: Callable | None) -> dict:
     """A result's validation nrmse, and with ``score`` the ridge stratum's (the figures the votes read)."""
     plain = {"validation_nrmse": float(res.metrics["validation"]["float"]["nrmse"])}
     return plain if score is None else {**plain, sums.RIDGE_METRIC: float(score(res))}
-
-
-def _table_vote(result: Result, stages: list[Result], score: Callable | None, label: str, log) -> Result:
-    """``result`` (the kept structure after its polish vote) or the stage of the table structure's polish
-    (``stages``, :func:`homofac.fit.polish.polish_stages` from the tabulated ALS fit) of lowest validation
-    error, kept where that is below ``result``'s. ``selection.table`` records the structure, the errors
-    before and of each stage, and what was kept (``kept``, ``stage``)."""
-    key, what = sums.scored_by(score is not None)
-    before, figures = _figures(result, score), [_figures(r, score) for r in stages]
-    best = int(np.argmin([f[key] for f in figures]))
-    keep = figures[best][key] < before[key]
-    log(f"table vote: {what} {before[key]:.4g} (lines) against " + " / ".join(f"{f[key]:.4g}" for f in figures)
-        + f" ({label}): " + (f"stage {best + 1} kept" if keep else "the lines kept"))
-    note = {"label": label, **{f"{k}_before": v for k, v in before.items()}, "stages": figures, "kept": keep,
-            "stage": best if keep else None}
-    return (stages[best] if keep else result).replace(selection={**result.selection, "table": note})
 
 
 def _polish_vote(result: Result, stages: list[Result], rule: str, score: Callable | None, steps: int, ridge: int,

@@ -247,7 +247,7 @@ def lookups(structure: Structure, kind: str, quantity: str = "lighting") -> int:
 
 
 def candidates(kind: str, max_lookups: int, *, parametrization: str | None = None, has_diffuse: bool = True,
-               max_terms: int = 16, highlight: bool = True) -> list[Structure]:
+               max_terms: int = 16, highlight: bool = True, table: bool = False) -> list[Structure]:
     """The structures worth fitting within ``max_lookups`` texture lookups, cheapest first.
 
     For each variant (the split sum computed or not; lighting) the one with the most terms that fits,
@@ -265,24 +265,27 @@ def candidates(kind: str, max_lookups: int, *, parametrization: str | None = Non
     Sums that mix both kinds of product (``rw_terms``) are not candidates: they fitted worse than
     either kind alone (docs/sums.md). With ``highlight`` (lighting targets with an environment) each
     family is tried again with one highlight term of the brightest light (``highlight_terms: 1``): the
-    near-mirror under the city sun falls from 0.47 to 0.17 nrmse at 4 lookups.
+    near-mirror under the city sun falls from 0.47 to 0.17 nrmse at 4 lookups. With ``table`` the
+    highlight terms that would read the cosine line c(n.i) and w(n.v) read a 2D table T(n.i, n.v) instead
+    (``highlight_table``: one lookup fewer each, which goes to more terms;
+    :func:`homofac.fit.pipeline.table_wanted`).
     """
     return _sorted(_variants(kind, max_lookups, parametrization, has_diffuse, max_terms, largest=True,
-                             highlight=highlight))
+                             highlight=highlight, table=table))
 
 
 def ladder(kind: str, max_lookups: int, *, parametrization: str | None = None, has_diffuse: bool = True,
-           max_terms: int = 16, highlight: bool = True) -> list[Structure]:
+           max_terms: int = 16, highlight: bool = True, table: bool = False) -> list[Structure]:
     """Every structure within ``max_lookups``, cheapest first (``target_error``: the first that meets it)."""
     return _sorted(_variants(kind, max_lookups, parametrization, has_diffuse, max_terms, largest=False,
-                             highlight=highlight))
+                             highlight=highlight, table=table))
 
 
 #: Lighting parametrizations whose ``max_lookups`` candidates include relatives of another family.
 RELATIVES = {"NR": ("NRO", "RO"), "NRO": ("RO",)}
 
 
-def _variants(kind, max_lookups, parametrization, has_diffuse, max_terms, largest, highlight=True):
+def _variants(kind, max_lookups, parametrization, has_diffuse, max_terms, largest, highlight=True, table=False):
     if max_lookups < 1:
         raise HomofacError(f"max_lookups must be at least 1, got {max_lookups}")
     base = parametrization or ("NR" if kind == "lighting" else "PQP")
@@ -314,6 +317,8 @@ def _variants(kind, max_lookups, parametrization, has_diffuse, max_terms, larges
         # and those with both the Fresnel line and the light's cosine c(n.i) (the shadowing G1(n.i) and the
         # horizon: plastic / city at 16 lookups 0.084 -> 0.076 on 90000 pairs)
         lit += [f._replace(highlight_cosine=True) for f in lit if f.highlight_fresnel]
+        if table:  # c(n.i) w(n.v) as one table T(n.i, n.v): one lookup fewer, for more terms
+            lit = [tabled(f) if f.highlight_cosine else f for f in lit]
         families += lit
     out = []
     for family in families:
