@@ -46,7 +46,7 @@ from . import als, precision, refine, solvers, table
 from .options import LinearOptions
 from .product import fit_product
 from .samples import Samples
-from .structures import HIGHLIGHT_LINES, LINE_SIZE, Structure, TermSpec, TextureSpec, lined, skeleton
+from .structures import HIGHLIGHT_LINES, LINE_SIZE, TABLE_SIZE, Structure, TermSpec, TextureSpec, lined, skeleton
 from .system import TextureLayout, texture_layout
 
 
@@ -409,8 +409,7 @@ def tabulated(fit: SumFit, structure: Structure, unknowns: int | None = None) ->
     structure's (default: the lines' fit's)."""
     model = table.tabulate(fit.model, structure)
     record = {**fit.solver, "structure": structure.record(), "lookups": int(model.lookups),
-              "table": {"lines": fit.solver["structure"], "size": int(model.texture(next(
-                  t.name for t in model.textures if t.name.startswith("T"))).size)}}
+              "table": {"lines": fit.solver["structure"], "size": TABLE_SIZE}}
     return SumFit(model, record, fit.assemble_s, fit.solve_s, fit.warnings,
                   fit.unknowns if unknowns is None else int(unknowns))
 
