@@ -55,6 +55,16 @@ def nrw_sum(K: int = 2, S: int = 8, line: int = 32, seed: int = 10, normal: bool
     return Factorization("lighting", "lighting", tuple(textures), tuple(terms), {}, "nrw_sum")
 
 
+def visible_pairs(count: int, seed: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """``count`` random normals and views with n.v >= 0 (float64), seeded."""
+    rng = np.random.default_rng(seed)
+    n = rng.normal(size=(count, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    v = rng.normal(size=(count, 3))
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    return n, np.where(np.sum(n * v, 1, keepdims=True) < 0, -v, v)
+
+
 def worst(a: dict, b: dict) -> tuple[float, str]:
     """Largest relative difference over every metric of two metric dicts ({split: {float|quantized: {name: value}}}), and where."""
     out = (0.0, "")

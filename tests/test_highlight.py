@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import homofac as hf
+from helpers import visible_pairs
 from homofac.errors import HomofacError
 from homofac.fit import als, pipeline, structures, sums
 from homofac.fit.structures import Structure
@@ -20,12 +21,7 @@ GRID = {"kind": "grid", "size": 8, "mapper": "dual_paraboloid", "count": 20000, 
 
 
 def _pairs(count: int, seed: int = 3):
-    rng = np.random.default_rng(seed)
-    n = rng.normal(size=(count, 3))
-    n /= np.linalg.norm(n, axis=1, keepdims=True)
-    v = rng.normal(size=(count, 3))
-    v /= np.linalg.norm(v, axis=1, keepdims=True)
-    return n, np.where(np.sum(n * v, 1, keepdims=True) < 0, -v, v)
+    return visible_pairs(count, seed)
 
 
 def test_nh_dom_is_one_on_the_mirror_configuration_and_falls_with_the_half_angle():

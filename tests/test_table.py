@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 
 import homofac as hf
+from helpers import visible_pairs
 from homofac.errors import HomofacError
-from homofac.fit import pipeline, structures, sums, table
+from homofac.fit import pipeline, structures, table
 from homofac.fit.options import FitOptions
 from homofac.fit.structures import Structure
 from homofac.param import mappers
@@ -24,12 +25,7 @@ TABLE = structures.tabled(LINES)
 
 
 def _pairs(count: int, seed: int = 5):
-    rng = np.random.default_rng(seed)
-    n = rng.normal(size=(count, 3))
-    n /= np.linalg.norm(n, axis=1, keepdims=True)
-    v = rng.normal(size=(count, 3))
-    v /= np.linalg.norm(v, axis=1, keepdims=True)
-    return n, np.where(np.sum(n * v, 1, keepdims=True) < 0, -v, v)
+    return visible_pairs(count, seed)
 
 
 def test_the_table_coordinate_holds_both_cosines_inside_the_parabolic_disk():
