@@ -337,22 +337,8 @@ def fit_sum(target: Target, structure: Structure, mapper: str, size: int, sample
     if structure.diffuse is not None and diffuse_albedo(target) is None:
         _fixed_correction(target, terms[0])
     a, b, y = (np.asarray(v, np.float32) for v in (samples.a, samples.b, samples.y))
-    fixed_specs = [s for s in specs if s.role in FIXED_ROLES]
-    fixed_data = {s.name: _fixed_texture(s, target) for s in fixed_specs}
-    fixed_terms = [t for t in terms if not t.fitted]
-    base = np.zeros_like(y)
-    if fixed_terms:
-        base = np.asarray(_model(target, structure, specs, terms, fixed_data, {}, sigma=np.ones(3), only_fixed=True)
-                          .evaluate(a, b), np.float32)
-    y_fit = y - base
-    sigma = np.sqrt(np.mean(y_fit.astype(np.float64) ** 2, axis=0))
-    sigma = np.where(sigma > 0, sigma, 1.0)
     fitted_specs = [s for s in specs if s.role not in FIXED_ROLES]
     layouts = {s.name: texture_layout(s.name, s.mapper, s.size) for s in fitted_specs}
-    if previous is not None:
-        x0, rule = warm_start(previous, terms, layouts, sigma), "previous"
-    else:
-        x0, rule = start(target, structure, terms, layouts, samples, y_fit, sigma, opts.start, mapper, size, log)
     method = opts.method
     grid = _grid_indices(target, structure, specs, layouts, a, b) if method in ("auto", "als") else None
     if method == "als" and grid is None:
@@ -367,6 +353,20 @@ def fit_sum(target: Target, structure: Structure, mapper: str, size: int, sample
         sf = fit_sum(target, lined(structure), mapper, size, samples, opts, log, previous=prev, line_size=line_size,
                      sample_weights=sample_weights)
         return tabulated(sf, structure, sum(lay.n_valid for lay in layouts.values()))
+    fixed_specs = [s for s in specs if s.role in FIXED_ROLES]
+    fixed_data = {s.name: _fixed_texture(s, target) for s in fixed_specs}
+    fixed_terms = [t for t in terms if not t.fitted]
+    base = np.zeros_like(y)
+    if fixed_terms:
+        base = np.asarray(_model(target, structure, specs, terms, fixed_data, {}, sigma=np.ones(3), only_fixed=True)
+                          .evaluate(a, b), np.float32)
+    y_fit = y - base
+    sigma = np.sqrt(np.mean(y_fit.astype(np.float64) ** 2, axis=0))
+    sigma = np.where(sigma > 0, sigma, 1.0)
+    if previous is not None:
+        x0, rule = warm_start(previous, terms, layouts, sigma), "previous"
+    else:
+        x0, rule = start(target, structure, terms, layouts, samples, y_fit, sigma, opts.start, mapper, size, log)
     assemble_s = time.perf_counter() - t0
     fitted_terms = [t for t in terms if t.fitted]
     log(f"fitting {structure.label()} in linear space with {method} ({sum(l.n_valid for l in layouts.values())} "

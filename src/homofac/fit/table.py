@@ -89,12 +89,9 @@ def separate(model: Factorization, line_size: int) -> Factorization:
         t = textures[f.texture]
         d = pj.table_point(np.sqrt(ni), np.sqrt(nv)).astype(np.float32)
         M = np.asarray(mappers.lookup(t.mapper, jnp.asarray(t.data, jnp.float32), jnp.asarray(d)), np.float64)
-        c, w = np.zeros((line_size, 3)), np.zeros((line_size, 3))
-        for ch in range(3):
-            U, S, Vt = np.linalg.svd(M[..., ch])
-            sign = -1.0 if np.sum(U[:, 0]) < 0 else 1.0
-            c[:, ch] = sign * U[:, 0] * np.sqrt(S[0])
-            w[:, ch] = sign * Vt[0] * np.sqrt(S[0])
+        U, S, Vt = np.linalg.svd(np.moveaxis(M, -1, 0))  # per channel, batched: (3, L, L)
+        scale = np.where(np.sum(U[:, :, 0], axis=1) < 0, -1.0, 1.0) * np.sqrt(S[:, 0])  # c's sum positive
+        c, w = (U[:, :, 0] * scale[:, None]).T, (Vt[:, 0, :] * scale[:, None]).T  # (L, 3) each
         suffix = f.texture[1:]
         j = _TABLE[f.projection]
         new_textures += [Texture(f"c{suffix}", "line", int(line_size), jnp.asarray(c[None], jnp.float32)),
