@@ -103,6 +103,19 @@ def test_solvers_agree_with_direct_optimum(x64):
     assert lsmr.converged and cg.converged and gn.converged
 
 
+def test_optimistix_with_a_capped_lsmr_moves_as_far_as_lsmr():
+    """``optimistix`` whose LSMR stops on ``max_iterations`` takes the truncated step (solvers.inexact):
+    it lowers the objective at least as far as ``lsmr`` with the same cap, where optimistix alone
+    returned the start."""
+    sys, layout, p = _small_system(jnp.float32)
+    x0 = starting_solution(sys, layout, p.J)
+    start = float(objective(sys, 1.0, x0))
+    lsmr = solvers.solve(sys, x0, method="lsmr", laplacian=1.0, tolerance=1e-8, max_iterations=5)
+    gn = solvers.solve(sys, x0, method="optimistix", laplacian=1.0, tolerance=1e-8, max_iterations=5)
+    assert lsmr.objective < 0.99 * start
+    assert gn.objective <= lsmr.objective * 1.001, (gn.objective, lsmr.objective, start)
+
+
 def test_starting_solution_fills_every_valid_texel():
     sys, layout, p = _small_system(jnp.float32)
     x0 = np.asarray(starting_solution(sys, layout, p.J))

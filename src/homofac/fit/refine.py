@@ -9,7 +9,7 @@ over the valid texels X_k of every fitted texture (all RGB channels at once), wi
 (1, or the n.v-bin weights of ``linear.nv_balance``, :func:`homofac.fit.sums.nv_weights`). The lookups are the ELL
 footprints of :func:`homofac.param.mappers.bilinear` (4 texels per factor), so the residual and its
 JVP/VJP are gathers and scatter-adds: optimistix's ``LevenbergMarquardt`` / ``GaussNewton`` with a
-lineax ``LSMR`` inner solve never form the Jacobian. The inner solve is inexact (:class:`Truncated`): an
+lineax ``LSMR`` inner solve never form the Jacobian. The inner solve is inexact (:class:`homofac.fit.solvers.inexact.Truncated`): an
 LSMR that stops on its step cap or condition limit still gives the step its last iterate, as in a
 truncated Newton method, instead of ending the outer loop. Unknowns are column-scaled by the footprint
 weight each texel receives (floored at one sample) so LSMR sees one scale for busy and idle texels.
@@ -34,6 +34,7 @@ from jaxtyping import Array, Float, Int
 
 from ..errors import HomofacError
 from ..param import mappers
+from .solvers.inexact import Truncated
 
 
 #: Largest Jacobian jaxopt's LevenbergMarquardt may materialize (it computes diag(J^T J) from it).
@@ -56,40 +57,6 @@ class Problem(NamedTuple):
     mu: tuple[Float[Array, ""], ...]  # per texture
     scales: tuple[Float[Array, "n"], ...]  # column scales per texture
     sqrt_w: Float[Array, "N"]  # square roots of the sample weights w_i
-
-
-class Truncated(lx.AbstractLinearSolver):
-    """``solver`` (an iterative least-squares solver started from zero) whose last iterate is returned as
-    a successful solve where it stops on its step cap (``max_steps_reached``) or its condition limit
-    (``conlim``): an inexact Newton step.
-
-    optimistix ends a least-squares solve at the first unsuccessful linear solve and keeps the last
-    accepted point. With a capped LSMR that happened wherever one Levenberg-Marquardt system needed more
-    than the cap: the polish of gold under the city sun at 16 lookups took 1 of its 8 steps and left the
-    fit where it was. LSMR's k-th iterate from zero minimises the residual over a Krylov space that holds
-    the gradient, so it is a descent direction of the Gauss-Newton model, which is all the trust-region
-    step of Levenberg-Marquardt needs (the step is still accepted or rejected on the objective).
-    Breakdowns (non-finite values, a singular system) stay failures.
-    """
-
-    solver: lx.AbstractLinearSolver
-
-    def init(self, operator, options):
-        return self.solver.init(operator, options)
-
-    def compute(self, state, vector, options):
-        x, result, stats = self.solver.compute(state, vector, options)
-        inexact = (result == lx.RESULTS.max_steps_reached) | (result == lx.RESULTS.conlim)
-        return x, lx.RESULTS.where(inexact, lx.RESULTS.successful, result), stats
-
-    def transpose(self, state, options):
-        return self.solver.transpose(state, options)
-
-    def conj(self, state, options):
-        return self.solver.conj(state, options)
-
-    def assume_full_rank(self):
-        return self.solver.assume_full_rank()
 
 
 def predict(X: tuple, prob: Problem, terms: tuple[tuple[int, ...], ...]) -> Float[Array, "N 3"]:
@@ -199,4 +166,4 @@ def edges_of(neighbours: np.ndarray) -> np.ndarray:
     return np.stack([u[keep], v[keep]], axis=1).astype(np.int32)
 
 
-__all__ = ["Lookup", "Problem", "Truncated", "column_scales", "edges_of", "objective", "predict", "residuals", "solve"]
+__all__ = ["Lookup", "Problem", "column_scales", "edges_of", "objective", "predict", "residuals", "solve"]

@@ -18,6 +18,7 @@ import optimistix as optx
 
 from ..system import System, apply, augmented_rhs
 from .base import Solver, SolverOptions
+from .inexact import Truncated
 
 
 class GaussNewtonOptions(SolverOptions):
@@ -34,7 +35,8 @@ def _optimistix(sys: System, lam, x0, *, rtol: float, max_steps: int):
     def residual(x, _):
         return apply(sys, lam, x) - rhs
 
-    linear = lx.LSMR(rtol=rtol, atol=rtol, max_steps=max_steps)
+    # an LSMR that hits max_steps gives a truncated step and the next Gauss-Newton step goes on from it
+    linear = Truncated(lx.LSMR(rtol=rtol, atol=rtol, max_steps=max_steps))
     # The outer (Cauchy) test compares successive iterates; below sqrt(eps) of the dtype they differ by
     # the inner solve's rounding only, so a tighter outer tolerance would never be met in float32.
     outer = max(rtol, float(np.sqrt(np.finfo(x0.dtype).eps)))
