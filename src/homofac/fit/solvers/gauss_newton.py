@@ -2,7 +2,9 @@
 
 Matrix-free (the Jacobian is a JVP). The log-space system is linear, so it converges in one or two
 steps; it is the path through which ``jax.grad`` through a solve goes, and the same solver refines
-the nonlinear linear-space objective of sums of products (:mod:`homofac.fit.sums`).
+the nonlinear linear-space objective of sums of products (:mod:`homofac.fit.sums`). ``max_iterations``
+caps each LSMR solve; a capped solve is a truncated step the next Gauss-Newton step goes on from
+(:class:`.inexact.Truncated`).
 """
 
 from __future__ import annotations
