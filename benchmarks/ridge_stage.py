@@ -29,7 +29,7 @@ tgt = hf.target.Target(tgt.kind, tgt.fn, tgt.quantity, {**tgt.context, **fac.mod
 cfg = {"kind": "grid", "size": 32, "mapper": "dual_paraboloid", "count": pipeline.QUALITY_GRID_COUNT, "validation": 0, "seed": 0, "cache": True}
 t0 = time.time()
 smp = hf.fit.draw_samples(tgt, st.parametrization, cfg)
-lin = LinearOptions(polish=steps, ridge=20000)
+lin = LinearOptions(polish=steps, ridge=pipeline.QUALITY_RIDGE)
 pairs = polish.polish_pairs(tgt, st.parametrization, lin, 0, True, print)
 print("sampled", time.time() - t0)
 sf = sums.SumFit(fac.model, dict(fac.solver), 0.0, 0.0, (), 0)

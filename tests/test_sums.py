@@ -474,7 +474,7 @@ def test_weights_count_as_repeated_samples():
 
 def test_a_capped_inner_solve_still_steps():
     """Levenberg-Marquardt whose LSMR stops on its step cap takes the truncated step and goes on
-    (refine.Truncated): with 2 LSMR steps per system it falls as far as with 100, where optimistix
+    (solvers.inexact.Truncated): with 2 LSMR steps per system it falls as far as with 100, where optimistix
     alone ends the solve at the first capped system and returns the start."""
     rng = np.random.default_rng(0)
     n, texels = 400, 30

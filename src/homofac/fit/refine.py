@@ -9,10 +9,10 @@ over the valid texels X_k of every fitted texture (all RGB channels at once), wi
 (1, or the n.v-bin weights of ``linear.nv_balance``, :func:`homofac.fit.sums.nv_weights`). The lookups are the ELL
 footprints of :func:`homofac.param.mappers.bilinear` (4 texels per factor), so the residual and its
 JVP/VJP are gathers and scatter-adds: optimistix's ``LevenbergMarquardt`` / ``GaussNewton`` with a
-lineax ``LSMR`` inner solve never form the Jacobian. The inner solve is inexact (:class:`homofac.fit.solvers.inexact.Truncated`): an
-LSMR that stops on its step cap or condition limit still gives the step its last iterate, as in a
-truncated Newton method, instead of ending the outer loop. Unknowns are column-scaled by the footprint
-weight each texel receives (floored at one sample) so LSMR sees one scale for busy and idle texels.
+lineax ``LSMR`` inner solve never form the Jacobian. The inner solve is inexact
+(:class:`homofac.fit.solvers.inexact.Truncated`): an LSMR that stops on its step cap or condition limit
+still gives the step its last iterate, as in a truncated Newton method, instead of ending the outer
+loop. Unknowns are column-scaled by the footprint weight each texel receives (floored at one sample) so LSMR sees one scale for busy and idle texels.
 
 ``backend="jaxopt"`` runs jaxopt's ``LevenbergMarquardt`` / ``GaussNewton`` (matrix-free CG inner solve)
 on the same residual, for comparison; jaxopt is an optional extra (``homofac[jaxopt]``).

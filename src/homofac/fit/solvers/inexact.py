@@ -6,7 +6,10 @@ Levenberg-Marquardt refinement of sums (:mod:`homofac.fit.refine`) give their LS
 
 from __future__ import annotations
 
+from typing import Any
+
 import lineax as lx
+from jaxtyping import PyTree
 
 
 class Truncated(lx.AbstractLinearSolver):
@@ -27,21 +30,21 @@ class Truncated(lx.AbstractLinearSolver):
 
     solver: lx.AbstractLinearSolver
 
-    def init(self, operator, options):
+    def init(self, operator: lx.AbstractLinearOperator, options: dict[str, Any]):
         return self.solver.init(operator, options)
 
-    def compute(self, state, vector, options):
+    def compute(self, state, vector: PyTree, options: dict[str, Any]) -> tuple[PyTree, lx.RESULTS, dict[str, Any]]:
         x, result, stats = self.solver.compute(state, vector, options)
         inexact = (result == lx.RESULTS.max_steps_reached) | (result == lx.RESULTS.conlim)
         return x, lx.RESULTS.where(inexact, lx.RESULTS.successful, result), stats
 
-    def transpose(self, state, options):
+    def transpose(self, state, options: dict[str, Any]):
         return self.solver.transpose(state, options)
 
-    def conj(self, state, options):
+    def conj(self, state, options: dict[str, Any]):
         return self.solver.conj(state, options)
 
-    def assume_full_rank(self):
+    def assume_full_rank(self) -> bool:
         return self.solver.assume_full_rank()
 
 
