@@ -33,7 +33,7 @@ lin = LinearOptions(polish=steps, ridge=pipeline.QUALITY_RIDGE)
 pairs = polish.polish_pairs(tgt, st.parametrization, lin, 0, True, print)
 print("sampled", time.time() - t0)
 sf = sums.SumFit(fac.model, dict(fac.solver), 0.0, 0.0, (), 0)
-out = polish._stage(tgt, st, "dual_paraboloid", 32, sf, smp, pairs, lin, print, 0)
+out = polish.polish_stage(tgt, st, "dual_paraboloid", 32, sf, smp, pairs, lin, print, 0)
 dense = A.dense_pairs(); dval = dense.flatten()
 dgt, dr, _ = A.ground_truth(mat, env, dense, print)
 for name, m in (("saved", fac.model), (f"+{steps} ridge", out.model)):

@@ -233,8 +233,8 @@ def test_python_api_refuses_exactly_as_the_cli(tmp_path, capsys, key, value, nee
 
 
 def test_the_polish_line_reads_every_record_generation():
-    """The run summary's polish line: two stages voted on with the ridge stratum, the one-stage records of
-    2026-12-05 and the older ones without ``kept`` (the polish was always kept then)."""
+    """The run summary's polish line: three or two stages voted on with the ridge stratum, the one-stage
+    records of 2026-12-05 and the older ones without ``kept`` (the polish was always kept then)."""
     from homofac.app.cli import polish_line
 
     two = {"steps": 8, "validation_nrmse_before": 0.062, "validation_ridge_nrmse_before": 0.128,
@@ -245,6 +245,13 @@ def test_the_polish_line_reads_every_record_generation():
     assert polish_line(two) == ("polish: 8 Levenberg-Marquardt steps off the grid, then 8 more with 20000 ridge "
                                 "pairs, validation nrmse with the ridge stratum 0.128 -> 0.11 / 0.141 (stage 1 kept)")
     assert polish_line({**two, "kept": False, "stage": None}).endswith("(not kept)")
+    three = {**two, "stage": 2, "ridge": 20000, "start": "als", "validation_nrmse_after": 0.07,
+             "validation_ridge_nrmse_after": 0.105,
+             "stages": [{**st, "start": start} for st, start in zip(two["stages"], ("als", "polish"))]
+             + [{"ridge": 20000, "start": "als", "validation_nrmse": 0.07, "validation_ridge_nrmse": 0.105}]}
+    assert polish_line(three) == ("polish: 8 Levenberg-Marquardt steps off the grid, then 8 more with 20000 ridge "
+                                  "pairs, or 8 with them from the ALS fit, validation nrmse with the ridge stratum "
+                                  "0.128 -> 0.11 / 0.141 / 0.105 (stage 3 kept)")
     one = {"steps": 8, "validation_nrmse_before": 0.062, "validation_nrmse_after": 0.118, "rule": "vote",
            "kept": False, "ridge": 20000}
     assert polish_line(one) == ("polish: 8 Levenberg-Marquardt steps off the grid and 20000 ridge pairs, "

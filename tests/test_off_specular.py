@@ -11,7 +11,8 @@ import pytest
 import homofac as hf
 from homofac.errors import HomofacError
 from homofac.factorization import Factor, Factorization, Term
-from homofac.fit import als, draw, pipeline, sampling, sums
+from homofac.fit import als, draw, pipeline, polish, sampling, sums
+from homofac.fit.polish import recorded_linear
 from homofac.app import budget, run
 from homofac.app.config import Config
 from homofac.fit.options import DEFAULT_VALIDATION, FitOptions, LinearOptions, SamplingOptions
@@ -364,9 +365,9 @@ def test_polish_rule_keeps_plain_structures_and_votes_on_highlights_only_in_the_
 
 @pytest.mark.slow
 def test_the_quality_mode_polishes_a_kept_highlight_structure_where_the_validation_error_falls():
-    """Above QUALITY_LOOKUPS a kept structure with a highlight term is polished in two stages (without,
-    then with the ridge pairs), and the better stage is kept exactly when its validation error (with the
-    ridge stratum) is below the ALS fit's; the result is the kept one. The structure, the line size and
+    """Above QUALITY_LOOKUPS a kept structure with a highlight term is polished in three stages (without,
+    then with the ridge pairs, and with them from the ALS fit), and the best stage is kept exactly when its
+    validation error (with the ridge stratum) is below the ALS fit's; the result is the kept one. The structure, the line size and
     the polish are all chosen on that estimate."""
     brdf = hf.brdf.cook_torrance(kd=(0.3, 0.05, 0.05), ks=1.0, roughness=0.2, f0=0.04)
     target = hf.light.lighting_target(brdf, hf.light.load_environment("city", 8))
@@ -383,9 +384,10 @@ def test_the_quality_mode_polishes_a_kept_highlight_structure_where_the_validati
     assert "lines" not in sel  # 32-texel lines are QUALITY_LINE_RATIO x 8: no line vote
     assert note["validation_nrmse_before"] == pytest.approx(sel["chosen"]["validation_nrmse"])
     assert note[key + "_before"] == pytest.approx(sel["chosen"][key])
-    # two stages: without, then with the quality mode's ridge pairs; the better one is voted on
+    # three stages: without, then with the quality mode's ridge pairs, and with them from the ALS fit
     stages = note["stages"]
-    assert [st["ridge"] for st in stages] == [0, pipeline.QUALITY_RIDGE]
+    assert [(st["ridge"], st["start"]) for st in stages] == [(0, "als"), (pipeline.QUALITY_RIDGE, "polish"),
+                                                             (pipeline.QUALITY_RIDGE, "als")]
     best = int(np.argmin([st[key] for st in stages]))
     assert note[key + "_after"] == stages[best][key]
     assert note["kept"] == (note[key + "_after"] < note[key + "_before"])
@@ -393,7 +395,11 @@ def test_the_quality_mode_polishes_a_kept_highlight_structure_where_the_validati
     assert fac.metrics["validation"]["float"]["nrmse"] == pytest.approx(kept)
     assert ("polish" in fac.solver) == note["kept"]  # a refit repeats what was kept
     assert note["stage"] == (best if note["kept"] else None)
-    assert note["ridge"] == (pipeline.QUALITY_RIDGE if note["stage"] == 1 else 0)
+    assert (note["ridge"], note["start"]) == ((stages[best]["ridge"], stages[best]["start"]) if note["kept"]
+                                              else (0, None))
+    if note["kept"]:  # the record says which path a refit takes
+        assert polish.recorded_direct(fac.solver) == (note["stage"] == 2)
+        assert recorded_linear(LinearOptions(), fac.solver).ridge == note["ridge"]
     if note["stage"] == 1:
         assert fac.solver["polish"]["ridge"]["pairs"] == pipeline.QUALITY_RIDGE
         assert "ridge" not in fac.solver["polish"]["first"]

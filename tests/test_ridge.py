@@ -8,9 +8,10 @@ import pytest
 
 import homofac as hf
 from homofac.errors import HomofacError
-from homofac.fit import pipeline, ridge, sampling
+from homofac.fit import pipeline, polish, ridge, sampling, sums
 from homofac.fit.options import FitOptions, LinearOptions
 from homofac.fit.polish import recorded_linear
+from homofac.fit.structures import Structure
 
 SUN = np.array([0.5, -0.3, 0.81])
 SUN /= np.linalg.norm(SUN)
@@ -156,3 +157,44 @@ def test_ridge_needs_an_environment():
     with pytest.raises(HomofacError, match="ridge") as e:
         hf.fit.factorize(brdf, "PQP", terms=2, linear={"polish": 2, "ridge": 100})
     assert "\n" not in str(e.value)
+
+
+def test_the_direct_stage_starts_from_the_als_fit_and_a_refit_repeats_the_recorded_path():
+    """polish_stages(direct=True): a third stage with the ridge pairs straight from the ALS fit, whose
+    record has ``ridge`` and no ``first`` (recorded_direct); polish() returns the stage a record names, and a
+    refit of a direct stage's record takes that path, not the two-stage one."""
+    env = hf.light.sun_sky(SUN, sun_radiance=300.0, sun_angle_deg=4.0, sky=(0.3, 0.4, 0.6), resolution=8)
+    target = hf.light.lighting_target(hf.brdf.cook_torrance(kd=0.3, ks=1.0, roughness=0.6, f0=0.04), env)
+    structure = Structure.of({"parametrization": "NR", "terms": 1, "diffuse": "fitted", "nv_factor": True,
+                              "highlight_terms": 1})
+    tgt = sums.with_highlight_context(target, structure)
+    lin = LinearOptions(polish=2, polish_size=6, ridge=500)
+    samples = hf.fit.draw_samples(tgt, "NR", GRID)
+    fit = sums.fit_sum(tgt, structure, "dual_paraboloid", 8, samples, lin.model_copy(update={"polish": 0}),
+                       lambda m: None)
+    pairs = polish.polish_pairs(tgt, "NR", lin, 0, False, lambda m: None)
+    args = (tgt, structure, "dual_paraboloid", 8, fit, samples, pairs, lin, lambda m: None)
+    stages = polish.polish_stages(*args, direct=True)
+    assert len(stages) == 3 and len(polish.polish_stages(*args)) == 2
+    records = [st.solver["polish"] for st in stages]
+    assert "ridge" not in records[0] and records[1]["ridge"]["pairs"] == records[2]["ridge"]["pairs"] == 500
+    assert "first" in records[1] and "first" not in records[2]
+    assert [polish.recorded_direct(st.solver) for st in stages] == [False, False, True]
+    # the direct stage starts where the first stage did (the ALS fit), on the ridge stage's objective
+    assert records[2]["objective_start"] != pytest.approx(records[1]["objective_start"], rel=1e-3)
+    alone = polish.polish_stage(*args[:4], fit, samples, pairs, lin.model_copy(update={"ridge": 0}), args[-1])
+    assert alone.solver["polish"]["objective_start"] == pytest.approx(records[0]["objective_start"], rel=1e-6)
+    n, v = ridge.ridge_pairs(SUN, 300, seed=3)[:2]
+    for direct, want in ((True, stages[2]), (False, stages[1])):
+        got = polish.polish(*args, direct=direct)
+        np.testing.assert_allclose(np.asarray(got.model.evaluate(n, v)), np.asarray(want.model.evaluate(n, v)),
+                                   rtol=1e-5, atol=1e-6)
+    # a refit of a direct stage's record repeats the direct path
+    kw = dict(texture_size=8, sampling=GRID, diffuse="fitted", nv_factor=True, highlight_terms=1)
+    fac = hf.fit.factorize(target, "NR", linear={"polish": 2, "polish_size": 6, "ridge": 500}, **kw)
+    record = {k: v for k, v in fac.solver["polish"].items() if k != "first"}
+    direct = hf.fit.refit(fac.replace(solver={**fac.solver, "polish": record}), target=target)
+    assert polish.recorded_direct(direct.solver) and direct.solver["polish"]["ridge"]["pairs"] == 500
+    two = hf.fit.refit(fac, target=target)
+    assert "first" in two.solver["polish"]
+    assert not np.allclose(np.asarray(direct.model.evaluate(n, v)), np.asarray(two.model.evaluate(n, v)))

@@ -46,14 +46,17 @@ from .view import write_viewer
 
 def polish_line(pol: dict) -> str:
     """The run summary's line for ``selection.polish``: the steps, the errors voted on (with the ridge
-    stratum where recorded: before, and after each stage) and what was kept. Records from before
-    2026-12-05 have no ``kept`` (the polish was always kept then) and older quality-mode records one stage."""
+    stratum where recorded: before, and after each stage) and what was kept. The quality mode's records
+    since 2026-12-06 have three stages (the third with the ridge pairs from the ALS fit), before that two;
+    records from before 2026-12-05 have no ``kept`` (the polish was always kept then) and older
+    quality-mode records one stage."""
     key, words = sums.scored_by(f"{sums.RIDGE_METRIC}_before" in pol)
     stages = pol.get("stages")
     if stages:
         ridge = max(st["ridge"] for st in stages)
-        how = f"{pol['steps']} Levenberg-Marquardt steps off the grid" + (
-            f", then {pol['steps']} more with {ridge} ridge pairs" if len(stages) > 1 else "")
+        how = ", ".join([f"{pol['steps']} Levenberg-Marquardt steps off the grid",
+                         f"then {pol['steps']} more with {ridge} ridge pairs",
+                         f"or {pol['steps']} with them from the ALS fit"][:len(stages)])
         after = " / ".join(f"{st[key]:.4g}" for st in stages)
         kept = f"stage {pol['stage'] + 1} kept" if pol.get("kept") else "not kept"
     else:

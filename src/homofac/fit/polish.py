@@ -25,6 +25,8 @@ city sun, 16 lookups: 0.118 nrmse on 270 000 uniform pairs after the first stage
 second; docs/sums.md, "The grazing ridge of the sun"). The lights are those of the structure's
 highlight terms, else the brightest one (:func:`ridge_lights`); the pairs are seeded by the sampling
 seed. :func:`ridge_validation` and :func:`ridge_nrmse` give the validation estimate the same stratum.
+The chooser also tries the ridge stage straight from the ALS fit (``direct``), which is what the gold
+under the city sun needs, and keeps the stage of lowest validation error (:func:`polish_stages`).
 """
 
 from __future__ import annotations
@@ -107,35 +109,56 @@ def ridge_nrmse(model, samples: Samples, rv: RidgeValidation, chunk: int = 65536
     return stratified_nrmse(approx, np.asarray(samples.val_y, np.float64), rv.inside, ridge, rv.y, rv.pairs.weight)
 
 
+#: Where each stage of :func:`polish_stages` (with ``direct``) starts: the ALS fit, the first stage, the
+#: ALS fit (the chooser records it as ``selection.polish.stages[i].start``).
+STAGE_STARTS = ("als", "polish", "als")
+
+
 def polish(target: Target, structure: Structure, mapper: str, size: int, fit: SumFit, samples: Samples,
-           pairs: Samples, lin: LinearOptions, log: Callable[[str], None], seed: int = 0) -> SumFit:
-    """The last of :func:`polish_stages`: the polished fit."""
+           pairs: Samples, lin: LinearOptions, log: Callable[[str], None], seed: int = 0,
+           direct: bool = False) -> SumFit:
+    """The polished fit: the last stage of :func:`polish_stages` without ``direct``; with it (and
+    ``lin.ridge`` > 0) the ridge stage straight from ``fit``, the third candidate of the chooser's vote.
+    A refit passes :func:`recorded_direct` of the record it repeats."""
+    if direct and lin.ridge > 0:
+        return polish_stage(target, structure, mapper, size, fit, samples, pairs, lin, log, seed)
     return polish_stages(target, structure, mapper, size, fit, samples, pairs, lin, log, seed)[-1]
 
 
 def polish_stages(target: Target, structure: Structure, mapper: str, size: int, fit: SumFit, samples: Samples,
-                  pairs: Samples, lin: LinearOptions, log: Callable[[str], None], seed: int = 0) -> list[SumFit]:
+                  pairs: Samples, lin: LinearOptions, log: Callable[[str], None], seed: int = 0,
+                  direct: bool = False) -> list[SumFit]:
     """``lin.polish`` Levenberg-Marquardt steps on the grid ``samples`` and the off-grid ``pairs`` together,
     from the textures of ``fit`` (see the module doc); with ``lin.ridge`` > 0, ``lin.polish`` more from
-    there with ``lin.ridge`` ridge pairs added (seeded by ``seed``). Returns each stage's fit.
+    there with ``lin.ridge`` ridge pairs added (seeded by ``seed``), and with ``direct`` a third stage of
+    ``lin.polish`` steps with the ridge pairs straight from ``fit``. Returns each stage's fit.
 
     The ridge pairs come second: from the ALS fit, eight steps with them left the plastic under the city
     sun at 0.072 nrmse on 270 000 uniform pairs and sixteen at 0.068, eight without them and then eight
-    with them at 0.064 (the first stage: 0.118); the gold under the same sun went 0.148 -> 0.141 with the
-    first stage and 0.165 with the second (docs/sums.md, "The grazing ridge of the sun"), which is why the
-    chooser votes between the stages (:func:`homofac.fit.pipeline.chooser_polish`). Each record keeps the
-    ALS fit's entries and adds ``polish`` (steps, samples, objectives, seconds; the second stage also
-    ``ridge``: pairs, lights, the probability of each light's ridge, and ``first``: the first stage's)."""
-    first = _stage(target, structure, mapper, size, fit, samples, pairs, lin.model_copy(update={"ridge": 0}), log,
-                   seed)
+    with them at 0.064 (the first stage: 0.118). The gold under the same sun goes the other way: its
+    first stage raised the validation error with the ridge stratum from 0.140 to 0.223 and the second
+    ended at 0.164 (dense 0.139 -> 0.164), while eight steps with the ridge pairs straight from the ALS
+    fit gave dense 0.1395 (docs/sums.md, "A capped inner solve ended the polish"). Hence the three
+    candidates the chooser votes between (:func:`homofac.fit.pipeline.chooser_polish`).
+
+    Each record keeps the ALS fit's entries and adds ``polish`` (steps, samples, objectives, seconds; a
+    stage with the ridge pairs also ``ridge``: pairs, lights, the probability of each light's ridge; the
+    second stage ``first``: the first stage's record, which the direct stage lacks)."""
+    first = polish_stage(target, structure, mapper, size, fit, samples, pairs, lin.model_copy(update={"ridge": 0}),
+                         log, seed)
     if lin.ridge <= 0:
         return [first]
-    return [first, _stage(target, structure, mapper, size, first, samples, pairs, lin, log, seed)]
+    second = polish_stage(target, structure, mapper, size, first, samples, pairs, lin, log, seed)
+    if not direct:
+        return [first, second]
+    return [first, second, polish_stage(target, structure, mapper, size, fit, samples, pairs, lin, log, seed)]
 
 
-def _stage(target: Target, structure: Structure, mapper: str, size: int, fit: SumFit, samples: Samples,
-           pairs: Samples, lin: LinearOptions, log: Callable[[str], None], seed: int) -> SumFit:
-    """One stage of :func:`polish_stages` (with the ridge pairs where ``lin.ridge`` > 0)."""
+def polish_stage(target: Target, structure: Structure, mapper: str, size: int, fit: SumFit, samples: Samples,
+                 pairs: Samples, lin: LinearOptions, log: Callable[[str], None], seed: int = 0) -> SumFit:
+    """One stage of :func:`polish_stages`: ``lin.polish`` Levenberg-Marquardt steps from ``fit`` on the
+    grid ``samples`` and the off-grid ``pairs``, with ``lin.ridge`` ridge pairs (seeded by ``seed``)
+    where it is above 0. ``fit``'s own polish record, if any, becomes the new one's ``first``."""
     t0 = time.perf_counter()
     a, b, y = (np.concatenate([np.asarray(u), np.asarray(v)]) for u, v in
                ((samples.a, pairs.a), (samples.b, pairs.b), (samples.y, pairs.y)))
@@ -168,6 +191,14 @@ def _stage(target: Target, structure: Structure, mapper: str, size: int, fit: Su
                   tuple(fit.warnings) + tuple(out.warnings), out.unknowns)
 
 
+def recorded_direct(solver: dict | None) -> bool:
+    """Whether a sum's solver record is a ridge stage straight from the ALS fit (``polish.ridge`` and no
+    ``polish.first``: the third stage of :func:`polish_stages`), which a refit repeats with
+    ``polish(..., direct=True)``."""
+    pol = (solver or {}).get("polish")
+    return isinstance(pol, dict) and isinstance(pol.get("ridge"), dict) and "first" not in pol
+
+
 def recorded_linear(lin: LinearOptions, solver: dict | None) -> LinearOptions:
     """``lin`` with the ``nv_balance`` and polish (steps, size) a sum's solver record says its fit used.
 
@@ -188,5 +219,6 @@ def recorded_linear(lin: LinearOptions, solver: dict | None) -> LinearOptions:
     return lin.model_copy(update=update)
 
 
-__all__ = ["RIDGE_NEEDS_ENVIRONMENT", "RidgeValidation", "VALIDATION_RIDGE_LIGHTS", "polish", "polish_pairs",
-           "polish_stages", "recorded_linear", "ridge_lights", "ridge_nrmse", "ridge_validation"]
+__all__ = ["RIDGE_NEEDS_ENVIRONMENT", "RidgeValidation", "STAGE_STARTS", "VALIDATION_RIDGE_LIGHTS", "polish",
+           "polish_pairs", "polish_stage", "polish_stages", "recorded_direct", "recorded_linear", "ridge_lights",
+           "ridge_nrmse", "ridge_validation"]

@@ -49,7 +49,7 @@ from . import footprints, precision, programs, solvers, sums, transport
 from .draw import default_mapper
 from .options import FitOptions, LinearOptions
 from .pipeline import quality_warnings, resolve_sampling
-from .polish import polish, polish_pairs, recorded_linear
+from .polish import polish, polish_pairs, recorded_direct, recorded_linear
 from .product import unpack, zeros_rule
 from .result import Result
 from .samples import check_values, evaluate_grouped
@@ -446,7 +446,7 @@ def refit(fac: Result, environment: Environment | None = None, brdf: BRDF | None
         if lin.polish > 0:  # the same off-grid pairs as the full run (deterministic), the new target's values
             pairs = polish_pairs(tgt, opts.parametrization, lin, opts.sampling.seed, opts.sampling.cache, log)
             sf = polish(tgt, state.structure, state.mapper, state.texture_size, sf, samples, pairs, lin, log,
-                        seed=opts.sampling.seed)
+                        seed=opts.sampling.seed, direct=recorded_direct(fac.solver))
         model, record, solve_s, warnings = sf.model, {**sf.solver, "refit": True}, sf.solve_s, sf.warnings
     else:
         t1 = time.perf_counter()
