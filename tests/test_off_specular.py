@@ -367,8 +367,8 @@ def test_polish_rule_keeps_plain_structures_and_votes_on_highlights_only_in_the_
 def test_the_quality_mode_polishes_a_kept_highlight_structure_where_the_validation_error_falls():
     """Above QUALITY_LOOKUPS a kept structure with a highlight term is polished in three stages (without,
     then with the ridge pairs, and with them from the ALS fit), and the best stage is kept exactly when its
-    validation error (with the ridge stratum) is below the ALS fit's; the result is the kept one. The structure, the line size and
-    the polish are all chosen on that estimate."""
+    validation error (with the ridge stratum) is below the ALS fit's; the result is the kept one. The
+    structure, the line size and the polish are all chosen on that estimate."""
     brdf = hf.brdf.cook_torrance(kd=(0.3, 0.05, 0.05), ks=1.0, roughness=0.2, f0=0.04)
     target = hf.light.lighting_target(brdf, hf.light.load_environment("city", 8))
     fac = hf.fit.factorize(target, "NR", texture_size=S, max_lookups=pipeline.QUALITY_LOOKUPS + 1,

@@ -211,10 +211,11 @@ def chooser_ridge(target: Target, opts: FitOptions, lin: LinearOptions) -> int:
     8-lookup modes keep their measured behaviour.
 
     Where they are drawn the polish tries three stages, without and then with them, and with them
-    straight from the ALS fit (:func:`homofac.fit.polish.polish_stages`), and as many more pairs (seeded by the validation seed)
-    give the validation estimate a ridge stratum (:func:`homofac.fit.polish.ridge_nrmse`) that every
-    choice reads: the structure, the line vote and the polish vote (gold under the city sun: 0.062 on
-    the plain validation pairs, 0.128 with the stratum, 0.148 on 270 000 uniform pairs)."""
+    straight from the ALS fit (:func:`homofac.fit.polish.polish_stages`), and as many more pairs
+    (seeded by the validation seed) give the validation estimate a ridge stratum
+    (:func:`homofac.fit.polish.ridge_nrmse`) that every choice reads: the structure, the line vote and
+    the polish vote (gold under the city sun: 0.062 on the plain validation pairs, 0.128 with the
+    stratum, 0.148 on 270 000 uniform pairs)."""
     if opts.linear is not None and "ridge" in opts.linear.model_fields_set:
         return int(lin.ridge)
     lit = target.kind == "lighting" and getattr(target.fn, "env", None) is not None
@@ -600,17 +601,18 @@ def _polish_vote(result: Result, stages: list[Result], rule: str, score: Callabl
     """The kept structure's ALS fit (``result``) or one of its polish ``stages`` (:func:`polish.polish_stages`
     with ``direct``: without the ridge pairs, then with them, then with them from the ALS fit): the stage
     of lowest validation error (``score``, the ridge stratum's, where given), kept where ``rule`` is
-    ``"keep"`` or its error is below the ALS fit's. ``selection.polish`` records the steps, the rule, each
-    stage's errors with its ridge pairs and start (:data:`polish.STAGE_STARTS`), the errors before and after and
-    what was kept (``kept``; ``stage``: the kept stage's index; ``ridge``, ``start``: its ridge pairs and
-    start)."""
+    ``"keep"`` or its error is below the ALS fit's. ``selection.polish`` records the steps, the rule,
+    each stage's errors with its ridge pairs and start (:data:`polish.STAGE_STARTS`), the errors before
+    and after and what was kept (``kept``; ``stage``: the kept stage's index; ``ridge``, ``start``: its
+    ridge pairs and start)."""
     key, what = sums.scored_by(score is not None)
     before, figures = _figures(result, score), [_figures(r, score) for r in stages]
     best = int(np.argmin([f[key] for f in figures]))
     keep = rule == "keep" or figures[best][key] < before[key]
     log(f"polish of {label}: {what} {before[key]:.4g} -> " + " / ".join(f"{f[key]:.4g}" for f in figures)
         + (f": stage {best + 1} kept" if keep else ": not kept (the validation error did not fall)"))
-    described = [{"ridge": ridge if i else 0, "start": polish.STAGE_STARTS[i], **f} for i, f in enumerate(figures)]
+    described = [{"ridge": ridge if i else 0, "start": polish.STAGE_STARTS[i], **f}
+                 for i, f in enumerate(figures)]
     note = {"steps": steps, **{f"{k}_before": v for k, v in before.items()},
             **{f"{k}_after": v for k, v in figures[best].items()}, "stages": described, "rule": rule, "kept": keep,
             "stage": best if keep else None, "ridge": described[best]["ridge"] if keep else 0,

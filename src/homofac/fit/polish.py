@@ -136,10 +136,11 @@ def polish_stages(target: Target, structure: Structure, mapper: str, size: int, 
     The ridge pairs come second: from the ALS fit, eight steps with them left the plastic under the city
     sun at 0.072 nrmse on 270 000 uniform pairs and sixteen at 0.068, eight without them and then eight
     with them at 0.064 (the first stage: 0.118). The gold under the same sun goes the other way: its
-    first stage raised the validation error with the ridge stratum from 0.140 to 0.223 and the second
-    ended at 0.164 (dense 0.139 -> 0.164), while eight steps with the ridge pairs straight from the ALS
-    fit gave dense 0.1395 (docs/sums.md, "A capped inner solve ended the polish"). Hence the three
-    candidates the chooser votes between (:func:`homofac.fit.pipeline.chooser_polish`).
+    first stage raised the validation error with the ridge stratum from 0.140 to 0.223 and the second,
+    from there, ended at 0.164, while eight steps with the ridge pairs straight from the ALS fit reached
+    0.135 (on 270 000 uniform pairs: the ALS fit 0.164, the direct stage 0.139; docs/sums.md, "A third
+    polish stage"). Hence the three candidates the chooser votes between
+    (:func:`homofac.fit.pipeline.chooser_polish`).
 
     Each record keeps the ALS fit's entries and adds ``polish`` (steps, samples, objectives, seconds; a
     stage with the ridge pairs also ``ridge``: pairs, lights, the probability of each light's ridge; the
