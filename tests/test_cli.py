@@ -232,6 +232,17 @@ def test_python_api_refuses_exactly_as_the_cli(tmp_path, capsys, key, value, nee
     assert err == f"homofac: error: {path}: {api}"
 
 
+def test_the_disc_line_names_both_structures_the_radius_and_the_kept_one():
+    from homofac.app.cli import disc_line
+
+    note = {"radii": [0.0227], "labels": ["E'+ROW x4+R+HFT x2", "E'+ROW x4+R+HSFT x2"], "validation_nrmse": [0.07, 0.08],
+            "validation_ridge_nrmse": [0.14, 0.12], "kept": True}
+    assert disc_line(note) == ("disc: validation nrmse with the ridge stratum E'+ROW x4+R+HFT x2 0.14, "
+                               "E'+ROW x4+R+HSFT x2 0.12 (disc radius 1.3 degrees); the disc kept")
+    plain = {k: v for k, v in note.items() if k != "validation_ridge_nrmse"}
+    assert disc_line({**plain, "kept": False}).endswith("0.08 (disc radius 1.3 degrees); the point light kept")
+
+
 def test_the_polish_line_reads_every_record_generation():
     """The run summary's polish line: three or two stages voted on with the ridge stratum, the one-stage
     records of 2026-12-05 and the older ones without ``kept`` (the polish was always kept then)."""

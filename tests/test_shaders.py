@@ -98,7 +98,8 @@ def model(mapper: str, terms: int) -> Result:
                      Term((Factor("d_dom", "A"), Factor("r_off", "B"), Factor("nh_dom", "W"), Factor("nh_dom1", "W"),
                            Factor("nh_dom2", "W"), Factor("vh_dom", "W"), Factor("vh_dom1", "W"), Factor("vh_dom2", "W"),
                            Factor("ni_dom", "W"), Factor("ni_dom1", "W"), Factor("ni_dom2", "W"),
-                           Factor("ninv_dom", "A"), Factor("ninv_dom1", "B"), Factor("ninv_dom2", "A")),
+                           Factor("ninv_dom", "A"), Factor("ninv_dom1", "B"), Factor("ninv_dom2", "A"),
+                           Factor("nhs_dom", "W"), Factor("nhs_dom1", "W"), Factor("nhs_dom2", "W")),
                           jnp.asarray([0.1, 0.2, 0.3]))]
         ctx = {k: jnp.asarray(v, jnp.float32) if np.ndim(v) else v for k, v in pj.example_context().items()}
     chosen = tuple(all_terms[:terms])

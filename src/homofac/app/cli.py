@@ -9,6 +9,7 @@ showed about 60 % of its run in XLA compilation (about 100 programs), so the sec
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import signal
 import sys
@@ -65,6 +66,17 @@ def polish_line(pol: dict) -> str:
         after = f"{pol[key + '_after']:.4g}"
         kept = "kept" if pol.get("kept", True) else "not kept"
     return f"polish: {how}, {words} {pol[key + '_before']:.4g} -> {after} ({kept})"
+
+
+def disc_line(disc: dict) -> str:
+    """The run summary's line for ``selection.disc`` (the quality mode's disc vote,
+    :func:`homofac.fit.pipeline.disc_rule`): both structures with the error voted on, the lights' disc radii
+    in degrees and which was kept."""
+    key, words = sums.scored_by(sums.RIDGE_METRIC in disc)
+    errs = disc.get(key, disc["validation_nrmse"])
+    radii = ", ".join(f"{math.degrees(math.asin(r)):.2g}" for r in disc["radii"])
+    tried = ", ".join(f"{label} {e:.4g}" for label, e in zip(disc["labels"], errs))
+    return f"disc: {words} {tried} (disc radius {radii} degrees); {'the disc' if disc['kept'] else 'the point light'} kept"
 
 
 def compilation_cache_dir() -> Path | None:
@@ -251,6 +263,8 @@ def _summary(fac, out, seconds: float | None) -> None:
             errs = lines.get(key, lines["validation_nrmse"])
             voted = ", ".join(f"{n} texels {e:.4g}" for n, e in zip(lines["sizes"], errs))
             print(f"lines: {voted}; {lines['kept']} kept")
+        if fac.selection.get("disc") is not None:
+            print(disc_line(fac.selection["disc"]))
         pol = fac.selection.get("polish")
         if pol is not None:
             print(polish_line(pol))

@@ -208,7 +208,10 @@ class FitOptions(Options):
     ``highlight_cosine`` (lighting: each highlight term also reads a ``line`` texture c(n.i) of its light's
     cosine, the shadowing G1(n.i) and the light's horizon, one lookup more a term), ``highlight_table``
     (lighting: each highlight term reads a 2D ``parabolic`` table T(n.i, n.v) of its light's cosine and the
-    view's in place of c(n.i) w(n.v), one lookup fewer; :mod:`homofac.fit.table`). ``line_size``: texels
+    view's in place of c(n.i) w(n.v), one lookup fewer; :mod:`homofac.fit.table`), ``highlight_disc``
+    (lighting: each highlight term reads its light's coordinate at the point of the light's disc closest
+    to r, ``nhs_dom``: the sun at grazing views; with ``max_lookups`` above 8 a vote when not set,
+    :func:`homofac.fit.pipeline.disc_rule`). ``line_size``: texels
     of a sum's ``line`` textures (w(n.v) and the highlight lines; default 32; for a ``max_lookups`` above 8
     a vote between 32 and 4 x ``texture_size``: :func:`homofac.fit.pipeline.line_sizes`); a single log-space product's scalar factor has
     ``texture_size`` texels.
@@ -232,6 +235,7 @@ class FitOptions(Options):
     highlight_fresnel: bool = False
     highlight_cosine: bool = False
     highlight_table: bool = False
+    highlight_disc: bool = False
     max_lookups: Optional[int] = Field(None, ge=1, le=256)
     line_size: Optional[int] = Field(None, ge=2, le=4096)
     linear: Optional[LinearOptions] = None
@@ -241,7 +245,7 @@ class FitOptions(Options):
         """True when the fit is a linear-space sum of products rather than today's log-space product."""
         return (self.terms > 1 or self.diffuse is not None or self.nv_factor or self.reflection or self.rw_terms > 0
                 or self.highlight_terms > 0 or self.highlight_fresnel or self.highlight_cosine
-                or self.highlight_table or self.prefiltered or self.max_lookups is not None or self.linear is not None)
+                or self.highlight_table or self.highlight_disc or self.prefiltered or self.max_lookups is not None or self.linear is not None)
 
 
 __all__ = ["AnalysisOptions", "CameraOptions", "DEFAULT_VALIDATION", "MAX_CAMERAS", "MAX_CAMERA_SIDE", "MAX_SCENE_PIXELS", "FitOptions", "LinearOptions", "MAX_TERMS", "MAX_TEXTURE_SIZE", "MIN_TEXTURE_SIZE", "MapperName", "SamplingOptions"]

@@ -28,6 +28,11 @@ A :class:`Structure` is the pinned config of a sum (``terms: K``, ``diffuse: exa
   the highlight's ``min(1, n.i / n.v)`` near the mirror direction, which no product of the two lines holds
   (docs/sums.md, "A 2D table of (n.i, n.v)"). The ALS fits the lines (:func:`lined`), which
   :func:`homofac.fit.table.tabulate` turns into the table for the polish to refine;
+* ``highlight_disc`` (lighting): each highlight term reads its light's coordinate at the point of the
+  light's disc closest to ``r`` (projection ``nhs_dom``, ``nhs_dom1``, ``nhs_dom2``; context ``radius``,
+  :func:`homofac.light.light_radii`): at grazing views a point light's half vector is ill-conditioned
+  and a sun's highlight there comes from the part of its disc on the mirror direction (docs/sums.md,
+  "The sun's disc at grazing views");
 * ``reflection`` (lighting): one more fitted term, an r-only texture ``R`` (one lookup). Within a lookup
   budget it is worth more than an n.v-only or n-only term (gold under lamps: 0.83 -> 0.78 of
   split-sum at 8 lookups);
@@ -108,6 +113,7 @@ class Structure(NamedTuple):
     highlight_fresnel: bool = False  # lighting: each highlight term also reads f(v.h') of its light (one lookup more)
     highlight_cosine: bool = False  # lighting: each highlight term also reads c(n.i) of its light (one lookup more)
     highlight_table: bool = False  # lighting: each highlight term reads T(n.i, n.v) in place of c(n.i) w(n.v)
+    highlight_disc: bool = False  # lighting: each highlight term reads nhs_dom (its light's disc) for nh_dom
 
     @classmethod
     def of(cls, rec) -> "Structure":
@@ -117,14 +123,17 @@ class Structure(NamedTuple):
         return cls(get("parametrization"), int(get("terms", 1)), get("diffuse"), bool(get("nv_factor", False)),
                    bool(get("reflection", False)), bool(get("prefiltered", False)), int(get("rw_terms", 0) or 0),
                    int(get("highlight_terms", 0) or 0), bool(get("highlight_fresnel", False) or False),
-                   bool(get("highlight_cosine", False) or False), bool(get("highlight_table", False) or False))
+                   bool(get("highlight_cosine", False) or False), bool(get("highlight_table", False) or False),
+                   bool(get("highlight_disc", False) or False))
 
     def label(self) -> str:
         d = {None: "", "exact": "E+", "fitted": "E'+"}[self.diffuse] + ("SS+" if self.prefiltered else "")
         w = "W" if self.nv_factor and not _has_nv(self.parametrization) else ""
         rw = f"+RW x{self.rw_terms}" if self.rw_terms else ""
         lines = "".join(line.letter for line in HIGHLIGHT_LINES if getattr(self, line.key))
-        hw = f"+H{lines}{'T' if self.highlight_table else 'W'} x{self.highlight_terms}" if self.highlight_terms else ""
+        disc = "S" if self.highlight_disc else ""
+        hw = (f"+H{disc}{lines}{'T' if self.highlight_table else 'W'} x{self.highlight_terms}"
+              if self.highlight_terms else "")
         return f"{d}{self.parametrization}{w} x{self.terms}{rw}{'+R' if self.reflection else ''}{hw}"
 
     def record(self) -> dict:
@@ -132,7 +141,8 @@ class Structure(NamedTuple):
                 "nv_factor": bool(self.nv_factor or _has_nv(self.parametrization)), "reflection": bool(self.reflection),
                 "prefiltered": bool(self.prefiltered), "rw_terms": int(self.rw_terms),
                 "highlight_terms": int(self.highlight_terms), "highlight_fresnel": bool(self.highlight_fresnel),
-                "highlight_cosine": bool(self.highlight_cosine), "highlight_table": bool(self.highlight_table)}
+                "highlight_cosine": bool(self.highlight_cosine), "highlight_table": bool(self.highlight_table),
+                "highlight_disc": bool(self.highlight_disc)}
 
 
 def lined(structure: Structure) -> Structure:
@@ -218,6 +228,8 @@ def skeleton(structure: Structure, kind: str, quantity: str, mapper: str, size: 
             raise HomofacError(f"{line.key}: the {line.reads} line is a factor of highlight terms; set highlight_terms")
     if structure.highlight_table and not structure.highlight_terms:
         raise HomofacError("highlight_table: the (n.i, n.v) table is a factor of highlight terms; set highlight_terms")
+    if structure.highlight_disc and not structure.highlight_terms:
+        raise HomofacError("highlight_disc: the disc's coordinate is read by highlight terms; set highlight_terms")
     if structure.highlight_table and structure.highlight_cosine:
         raise HomofacError("highlight_table holds the light's cosine n.i with n.v in one table: set highlight_table "
                            "or highlight_cosine, not both")
@@ -226,7 +238,7 @@ def skeleton(structure: Structure, kind: str, quantity: str, mapper: str, size: 
         t = first + j
         h, w = f"d{t}", f"w{t}"
         textures.append(TextureSpec(h, "line", line_size, "highlight"))
-        factors = [(pj.HIGHLIGHTS[j][0], h)]
+        factors = [((pj.HIGHLIGHT_DISCS if structure.highlight_disc else pj.HIGHLIGHTS)[j][0], h)]
         for line in lines:
             textures.append(TextureSpec(f"{line.prefix}{t}", "line", line_size, line.role))
             factors.append((line.projections[j], f"{line.prefix}{t}"))
@@ -337,7 +349,7 @@ def _sorted(structures):
     return sorted(structures, key=lambda s: (lookups(s, "lighting" if pz.get(s.parametrization).kind == "lighting"
                                                        else "brdf"), s.terms, not s.nv_factor, str(s.diffuse),
                                              s.highlight_terms, s.highlight_fresnel, s.highlight_cosine,
-                                             s.highlight_table))
+                                             s.highlight_table, s.highlight_disc))
 
 
 __all__ = ["HIGHLIGHT_LINES", "LINE_SIZE", "TABLE_SIZE", "HighlightLine", "Structure", "TermSpec", "TextureSpec", "candidates",

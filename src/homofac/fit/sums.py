@@ -36,7 +36,7 @@ from ..baselines.base import centres, irradiance_map
 from ..brdf import BRDF, MODELS
 from ..errors import HomofacError
 from ..factorization import Factor, Factorization, Term, Texture
-from ..light import Lighting, brightest_directions
+from ..light import Lighting, brightest_directions, light_radii
 from ..param import mappers
 from ..param import parametrizations as pz
 from ..param import projections as pj
@@ -50,8 +50,9 @@ from .structures import HIGHLIGHT_LINES, LINE_SIZE, TABLE_SIZE, Structure, TermS
 from .system import TextureLayout, texture_layout
 
 
-#: The projections of highlight terms (``highlight_terms``), brightest light first.
-HIGHLIGHT_PROJECTIONS = tuple(p for p, _ in pj.HIGHLIGHTS)
+#: The projections of highlight terms (``highlight_terms``), brightest light first: of a point light, then
+#: of a light with a disc (``highlight_disc``).
+HIGHLIGHT_PROJECTIONS = tuple(p for p, _ in pj.HIGHLIGHTS) + tuple(p for p, _, _ in pj.HIGHLIGHT_DISCS)
 
 #: The extra lines a highlight term may read beside d(nh_dom) (:data:`~homofac.fit.structures.HIGHLIGHT_LINES`):
 #: per kind its projections, brightest light first; the ALS fits each as a line block.
@@ -279,18 +280,25 @@ def line_size_of(model: Factorization) -> int:
 
 def with_highlight_context(target: Target, structure: Structure) -> Target:
     """``target`` with the context its highlight terms read (``dominant``, ``dominant1``, ... for the J
-    brightest lights, :func:`~homofac.light.brightest_directions`), keys the target already has kept."""
-    keys = [key for _, key in pj.HIGHLIGHTS[:structure.highlight_terms]]
-    missing = [k for k in keys if k not in target.context]
+    brightest lights, :func:`~homofac.light.brightest_directions`; with ``highlight_disc`` also ``radius``,
+    ``radius1``, ... of their discs, :func:`~homofac.light.light_radii`), keys the target already has kept."""
+    J = structure.highlight_terms
+    keys = [key for _, key in pj.HIGHLIGHTS[:J]]
+    radii = [r for _, _, r in pj.HIGHLIGHT_DISCS[:J]] if structure.highlight_disc else []
+    missing = [k for k in keys + radii if k not in target.context]
     if not missing:
         return target
     env = getattr(target.fn, "env", None)
     if env is None:
-        raise HomofacError(f"highlight_terms read the brightest lights (context {', '.join(keys)}): give the "
-                           f"target those directions, or fit a lighting target of an environment")
+        raise HomofacError(f"highlight_terms read the brightest lights (context {', '.join(keys + radii)}): give "
+                           f"the target those, or fit a lighting target of an environment")
     found = brightest_directions(env, len(keys))
-    return Target(target.kind, target.fn, target.quantity,
-                  {**target.context, **{k: found[i] for i, k in enumerate(keys) if k in missing}})
+    dirs = {k: np.asarray(target.context[k], np.float32) if k in target.context else found[i] for i, k in enumerate(keys)}
+    add = {k: found[i] for i, k in enumerate(keys) if k in missing}
+    if radii:
+        sizes = light_radii(env, np.stack([dirs[k] for k in keys]))
+        add.update({r: float(sizes[i]) for i, r in enumerate(radii) if r in missing})
+    return Target(target.kind, target.fn, target.quantity, {**target.context, **add})
 
 
 def _is_diffuse(term: TermSpec) -> bool:

@@ -10,7 +10,8 @@
 from __future__ import annotations
 
 from .cubemap import FACE_NAMES, to_cube_image
-from .environment import Environment, brightest_direction, brightest_directions, dominant_direction, luminance, total_power
+from .environment import (Environment, brightest_direction, brightest_directions, dominant_direction, light_radii, luminance,
+                          total_power)
 from .lighting import Lighting, irradiance, lighting, lighting_target, off_specular_shift, with_context
 from .lights import cull_lights, with_lights
 from .options import BoostOptions, EnvironmentOptions, LightOptions
@@ -22,6 +23,7 @@ from .sky import preetham_sky, sun_direction, time_of_day
 __all__ = [
     "BUNDLED", "BoostOptions", "FACE_NAMES", "Environment", "EnvironmentOptions", "LightOptions", "Lighting", "bundled",
     "brightest_direction", "brightest_directions", "cull_lights", "dominant_direction", "environment_from_options", "from_cube", "from_latlong", "gradient_sky",
+    "light_radii",
     "irradiance", "lighting", "lighting_target", "load_environment", "luminance", "off_specular_shift", "painted_lights",
     "preetham_sky", "sun_direction", "sun_sky", "time_of_day", "to_cube_image", "total_power", "uniform", "with_context",
     "with_lights",

@@ -121,6 +121,26 @@ def brightest_direction(env: Environment, cap_degrees: float = PEAK_CAP_DEGREES)
     return brightest_directions(env, 1, cap_degrees)[0]
 
 
-__all__ = ["Environment", "LUMINANCE", "PEAK_CAP_DEGREES", "brightest_direction", "brightest_directions",
+def light_radii(env: Environment, directions, cap_degrees: float = PEAK_CAP_DEGREES) -> np.ndarray:
+    """The sine of the angular radius of the light around each of ``directions`` ``(J, 3)``: ``sqrt 2``
+    times the power-weighted median angle from the direction of the texels within ``cap_degrees`` of it
+    (a uniform disc of radius rho has its median at ``rho / sqrt 2``; the median, unlike a mean, leaves
+    the sky around a sun out). What the highlight coordinate of a light with a disc reads (projection
+    ``nhs_dom``, context ``radius``): 0.023 for the bundled city sun at light resolution 64 (1.3
+    degrees), 0.046 at 16, where its texels are 4.9 degrees wide. Float32 NumPy ``(J,)``; 0 for a
+    direction without power in its cap."""
+    d = np.asarray(env.directions, np.float64)
+    e = np.maximum(np.asarray(luminance(env.radiance), np.float64), 0.0) * np.asarray(env.solid_angle, np.float64)
+    ang = np.arccos(np.clip(np.asarray(directions, np.float64).reshape(-1, 3) @ d.T, -1.0, 1.0))  # (J, L)
+    w = np.where(ang <= np.radians(cap_degrees), e[None, :], 0.0)
+    order = np.argsort(ang, axis=1)
+    cum = np.cumsum(np.take_along_axis(w, order, axis=1), axis=1)
+    total = cum[:, -1:]
+    k = np.argmax(cum >= 0.5 * np.maximum(total, 1e-300), axis=1)  # the first texel past half the cap's power
+    median = np.take_along_axis(np.take_along_axis(ang, order, axis=1), k[:, None], axis=1)[:, 0]
+    return np.where(total[:, 0] > 0, np.sin(np.minimum(np.sqrt(2.0) * median, np.pi / 6)), 0.0).astype(np.float32)
+
+
+__all__ = ["Environment", "LUMINANCE", "PEAK_CAP_DEGREES", "brightest_direction", "brightest_directions", "light_radii",
            "dominant_direction", "luminance",
            "total_power"]

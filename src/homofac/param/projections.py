@@ -13,7 +13,9 @@ Names (pinned, docs/format.md):
   ``d_dom`` (eq. 69), which use the dominant light direction ``i`` (eq. 66) from the context; the
   scalar ``nv`` = n.v clamped to [0, 1]; the scalar ``nh_dom`` = ``1 - (1 - n.h')^(1/4)`` of the dominant
   light's half vector h' (:func:`_nh_light`, the highlight of that light), and ``nh_dom1``, ``nh_dom2``
-  the same for the second and third light (context ``dominant1``, ``dominant2``); ``r_off``, the off-specular reflection direction
+  the same for the second and third light (context ``dominant1``, ``dominant2``); ``nhs_dom``, ``nhs_dom1``,
+  ``nhs_dom2`` the same at the point of the light's disc closest to ``r`` (context ``radius``, ``radius1``,
+  ``radius2``: :func:`_nh_disc`); ``r_off``, the off-specular reflection direction
   ``normalize(r + beta (1 - n.v) n)`` with ``beta`` the context key ``shift`` (:func:`_r_off`).
 
 Scalar projections are looked up with the ``line`` mapper; direction projections with any other. A
@@ -72,10 +74,20 @@ CONTEXT_KEYS: dict[str, ContextKey] = {k.name: k for k in (
                (0.85, 0.25, 0.45)),
     ContextKey("shift", (), "beta of the off-specular reflection r_off (NRO, RO), a number in [0, 0.9]", 0.3,
                (0.0, 0.9)),
+    ContextKey("radius", (), "the sine of the angular radius of the dominant light's disc (projection nhs_dom), "
+               "a number in [0, 0.5]", 0.02, (0.0, 0.5)),
+    ContextKey("radius1", (), "the sine of the angular radius of the second light's disc (projection nhs_dom1), "
+               "a number in [0, 0.5]", 0.03, (0.0, 0.5)),
+    ContextKey("radius2", (), "the sine of the angular radius of the third light's disc (projection nhs_dom2), "
+               "a number in [0, 0.5]", 0.01, (0.0, 0.5)),
 )}
 
 #: The highlight projections, brightest light first, and the context key each reads (``highlight_terms``).
 HIGHLIGHTS = (("nh_dom", "dominant"), ("nh_dom1", "dominant1"), ("nh_dom2", "dominant2"))
+#: The highlight projections of lights with a disc (``highlight_disc``), brightest first: the projection,
+#: the light's direction key and its radius key (:func:`_nh_disc`).
+HIGHLIGHT_DISCS = (("nhs_dom", "dominant", "radius"), ("nhs_dom1", "dominant1", "radius1"),
+                   ("nhs_dom2", "dominant2", "radius2"))
 
 
 def example_context() -> dict:
@@ -256,11 +268,36 @@ def _nh_light(n, v, ctx, key: str):
     horizon of ``n`` (``n.i <= 0``) the coordinate is 0, the far tail of the line, where the fit puts no
     light: the highlight ends at the light's horizon as the lighting does (gold under the city sun at 16
     lookups: 0.157 -> 0.144 nrmse; unclamped, pairs whose sun had set carried 23 % of the squared error)."""
-    i = sphere.constant(ctx[key], n)
+    return _nh_toward(n, v, sphere.constant(ctx[key], n))
+
+
+def _nh_toward(n, v, i):
+    """The coordinate of :func:`_nh_light` for the light direction(s) ``i``."""
     d = n - sphere.half_vector(i, v)
     xp = sphere.namespace(d)
     e = xp.clip(xp.sqrt(0.5 * sphere.dot(d, d)), 0.0, 1.0)  # (1 - n.h')^(1/2), n.h' clamped at 0
     return xp.where(sphere.dot(n, i) > 0.0, 1.0 - xp.sqrt(e), 0.0)
+
+
+def _nh_disc(n, v, ctx, key: str, radius: str):
+    """:func:`_nh_light` of a light with a disc: the coordinate of the disc's point closest to the
+    reflected view ``r`` (the representative point of a sphere light: Karis 2013, "Real Shading in
+    Unreal Engine 4", area lights: ``l = normalize(i + c clamp(R / |c|, 0, 1))`` with ``c = max(r.i, 0) r - i``
+    and ``R`` the context key ``radius``, the sine of the disc's angular radius). ``R = 0`` is
+    ``nh_dom``; where ``r`` lies on the disc, ``l = r`` and the coordinate is 1 (the peak).
+
+    At grazing views the half vector of a point light is ill-conditioned: ``|v + i|`` is ``2 n.v`` at
+    the mirror direction, so a light 0.8 degrees off ``r`` out of the plane of incidence puts ``n.h'`` at
+    0.88 when ``n.v`` is 0.01. An extended light (the city sun spans about 2 degrees at light resolution
+    64) still has part of its disc on the mirror direction there: gold under that sun read 7.6 against
+    106 on one such pair, which held 71 % of the squared error of 270 000 uniform pairs (docs/sums.md,
+    "The sun's disc at grazing views")."""
+    i = sphere.constant(ctx[key], n)
+    xp = sphere.namespace(n)
+    r = sphere.reflect(v, n)
+    c = xp.maximum(sphere.dot(r, i), 0.0)[..., None] * r - i  # to the closest point of the ray r (none behind)
+    t = xp.clip(ctx[radius] / xp.sqrt(xp.maximum(sphere.dot(c, c), 1e-20)), 0.0, 1.0)
+    return _nh_toward(n, v, sphere.normalize(i + t[..., None] * c))
 
 
 def _vh_light(n, v, ctx, key: str):
@@ -355,6 +392,13 @@ for _j, (_name, _key) in enumerate(HIGHLIGHTS):
                          if _j == 0 else f"nh_dom of light {_j + 1} (brightest first), context {_key}"),
                         scalar=True, context=(_key,)))
 
+# the same of a light with a disc (``highlight_disc``), one record per light of HIGHLIGHT_DISCS
+for _j, (_name, _key, _radius) in enumerate(HIGHLIGHT_DISCS):
+    register(Projection(_name, "lighting", functools.partial(_nh_disc, key=_key, radius=_radius), False,
+                        f"nh_dom{_j or ''} at the point of light {_j + 1}'s disc (context {_key}, radius the sine of "
+                        f"its angular radius {_radius}) closest to r (Karis 2013's representative point)",
+                        scalar=True, context=(_key, _radius)))
+
 #: The Fresnel coordinates of highlight terms, one per light of HIGHLIGHTS (projection, context key).
 HIGHLIGHT_FRESNEL = (("vh_dom", "dominant"), ("vh_dom1", "dominant1"), ("vh_dom2", "dominant2"))
 for _j, (_name, _key) in enumerate(HIGHLIGHT_FRESNEL):
@@ -378,6 +422,6 @@ for _j, (_name, _key) in enumerate(HIGHLIGHT_TABLE):
                         f"parabolic-map direction of TABLE_SPAN (2s-1, 2t-1), a 2D table's coordinate",
                         context=(_key,)))
 
-__all__ = ["CONTEXT_KEYS", "HIGHLIGHTS", "HIGHLIGHT_COSINE", "HIGHLIGHT_FRESNEL", "HIGHLIGHT_TABLE", "TABLE_SPAN",
+__all__ = ["CONTEXT_KEYS", "HIGHLIGHTS", "HIGHLIGHT_DISCS", "HIGHLIGHT_COSINE", "HIGHLIGHT_FRESNEL", "HIGHLIGHT_TABLE", "TABLE_SPAN",
            "table_cosines", "table_point", "KINDS", "PROJECTIONS", "ContextKey", "Projection", "apply", "check_context", "example_context",
            "get", "register"]
