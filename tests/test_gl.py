@@ -109,7 +109,12 @@ def test_glsl_projection_equals_python(name):
     cpu = np.asarray(proj.fn(jnp.asarray(a), jnp.asarray(b), {k: jnp.asarray(v, jnp.float32) for k, v in ctx.items()}))
     if proj.scalar:
         cpu = np.repeat(cpu[:, None], 3, axis=1)
-    np.testing.assert_allclose(gpu, cpu, atol=1e-5)  # float32 rounding (GPU FMA, sqrt)
+    # float32 rounding (GPU FMA, sqrt). At a highlight's peak (h' = n: r on a light's disc, nhs_dom) the
+    # coordinate 1 - (1 - n.h')^(1/4) takes the fourth root of float32 rounding of n.h' (1e-15 -> 2e-4):
+    # there both must read the peak to within a 128-texel line's eighth of a texel, 1e-3.
+    peak = proj.scalar & (cpu > 1.0 - 1e-3)
+    np.testing.assert_allclose(gpu[~peak], cpu[~peak], atol=1e-5)
+    np.testing.assert_allclose(gpu[peak], cpu[peak], atol=1e-3)
 
 
 def _one_texture(mapper: str, S: int, rng=RNG):
