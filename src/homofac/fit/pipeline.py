@@ -646,6 +646,14 @@ def _polish_vote(result: Result, stages: list[Result], rule: str, score: Callabl
     return (stages[best] if keep else result).replace(selection={**result.selection, "polish": note})
 
 
+def _vote_errors(tried: list[Result], score: Callable | None) -> tuple[list[float], list[float], str]:
+    """The plain validation nrmse of each of ``tried``, the errors a vote ranks them by (``score``'s where
+    given: the ridge stratum's) and the words naming those (:func:`homofac.fit.sums.scored_by`)."""
+    plain = [float(r.metrics["validation"]["float"]["nrmse"]) for r in tried]
+    errs = plain if score is None else [float(score(r)) for r in tried]
+    return plain, errs, sums.scored_by(score is not None)[1]
+
+
 def _line_vote(result: Result, structure: Structure, sizes: tuple[int, ...], fit: Callable,
                log, score: Callable | None = None) -> tuple[Result, int]:
     """The kept ``structure`` (``result``, fitted with ``sizes[0]``-texel lines) fitted again with each
@@ -657,10 +665,8 @@ def _line_vote(result: Result, structure: Structure, sizes: tuple[int, ...], fit
     for size in sizes[1:]:
         log(f"line vote: {structure.label()} with {size}-texel lines")
         tried.append((size, fit(structure, size)))
-    plain = [float(r.metrics["validation"]["float"]["nrmse"]) for _, r in tried]
-    errs = plain if score is None else [float(score(r)) for _, r in tried]
+    plain, errs, what = _vote_errors([r for _, r in tried], score)
     k = int(np.argmin(errs))
-    _, what = sums.scored_by(score is not None)
     log(f"line vote: {what} " + ", ".join(f"{e:.4g} ({n} texels)" for (n, _), e in zip(tried, errs))
         + f": {tried[k][0]} kept")
     note = {"sizes": [int(n) for n, _ in tried], "validation_nrmse": plain, "kept": int(tried[k][0]),
@@ -677,10 +683,8 @@ def _disc_vote(result: Result, structure: Structure, line: int, fit: Callable, l
     other = structure._replace(highlight_disc=not structure.highlight_disc)
     log(f"disc vote: {other.label()}")
     tried = [result, fit(other, line)]
-    plain = [float(r.metrics["validation"]["float"]["nrmse"]) for r in tried]
-    errs = plain if score is None else [float(score(r)) for r in tried]
+    plain, errs, what = _vote_errors(tried, score)
     k = int(errs[1] < errs[0])
-    _, what = sums.scored_by(score is not None)
     log(f"disc vote: {what} {errs[0]:.4g} ({structure.label()}), {errs[1]:.4g} ({other.label()}): "
         f"{(structure, other)[k].label()} kept")
     disc = tried[1] if other.highlight_disc else tried[0]
