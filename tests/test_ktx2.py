@@ -1,0 +1,119 @@
+"""KTX2 writer and reader (homofac.io.ktx2): round trips, and the independent reader ktx-parse under node."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from homofac.errors import HomofacError
+from homofac.io.ktx2 import decode_ktx2, encode_ktx2, read_ktx2, write_ktx2
+
+JS = Path(__file__).resolve().parents[1] / "js"
+
+
+def _levels(kind: str, n: int, channels: int, rng) -> list[np.ndarray]:
+    """A random mip chain of ``kind`` (level-0 sizes chosen so that the dimensions differ)."""
+    out = []
+    for i in range(n):
+        w, h = max(1, 8 >> i), max(1, 4 >> i)
+        shape = {"2d": (h, w), "array": (3, h, w), "3d": (max(1, 2 >> i), h, w), "cube": (6, w, w)}[kind]
+        out.append(rng.uniform(-4, 4, size=shape + (channels,)).astype(np.float32))
+    return out
+
+
+VARIANTS = [(k, f) for k in ("2d", "array", "3d", "cube") for f in ("half", "float")]
+
+
+@pytest.mark.parametrize("kind,fmt", VARIANTS)
+def test_round_trip(tmp_path, kind, fmt):
+    """Every kind and format reads back with its shapes, levels, keys; float exactly, half to its rounding."""
+    rng = np.random.default_rng(1)
+    lv = _levels(kind, 3, 3, rng)
+    p = write_ktx2(tmp_path / "t.ktx2", lv, kind, fmt, {"homofac": '{"mapper": "cube"}'})
+    im = read_ktx2(p)
+    assert (im.kind, im.format, len(im.levels)) == (kind, fmt, 3)
+    for a, b in zip(lv, im.levels):
+        assert b.shape == a.shape[:-1] + (4,)
+        want = a.astype(np.float16).astype(np.float32) if fmt == "half" else a
+        np.testing.assert_array_equal(b[..., :3], want)
+        np.testing.assert_array_equal(b[..., 3], 1.0)
+    assert im.text("KTXorientation") == ("rdi" if kind == "3d" else "rd")
+    assert im.text("KTXwriter").startswith("homofac ")
+    assert json.loads(im.text("homofac")) == {"mapper": "cube"}
+
+
+def test_layout_alignment_and_rgba():
+    """Levels are stored smallest first, aligned to lcm(texel bytes, 4); RGBA input keeps its alpha."""
+    rng = np.random.default_rng(2)
+    lv = _levels("2d", 4, 4, rng)
+    data = encode_ktx2(lv, "2d", "float")
+    offsets = [int.from_bytes(data[80 + 24 * i:88 + 24 * i], "little") for i in range(4)]
+    assert offsets == sorted(offsets, reverse=True)
+    assert all(o % 16 == 0 for o in offsets)
+    np.testing.assert_array_equal(decode_ktx2(data).levels[2], lv[2])
+
+
+def test_refusals(tmp_path):
+    """Bad shapes, out-of-range halves, foreign files and truncation: one-line errors, nothing written."""
+    with pytest.raises(HomofacError, match="cube level"):
+        write_ktx2(tmp_path / "c.ktx2", np.zeros((6, 4, 2, 3)), "cube")
+    with pytest.raises(HomofacError, match="level 1 must be shaped"):
+        write_ktx2(tmp_path / "m.ktx2", [np.zeros((4, 4, 3)), np.zeros((4, 4, 3))], "2d")
+    with pytest.raises(HomofacError, match="half-float range"):
+        write_ktx2(tmp_path / "h.ktx2", np.full((2, 2, 3), 1e6), "2d", "half")
+    assert not list(tmp_path.iterdir())
+    with pytest.raises(HomofacError, match="not a KTX2"):
+        decode_ktx2(b"\x89PNG" + b"\0" * 100)
+    data = encode_ktx2(np.ones((4, 4, 3)), "2d", "half")
+    with pytest.raises(HomofacError, match="level 0"):
+        decode_ktx2(data[:-8])
+
+
+@pytest.fixture(scope="module")
+def ktx_parse():
+    """node with js/'s ktx-parse installed (``npm ci`` when the Makefile's set-up has not run it)."""
+    node = shutil.which("node")
+    if node is None:
+        pytest.skip("node is not installed")
+    if not (JS / "node_modules" / "ktx-parse").is_dir():
+        subprocess.run(["npm", "ci", "--no-audit", "--no-fund"], cwd=JS, check=True, capture_output=True, timeout=300)
+    return node
+
+
+def test_ktx_parse_reads_every_variant(tmp_path, ktx_parse):
+    """ktx-parse (npm) sees the same format, dimensions, levels, DFD and key/value data for every variant."""
+    rng = np.random.default_rng(3)
+    files = {}
+    for kind, fmt in VARIANTS:
+        lv = _levels(kind, 3, 3, rng)
+        files[(kind, fmt)] = (write_ktx2(tmp_path / f"{kind}_{fmt}.ktx2", lv, kind, fmt,
+                                         {"homofac": json.dumps({"kind": kind})}), lv)
+    out = subprocess.run([ktx_parse, str(JS / "ktx2-info.mjs"), *[str(p) for p, _ in files.values()]],
+                         check=True, capture_output=True, text=True, timeout=60)
+    infos = json.loads(out.stdout)
+    for ((kind, fmt), (p, lv)), info in zip(files.items(), infos):
+        cb = 2 if fmt == "half" else 4
+        a0 = lv[0]
+        assert info["vkFormat"] == (97 if fmt == "half" else 109) and info["typeSize"] == cb
+        assert info["supercompressionScheme"] == 0
+        assert info["pixelWidth"] == a0.shape[-2]
+        assert info["pixelHeight"] == a0.shape[-3]
+        assert info["pixelDepth"] == (a0.shape[0] if kind == "3d" else 0)
+        assert info["layerCount"] == (a0.shape[0] if kind == "array" else 0)
+        assert info["faceCount"] == (6 if kind == "cube" else 1)
+        assert info["levelCount"] == len(lv)
+        assert info["levelBytes"] == [int(np.prod(a.shape[:-1])) * 4 * cb for a in lv]
+        dfd = info["dfd"]
+        assert (dfd["colorModel"], dfd["colorPrimaries"], dfd["transferFunction"]) == (1, 1, 1)
+        assert dfd["bytesPlane"][0] == 4 * cb
+        assert [s["channelType"] for s in dfd["samples"]] == [0xC0, 0xC1, 0xC2, 0xCF]
+        assert [s["bitLength"] for s in dfd["samples"]] == [8 * cb - 1] * 4
+        kv = info["keyValue"]
+        assert kv["KTXorientation"] == ("rdi" if kind == "3d" else "rd")
+        assert kv["KTXwriter"].startswith("homofac ")
+        assert json.loads(kv["homofac"]) == {"kind": kind}
