@@ -31,6 +31,7 @@ from ..brdf import MODELS
 from ..errors import HomofacError
 from ..factorization import Factor, Factorization, Term, Texture
 from ..light import Environment
+from ..light.sh import sh9_basis, sh9_irradiance
 from ..options import Options
 from ..param import mappers
 from .base import Baseline, centres, directional_albedo, irradiance_map, light_sums, lighting_parts
@@ -61,27 +62,6 @@ def prefilter(ndf, params, env: Environment, dirs: np.ndarray, weighting: str = 
     num, den = light_sums(_weight(ndf, weighting), params, dirs, env)
     num, den = np.asarray(num, np.float64), np.asarray(den, np.float64)
     return np.where(den[:, None] > 0, num / np.maximum(den, 1e-300)[:, None], 0.0)
-
-
-# Real spherical harmonics Y_lm (l <= 2) and the cosine lobe's convolution factors (Ramamoorthi & Hanrahan 2001).
-_SH_A = np.array([np.pi, 2 * np.pi / 3, 2 * np.pi / 3, 2 * np.pi / 3] + [np.pi / 4] * 5)
-
-
-def sh9_basis(d: np.ndarray) -> np.ndarray:
-    """The 9 real SH basis functions at unit directions ``d`` (N, 3) -> (N, 9)."""
-    x, y, z = d[:, 0], d[:, 1], d[:, 2]
-    return np.stack([
-        0.282095 * np.ones_like(x), 0.488603 * y, 0.488603 * z, 0.488603 * x,
-        1.092548 * x * y, 1.092548 * y * z, 0.315392 * (3 * z * z - 1), 1.092548 * x * z, 0.546274 * (x * x - y * y),
-    ], axis=-1)
-
-
-def sh9_irradiance(env: Environment, dirs: np.ndarray) -> np.ndarray:
-    """E(n) from the environment's 9 SH coefficients: ``sum_lm A_l L_lm Y_lm(n)`` (N, 3)."""
-    ld = np.asarray(env.directions, np.float64)
-    power = np.asarray(env.radiance, np.float64) * np.asarray(env.solid_angle, np.float64)[:, None]
-    coeffs = sh9_basis(ld).T @ power  # (9, 3): L_lm
-    return sh9_basis(np.asarray(dirs, np.float64)) @ (_SH_A[:, None] * coeffs)
 
 
 def dfg(brdf, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
