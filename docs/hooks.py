@@ -509,6 +509,8 @@ NOTES = {
     "LightOptions.intensity": "point lights: intensity (a number or [r, g, b])",
     "OutputOptions.dir": "output directory, relative to the config file (the CLI's --out overrides it)",
     "OutputOptions.png": "also write the 8-bit RGBA textures `<name>.png` with their decode rule",
+    "OutputOptions.ktx2": "also write each texture as `<name>.ktx2` (KTX 2.0, half float; [KTX2 textures](format.md#ktx2-textures)); "
+                          "`--ktx2` on the CLI",
     "OutputOptions.samples": "write `samples.npz` (a, b, y, val_a, val_b, val_y)",
     "OutputOptions.exr": "pixel type of the EXR textures",
     "OutputOptions.alpha": "use the alpha channel of the 8-bit textures (thesis §4.3.2)",

@@ -117,3 +117,80 @@ def test_ktx_parse_reads_every_variant(tmp_path, ktx_parse):
         assert kv["KTXorientation"] == ("rdi" if kind == "3d" else "rd")
         assert kv["KTXwriter"].startswith("homofac ")
         assert json.loads(kv["homofac"]) == {"kind": kind}
+
+
+def _cube_result():
+    """A one-term factorization on a cube texture (made-up smooth values)."""
+    import jax.numpy as jnp
+
+    from helpers import smooth_texture
+    from homofac.factorization import Factor, Factorization, Term, Texture
+    from homofac.fit.result import Result
+
+    tex = Texture("C", "cube", 4, jnp.asarray(smooth_texture("cube", 4, 5)))
+    return Result(Factorization("lighting", "lighting", (tex,), (Term((Factor("r", "C"),), jnp.ones(3)),), {}, "cube1"))
+
+
+def test_factorization_output_writes_ktx2(tmp_path):
+    """``ktx2=True``: every texture also as <name>.ktx2 (half), listed in factorization.json, equal to the EXR
+    texels (cube maps as KTX2 cubes, face for face); the directory still loads; without it, no KTX2."""
+    from helpers import two_terms
+    import homofac as hf
+    from homofac.fit.result import Result
+    from homofac.io.exr import read_exr
+
+    for fac, kinds in ((Result(two_terms()), ["2d", "2d", "2d"]), (_cube_result(), ["cube"])):
+        out = fac.save(tmp_path / fac.model.name, ktx2=True)
+        doc = json.loads((out / "factorization.json").read_text())
+        for t, kind in zip(doc["textures"], kinds):
+            assert t["ktx2"] == f"{t['name']}.ktx2" and t["ktx2_format"] == "half"
+            im = read_ktx2(out / t["ktx2"])
+            assert (im.kind, im.format, len(im.levels)) == (kind, "half", 1)
+            exr = read_exr(out / t["file"])
+            data = im.levels[0][..., :3]
+            if kind == "cube":
+                data = np.concatenate(list(data), axis=1)  # faces side by side: the pinned (S, 6S) layout
+            np.testing.assert_allclose(data, exr.astype(np.float16).astype(np.float32), rtol=0, atol=0)
+            layout = json.loads(im.text("homofac"))
+            assert layout["mapper"] == t["mapper"] and layout["texture"] == t["name"]
+            assert layout["uses"] == t["uses"] and layout["frame"] == "+z up"
+        assert hf.load(out).model.name == fac.model.name
+    plain = Result(two_terms()).save(tmp_path / "plain")
+    assert not list(plain.glob("*.ktx2"))
+    assert "ktx2" not in json.loads((plain / "factorization.json").read_text())["textures"][0]
+
+
+def _small_config(tmp_path, **output) -> Path:
+    import yaml
+
+    cfg = {"target": {"kind": "brdf", "brdf": {"model": "cook_torrance", "kd": 0.1, "ks": 1.0, "roughness": 0.3,
+                                                 "f0": [1.0, 0.78, 0.34]}},
+           "parametrization": "PQP", "mapper": "parabolic", "texture_size": 8,
+           "sampling": {"kind": "texels", "size": 8, "validation": 200, "seed": 0},
+           "solver": {"method": "lsmr", "tolerance": 1e-4, "max_iterations": 100},
+           "output": {"dir": "out", "samples": False, "preview": False, **output}}
+    p = tmp_path / "c.yaml"
+    p.write_text(yaml.safe_dump(cfg))
+    return p
+
+
+def test_ktx2_option_in_config_and_cli(tmp_path, capsys):
+    """``output: {ktx2: true}`` is a config key, and ``--ktx2`` sets it (the resolved config says so)."""
+    from homofac.app import config as cfgmod
+    from homofac.app.cli import fit_main
+
+    assert cfgmod.load(_small_config(tmp_path, ktx2=True))[0].output.ktx2 is True
+    assert fit_main([str(_small_config(tmp_path)), "--ktx2", "--print-config"]) == 0
+    assert "ktx2: true" in capsys.readouterr().out
+    assert fit_main([str(_small_config(tmp_path)), "--print-config"]) == 0
+    assert "ktx2: false" in capsys.readouterr().out
+
+
+@pytest.mark.slow
+def test_fit_cli_ktx2(tmp_path):
+    """A fit run with ``--ktx2`` writes its textures as KTX2 beside the EXR files."""
+    from homofac.app.cli import fit_main
+
+    assert fit_main([str(_small_config(tmp_path)), "--quiet", "--ktx2", "--out", str(tmp_path / "a")]) == 0
+    doc = json.loads((tmp_path / "a" / "factorization.json").read_text())
+    assert [read_ktx2(tmp_path / "a" / t["ktx2"]).kind for t in doc["textures"]] == ["2d", "2d"]

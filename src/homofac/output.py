@@ -1,7 +1,8 @@
 """The pinned output directory: factorization.json (schema 2), ``<name>.exr`` textures, optional files.
 
 Layout (docs/format.md): ``factorization.json``; per texture ``<name>.exr`` (float32 or half RGB,
-linear) and, with ``png``, ``<name>.png`` (8-bit RGBA with the decode rule in the JSON); cube-mapper
+linear) and, with ``png``, ``<name>.png`` (8-bit RGBA with the decode rule in the JSON), with ``ktx2``,
+``<name>.ktx2`` (KTX 2.0, RGBA half float, a cube map for the ``cube`` mapper; :func:`ktx2_layout`); cube-mapper
 textures also as six face files and one EXR with ``envmap = cube``; ``samples.npz``, ``preview.png``
 and the shaders (``shader.glsl`` ...) when asked. A one-term factorization also writes schema 1's
 top-level keys (``parametrization``, ``mapper``, ``texture_size``, ``factors``, ``correction``,
@@ -41,6 +42,7 @@ from .factorization import Factor, Factorization, Quantized, Term, Texture, chec
 from .fit.result import Result, register_writer
 from .io.exr import read_exr, write_exr
 from .io.files import one_line
+from .io.ktx2 import write_ktx2
 from .io.png import read_png, write_png
 from .options import Options, validate
 from .param import mappers
@@ -70,11 +72,13 @@ class OutputOptions(Options):
     ``png`` writes the 8-bit RGBA textures; ``exr`` is the EXR pixel type (``float32`` or ``half``);
     ``alpha`` turns the thesis' alpha precision trick (§4.3.2) of the 8-bit textures on or off;
     ``prescale`` gives the T + 1 weights ``w_0 .. w_T`` of thesis §4.3.1 (correction, then textures);
-    ``preview`` writes preview.png; ``shaders`` the shader files of the listed languages.
+    ``preview`` writes preview.png; ``shaders`` the shader files of the listed languages; ``ktx2`` also writes
+    each texture as ``<name>.ktx2`` (KTX 2.0, half float) for engines that load KTX2.
     """
 
     dir: str = "out"
     png: bool = False
+    ktx2: bool = False
     samples: bool = True
     exr: Literal["float32", "half"] = "float32"
     alpha: bool = True
@@ -264,8 +268,33 @@ def shader_files(languages_: list[str], png: bool) -> dict[str, tuple[str, bool]
     return out
 
 
+#: Largest magnitude of a half float: a texture beyond it is written to KTX2 as float32 instead.
+HALF_MAX = 65504.0
+
+
+def ktx2_layout(name: str, mapper: str, size: int, uses: list, fmt: str) -> dict:
+    """The ``homofac`` key of a texture's KTX2 file: what the texels mean, and how the file is laid out.
+
+    ``cube`` textures are KTX2 cube maps (faces +X, -X, +Y, -Y, +Z, -Z of homofac's +z-up frame, the
+    OpenGL face table of docs/format.md: a y-up engine looks them up at ``(x, -z, y)`` of its direction
+    as ``HOMOFAC_Y_UP`` does); every other mapper is one 2D image with the EXR's layout (the mapper's
+    ``(H, W)`` table, two halves side by side for ``dual_paraboloid``, one row for ``line``). One mip
+    level: the factorization is read with bilinear filtering. RGB in R, G, B; alpha 1.
+    """
+    layout = ("cube map, faces +X -X +Y -Y +Z -Z of the +z-up frame" if mapper == "cube"
+              else f"2D image laid out as the {mapper} mapper's table (docs/format.md)")
+    return {"format": "homofac.texture", "texture": name, "mapper": mapper, "size": size, "uses": uses,
+            "layout": layout, "layers": "none (one image per face)" if mapper == "cube" else "none",
+            "levels": "1 (bilinear lookups)", "frame": "+z up", "values": "linear RGB, alpha 1", "ktx2_format": fmt}
+
+
+def _ktx2_format(tex: np.ndarray) -> str:
+    """``half`` unless a texel exceeds the half-float range (then ``float``)."""
+    return "half" if np.abs(tex).max(initial=0.0) <= HALF_MAX else "float"
+
+
 def document(fac: Result, *, png: bool = False, exr: str = "float32", encoded: Quantized | None = None,
-             shaders: dict | None = None) -> tuple[dict, list]:
+             shaders: dict | None = None, ktx2: bool = False) -> tuple[dict, list]:
     """The factorization.json document of a result, and the non-finite values it replaced by null."""
     if exr not in EXR_TYPES:
         raise HomofacError(f"output.exr must be one of {', '.join(EXR_TYPES)}, got {exr!r}")
@@ -283,6 +312,9 @@ def document(fac: Result, *, png: bool = False, exr: str = "float32", encoded: Q
             entry["png"] = f"{t.name}.png"
             if t.mapper == "cube":
                 entry["png_faces"] = [f"{t.name}_{f}.png" for f in FACE_NAMES]
+        if ktx2:
+            entry["ktx2"] = f"{t.name}.ktx2"
+            entry["ktx2_format"] = _ktx2_format(np.asarray(t.data, np.float32))
         textures.append(entry)
     terms = [{"kind": term.kind, "correction": term.correction, "png_correction": enc.corrections[i],
               "factors": [{"projection": f.projection, "texture": f.texture} for f in term.factors]}
@@ -328,7 +360,7 @@ def _write_json(path: Path, doc: dict) -> None:
 
 
 def save(fac: Result, out_dir, *, samples=None, extra_files: dict | None = None, png: bool = False,
-         exr: str = "float32", shaders=()) -> Path:
+         exr: str = "float32", shaders=(), ktx2: bool = False) -> Path:
     """Write the output directory atomically (see the module docstring); returns its path.
 
     Args:
@@ -339,12 +371,13 @@ def save(fac: Result, out_dir, *, samples=None, extra_files: dict | None = None,
         png: also write ``<name>.png``, the 8-bit RGBA textures with their decode rule.
         exr: ``"float32"`` (bit-exact) or ``"half"`` pixels in the EXR textures.
         shaders: languages whose shader files to write (``glsl``, ``glsl_es``, ``hlsl``, ``msl``, ``wgsl``).
+        ktx2: also write ``<name>.ktx2`` (KTX 2.0, RGBA half float; :func:`ktx2_layout`).
 
     Non-finite metrics are written as null with a warning in the document (strict JSON).
     """
     shaders = shader_files(list(shaders), png)
     return _write_dir_atomically(out_dir, "the output directory",
-                                 lambda tmp: _write_all(fac, tmp, samples, extra_files, png, exr, shaders))
+                                 lambda tmp: _write_all(fac, tmp, samples, extra_files, png, exr, shaders, ktx2))
 
 
 def _write_dir_atomically(out_dir, what: str, write) -> Path:
@@ -384,9 +417,10 @@ def save_library(out_dir, write_members) -> Path:
     return _write_dir_atomically(out_dir, "the library", write)
 
 
-def _write_all(fac: Result, tmp: Path, samples, extra_files, png: bool, exr: str, shaders: dict) -> None:
+def _write_all(fac: Result, tmp: Path, samples, extra_files, png: bool, exr: str, shaders: dict,
+               ktx2: bool = False) -> None:
     enc = fac.encoded()
-    doc, bad = document(fac, png=png, exr=exr, encoded=enc, shaders=shaders)
+    doc, bad = document(fac, png=png, exr=exr, encoded=enc, shaders=shaders, ktx2=ktx2)
     if bad:
         doc["warnings"].append(f"{len(bad)} non-finite metric values were written as null")
     half = exr == "half"
@@ -397,6 +431,12 @@ def _write_all(fac: Result, tmp: Path, samples, extra_files, png: bool, exr: str
             for f, face in zip(t["faces"], cube_faces(tex)):
                 write_exr(tmp / f, face, half=half)
             write_exr(tmp / t["cube_file"], cube_vertical(tex), half=half, header={"envmap": OpenEXR.ENVMAP_CUBE})
+        if ktx2:
+            layout = json.dumps(ktx2_layout(t["name"], t["mapper"], t["size"], t["uses"], t["ktx2_format"]))
+            if t["mapper"] == "cube":
+                write_ktx2(tmp / t["ktx2"], np.stack(cube_faces(tex)), "cube", t["ktx2_format"], {"homofac": layout})
+            else:
+                write_ktx2(tmp / t["ktx2"], tex, "2d", t["ktx2_format"], {"homofac": layout})
         if png:
             info = {"homofac": f"texture {t['name']} of {fac.parametrization}; linear RGBA8, "
                                f"decode rule in {JSON_NAME} (textures[].png_decode)"}

@@ -163,7 +163,7 @@ config keys (docs/config.md; unknown keys are errors):
   target_error:    validation nrmse to meet with the cheapest candidate
   sums:            {sums}
   linear:          {linear}
-  output:          {{dir, png, samples, exr (float32 | half), alpha, prescale [w0 .. wT], preview,
+  output:          {{dir, png, ktx2, samples, exr (float32 | half), alpha, prescale [w0 .. wT], preview,
                    shaders [{' | '.join(LANGUAGES)}]}}
   limits:          {{memory_gb}}
 relative paths are relative to the config file; --out is relative to the current directory.
@@ -187,6 +187,8 @@ def fit_parser() -> argparse.ArgumentParser:
     p.add_argument("--debug", action="store_true", help="show full tracebacks on errors")
     p.add_argument("--print-config", action="store_true", help="print the resolved config as YAML and exit")
     p.add_argument("--no-preview", action="store_true", help="do not write preview.png (output.preview: false)")
+    p.add_argument("--ktx2", action="store_true",
+                   help="also write each texture as <name>.ktx2 (KTX 2.0, half float; output.ktx2: true)")
     p.add_argument("--shaders", metavar="LANG", nargs="*", choices=list(LANGUAGES),
                    help=f"also write shaders ({', '.join(LANGUAGES)}; default all when given without names)")
     return p
@@ -201,6 +203,8 @@ def fit_main(argv: list[str] | None = None) -> int:
 def _fit(args) -> int:
     path = Path(args.config) if args.config else cfgmod.default_config_path()
     cfg, base = cfgmod.load(path)
+    if args.ktx2:
+        cfg = cfg.model_copy(update={"output": cfg.output.model_copy(update={"ktx2": True})})
     if args.print_config:
         print(yaml.safe_dump(cfg.model_dump(mode="json"), sort_keys=False), end="")
         return 0

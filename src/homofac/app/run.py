@@ -149,7 +149,7 @@ def write_result(fac: Result, target: Target, cfg: Config, out: Path, log=None, 
         extra["preview.png"] = preview_writer(fac, target, log=log)
     langs = list(dict.fromkeys(list(o.shaders) + list(shaders or [])))
     try:
-        fac.save(out, samples=fac.samples if o.samples else None, png=o.png, exr=o.exr, extra_files=extra,
+        fac.save(out, samples=fac.samples if o.samples else None, png=o.png, exr=o.exr, ktx2=o.ktx2, extra_files=extra,
                  shaders=langs)
     except OSError as e:
         if e.errno == errno.ENOSPC:
