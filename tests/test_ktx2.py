@@ -7,10 +7,19 @@ import shutil
 import subprocess
 from pathlib import Path
 
+import jax.numpy as jnp
 import numpy as np
 import pytest
+import yaml
 
+import homofac as hf
+from helpers import smooth_texture, two_terms
+from homofac.app import config as cfgmod
+from homofac.app.cli import fit_main
 from homofac.errors import HomofacError
+from homofac.factorization import Factor, Factorization, Term, Texture
+from homofac.fit.result import Result
+from homofac.io.exr import read_exr
 from homofac.io.ktx2 import decode_ktx2, encode_ktx2, read_ktx2, write_ktx2
 
 JS = Path(__file__).resolve().parents[1] / "js"
@@ -121,12 +130,6 @@ def test_ktx_parse_reads_every_variant(tmp_path, ktx_parse):
 
 def _cube_result():
     """A one-term factorization on a cube texture (made-up smooth values)."""
-    import jax.numpy as jnp
-
-    from helpers import smooth_texture
-    from homofac.factorization import Factor, Factorization, Term, Texture
-    from homofac.fit.result import Result
-
     tex = Texture("C", "cube", 4, jnp.asarray(smooth_texture("cube", 4, 5)))
     return Result(Factorization("lighting", "lighting", (tex,), (Term((Factor("r", "C"),), jnp.ones(3)),), {}, "cube1"))
 
@@ -134,11 +137,6 @@ def _cube_result():
 def test_factorization_output_writes_ktx2(tmp_path):
     """``ktx2=True``: every texture also as <name>.ktx2 (half), listed in factorization.json, equal to the EXR
     texels (cube maps as KTX2 cubes, face for face); the directory still loads; without it, no KTX2."""
-    from helpers import two_terms
-    import homofac as hf
-    from homofac.fit.result import Result
-    from homofac.io.exr import read_exr
-
     for fac, kinds in ((Result(two_terms()), ["2d", "2d", "2d"]), (_cube_result(), ["cube"])):
         out = fac.save(tmp_path / fac.model.name, ktx2=True)
         doc = json.loads((out / "factorization.json").read_text())
@@ -161,8 +159,6 @@ def test_factorization_output_writes_ktx2(tmp_path):
 
 
 def _small_config(tmp_path, **output) -> Path:
-    import yaml
-
     cfg = {"target": {"kind": "brdf", "brdf": {"model": "cook_torrance", "kd": 0.1, "ks": 1.0, "roughness": 0.3,
                                                  "f0": [1.0, 0.78, 0.34]}},
            "parametrization": "PQP", "mapper": "parabolic", "texture_size": 8,
@@ -176,9 +172,6 @@ def _small_config(tmp_path, **output) -> Path:
 
 def test_ktx2_option_in_config_and_cli(tmp_path, capsys):
     """``output: {ktx2: true}`` is a config key, and ``--ktx2`` sets it (the resolved config says so)."""
-    from homofac.app import config as cfgmod
-    from homofac.app.cli import fit_main
-
     assert cfgmod.load(_small_config(tmp_path, ktx2=True))[0].output.ktx2 is True
     assert fit_main([str(_small_config(tmp_path)), "--ktx2", "--print-config"]) == 0
     assert "ktx2: true" in capsys.readouterr().out
@@ -189,8 +182,6 @@ def test_ktx2_option_in_config_and_cli(tmp_path, capsys):
 @pytest.mark.slow
 def test_fit_cli_ktx2(tmp_path):
     """A fit run with ``--ktx2`` writes its textures as KTX2 beside the EXR files."""
-    from homofac.app.cli import fit_main
-
     assert fit_main([str(_small_config(tmp_path)), "--quiet", "--ktx2", "--out", str(tmp_path / "a")]) == 0
     doc = json.loads((tmp_path / "a" / "factorization.json").read_text())
     assert [read_ktx2(tmp_path / "a" / t["ktx2"]).kind for t in doc["textures"]] == ["2d", "2d"]
