@@ -34,10 +34,9 @@ evaluated at the same points as homofac's models, imported by the tests and by t
 
 from __future__ import annotations
 
-import os
 import subprocess
+import sys
 import tempfile
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -85,20 +84,32 @@ def latlong_image(environment) -> np.ndarray:
     return read_exr(p)
 
 
+# Runs the command in argv[2:], then writes its wall time, peak RSS (KB) and CPU time to argv[1]. The sampler is
+# started from this small process, not from the caller: a child's peak RSS counts the memory of the process it
+# was forked from (Linux records the parent's high-water mark at exec), which for a caller with JAX loaded is
+# larger than the sampler itself.
+_LAUNCHER = (
+    "import resource, subprocess, sys, time\n"
+    "t = time.perf_counter()\n"
+    "code = subprocess.run(sys.argv[2:]).returncode\n"
+    "t = time.perf_counter() - t\n"
+    "u = resource.getrusage(resource.RUSAGE_CHILDREN)\n"
+    "open(sys.argv[1], 'w').write(f'{t} {u.ru_maxrss} {u.ru_utime + u.ru_stime}')\n"
+    "sys.exit(code)\n"
+)
+
+
 def _run(args: list[str], cwd: Path) -> dict:
-    """Run the sampler's CLI with ``args`` in ``cwd``; wall time (s) and peak resident memory (MB) of the run."""
-    out, err = cwd / "stdout.txt", cwd / "stderr.txt"
-    t0 = time.perf_counter()
+    """Run the sampler's CLI with ``args`` in ``cwd``: its wall time (s), peak resident memory (MB) and CPU time."""
+    out, err, usage = cwd / "stdout.txt", cwd / "stderr.txt", cwd / "usage.txt"
     with open(out, "wb") as fo, open(err, "wb") as fe:
-        p = subprocess.Popen([str(get_binary_path()), *args], cwd=cwd, env=get_ld_library_env(), stdout=fo, stderr=fe)
-        _, status, usage = os.wait4(p.pid, 0)
-        p.returncode = os.waitstatus_to_exitcode(status)
-    wall = time.perf_counter() - t0
-    log = out.read_text(errors="replace") + err.read_text(errors="replace")
-    if p.returncode != 0:
-        tail = " ".join(log.split()[-40:])
-        raise HomofacError(f"glTF-IBL-Sampler failed (exit {p.returncode}): {tail}")
-    return {"wall_s": wall, "peak_rss_mb": usage.ru_maxrss / 1024.0, "cpu_s": usage.ru_utime + usage.ru_stime}
+        code = subprocess.run([sys.executable, "-c", _LAUNCHER, str(usage), str(get_binary_path()), *args], cwd=cwd,
+                              env=get_ld_library_env(), stdout=fo, stderr=fe).returncode
+    if code != 0 or not usage.is_file():
+        tail = " ".join((out.read_text(errors="replace") + err.read_text(errors="replace")).split()[-40:])
+        raise HomofacError(f"glTF-IBL-Sampler failed (exit {code}): {tail}")
+    wall, rss_kb, cpu = (float(x) for x in usage.read_text().split())
+    return {"wall_s": wall, "peak_rss_mb": rss_kb / 1024.0, "cpu_s": cpu}
 
 
 @dataclass(frozen=True)
