@@ -14,7 +14,7 @@
 // material with HOMOFAC_Y_UP: three's y-up world frame maps to homofac's +z-up one.
 
 import {
-  DataTexture, FloatType, HalfFloatType, LinearFilter, ClampToEdgeWrapping, LinearSRGBColorSpace, RGBAFormat,
+  DataTexture, EquirectangularReflectionMapping, FloatType, HalfFloatType, LinearFilter, ClampToEdgeWrapping, LinearSRGBColorSpace, RGBAFormat,
 } from 'three';
 import { EXRLoader } from 'three/addons/loaders/EXRLoader.js';
 import { read as readKTX2 } from 'three/addons/libs/ktx-parse.module.js';
@@ -74,6 +74,12 @@ async function loadTexture(base, entry) {
   }
   const url = joinUrl(base, entry.file);
   const tex = await new EXRLoader().setDataType(HalfFloatType).loadAsync(url);
+  // EXRLoader puts the file's last row first (v = 0 at the image's bottom); a bake reads rows in file order
+  const { width: w, height: h, data } = tex.image;
+  const c = data.length / (w * h);
+  const rows = new data.constructor(data.length);
+  for (let y = 0; y < h; y++) rows.set(data.subarray((h - 1 - y) * w * c, (h - y) * w * c), y * w * c);
+  tex.image.data = rows;
   return finish(tex);
 }
 
@@ -130,4 +136,26 @@ export function applyBake(material, bake, { intensity = 1 } = {}) {
   material.customProgramCacheKey = () => `homofac:${bake.url}`;
   material.needsUpdate = true;
   return material;
+}
+
+/**
+ * A lat-long environment in homofac's convention (row 0 up, +z up, as EXRLoader or HDRLoader return it) as the
+ * equirect three.js samples in its y-up world, so that PMREM sees the environment the bake was made from:
+ * three's direction (x, y, z) reads homofac's (x, -z, y). Permutes the texture's columns in place.
+ * @param {import('three').DataTexture} texture
+ */
+export function toThreeEquirect(texture) {
+  const { width: w, height: h, data } = texture.image;
+  const c = data.length / (w * h);
+  const out = new data.constructor(data.length);
+  for (let y = 0; y < h; y++) {
+    for (let x = 0; x < w; x++) {
+      const src = ((y * w + ((((w >> 1) - 1 - x) % w) + w) % w) * c);
+      out.set(data.subarray(src, src + c), (y * w + x) * c);
+    }
+  }
+  texture.image.data = out;
+  texture.mapping = EquirectangularReflectionMapping;
+  texture.needsUpdate = true;
+  return texture;
 }

@@ -1,6 +1,7 @@
 // window.hfTest: set up a scene (asset + equirect environment), then read passes back as base64 float32.
 import * as THREE from 'three';
 import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
+import { loadBake, applyBake } from '/js/homofac-three.js';
 
 const state = {};
 
@@ -95,9 +96,32 @@ window.hfTest = {
 
   gbuffer(name) { return this._render((m) => passMaterial(m, PASSES[name])); },
 
-  // three's own image-based lighting: the material with scene.environment's PMREM (float radiance).
-  pmrem() {
-    return this._render((m) => { const c = m.clone(); c.envMap = state.envTexture; c.envMapIntensity = 1; return c; });
+  // The material with three's own image-based lighting (PMREM of the environment), times `exposure`.
+  _pmrem(exposure) {
+    return (m) => { const c = m.clone(); c.envMap = state.envTexture; c.envMapIntensity = exposure; return c; };
+  },
+
+  // The material with homofac's drop-in (js/homofac-three.js) reading the bake loaded by loadBake.
+  _homofac(exposure) { return (m) => applyBake(m.clone(), state.bake, { intensity: exposure }); },
+
+  async loadBake(url) { state.bake = await loadBake(url); return state.bake.lookups; },
+
+  // Float radiance (base64 float32 RGBA) of 'pmrem' or 'homofac'.
+  radiance(kind) { return this._render(kind === 'pmrem' ? this._pmrem(1) : this._homofac(1)); },
+
+  // The 8-bit canvas (linear output, no tone mapping) of 'pmrem' or 'homofac' at `exposure`: base64 RGBA bytes.
+  canvas(kind, exposure) {
+    const { renderer, scene, camera, meshes, originals, size } = state;
+    const make = kind === 'pmrem' ? this._pmrem(exposure) : this._homofac(exposure);
+    meshes.forEach((m, i) => { m.material = make(originals[i]); });
+    renderer.setRenderTarget(null);
+    renderer.setClearColor(0x000000, 1);
+    renderer.clear();
+    renderer.render(scene, camera);
+    const gl = renderer.getContext();
+    const out = new Uint8Array(size * size * 4);
+    gl.readPixels(0, 0, size, size, gl.RGBA, gl.UNSIGNED_BYTE, out);
+    return b64(out);
   },
 };
 window.hfTest.ready = true;
