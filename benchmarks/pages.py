@@ -99,7 +99,11 @@ def preset_table(accuracy_rows: list[dict], preset_rows: list[dict]) -> str:
              "|---|---:|---:|---:|"]
     for s in summary:
         t = seconds(*s["fit_s"]) if s["fit_s"] else "not measured"
-        e = f"{s['ratio'][0]:.2f}-{s['ratio'][1]:.2f}x ({s['cases']} cases)" if s["ratio"] else "not measured"
+        e = "not measured"
+        if s["ratio"]:
+            lo, hi = (f"{x:.2f}" for x in s["ratio"])
+            e = f"{lo}x" if lo == hi else f"{lo}-{hi}x"
+            e += f" ({s['cases']} case{'s' if s['cases'] > 1 else ''})"
         lines.append(f"| `{s['preset']}` | {s['lookups']} | {t} | {e} |")
     if split:
         lines.append(f"| split-sum (Karis 2013, for reference) | 3 | "

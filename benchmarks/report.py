@@ -240,12 +240,9 @@ def write_pages(json_path: Path, docs: Path, md: str, refit_md: str, scene_md: s
     return [p for p, _, _ in pages]
 
 
-def main(argv=None) -> None:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("json", nargs="?", default=str(Path(__file__).with_name("results.json")))
-    p.add_argument("--docs", default=str(DOCS), help="directory of the generated pages ('' for none)")
-    args = p.parse_args(argv)
-    path = Path(args.json)
+def tables(path: Path) -> tuple[str, str, str]:
+    """The markdown of a pytest-benchmark JSON: (solvers and sums, refits, scene sampling); "" for a part
+    whose records the JSON does not hold."""
     cases, baselines, sums, _ = records(path)
     refits = refit_records(path)
     scenes = scene_records(path)
@@ -257,13 +254,25 @@ def main(argv=None) -> None:
         md = f"Machine: {machine}.\n\n" + (table(cases, baselines) + "\n" if cases else "")
         if sums:
             md += "\n" + sums_table(sums) + "\n"
-        (path.parent / "results.md").write_text(md)
-    if cases:
-        plot(cases, path.parent / "pareto.png", machine)
     refit_md = f"Machine: {machine}.\n\n{refit_table(refits)}\n" if refits else ""
     scene_md = (f"Machine: {machine}; the demo scene's {scenes[0]['scene_pixels']:,} covered pixels (held-out "
                 f"views: {scenes[0]['held_out_pixels']:,}).\n\n"
                 f"{scene_table(scenes)}\n") if scenes else ""
+    return md, refit_md, scene_md
+
+
+def main(argv=None) -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("json", nargs="?", default=str(Path(__file__).with_name("results.json")))
+    p.add_argument("--docs", default=str(DOCS), help="directory of the generated pages ('' for none)")
+    args = p.parse_args(argv)
+    path = Path(args.json)
+    md, refit_md, scene_md = tables(path)
+    if md:
+        (path.parent / "results.md").write_text(md)
+    cases, _, _, _ = records(path)
+    if cases:
+        plot(cases, path.parent / "pareto.png", cases[0].get("machine", ""))
     if args.docs:
         write_pages(path, Path(args.docs), md, refit_md, scene_md)
     print(md + refit_md + scene_md)
