@@ -95,8 +95,8 @@ METHODS = {
     "E+NRW x5": {"parametrization": "NR", "terms": 5, "diffuse": "exact", "nv_factor": True, "sampling": GRID},
     "max_lookups 4": {"parametrization": "NR", "max_lookups": 4, "sampling": GRID},
     "max_lookups 8": {"parametrization": "NR", "max_lookups": 8, "sampling": GRID},
-    # the quality mode: the lighting fitted at resolution 64 (docs/sums.md, "The lighting the fit sees"), the
-    # grid's count and the plain objective of the chooser's quality-mode rule (homofac.fit.pipeline.grid_count)
+    # the quality mode: the lighting fitted at resolution 64 (docs/notes/sums-research.md, "The lighting the fit
+    # sees"), the grid's count and the plain objective of the chooser's quality-mode rule (homofac.fit.pipeline.grid_count)
     "max_lookups 16": {"parametrization": "NR", "max_lookups": 16, "sampling": {"kind": "grid"}, "fit_resolution": 64},
 }
 
@@ -113,8 +113,8 @@ def validation_pairs(count: int = 20000, seed: int = 12345):
 
 #: The dense pair set: 9000 normals with 30 views each (the table's 20000 pairs have 141 normals). Under a sun
 #: a few pairs whose reflection grazes the normal's horizon next to the sun hold most of the squared error, so
-#: the nrmse of 141 normals is a noisy estimate (docs/sums.md, "The grazing ridge of the sun"); this set has 64
-#: times as many normals, and its three disjoint thirds (3000 normals each) show the spread.
+#: the nrmse of 141 normals is a noisy estimate (docs/notes/sums-research.md, "The grazing ridge of the sun"); this set
+#: has 64 times as many normals, and its three disjoint thirds (3000 normals each) show the spread.
 DENSE_NORMALS, DENSE_VIEWS, DENSE_SEED, DENSE_PARTS = 9000, 30, 2026, 3
 
 
