@@ -431,7 +431,7 @@ frontal > 0.5, as ratios to split-sum's, geometric mean over the cases) and the 
 the third reads the rows measured on 270000 dense pairs, a steadier figure under a sun.
 
 ```sh
-python benchmarks/accuracy.py            # every case and method, about an hour at 4 and 8 lookups
+python benchmarks/accuracy.py            # every case and method: hours (a 16-lookup fit takes 30-80 minutes)
 ```
 
 {report(rows, PAGE_METHODS)}
