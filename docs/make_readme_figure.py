@@ -33,8 +33,9 @@ def main() -> int:
     env = hf.light.load_environment("forest", resolution=32)
     gold = hf.brdf.cook_torrance(kd=(0.05, 0.04, 0.02), ks=1.0, roughness=0.3, f0=(1.0, 0.78, 0.34))
     target = hf.light.lighting_target(gold, env)
-    fits = [("homofac, 8 lookups", hf.fit.factorize(target, "NR", max_lookups=8)),
-            ("split-sum, 3 lookups", hf.fit.factorize(target, "split_sum"))]
+    log = lambda msg: print(msg, flush=True)  # noqa: E731 - a fit of minutes says where it is
+    fits = [("homofac, 8 lookups", hf.fit.factorize(target, "NR", max_lookups=8, log=log)),
+            ("split-sum, 3 lookups", hf.fit.factorize(target, "split_sum", log=log))]
     frames = [(name, render(fac, "sphere", size=SIZE, camera=CAMERA)) for name, fac in fits]
     frame = frames[0][1]
     exact = picture.exact_values(target, frame)
