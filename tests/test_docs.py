@@ -232,6 +232,24 @@ def test_user_pages_keep_to_what_a_user_sets_and_gets():
         assert heading in research and heading not in sums
 
 
+def test_section_citations_name_the_page_that_holds_the_section():
+    """Docstrings and scripts cite docs by page and section title (``docs/x.md, "Title"``): the page exists
+    and has a heading that starts with the title, so a moved section is not cited at its old page."""
+    cite = re.compile(r'(docs/[\w/.-]+\.md),\s+"([^"]+)"')
+    bad, seen = [], 0
+    for top in ("src", "benchmarks", "notebooks", "tests"):
+        for path in (ROOT / top).rglob("*.py"):
+            if path == Path(__file__).resolve():
+                continue
+            for page, title in cite.findall(re.sub(r"\n\s*#?:?\s*", " ", path.read_text())):
+                seen += 1
+                doc = ROOT / page
+                headings = re.findall(r"^#+ (.+)$", doc.read_text(), re.M) if doc.is_file() else []
+                if not any(h.startswith(title) for h in headings):
+                    bad.append(f"{path.relative_to(ROOT)}: {page}, {title!r}")
+    assert seen >= 10 and not bad, bad
+
+
 def _bench(name: str):
     import sys
 
