@@ -10,7 +10,7 @@ at the fit's light resolution on 4000 ridge pairs (weighted as the uniform pairs
 
     python benchmarks/disc_radius.py 2 64 0.3 0,0.3,1 >> benchmarks/disc_radius.jsonl
 
-docs/sums.md, "The sun's disc at grazing views", has the table.
+docs/notes/sums-research.md, "The sun's disc at grazing views", has the table.
 """
 
 from __future__ import annotations

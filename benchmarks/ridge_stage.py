@@ -4,7 +4,7 @@
     python benchmarks/ridge_stage.py plastic city DIR/plastic_city_max_lookups_16 8
 
 DIR: the ``--fits`` directory of ``benchmarks/accuracy.py``; the ground truth comes from its cache.
-docs/sums.md, "Tables of (n.i, n.v) in the fit": plastic / city 0.052 -> 0.049 with 8 steps.
+docs/notes/sums-research.md, "Tables of (n.i, n.v) in the fit": plastic / city 0.052 -> 0.049 with 8 steps.
 """
 import sys
 import time

@@ -6,7 +6,7 @@ nrmse against the ground truth (total and frontal bin), the fit's own validation
 
     python benchmarks/shift_sweep.py plastic/interior 0.05,0.1,0.15,0.2,0.3 "E'+ROW+R" >> benchmarks/accuracy_shift.jsonl
 
-docs/sums.md#off-specular-products has the table of benchmarks/accuracy_shift.jsonl.
+docs/notes/sums-research.md#off-specular-products has the table of benchmarks/accuracy_shift.jsonl.
 """
 
 from __future__ import annotations

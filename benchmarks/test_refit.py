@@ -13,8 +13,8 @@ NR on dual-paraboloid 32, texel sampling 16, 20000 validation pairs, LSMR with L
   ``LIBRARY_ROUNDS`` interleaved warm runs of each: one warm run of each varied the ratio by 10 %).
 
 Targets (issue 15): a warm refit at most 0.2 s; 16 materials at most 3x one. Each record's
-``extra_info`` has ``kind: refit``; ``benchmarks/report.py`` writes the table between the README's
-``<!-- refit:start -->`` markers. Every refit's metrics are compared with the full run's (largest
+``extra_info`` has ``kind: refit``; ``benchmarks/report.py`` writes the table into
+docs/benchmarks/refit.md. Every refit's metrics are compared with the full run's (largest
 relative difference over every pinned metric).
 """
 

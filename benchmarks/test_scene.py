@@ -13,10 +13,10 @@ held-out view of the same mesh: the two cameras at twice the resolution (pixel c
 never saw) and a third camera from a viewpoint the training did not use (:data:`HELD_OUT`).
 
     .venv/bin/pytest benchmarks/test_scene.py --benchmark-json=/tmp/scene.json -p no:cacheprovider
-    .venv/bin/python benchmarks/report.py /tmp/scene.json --readme README.md
+    .venv/bin/python benchmarks/report.py /tmp/scene.json
 
-Each record's ``extra_info`` has ``kind: scene``; ``benchmarks/report.py`` writes the table between
-the README's scene markers.
+Each record's ``extra_info`` has ``kind: scene``; ``benchmarks/report.py`` writes the table into
+docs/benchmarks/scene.md.
 """
 
 from __future__ import annotations

@@ -192,6 +192,92 @@ def test_nav_pages_exist():
         assert (DOCS / f).is_file(), f
 
 
+def _nav() -> list:
+    import yaml
+
+    return yaml.safe_load((ROOT / "mkdocs.yml").read_text())["nav"]
+
+
+def _nav_files(node):
+    if isinstance(node, str):
+        yield node
+    elif isinstance(node, list):
+        for x in node:
+            yield from _nav_files(x)
+    elif isinstance(node, dict):
+        for x in node.values():
+            yield from _nav_files(x)
+
+
+def test_every_page_is_in_the_nav_and_the_notes_come_last():
+    """The research log is kept but out of the user's path: docs/notes/ pages only in the nav's last section,
+    "Notes", and every other page in the sections before it."""
+    nav = _nav()
+    files = list(_nav_files(nav))
+    pages = sorted(p.relative_to(DOCS).as_posix() for p in DOCS.rglob("*.md"))
+    assert sorted(set(files)) == pages, set(pages) ^ set(files)
+    assert list(nav[-1]) == ["Notes"], nav[-1]
+    notes = list(_nav_files(nav[-1]))
+    assert notes and all(f.startswith("notes/") for f in notes)
+    assert not [f for f in _nav_files(nav[:-1]) if f.startswith("notes/")]
+
+
+def test_user_pages_keep_to_what_a_user_sets_and_gets():
+    """docs/sums.md is the user part (the structure keys and how a sum is fitted); its experiments are the notes."""
+    sums = (DOCS / "sums.md").read_text()
+    assert len(sums.splitlines()) <= 200
+    assert "notes/sums-research.md" in sums
+    research = (DOCS / "notes" / "sums-research.md").read_text()
+    for heading in ("## Where the error lives: grazing angles", "### The sun's disc at grazing views"):
+        assert heading in research and heading not in sums
+
+
+def test_section_citations_name_the_page_that_holds_the_section():
+    """Docstrings and scripts cite docs by page and section title (``docs/x.md, "Title"``): the page exists
+    and has a heading that starts with the title, so a moved section is not cited at its old page."""
+    cite = re.compile(r'(docs/[\w/.-]+\.md),\s+"([^"]+)"')
+    bad, seen = [], 0
+    for top in ("src", "benchmarks", "notebooks", "tests"):
+        for path in (ROOT / top).rglob("*.py"):
+            if path == Path(__file__).resolve():
+                continue
+            for page, title in cite.findall(re.sub(r"\n\s*#?:?\s*", " ", path.read_text())):
+                seen += 1
+                doc = ROOT / page
+                headings = re.findall(r"^#+ (.+)$", doc.read_text(), re.M) if doc.is_file() else []
+                if not any(h.startswith(title) for h in headings):
+                    bad.append(f"{path.relative_to(ROOT)}: {page}, {title!r}")
+    assert seen >= 10 and not bad, bad
+
+
+def _bench(name: str):
+    import sys
+
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    try:
+        spec = importlib.util.spec_from_file_location(f"homofac_bench_{name}", ROOT / "benchmarks" / f"{name}.py")
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        return module
+    finally:
+        sys.path.remove(str(ROOT / "benchmarks"))
+
+
+def test_benchmark_pages_are_generated_from_the_committed_results(tmp_path):
+    """docs/benchmarks/*.md are what benchmarks/pages.py makes of the committed JSON (run it after a benchmark)."""
+    report, pages = _bench("report"), _bench("pages")
+    results = ROOT / "benchmarks" / "results.json"
+    report.write_pages(results, tmp_path, *report.tables(results))
+    pages.accuracy.write_page(pages.load_rows(ROOT / "benchmarks" / "accuracy.json"), tmp_path)
+    (tmp_path / "presets.md").write_text(pages.preset_page(pages.load_rows(ROOT / "benchmarks" / "accuracy.json"),
+                                                           pages.load_rows(ROOT / "benchmarks" / "presets.json")))
+    made = sorted(p.name for p in tmp_path.glob("*.md"))
+    assert made == sorted(p.name for p in (DOCS / "benchmarks").glob("*.md"))
+    for name in made:
+        assert (tmp_path / name).read_text() == (DOCS / "benchmarks" / name).read_text(), \
+            f"docs/benchmarks/{name} is stale: run python benchmarks/pages.py"
+
+
 # --------------------------------------------------------------------------------------------------
 # (3) the docs replace the old design notes: nothing points to them
 

@@ -70,8 +70,9 @@ def images(nb) -> list:
 @pytest.mark.slow
 def test_quickstart_notebook_executes(monkeypatch, tmp_path):
     nb, text = execute(NOTEBOOK, monkeypatch, tmp_path)
-    nrmse = float(re.search(r"^validation nrmse ([0-9.]+)", text, re.M).group(1))
-    assert 0 < nrmse < 1.0, text  # NR of gold under forest at these sizes: ~0.5 (the gold bound test pins it)
+    nrmse = float(re.search(r"^validation nrmse ([0-9.]+) \(balanced", text, re.M).group(1))
+    split = float(re.search(r"^split-sum validation nrmse ([0-9.]+)", text, re.M).group(1))
+    assert 0 < nrmse < split < 1.0, text  # the balanced preset beats split-sum, printed beside it
     assert "reloaded == in memory: True" in text
     bnrmse = float(re.search(r"PQP validation nrmse ([0-9.]+)", text).group(1))
     assert 0 < bnrmse < 1.5

@@ -23,7 +23,7 @@ from .samples import Samples, evaluate, evaluate_grouped
 #: sun the squared error sits on the few pairs whose view grazes and reflects it, so the figure depends on
 #: whether some normal lands there: on sqrt(count) normals (141 for 20000 pairs) one plastic / city fit read
 #: 0.239 nrmse where 3000 normals read 0.067, and the chooser ranked the candidates by that noise
-#: (docs/sums.md). 2500 normals cost 1.2 s against 0.25 s at light resolution 32.
+#: (docs/notes/sums-research.md). 2500 normals cost 1.2 s against 0.25 s at light resolution 32.
 VALIDATION_VIEWS = 8
 
 

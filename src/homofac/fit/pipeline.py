@@ -85,7 +85,7 @@ def grid_count(opts: FitOptions) -> int:
     8 lookups), and its grid fit reads only texel centres: on 300 000 pairs gold under the forest's low sun (``E'+NROW x4+HFW x1``) read 0.079 nrmse on
     its training pairs and 0.103 on its validation pairs; on 600 000 the error against the converged
     ground truth (90 000 pairs of 3000 normals) fell 0.106 -> 0.101, the plastic's 0.053 -> 0.049, and
-    1 200 000 gave no more (0.1015) at twice the time (docs/sums.md, "The quality mode").
+    1 200 000 gave no more (0.1015) at twice the time (docs/notes/sums-research.md, "The quality mode").
     """
     return opts.sampling.count or _quality_count(opts) or GRID_COUNT
 
@@ -111,7 +111,7 @@ def validation_count(opts: FitOptions) -> int:
     pairs hold few of the highlight's, and the ranking moved with them more than the candidates differ:
     one structure fitted on three seeds' 600 000 grid pairs (plastic / city, ``E'+NRW x3+R+HFCW x1``)
     read 0.056 / 0.055 / 0.055 against the converged ground truth on 90 000 pairs, and 0.049 / 0.060 /
-    0.052 on its own 20 000 validation pairs (docs/sums.md, "The quality mode"). Four times the pairs
+    0.052 on its own 20 000 validation pairs (docs/notes/sums-research.md, "The quality mode"). Four times the pairs
     halve that spread for a few seconds of lighting per sampling (19.5 s -> 24 s at resolution 64).
     """
     s = opts.sampling
@@ -138,7 +138,7 @@ def line_sizes(opts: FitOptions) -> tuple[int, ...]:
     under the same sun went the other way (``E'+ROW x3+R+HFCW x2``: 0.061 -> 0.095): its highlight lines
     are read at the sharp peak of a sun, where the grid pairs fall sparsely, and a fine line follows
     them between the pairs. The validation pairs said so in all three cases (0.068 -> 0.059, 0.086 ->
-    0.081, 0.062 -> 0.080), hence the vote (docs/sums.md, "Lines of 128 texels, by vote"). A line is one
+    0.081, 0.062 -> 0.080), hence the vote (docs/notes/sums-research.md, "Lines of 128 texels, by vote"). A line is one
     row: 128 texels cost a renderer nothing it notices.
 
     The ratio to ``texture_size``: the grid design puts the normals on the texel centres of the n map,
@@ -161,7 +161,7 @@ def chooser_linear(target: Target, linear: LinearOptions | None, budget: int) ->
     There the frontal views hold a weak specular over the diffuse term and the Fresnel-boosted grazing
     views dominate the plain objective; balancing the n.v bins keeps the frontal views (most of a
     rendered image) from being traded for them. Measured on the 16-case accuracy benchmark
-    (docs/sums.md, "Where the error lives"): at 8 lookups the frontal error falls to 0.60-0.83x
+    (docs/notes/sums-research.md, "Where the error lives"): at 8 lookups the frontal error falls to 0.60-0.83x
     split-sum's on the plastics (1.14x and 1.24x on two before), totals within 0.03x; on the kd = 0
     near-mirror it moved the totals the wrong way (studio 0.60x -> 0.63x) with frontal errors already
     below split-sum's, so a BRDF without a diffuse part keeps the plain objective. Above 8 lookups
@@ -189,10 +189,10 @@ def chooser_polish(target: Target, linear: LinearOptions | None, lin: LinearOpti
     after. The polish is kept whatever the validation pairs say: they hold the lighting at the fit's
     resolution, and on metal / interior they rose (0.366 -> 0.376) where the error against the
     converged ground truth fell (0.373 -> 0.355); on the accuracy benchmark's 16 cases the polish
-    lowered that error on 15 (docs/sums.md). A kept structure with a highlight term is polished only in
+    lowered that error on 15 (docs/notes/sums-research.md). A kept structure with a highlight term is polished only in
     the quality mode, and kept there only where the validation error falls (:func:`polish_rule`): at 4
     lookups the polish flattened the highlight's line (near-mirror / city 0.17 -> 0.27 against the
-    ground truth; docs/sums.md).
+    ground truth; docs/notes/sums-research.md).
     """
     if target.kind != "lighting" or (linear is not None and "polish" in linear.model_fields_set):
         return 0
@@ -207,7 +207,7 @@ def chooser_ridge(target: Target, opts: FitOptions, lin: LinearOptions) -> int:
     error of uniform pairs, and the grid and texel pairs all but miss them: on 270 000 pairs of 9000
     normals the plastic under the city sun read 0.117 nrmse at 16 lookups (0.031-0.194 over three
     disjoint thirds). Eight polish steps with 20 000 ridge pairs took it to 0.059 (eight without them:
-    0.118), its validation error 0.064 -> 0.053 (docs/sums.md, "The grazing ridge of the sun"). Only
+    0.118), its validation error 0.064 -> 0.053 (docs/notes/sums-research.md, "The grazing ridge of the sun"). Only
     the quality mode draws them: they cost one lighting evaluation of 20 000 pairs and the 4- and
     8-lookup modes keep their measured behaviour.
 
@@ -234,7 +234,7 @@ def polish_rule(structure: Structure, budget: int) -> str | None:
     products, it lowered all three cases tried (600 000 grid pairs, nrmse against the converged ground
     truth on 90 000 pairs: gold / forest 0.101 -> 0.098, plastic / forest 0.049 -> 0.045, plastic /
     city 0.056 -> 0.054), and the fits' own validation pairs (the lighting at resolution 64) agreed
-    each time (docs/sums.md, "The quality mode"); the vote guards against the 4-lookup failure.
+    each time (docs/notes/sums-research.md, "The quality mode"); the vote guards against the 4-lookup failure.
     """
     if not structure.highlight_terms:
         return "keep"
@@ -285,7 +285,8 @@ def disc_rule(budget: int, opts: FitOptions) -> bool:
     part of its disc on the mirror direction: gold under the city sun, the quality mode's structure
     fitted alone, 0.164 -> 0.123 nrmse on 270 000 uniform pairs after the ALS and 0.140 -> 0.107 after
     the direct polish stage (disc radius 1 degree; 2 degrees: 0.147, 0.113), while its plain validation
-    error rose 0.062 -> 0.077 (docs/sums.md, "The sun's disc at grazing views"): a vote, not a default."""
+    error rose 0.062 -> 0.077 (docs/notes/sums-research.md, "The sun's disc at grazing views"): a vote, not a
+    default."""
     return budget > QUALITY_LOOKUPS and "highlight_disc" not in opts.model_fields_set
 
 
@@ -609,7 +610,7 @@ def table_wanted(budget: int, opts: FitOptions) -> bool:
     term, which the budget gives to more terms. Near the mirror direction the highlight is
     ``D F n.h'^2 min(n.v, n.i) / (n.v (n.v + n.i))``, which no product of the two lines holds: refitting
     only that factor of the saved city fits as a table took plastic / city from 0.072 to 0.055 nrmse on
-    270 000 uniform pairs and gold / city's first highlight term from 0.148 to 0.122 (docs/sums.md,
+    270 000 uniform pairs and gold / city's first highlight term from 0.148 to 0.122 (docs/notes/sums-research.md,
     "A 2D table of (n.i, n.v), again")."""
     if "highlight_table" in opts.model_fields_set:
         return bool(opts.highlight_table)

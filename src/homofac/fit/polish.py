@@ -22,7 +22,7 @@ brightest light(s) added (:mod:`homofac.fit.ridge`), weighted as the share of un
 for; the polish's own pairs on the ridge get weight 0. The objective stays the one of uniform pairs;
 its sampled estimate now sees the ridge, which the grid and texel pairs all but miss (plastic under the
 city sun, 16 lookups: 0.118 nrmse on 270 000 uniform pairs after the first stage, 0.064 after the
-second; docs/sums.md, "The grazing ridge of the sun"). The lights are those of the structure's
+second; docs/notes/sums-research.md, "The grazing ridge of the sun"). The lights are those of the structure's
 highlight terms, else the brightest one (:func:`ridge_lights`); the pairs are seeded by the sampling
 seed. :func:`ridge_validation` and :func:`ridge_nrmse` give the validation estimate the same stratum.
 The chooser also tries the ridge stage straight from the ALS fit (``direct``), which is what the gold
@@ -138,7 +138,7 @@ def polish_stages(target: Target, structure: Structure, mapper: str, size: int, 
     with them at 0.064 (the first stage: 0.118). The gold under the same sun goes the other way: its
     first stage raised the validation error with the ridge stratum from 0.140 to 0.223 and the second,
     from there, ended at 0.164, while eight steps with the ridge pairs straight from the ALS fit reached
-    0.135 (on 270 000 uniform pairs: the ALS fit 0.164, the direct stage 0.139; docs/sums.md, "A third
+    0.135 (on 270 000 uniform pairs: the ALS fit 0.164, the direct stage 0.139; docs/notes/sums-research.md, "A third
     polish stage"). Hence the three candidates the chooser votes between
     (:func:`homofac.fit.pipeline.chooser_polish`).
 

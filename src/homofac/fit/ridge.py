@@ -7,7 +7,7 @@ horizon of ``n``. There the V-cavity shadowing of Cook-Torrance, ``G = min(1, 2 
 ``(n.v + n.l) / 2``: the value grows as ``1 / (n.v + n.l)`` toward the horizon (44 for the plastic under
 the bundled city sun, where the mean lighting is 0.37). The region holds about 4e-4 of the validation
 distribution's pairs and, under the city sun, most of the squared error of 270 000 uniform pairs
-(docs/sums.md, "The grazing ridge of the sun"); 600 000 grid pairs put none of theirs lit at ``v.h <
+(docs/notes/sums-research.md, "The grazing ridge of the sun"); 600 000 grid pairs put none of theirs lit at ``v.h <
 0.02``, so the fit never sees the ridge and the highlight's Fresnel line stays flat there.
 
 :func:`ridge_pairs` draws pairs uniformly over the union of the ridges ``R_j`` of the lights ``l_j``::

@@ -9,7 +9,7 @@ the rounding of identical float operations (the same code on the same rows).
 On one host, CPU devices are made with ``XLA_FLAGS=--xla_force_host_platform_device_count=N`` (set
 before JAX is imported); GPUs and TPUs are found as they are. On several hosts, call
 ``jax.distributed.initialize()`` first in every process: ``jax.devices()`` then lists the devices of
-all hosts and the same call shards over them (README, "Scaling out").
+all hosts and the same call shards over them (docs/notes/readme-history.md, "Scaling out").
 """
 
 from __future__ import annotations

@@ -14,24 +14,24 @@ A :class:`Structure` is the pinned config of a sum (``terms: K``, ``diffuse: exa
   ``cos_i`` and ``cos_o`` (BRDF, the same texture twice: reciprocal for PQP);
 * ``rw_terms`` (lighting): J more fitted terms ``q_t(r) w_t(n.v)`` without a normal texture (two lookups
   each) after the K products: a sum can mix products that carry p(n) (they help under a sun) with ones
-  that do not (they fit lamp highlights better; docs/sums.md);
+  that do not (they fit lamp highlights better; docs/notes/sums-research.md);
 * ``highlight_terms`` (lighting, J <= 3): J more fitted terms ``d_t(x_j) w_t(n.v)`` (two lookups each),
   ``d_t`` a ``line`` texture read at ``x_j = nh_dom`` (``nh_dom1``, ``nh_dom2``), the NDF argument of
   the half vector of the j-th brightest light (context ``dominant``, ``dominant1``, ``dominant2``:
   :func:`homofac.light.brightest_directions`, the sun or the brightest lamps). A
   microfacet highlight of one light is ``D(n.h') F G / (4 n.v)``: a function of ``x`` times one of n.v,
   which keeps its shape at every view where a map of r smears it (the near-mirror under the city sun:
-  the sun alone holds 71 % of the squared lighting; docs/sums.md);
+  the sun alone holds 71 % of the squared lighting; docs/notes/sums-research.md);
 * ``highlight_table`` (lighting): each highlight term reads a 2D table ``T_t(n.i, n.v)`` of its light's
   cosine and the view's (projection ``ninv_dom``, ``ninv_dom1``, ``ninv_dom2``: :func:`homofac.param.projections.table_point`,
   a ``parabolic`` texture of :data:`TABLE_SIZE`) in place of ``c_t(n.i) w_t(n.v)``: one lookup fewer, and
   the highlight's ``min(1, n.i / n.v)`` near the mirror direction, which no product of the two lines holds
-  (docs/sums.md, "A 2D table of (n.i, n.v)"). The ALS fits the lines (:func:`lined`), which
+  (docs/notes/sums-research.md, "A 2D table of (n.i, n.v)"). The ALS fits the lines (:func:`lined`), which
   :func:`homofac.fit.table.tabulate` turns into the table for the polish to refine;
 * ``highlight_disc`` (lighting): each highlight term reads its light's coordinate at the point of the
   light's disc closest to ``r`` (projection ``nhs_dom``, ``nhs_dom1``, ``nhs_dom2``; context ``radius``,
   :func:`homofac.light.light_radii`): at grazing views a point light's half vector is ill-conditioned
-  and a sun's highlight there comes from the part of its disc on the mirror direction (docs/sums.md,
+  and a sun's highlight there comes from the part of its disc on the mirror direction (docs/notes/sums-research.md,
   "The sun's disc at grazing views");
 * ``reflection`` (lighting): one more fitted term, an r-only texture ``R`` (one lookup). Within a lookup
   budget it is worth more than an n.v-only or n-only term (gold under lamps: 0.83 -> 0.78 of
@@ -273,9 +273,9 @@ def candidates(kind: str, max_lookups: int, *, parametrization: str | None = Non
     :func:`homofac.fit.sums.choose` fits them and keeps the best on the validation pairs; the errors
     are heavy-tailed (the worst 0.1 % of pairs hold up to half the squared error): 5000 validation pairs
     ranked E'+NRW and E'+RW+R unlike the ground truth on two of three cases, 20000 (the default) at the
-    same light resolution alike on all three (docs/sums.md).
+    same light resolution alike on all three (docs/notes/sums-research.md).
     Sums that mix both kinds of product (``rw_terms``) are not candidates: they fitted worse than
-    either kind alone (docs/sums.md). With ``highlight`` (lighting targets with an environment) each
+    either kind alone (docs/notes/sums-research.md). With ``highlight`` (lighting targets with an environment) each
     family is tried again with one highlight term of the brightest light (``highlight_terms: 1``): the
     near-mirror under the city sun falls from 0.47 to 0.17 nrmse at 4 lookups. With ``table`` the
     highlight terms that would read the cosine line c(n.i) and w(n.v) read a 2D table T(n.i, n.v) instead
@@ -302,7 +302,7 @@ def _variants(kind, max_lookups, parametrization, has_diffuse, max_terms, larges
         raise HomofacError(f"max_lookups must be at least 1, got {max_lookups}")
     base = parametrization or ("NR" if kind == "lighting" else "PQP")
     pz.get(base, kind)
-    # the relatives tried beside the NR products (docs/sums.md): the same read at the off-specular
+    # the relatives tried beside the NR products (docs/notes/sums-research.md): the same read at the off-specular
     # reflection r_off (NRO), and the products without p(n) at r_off, q(r') w(n.v) (RO; they replace
     # R's q(r) w(n.v), which they beat on every case measured)
     relatives = RELATIVES.get(base, ()) if kind == "lighting" else ()
@@ -316,7 +316,8 @@ def _variants(kind, max_lookups, parametrization, has_diffuse, max_terms, larges
     families = [Structure(base, 1, d, not _has_nv(base), False, pre) for d in diffuses for pre in prefs]
     families += [Structure(rel, 1, d, True) for rel in relatives for d in diffuses]
     if relatives and highlight:
-        # each family again with the highlight term of the brightest light, d(nh_dom) w(n.v) (docs/sums.md);
+        # each family again with the highlight term of the brightest light, d(nh_dom) w(n.v)
+        # (docs/notes/sums-research.md);
         # where a product with w(n.v) leaves no room for it, the product without w
         lit = [f._replace(highlight_terms=1) for f in families]
         lit += [f._replace(nv_factor=False) for f in lit

@@ -6,7 +6,7 @@ n.i and one of n.v, so the lines hold it on average only. A table holds it, one 
 (:func:`homofac.param.projections.table_point`: ``(sqrt(n.i), sqrt(n.v))`` in the square of a
 ``parabolic`` map). The block ALS has no 2D block for it; it fits the lines (:func:`~homofac.fit.structures.lined`),
 :func:`tabulate` writes ``c(n.i) w(n.v)`` into the table's texels and the Levenberg-Marquardt polish
-refines the table with everything else (docs/sums.md, "A 2D table of (n.i, n.v)"). :func:`separate` goes
+refines the table with everything else (docs/notes/sums-research.md, "A 2D table of (n.i, n.v)"). :func:`separate` goes
 back, by the table's best rank-1 approximation: the start of a refit's ALS.
 """
 

@@ -372,7 +372,7 @@ def off_specular_shift(brdf) -> float:
     """beta of the off-specular reflection ``r_off`` (:mod:`homofac.param.projections`) for ``brdf``:
     its roughness (Beckmann m, GGX or Ward alpha: the lobe's angular width) clipped to [0.05, 0.15],
     else :data:`DEFAULT_SHIFT`. ``r_off`` lifts a grazing ``r`` by ``atan(beta)``. Measured (``E'+ROW+R``,
-    grid ALS, S = 32, nrmse against the converged ground truth; docs/sums.md#off-specular-products):
+    grid ALS, S = 32, nrmse against the converged ground truth; docs/notes/sums-research.md#off-specular-products):
     the near-mirror (roughness 0.1) is best at 0.1 (0.46; 0.15: 0.48, 0.3: 0.60), gold (0.3) at 0.2
     (0.388; 0.15: 0.395, 0.3: 0.414), the plastic (0.6) at 0.1-0.15 (interior 0.192 / 0.199, 0.3:
     0.268; studio 0.15: 0.284, 0.3: 0.378, 0.6: 0.511)."""

@@ -291,7 +291,7 @@ def _nh_disc(n, v, ctx, key: str, radius: str):
     0.88 when ``n.v`` is 0.01. An extended light (the city sun: a disc of about 1.3 degrees radius at
     light resolution 64) still has part of its disc on the mirror direction there: gold under that sun
     read 7.6 against 106 on one such pair, which held 71 % of the squared error of 270 000 uniform
-    pairs (docs/sums.md, "The sun's disc at grazing views")."""
+    pairs (docs/notes/sums-research.md, "The sun's disc at grazing views")."""
     i = sphere.constant(ctx[key], n)
     xp = sphere.namespace(n)
     r = sphere.reflect(v, n)

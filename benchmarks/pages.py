@@ -1,0 +1,180 @@
+"""The benchmark pages of the documentation site and the README's preset table, from the committed JSON.
+
+    python benchmarks/pages.py        # regenerate them all (no fit, no measurement)
+
+- ``docs/benchmarks/accuracy.md`` from ``benchmarks/accuracy.json`` (``python benchmarks/accuracy.py``);
+- ``docs/benchmarks/speed.md``, ``refit.md``, ``scene.md`` from ``benchmarks/results.json`` (``make benchmark``,
+  ``benchmarks/report.py``);
+- ``docs/benchmarks/presets.md`` and the README's "Choose a preset" table (between ``<!-- presets:start -->``
+  and ``<!-- presets:end -->``): per preset its lookups, fit time and error against split-sum.
+
+The preset table reads ``benchmarks/presets.json`` when it exists (the preset benchmark: a list of rows, each
+with ``preset`` (or ``method: "preset NAME"``) and ``fit_s``, and, when measured against the accuracy
+benchmark's ground truth, ``material``, ``environment`` and ``nrmse``). What that file does not hold comes
+from the accuracy benchmark's rows of the presets' lookup budgets, ``max_lookups 4``, ``8`` and ``16``, and
+the table says which file each column comes from. Errors are nrmse ratios to split-sum's on the same case
+(range over the cases); fit times the range over the rows, measured on this 2-core machine.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+sys.path.insert(0, str(HERE))
+
+import accuracy  # noqa: E402 - the accuracy page (benchmarks/ is not a package)
+import report  # noqa: E402 - the speed, refit and scene pages
+
+DOCS = ROOT / "docs" / "benchmarks"
+README = ROOT / "README.md"
+START, END = "<!-- presets:start -->", "<!-- presets:end -->"
+
+#: The presets and their lookup budgets (pinned: ``preset: fast | balanced | best``).
+PRESETS = {"fast": 4, "balanced": 8, "best": 16}
+
+
+def load_rows(path: Path) -> list[dict]:
+    """The rows of a benchmark JSON (a list of rows, or ``{"rows": [...]}``); none when the file is missing."""
+    if not path.is_file():
+        return []
+    doc = json.loads(path.read_text())
+    return list(doc["rows"] if isinstance(doc, dict) else doc)
+
+
+def preset_of(row: dict) -> str | None:
+    """The preset a row measured: its ``preset`` key, or a ``method`` named ``preset NAME``."""
+    if row.get("preset") in PRESETS:
+        return row["preset"]
+    method = str(row.get("method", ""))
+    name = method.removeprefix("preset ").strip()
+    return name if method.startswith("preset ") and name in PRESETS else None
+
+
+def seconds(lo: float, hi: float) -> str:
+    """A range of fit seconds, in minutes when the shortest is above two minutes."""
+    if lo >= 120:
+        a, b = round(lo / 60), round(hi / 60)
+        return f"{a} min" if a == b else f"{a}-{b} min"
+    a, b = f"{lo:.0f}", f"{hi:.0f}"
+    return f"{a} s" if a == b else f"{a}-{b} s"
+
+
+def _ratios(rows: list[dict], split: dict) -> list[float]:
+    return [r["nrmse"] / split[(r["material"], r["environment"])] for r in rows
+            if "nrmse" in r and (r.get("material"), r.get("environment")) in split]
+
+
+def preset_summary(accuracy_rows: list[dict], preset_rows: list[dict]) -> list[dict]:
+    """Per preset: lookups, fit seconds (min, max) and their source, error ratios to split-sum and their
+    source, and the per-case rows they came from."""
+    split = {(r["material"], r["environment"]): r["nrmse"] for r in accuracy_rows if r["method"] == "split_sum"}
+    split.update({(r["material"], r["environment"]): r["nrmse"] for r in preset_rows
+                  if r.get("method") == "split_sum" and "material" in r})
+    out = []
+    for name, lookups in PRESETS.items():
+        measured = [r for r in preset_rows if preset_of(r) == name]
+        budget = [r for r in accuracy_rows if r["method"] == f"max_lookups {lookups}"]
+        timed = [r for r in measured if "fit_s" in r]
+        time_rows, time_src = (timed, "presets.json") if timed else (budget, "accuracy.json")
+        ratios = _ratios(measured, split)
+        err_rows, err_src = (measured, "presets.json") if ratios else (budget, "accuracy.json")
+        ratios = ratios or _ratios(budget, split)
+        out.append({"preset": name, "lookups": lookups,
+                    "fit_s": (min(r["fit_s"] for r in time_rows), max(r["fit_s"] for r in time_rows))
+                    if time_rows else None, "time_source": time_src,
+                    "ratio": (min(ratios), max(ratios)) if ratios else None, "cases": len(ratios),
+                    "error_source": err_src, "rows": err_rows})
+    return out
+
+
+def preset_table(accuracy_rows: list[dict], preset_rows: list[dict]) -> str:
+    """The README's "Choose a preset" table and the note that says where its figures come from."""
+    summary = preset_summary(accuracy_rows, preset_rows)
+    split = [r for r in accuracy_rows if r["method"] == "split_sum"]
+    lines = ["| preset | lookups per pixel | fit time here | nrmse / split-sum's (range over cases) |",
+             "|---|---:|---:|---:|"]
+    for s in summary:
+        t = seconds(*s["fit_s"]) if s["fit_s"] else "not measured"
+        e = "not measured"
+        if s["ratio"]:
+            lo, hi = (f"{x:.2f}" for x in s["ratio"])
+            e = f"{lo}x" if lo == hi else f"{lo}-{hi}x"
+            e += f" ({s['cases']} case{'s' if s['cases'] > 1 else ''})"
+        lines.append(f"| `{s['preset']}` | {s['lookups']} | {t} | {e} |")
+    if split:
+        lines.append(f"| split-sum (Karis 2013, for reference) | 3 | "
+                     f"{seconds(min(r['fit_s'] for r in split), max(r['fit_s'] for r in split))} | 1x |")
+    time_src = {s["time_source"] for s in summary}
+    err_src = {s["error_source"] for s in summary}
+    notes = []
+    if time_src == {"presets.json"}:
+        notes.append("Fit times: the preset benchmark (`benchmarks/presets.json`).")
+    else:
+        notes.append("Fit times: the accuracy benchmark's runs of the lookup budgets 4, 8 and 16 "
+                     "(`max_lookups`, before the presets' speed-up"
+                     + (", for the presets `benchmarks/presets.json` does not hold" if "presets.json" in time_src
+                        else "; `benchmarks/presets.json` is not there yet") + ").")
+    if err_src == {"presets.json"}:
+        notes.append("Errors: the preset benchmark against the accuracy benchmark's ground truth.")
+    else:
+        notes.append("Errors: the accuracy benchmark's `max_lookups` 4, 8 and 16 rows (nrmse on 20000 pairs "
+                     "against a converged ground truth; `best` ran on four cases).")
+    return "\n".join(lines) + "\n\n" + " ".join(notes) + " Generated by `python benchmarks/pages.py`."
+
+
+def preset_page(accuracy_rows: list[dict], preset_rows: list[dict]) -> str:
+    """docs/benchmarks/presets.md: the summary table, then per case the nrmse of each preset and its ratio."""
+    summary = preset_summary(accuracy_rows, preset_rows)
+    split = {(r["material"], r["environment"]): r for r in accuracy_rows if r["method"] == "split_sum"}
+    cases = list(split)
+    head = "| case | split-sum | " + " | ".join(f"`{s['preset']}` ({s['lookups']})" for s in summary) + " |"
+    lines = [head, "|---|---:|" + "---:|" * len(summary)]
+    for c in cases:
+        cells = []
+        for s in summary:
+            r = next((r for r in s["rows"] if (r.get("material"), r.get("environment")) == c and "nrmse" in r), None)
+            cells.append(f"{r['nrmse']:.3f} ({r['nrmse'] / split[c]['nrmse']:.2f}x), {seconds(r['fit_s'], r['fit_s'])}"
+                         if r else "")
+        lines.append(f"| {c[0]} / {c[1]} | {split[c]['nrmse']:.3f} | " + " | ".join(cells) + " |")
+    return f"""# Presets: fit time and error
+
+<!-- Generated by benchmarks/pages.py from benchmarks/accuracy.json and benchmarks/presets.json: do not edit. -->
+
+The README's table, then per case the nrmse (its ratio to split-sum's, fit time) of each preset's
+lookup budget. The materials and environments are the [accuracy benchmark](accuracy.md)'s.
+
+{preset_table(accuracy_rows, preset_rows)}
+
+{chr(10).join(lines)}
+"""
+
+
+def replace_block(text: str, block: str) -> str:
+    """``text`` with the part between :data:`START` and :data:`END` replaced by ``block``."""
+    if START not in text or END not in text:
+        raise SystemExit(f"README.md: no {START} ... {END} markers")
+    head, rest = text.split(START, 1)
+    _, tail = rest.split(END, 1)
+    return f"{head}{START}\n{block}\n{END}{tail}"
+
+
+def main() -> int:
+    acc = load_rows(HERE / "accuracy.json")
+    presets = load_rows(HERE / "presets.json")
+    DOCS.mkdir(parents=True, exist_ok=True)
+    written = [accuracy.write_page(acc, DOCS)]
+    (DOCS / "presets.md").write_text(preset_page(acc, presets))
+    written.append(DOCS / "presets.md")
+    README.write_text(replace_block(README.read_text(), preset_table(acc, presets)))
+    report.main([str(HERE / "results.json"), "--docs", str(DOCS)])
+    for p in written + [README]:
+        print(f"wrote {p.relative_to(ROOT)}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
