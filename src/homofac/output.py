@@ -706,8 +706,8 @@ def _read_png(d: Path, doc: Document, raw: dict, specs, terms_doc) -> Quantized:
             alpha = bool(rule["alpha"])
         except (KeyError, TypeError, ValueError) as e:
             raise HomofacError(f"{d / JSON_NAME}: malformed png_decode rule ({one_line(e)})") from None
-        if not (np.all(np.isfinite(colour)) and math.isfinite(z)):
-            raise HomofacError(f"{d / JSON_NAME}: png_decode has non-finite values")
+        if not (np.all(np.isfinite(colour)) and math.isfinite(z) and np.all(np.abs(colour * z) <= FLOAT32_MAX)):
+            raise HomofacError(f"{d / JSON_NAME}: png_decode has values that are not finite float32 numbers")
         corrections = (colour * z,)
         alphas = [alpha for _ in alphas]
         if len(terms_doc) != 1:
