@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -561,3 +562,57 @@ def test_fuzz_factorization_json_loading(saved, tmp_path_factory, mutation):
         load(d)
     except HomofacError as e:
         assert "\n" not in str(e)
+
+
+#: Substrings that would break out of a comment, a line or an HTML script if a document's string reached them.
+BREAKOUTS = st.sampled_from([HOSTILE, "*/", "/*", "\n", "\r", "\\", "\u2028", "\x85", "</script>", "<!--<script>",
+                             "normalize", "proj_n", "sample_p", "alpha_p", "p_sampler", "hf_p", "return", "__", "é"])
+NAME_FIELDS = ["name", "parametrization", "kind", "texture", "projection"]
+
+
+def _set_string(doc: dict, field: str, value: str) -> None:
+    if field in ("name", "parametrization"):
+        doc[field] = value
+    elif field == "kind":
+        doc["terms"][0]["kind"] = value
+    elif field == "texture":
+        _rename_texture(doc, "p", value)
+    else:
+        doc["terms"][0]["factors"][0]["projection"] = value
+        doc["factors"][0]["projection"] = value
+
+
+_BASE_SHADERS: dict = {}
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(field=st.sampled_from(NAME_FIELDS),
+       value=st.one_of(st.text(max_size=20), BREAKOUTS,
+                       st.lists(st.one_of(st.text(max_size=4), BREAKOUTS), max_size=4).map("".join)))
+def test_fuzz_factorization_json_strings(saved, tmp_path_factory, field, value):
+    """Random unicode names, kinds, parametrizations, texture and projection names: either a one-line
+    HomofacError on load, or shaders in every language that are printable ASCII lines with no comment
+    delimiter or line continuation, as many lines and ``return`` statements as the unmodified document's."""
+    d = tmp_path_factory.mktemp("fuzzs")
+    for f in saved.iterdir():
+        shutil.copy(f, d / f.name)
+    doc = json.loads((saved / JSON_NAME).read_text())
+    _set_string(doc, field, value)
+    (d / JSON_NAME).write_text(json.dumps(doc))
+    try:
+        r = load(d)
+    except HomofacError as e:
+        assert "\n" not in str(e)
+        return
+    if not _BASE_SHADERS:
+        base = load(saved)
+        _BASE_SHADERS.update({lang: base.shader(lang) for lang in LANGUAGES})
+    same_structure = field != "projection" or value == "wi"
+    for lang in LANGUAGES:
+        src = r.shader(lang)
+        assert all(" " <= c <= "~" for c in src.replace("\n", "")), (lang, value)
+        assert "*/" not in src and "/*" not in src and "\\" not in src, (lang, value)
+        if same_structure:
+            base = _BASE_SHADERS[lang]
+            returns = len(re.findall(r"\breturn\b", src)), len(re.findall(r"\breturn\b", base))
+            assert src.count("\n") == base.count("\n") and returns[0] == returns[1], (lang, value)
