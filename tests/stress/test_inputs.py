@@ -176,6 +176,19 @@ def test_a_nan_environment_warns_in_one_line(tmp_path, capsys):
 
 
 @pytest.mark.slow
+def test_one_huge_environment_pixel_keeps_the_metrics_finite(tmp_path, capsys):
+    """One pixel of 1e30 made every rms and nrmse null in factorization.json (float32 squares overflowed)."""
+    img = _latlong()
+    img[2, 3] = 1e30
+    write_exr(tmp_path / "env.exr", img)
+    assert main([str(_config(tmp_path, LIGHTING, {})), "--quiet"]) == 0
+    doc = json.loads((tmp_path / "out" / "factorization.json").read_text())
+    for split in doc["metrics"].values():
+        for m in split.values():
+            assert all(v is not None and np.isfinite(v) for v in m.values()), m
+
+
+@pytest.mark.slow
 def test_failed_rerun_keeps_the_previous_result_byte_for_byte(tmp_path, capsys):
     write_exr(tmp_path / "env.exr", _latlong())
     cfg = _config(tmp_path, LIGHTING, {})
