@@ -40,11 +40,14 @@ import pytest
 import homofac as hf
 from homofac.app import view as viewer
 from homofac.errors import HomofacError
-from homofac.factorization import Factor, Factorization, Term, Texture, check_texture_name, decode_texels
+from homofac.factorization import (Factor, Factorization, Term, Texture, check_identifier, check_label, check_texture_name,
+                                   decode_texels)
+from homofac.fit import structures
 from homofac.fit.result import Result
 from homofac.gl import device, engine
 from homofac.output import shader_files
 from homofac.param import mappers
+from homofac.param import parametrizations as pz
 from homofac.param import projections as pj
 from homofac.shader import LANGUAGES, generate
 from homofac.shader.languages import comment
@@ -966,3 +969,28 @@ def test_comments_cannot_be_broken_out_of():
         c = comment(text)
         assert all(" " <= ch <= "~" for ch in c) and "*/" not in c and "/*" not in c and "\\" not in c, (text, c)
     assert comment("E'+NRW x2+R") == "E'+NRW x2+R"
+
+
+def test_every_name_homofac_writes_follows_the_name_rules():
+    """The pinned rules admit what homofac itself writes: the textures, kinds and labels of every registered
+    parametrization and of every structure the chooser may fit (with tables, highlight lines, the split sum)."""
+    seen = 0
+    for kind in ("lighting", "brdf"):
+        for p in pz.names(kind):
+            check_label(p)
+            for t in pz.get(p, kind).textures:
+                check_texture_name(t)
+        quantity = "lighting" if kind == "lighting" else "brdf"
+        mapper = "dual_paraboloid" if kind == "lighting" else "parabolic"
+        for table in (False, True):
+            for s in structures.candidates(kind, 24, table=table) + structures.ladder(kind, 24, table=table):
+                check_label(s.label())
+                specs, terms = structures.skeleton(s, kind, quantity, mapper, 8)
+                for spec in specs:
+                    check_texture_name(spec.name)
+                for term in terms:
+                    check_identifier(term.kind, "kind")
+                seen += 1
+    assert seen > 100
+    for name in ("split_sum", "kautz_mccool"):
+        check_label(name)
