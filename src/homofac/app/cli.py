@@ -28,7 +28,7 @@ from .. import baselines, gl
 from ..errors import HomofacError
 from ..fit import solvers, sums
 from ..fit.options import FitOptions, LinearOptions
-from ..gl.picture import auto_exposure
+from ..gl.picture import auto_exposure, check_finite
 from ..gl.window import require_display, show
 from ..io.files import write_atomically
 from ..light import BUNDLED
@@ -332,6 +332,7 @@ def _preview(args) -> int:
         if v is not None and not (v > 0 and v < float("inf")):
             raise HomofacError(f"--{name.replace('_', '-')} must be a positive number, got {v}")
     fac = load(d, textures=args.textures)
+    check_finite(fac)  # before the window too: a picture of NaN says nothing
     camera = gl.Camera(azimuth=args.azimuth, elevation=args.elevation)
     mesh = gl.load_mesh(args.mesh)
     if args.window:
