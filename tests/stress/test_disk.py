@@ -585,7 +585,7 @@ def _set_string(doc: dict, field: str, value: str) -> None:
 _BASE_SHADERS: dict = {}
 
 
-@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(field=st.sampled_from(NAME_FIELDS),
        value=st.one_of(st.text(max_size=20), BREAKOUTS,
                        st.lists(st.one_of(st.text(max_size=4), BREAKOUTS), max_size=4).map("".join)))
