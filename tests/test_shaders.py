@@ -38,13 +38,19 @@ import numpy as np
 import pytest
 
 import homofac as hf
-from homofac.factorization import Factor, Factorization, Term, Texture, decode_texels
+from homofac.app import view as viewer
+from homofac.errors import HomofacError
+from homofac.factorization import (Factor, Factorization, Term, Texture, check_identifier, check_label, check_texture_name,
+                                   decode_texels)
+from homofac.fit import structures
 from homofac.fit.result import Result
 from homofac.gl import device, engine
 from homofac.output import shader_files
 from homofac.param import mappers
+from homofac.param import parametrizations as pz
 from homofac.param import projections as pj
 from homofac.shader import LANGUAGES, generate
+from homofac.shader.languages import comment
 from helpers import smooth_texture
 
 RNG = np.random.default_rng(14)
@@ -870,3 +876,121 @@ def test_opengl_recipe_program_renders_the_factorization(tmp_path):
     diff = np.abs(img[inside] - want).max()
     assert diff <= 2, diff
     assert (img[r2 > 1.03] == 0).all()
+
+
+# --------------------------------------------------------------------------------------------------
+# Names from a document never become code (issue 40): keywords compile, the generator's names are reserved
+
+#: Texture names that are keywords, types or built-ins of some language (each becomes ``hf_<name>``).
+KEYWORD_NAMES = ["float", "return", "texture", "main", "uniform", "discard", "float3", "SamplerState", "register",
+                 "kernel", "device", "constant", "fn", "let", "var", "f32", "select", "Texture2D"]
+
+
+def keyword_model() -> Result:
+    """A two-term lighting model whose textures are named by :data:`KEYWORD_NAMES` (a line texture among them)."""
+    names = KEYWORD_NAMES
+    tex = [Texture(n, "line" if k == 0 else "dual_paraboloid", 4, jnp.asarray(
+        smooth_texture("line" if k == 0 else "dual_paraboloid", 4, k))) for k, n in enumerate(names)]
+    directions = ["n", "r", "v"]
+    f1 = [Factor("nv", names[0])] + [Factor(directions[k % 3], n) for k, n in enumerate(names[1:9])]
+    f2 = [Factor(directions[k % 3], n) for k, n in enumerate(names[9:])]
+    terms = (Term(tuple(f1), jnp.asarray([0.5, 0.5, 0.5]), "fn"), Term(tuple(f2), jnp.asarray([0.1, 0.2, 0.3]), "float"))
+    return Result(Factorization("lighting", "lighting", tuple(tex), terms, {}, "return x"))
+
+
+def test_texture_names_that_are_keywords_compile_in_every_language(tmp_path, wgpu_device):
+    """``hf_`` prefixes every texture identifier, so a keyword or built-in of any language is a valid name."""
+    fac = keyword_model()
+    glslang, clang, shim = tool("glslangValidator"), tool("clang++"), metal_shim(tmp_path)
+    wgpu, device_, _ = wgpu_device
+    for quantized in (False, True):
+        for language in ("glsl", "glsl_es"):
+            (tmp_path / "k.frag").write_text(wrapped(fac, language, quantized))
+            run([glslang, "-S", "frag", tmp_path / "k.frag"])
+        hlsl_spirv(fac, quantized, tmp_path)
+        (tmp_path / "k.metal").write_text(fac.shader("msl", quantized=quantized))
+        run([clang, *CLANG_FLAGS, "-fsyntax-only", "-I", shim, "-x", "c++", tmp_path / "k.metal"])
+        module = device_.create_shader_module(code=wrapped(fac, "wgsl", quantized))
+        device_.create_compute_pipeline(layout="auto", compute={"module": module, "entry_point": "main"})
+
+
+def _own_identifiers(text: str, model) -> set[str]:
+    """The ``hf_`` identifiers of ``text`` that are not the per-texture ones of ``model``'s textures."""
+    per_texture = set()
+    for t in model.textures:
+        per_texture |= {f"hf_{t.name}", f"hf_sample_{t.name}", f"hf_sample_alpha_{t.name}", f"hf_{t.name}_sampler"}
+    return set(re.findall(r"\bhf_\w+", text)) - per_texture
+
+
+def test_the_generators_own_names_are_reserved_texture_names():
+    """Every ``hf_`` identifier the generator (or a preview's main) writes that is not derived from a texture
+    name is reserved: no texture name can produce it, so no texture collides with the generator's names."""
+    own = _own_identifiers(engine.FRAGMENT_MAIN + viewer.SCRIPT, keyword_model().model)
+    for name in sorted(CASES):
+        fac = case(name)
+        for language in LANGUAGES:
+            for quantized in (False, True):
+                own |= _own_identifiers(fac.shader(language, quantized=quantized), fac.model)
+    assert {"hf_normalize", "hf_local", "hf_flip_v", "hf_sampler", "hf_srgb", "hf_viridis"} <= own
+    assert any(n.startswith("hf_proj_") for n in own) and any(n.startswith("hf_map_") for n in own)
+    for ident in own:
+        with pytest.raises(HomofacError, match="reserved"):
+            check_texture_name(ident[3:])
+    for name in ("sample_E", "alpha_E", "E_sampler", "proj_n", "map_cube"):  # the per-texture forms
+        with pytest.raises(HomofacError, match="reserved"):
+            check_texture_name(name)
+
+
+@pytest.mark.parametrize("bad", ["normalize", "proj_n", "sample_A", "local", "NR\n    return vec3(1e9);\n//",
+                                 "a__b", "_x", "1x", "x" * 65, "é", "A-B", ""])
+def test_a_model_refuses_texture_names_that_are_not_safe_in_code(bad):
+    """A texture called ``normalize`` made ``hf_normalize`` twice (a shader that does not compile); a name with a
+    newline put code into the shader. Both are refused when the model is built, whoever builds it."""
+    W = Texture(bad, "line", 8, jnp.asarray(smooth_texture("line", 8, 3)))
+    with pytest.raises(HomofacError) as e:
+        Factorization("lighting", "lighting", (W,), (Term((Factor("nv", bad),), jnp.ones(3)),), {}, "line")
+    assert "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize("field", ["name", "kind"])
+def test_a_model_refuses_names_and_kinds_that_are_not_safe_in_code(field):
+    W = Texture("W", "line", 8, jnp.asarray(smooth_texture("line", 8, 3)))
+    hostile = "NR\n    return vec3(1e9);\n//"
+    name, kind = (hostile, "fitted") if field == "name" else ("line", hostile)
+    with pytest.raises(HomofacError) as e:
+        Factorization("lighting", "lighting", (W,), (Term((Factor("nv", "W"),), jnp.ones(3), kind),), {}, name)
+    assert "\n" not in str(e.value)
+
+
+def test_comments_cannot_be_broken_out_of():
+    """:func:`homofac.shader.languages.comment`: whatever the text, one line of printable ASCII without a
+    comment delimiter or a line continuation."""
+    for text in ["a\nb", "x */ y", "/* z", "*//*/", "q\\", "\u2028\u2029\x85\r\x0b\x0c", "é ∑ 😀", "??/"]:
+        c = comment(text)
+        assert all(" " <= ch <= "~" for ch in c) and "*/" not in c and "/*" not in c and "\\" not in c, (text, c)
+    assert comment("E'+NRW x2+R") == "E'+NRW x2+R"
+
+
+def test_every_name_homofac_writes_follows_the_name_rules():
+    """The pinned rules admit what homofac itself writes: the textures, kinds and labels of every registered
+    parametrization and of every structure the chooser may fit (with tables, highlight lines, the split sum)."""
+    seen = 0
+    for kind in ("lighting", "brdf"):
+        for p in pz.names(kind):
+            check_label(p)
+            for t in pz.get(p, kind).textures:
+                check_texture_name(t)
+        quantity = "lighting" if kind == "lighting" else "brdf"
+        mapper = "dual_paraboloid" if kind == "lighting" else "parabolic"
+        for table in (False, True):
+            for s in structures.candidates(kind, 24, table=table) + structures.ladder(kind, 24, table=table):
+                check_label(s.label())
+                specs, terms = structures.skeleton(s, kind, quantity, mapper, 8)
+                for spec in specs:
+                    check_texture_name(spec.name)
+                for term in terms:
+                    check_identifier(term.kind, "kind")
+                seen += 1
+    assert seen > 100
+    for name in ("split_sum", "kautz_mccool"):
+        check_label(name)

@@ -26,12 +26,13 @@ import homofac as hf
 from homofac import baselines
 from homofac.app import config as cfgmod
 from homofac.app import view
-from homofac.app.cli import view_main
+from homofac.app.cli import preview_main, view_main
 from homofac.app.run import build_target, target_from_config
 from homofac.factorization import Factorization
 from homofac.fit.result import Result
 from homofac.gl import picture
 from homofac.gl.engine import Camera, Light, render
+from homofac.io.exr import write_exr
 from homofac.param import mappers
 
 SIZE = 96
@@ -297,6 +298,49 @@ def test_a_broken_shader_is_reported_on_the_console(browser, page, tmp_path):
     err = browser.execute_script("return window.homofac.error")
     assert err and "does not compile" in err
     assert any("homofac viewer" in e["message"] for e in browser.get_log("browser") if e["level"] == "SEVERE")
+
+
+#: Strings that ended or nested the page's data script, or are JavaScript line terminators.
+SCRIPT_BREAKERS = "x</script><script>window.hfInjected = 1;</script><!--<script>& \u2028 \u2029 -->"
+
+
+def test_data_strings_cannot_end_the_data_script(browser, page, tmp_path):
+    """A name containing ``<!--<script>`` left the data script unclosed (the page showed nothing); ``</script>``
+    ended it. The data is JSON with ``<``, ``>``, ``&``, U+2028/2029 escaped: the page renders, runs none of it,
+    and shows the strings as text."""
+    data = dict(page["data"])
+    data["name"] = SCRIPT_BREAKERS
+    data["terms"] = [SCRIPT_BREAKERS for _ in data["terms"]]
+    text = view.page(data)
+    body = re.search(r'<script id="hf-data" type="application/json">(.*?)</script>', text, re.S).group(1)
+    assert not re.search("[<>&\u2028\u2029]", body)
+    assert json.loads(body)["name"] == SCRIPT_BREAKERS
+    bad = tmp_path / "hostile.html"
+    bad.write_text(text)
+    log = open_page(browser, bad)
+    assert browser.execute_script("return window.hfInjected === undefined")
+    assert SCRIPT_BREAKERS.split(" ")[0] in browser.execute_script("return document.getElementById('hf-heading').textContent")
+    assert console_problems(log + browser.get_log("browser")) == []
+
+
+def test_nan_texels_are_one_line_errors(out_dir, tmp_path, capsys):
+    """NaN texels made homofac.view exit 1 ("Out of range float values are not JSON compliant") and
+    homofac.preview write a NaN picture with exit 0: both refuse with one line, status 2, nothing written."""
+    d = tmp_path / "nan"
+    shutil.copytree(out_dir, d)
+    fac = hf.output.load(d)
+    t = fac.model.textures[1]
+    a = np.array(t.data, np.float32)
+    a[0, 0] = np.nan
+    write_exr(d / f"{t.name}.exr", a)
+    assert view_main([str(d), "--html", str(tmp_path / "v.html"), "--size", "32"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and err.startswith("homofac: error:") and "non-finite" in err, err
+    assert not (tmp_path / "v.html").exists()
+    assert preview_main([str(d), "-o", str(tmp_path / "p.png"), "--size", "32"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and err.startswith("homofac: error:") and "non-finite" in err, err
+    assert not (tmp_path / "p.png").exists()
 
 
 def test_view_cli_refuses_bad_input(tmp_path, capsys):

@@ -22,6 +22,7 @@ offset 0, scale 1, alpha on).
 
 from __future__ import annotations
 
+import re
 from typing import Any, NamedTuple, Sequence
 
 import equinox as eqx
@@ -37,6 +38,55 @@ from .param import projections as pj
 
 KINDS = ("brdf", "lighting")
 QUANTITIES = ("brdf", "brdf_cos", "lighting")
+
+# Names (pinned, docs/format.md "Names"): what a factorization.json may call things. Texture names and term
+# kinds reach generated code (``hf_<texture>``, comments); the model's name only its comments and pages.
+#: A texture name or a term kind: an ASCII identifier, a letter first, at most 64 characters, no ``__``.
+IDENTIFIER = re.compile(r"[A-Za-z](?!.*__)[A-Za-z0-9_]{0,63}")
+#: The model's name (schema 1's ``parametrization``): a label such as ``E'+NRW x2+R``, at most 128 characters
+#: of letters, digits, space and ``_ ' + . , = -``; may be empty.
+LABEL = re.compile(r"[A-Za-z0-9_ '+.,=-]{0,128}")
+#: Texture names that would collide with the shader generator's own ``hf_`` identifiers
+#: (:mod:`homofac.shader.generate`: ``hf_normalize``, ``hf_local``, ``hf_flip_v``, the MSL ``hf_sampler``;
+#: the previews' ``hf_srgb``, ``hf_viridis``) ...
+RESERVED_TEXTURE_NAMES = frozenset({"normalize", "local", "flip_v", "sampler", "srgb", "viridis"})
+#: ... or with the per-texture and per-record ones (``hf_sample_<t>``, ``hf_sample_alpha_<t>``,
+#: ``hf_map_<mapper>``, ``hf_proj_<projection>``, WGSL's ``hf_<t>_sampler``).
+RESERVED_TEXTURE_PREFIXES = ("sample_", "alpha_", "map_", "proj_")
+RESERVED_TEXTURE_SUFFIXES = ("_sampler",)
+
+
+def _shown(value) -> str:
+    """``value`` for an error message: its repr, cut to 80 characters (one line, whatever it holds)."""
+    r = repr(value)
+    return r if len(r) <= 80 else r[:77] + "..."
+
+
+def check_identifier(value, what: str) -> str:
+    """``value`` when it is an :data:`IDENTIFIER`, else a one-line :class:`HomofacError` naming ``what``."""
+    if not isinstance(value, str) or IDENTIFIER.fullmatch(value) is None:
+        raise HomofacError(f"{what} must be an identifier (a letter, then letters, digits or single underscores; "
+                           f"at most 64 characters), got {_shown(value)}")
+    return value
+
+
+def check_texture_name(value, what: str = "texture name") -> str:
+    """``value`` when it is a valid texture name: an :data:`IDENTIFIER` that is not reserved by the shader
+    generator (:data:`RESERVED_TEXTURE_NAMES`, ``..._PREFIXES``, ``..._SUFFIXES``); else one line."""
+    check_identifier(value, what)
+    if (value in RESERVED_TEXTURE_NAMES or value.startswith(RESERVED_TEXTURE_PREFIXES)
+            or value.endswith(RESERVED_TEXTURE_SUFFIXES)):
+        raise HomofacError(f"{what} {value!r} is reserved: it would collide with the generated shaders' own names "
+                           f"(hf_{value}); rename the texture")
+    return value
+
+
+def check_label(value, what: str = "name") -> str:
+    """``value`` when it is a :data:`LABEL` (the model's name), else a one-line :class:`HomofacError`."""
+    if not isinstance(value, str) or LABEL.fullmatch(value) is None:
+        raise HomofacError(f"{what} must be at most 128 characters of letters, digits, space and _ ' + . , = -; "
+                           f"got {_shown(value)}")
+    return value
 
 
 class Texture(eqx.Module):
@@ -92,6 +142,11 @@ class Factorization(eqx.Module):
     name: str = eqx.field(static=True, default="")
 
     def __check_init__(self):
+        check_label(self.name, "factorization name")
+        for t in self.textures:
+            check_texture_name(t.name)
+        for i, term in enumerate(self.terms):
+            check_identifier(term.kind, f"term {i}: kind")
         if self.kind not in KINDS:
             raise HomofacError(f"factorization kind must be one of {', '.join(KINDS)}, got {self.kind!r}")
         if self.quantity not in QUANTITIES:
@@ -304,5 +359,6 @@ def tree_arrays(model: Factorization) -> list[jax.Array]:
     return jax.tree_util.tree_leaves(model)
 
 
-__all__ = ["Factor", "Factorization", "KINDS", "QUANTITIES", "Quantized", "Term", "Texture", "check_rgba",
-           "decode_texels", "evaluate_quantized", "tree_arrays"]
+__all__ = ["Factor", "Factorization", "IDENTIFIER", "KINDS", "LABEL", "QUANTITIES", "Quantized", "RESERVED_TEXTURE_NAMES",
+           "RESERVED_TEXTURE_PREFIXES", "RESERVED_TEXTURE_SUFFIXES", "Term", "Texture", "check_identifier", "check_label",
+           "check_rgba", "check_texture_name", "decode_texels", "evaluate_quantized", "tree_arrays"]

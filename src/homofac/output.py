@@ -38,7 +38,8 @@ from pydantic import Field, field_validator, model_validator
 
 from ._version import __version__
 from .errors import HomofacError
-from .factorization import Factor, Factorization, Quantized, Term, Texture, check_rgba, decode_texels
+from .factorization import (Factor, Factorization, Quantized, Term, Texture, check_identifier, check_label, check_rgba,
+                            check_texture_name, decode_texels)
 from .fit.result import Result, register_writer
 from .io.exr import read_exr, write_exr
 from .io.files import one_line
@@ -470,6 +471,29 @@ def _swap_into_place(tmp: Path, out: Path) -> None:
 # Reading: the document's schema, and confined, size-checked files
 
 
+#: Largest magnitude of a number that feeds the evaluation (float32's largest finite value).
+FLOAT32_MAX = float(np.finfo(np.float32).max)
+
+
+def _finite32(v):
+    """``v`` (a list of numbers, or None) when every value is a finite float32; else a ValueError (one line)."""
+    if v is not None and not all(math.isfinite(x) and abs(x) <= FLOAT32_MAX for x in v):
+        raise ValueError(f"must be finite float32 numbers (|x| <= {FLOAT32_MAX:.4g}), got {v}")
+    return v
+
+
+def _checked(check):
+    """A pydantic validator from a ``check_*`` of :mod:`homofac.factorization` (HomofacError -> ValueError)."""
+    def validator(cls, v):
+        if v is None:
+            return v
+        try:
+            return check(v, "")
+        except HomofacError as e:
+            raise ValueError(str(e).strip()) from None
+    return classmethod(validator)
+
+
 def _plain_name(v: str) -> str:
     if not isinstance(v, str) or not v or v in (".", "..") or "/" in v or "\\" in v or "\x00" in v:
         raise ValueError(f"must be a plain file name inside the directory, got {v!r}")
@@ -481,12 +505,14 @@ class PngDecode(Options):
     scale: list[float] = Field(default_factory=lambda: [1.0, 1.0, 1.0], min_length=3, max_length=3)
     alpha: bool = True
 
+    _finite = field_validator("offset", "scale")(classmethod(lambda cls, v: _finite32(v)))
+
 
 class TextureEntry(Options):
     """One entry of ``textures``."""
 
     model_config = Options.model_config | {"extra": "ignore"}
-    name: str = Field(min_length=1, max_length=64, pattern=r"^[A-Za-z_][A-Za-z0-9_]*$")
+    name: str  # factorization.check_texture_name (docs/format.md, "Names")
     file: str
     mapper: Optional[str] = None  # schema 1: the top-level mapper
     size: Optional[int] = Field(None, ge=2, le=MAX_SIZE)
@@ -495,6 +521,7 @@ class TextureEntry(Options):
     png_decode: Optional[PngDecode] = None
 
     _name_file = field_validator("file", "png")(classmethod(lambda cls, v: v if v is None else _plain_name(v)))
+    _name = field_validator("name", mode="before")(_checked(check_texture_name))
 
 
 class FactorEntry(Options):
@@ -509,6 +536,9 @@ class TermEntry(Options):
     correction: list[float] = Field(min_length=3, max_length=3)
     png_correction: Optional[list[float]] = Field(None, min_length=3, max_length=3)
     factors: list[FactorEntry] = Field(min_length=1, max_length=64)
+
+    _kind = field_validator("kind", mode="before")(_checked(check_identifier))
+    _finite = field_validator("correction", "png_correction")(classmethod(lambda cls, v: _finite32(v)))
 
 
 class Document(Options):
@@ -537,6 +567,9 @@ class Document(Options):
     config: dict = Field(default_factory=dict)
     selection: Optional[dict] = None
     analysis: Optional[dict] = None
+
+    _names = field_validator("name", "parametrization", mode="before")(_checked(check_label))
+    _finite = field_validator("correction")(classmethod(lambda cls, v: _finite32(v)))
 
     @model_validator(mode="after")
     def _consistent(self):
@@ -713,8 +746,8 @@ def _read_png(d: Path, doc: Document, raw: dict, specs, terms_doc) -> Quantized:
             alpha = bool(rule["alpha"])
         except (KeyError, TypeError, ValueError) as e:
             raise HomofacError(f"{d / JSON_NAME}: malformed png_decode rule ({one_line(e)})") from None
-        if not (np.all(np.isfinite(colour)) and math.isfinite(z)):
-            raise HomofacError(f"{d / JSON_NAME}: png_decode has non-finite values")
+        if not (np.all(np.isfinite(colour)) and math.isfinite(z) and np.all(np.abs(colour * z) <= FLOAT32_MAX)):
+            raise HomofacError(f"{d / JSON_NAME}: png_decode has values that are not finite float32 numbers")
         corrections = (colour * z,)
         alphas = [alpha for _ in alphas]
         if len(terms_doc) != 1:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -34,6 +35,7 @@ from homofac.fit.options import SamplingOptions
 from homofac.fit.samples import Samples
 from homofac.io.exr import write_exr
 from homofac.output import JSON_NAME, OutputLock, load
+from homofac.shader import LANGUAGES
 
 ROOT = Path(__file__).resolve().parents[2]
 PY = sys.executable
@@ -236,6 +238,69 @@ def test_junk_documents_are_one_line_errors(saved, tmp_path, junk):
     with pytest.raises(HomofacError) as e:
         load(d)
     assert "\n" not in str(e.value)
+
+
+# --------------------------------------------------------------------------------------------------
+# 2b. Names become code, numbers become infinities: refused on load (docs/format.md, "Names")
+
+HOSTILE = "NR\n    return vec3(1e9);\n//"
+
+
+def _rename_texture(doc, old, new):
+    for t in doc["textures"]:
+        if t["name"] == old:
+            t["name"] = new
+    for f in [f for term in doc.get("terms", []) for f in term["factors"]] + doc.get("factors", []):
+        if f["texture"] == old:
+            f["texture"] = new
+
+
+@pytest.mark.parametrize("edit,needle", [
+    (lambda doc: doc.update(name=HOSTILE), "name"),
+    (lambda doc: doc.update(name=None, parametrization=HOSTILE), "parametrization"),
+    (lambda doc: doc.update(name="x */ y"), "name"),
+    (lambda doc: doc.update(name="<!--<script>"), "name"),
+    (lambda doc: doc["terms"][0].update(kind=HOSTILE), "kind"),
+    (lambda doc: _rename_texture(doc, "p", HOSTILE), "textures"),
+    (lambda doc: _rename_texture(doc, "p", "normalize"), "reserved"),
+    (lambda doc: _rename_texture(doc, "p", "proj_wi"), "reserved"),
+    (lambda doc: _rename_texture(doc, "q", "sample_p"), "reserved"),
+    (lambda doc: doc["terms"][0]["factors"][0].update(projection="wi */"), "projection"),
+    (lambda doc: doc["terms"][0].update(correction=[1e39, 1.0, 1.0]), "float32"),
+    (lambda doc: doc["terms"][0].update(png_correction=[1.0, -1e39, 1.0]), "float32"),
+    (lambda doc: doc["textures"][0].update(png_decode={"offset": [0, 0, 0], "scale": [1e39, 1, 1]}), "float32"),
+    (lambda doc: doc.update(correction=[3.5e38, 1.0, 1.0], schema_version=1), "float32"),
+    (lambda doc: doc.update(context={"dominant": [1e39, 0.0, 0.0]}), "dominant"),
+], ids=["name", "parametrization", "comment-end", "html", "kind", "texture-newline", "normalize", "proj_wi",
+        "sample_p", "projection", "correction", "png_correction", "png_scale", "schema1-correction", "context"])
+def test_names_and_numbers_that_would_become_code_or_infinity_are_refused(saved, tmp_path, edit, needle):
+    """A name with a newline put ``return vec3(1e9);`` into every generated shader; a texture called
+    ``normalize`` made a shader that does not compile; 1e39 loaded as inf. Each is one line on load."""
+    d = _copy(saved, tmp_path)
+    _edit(d, edit)
+    with pytest.raises(HomofacError, match=needle) as e:
+        load(d)
+    assert "\n" not in str(e.value)
+
+
+def test_a_correction_of_1e400_is_refused(saved, tmp_path):
+    """1e400 is valid JSON that Python reads as inf (no NaN/Infinity constant involved)."""
+    d = _copy(saved, tmp_path)
+    _edit(d, lambda doc: doc["terms"][0].update(correction=[12345.5, 1.0, 1.0]))
+    (d / JSON_NAME).write_text((d / JSON_NAME).read_text().replace("12345.5", "1e400"))
+    with pytest.raises(HomofacError, match="float32"):
+        load(d)
+
+
+def test_names_homofac_writes_still_load(saved, tmp_path):
+    """The rules admit what homofac writes: labels such as ``E'+NRW x2+R``, texture names such as ``T0``, ``c1``."""
+    d = _copy(saved, tmp_path)
+    _edit(d, lambda doc: (doc.update(name="E'+NRW x2+R+HSFT x2", parametrization="E'+NRW x2+R+HSFT x2"),
+                          _rename_texture(doc, "p", "T0"), doc["terms"][0].update(kind="prefiltered")))
+    r = load(d)
+    assert r.model.name == "E'+NRW x2+R+HSFT x2" and r.model.textures[0].name == "T0"
+    for lang in LANGUAGES:
+        assert "return vec3(1e9)" not in r.shader(lang)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -497,3 +562,58 @@ def test_fuzz_factorization_json_loading(saved, tmp_path_factory, mutation):
         load(d)
     except HomofacError as e:
         assert "\n" not in str(e)
+
+
+#: Substrings that would break out of a comment, a line or an HTML script if a document's string reached them.
+BREAKOUTS = st.sampled_from([HOSTILE, "*/", "/*", "\n", "\r", "\\", "\u2028", "\x85", "</script>", "<!--<script>",
+                             "normalize", "proj_n", "sample_p", "alpha_p", "p_sampler", "hf_p", "return", "__", "é"])
+NAME_FIELDS = ["name", "parametrization", "kind", "texture", "projection"]
+
+
+def _set_string(doc: dict, field: str, value: str) -> None:
+    if field in ("name", "parametrization"):
+        doc[field] = value
+    elif field == "kind":
+        doc["terms"][0]["kind"] = value
+    elif field == "texture":
+        _rename_texture(doc, "p", value)
+    else:
+        doc["terms"][0]["factors"][0]["projection"] = value
+        doc["factors"][0]["projection"] = value
+
+
+_BASE_SHADERS: dict = {}
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(field=st.sampled_from(NAME_FIELDS),
+       value=st.one_of(st.text(max_size=20), BREAKOUTS,
+                       st.lists(st.one_of(st.text(max_size=4), BREAKOUTS), max_size=4).map("".join)))
+def test_fuzz_factorization_json_strings(saved, tmp_path_factory, field, value):
+    """Random unicode names, kinds, parametrizations, texture and projection names: either a one-line
+    HomofacError on load, or shaders in every language that are printable ASCII lines with no comment
+    delimiter or line continuation, as many lines and ``return`` statements as the unmodified document's."""
+    d = tmp_path_factory.mktemp("fuzzs")
+    for f in saved.iterdir():
+        shutil.copy(f, d / f.name)
+    doc = json.loads((saved / JSON_NAME).read_text())
+    _set_string(doc, field, value)
+    (d / JSON_NAME).write_text(json.dumps(doc))
+    try:
+        r = load(d)
+    except HomofacError as e:
+        assert "\n" not in str(e)
+        return
+    if not _BASE_SHADERS:
+        base = load(saved)
+        _BASE_SHADERS.update({lang: base.shader(lang) for lang in LANGUAGES})
+    same_structure = field != "projection" or value == "wi"
+    for lang in LANGUAGES:
+        src = r.shader(lang)
+        assert all(" " <= c <= "~" for c in src.replace("\n", "")), (lang, value)
+        assert "*/" not in src and "/*" not in src and "\\" not in src, (lang, value)
+        assert not any(h in src for h in (HOSTILE, "return vec3(1e9)", "</script>", "<!--", "\u2028")), (lang, value)
+        if same_structure:
+            base = _BASE_SHADERS[lang]
+            returns = [len(re.findall(r"\breturn\b", re.sub(r"//.*", "", t))) for t in (src, base)]  # code, not comments
+            assert src.count("\n") == base.count("\n") and returns[0] == returns[1], (lang, value)

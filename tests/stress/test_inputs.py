@@ -12,6 +12,7 @@ import yaml
 
 from homofac import brdf as B
 from homofac.app.cli import fit_main as main
+from homofac.app.cli import run_one_line
 from homofac.io.exr import write_exr
 from homofac.io.hdr import write_hdr
 from homofac import light as E
@@ -156,10 +157,35 @@ def test_nan_pixels_are_cleaned_with_a_counted_warning(tmp_path, capsys):
     img[1, 0] = np.inf
     write_exr(tmp_path / "env.exr", img)
     cfg = _config(tmp_path, LIGHTING, {})
-    with pytest.warns(RuntimeWarning, match="4 non-finite"):
-        assert main([str(cfg), "--quiet"]) == 0
+    assert main([str(cfg), "--quiet"]) == 0
+    err = [ln for ln in capsys.readouterr().err.splitlines() if "non-finite" in ln]
+    assert len(err) == 1 and err[0].startswith("homofac: warning:") and "4 non-finite" in err[0], err
     doc = json.loads((tmp_path / "out" / "factorization.json").read_text())
     assert doc["target"]["environment"]["nonfinite"] == 4
+
+
+def test_a_nan_environment_warns_in_one_line(tmp_path, capsys):
+    """The count of NaN/Inf pixels was a two-line Python RuntimeWarning (``file:line: RuntimeWarning: ...`` and
+    the source line); at the CLI every warning is one ``homofac: warning:`` line."""
+    img = _latlong()
+    img[0, :3] = np.nan
+    write_exr(tmp_path / "env.exr", img)
+    assert run_one_line(lambda: E.load_environment(tmp_path / "env.exr", resolution=4) and 0, False) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("homofac: warning:") and "3 non-finite" in err[0], err
+
+
+@pytest.mark.slow
+def test_one_huge_environment_pixel_keeps_the_metrics_finite(tmp_path, capsys):
+    """One pixel of 1e30 made every rms and nrmse null in factorization.json (float32 squares overflowed)."""
+    img = _latlong()
+    img[2, 3] = 1e30
+    write_exr(tmp_path / "env.exr", img)
+    assert main([str(_config(tmp_path, LIGHTING, {})), "--quiet"]) == 0
+    doc = json.loads((tmp_path / "out" / "factorization.json").read_text())
+    for split in doc["metrics"].values():
+        for m in split.values():
+            assert all(v is not None and np.isfinite(v) for v in m.values()), m
 
 
 @pytest.mark.slow

@@ -100,3 +100,22 @@ def test_non_convergence_of_every_iterative_solver_is_reported(method):
                              solver={"method": method, "max_iterations": 1, "tolerance": 1e-12})
     assert fac.solver["converged"] is False and fac.warnings
     assert all(np.all(np.isfinite(np.asarray(x))) for x in fac.textures)
+
+
+def test_metrics_of_huge_values_do_not_overflow():
+    """One environment pixel of 1e30 turned every rms and nrmse inf (null in factorization.json): float32
+    squares overflow at 1.8e19. The reported metrics accumulate in float64, the jitted ones square scaled
+    values; both equal a float64 reference."""
+    rng = np.random.default_rng(3)
+    e = (rng.uniform(0.5, 2.0, (500, 3)) * 1e30).astype(np.float32)
+    a = (e * rng.uniform(0.9, 1.1, (500, 3))).astype(np.float32)
+    e64, a64 = e.astype(np.float64), a.astype(np.float64)
+    want_nrmse = np.mean(np.linalg.norm(a64 - e64, axis=0) / np.linalg.norm(e64, axis=0))
+    want_rms = np.mean(np.sqrt(np.mean((a64 - e64) ** 2, axis=0)))
+    got = hf.fit.metrics.metrics(a, e)
+    assert got["nrmse"] == pytest.approx(want_nrmse, rel=1e-12) and got["rms"] == pytest.approx(want_rms, rel=1e-12)
+    jitted = {k: float(v) for k, v in hf.fit.metrics.metric_arrays(a, e).items()}
+    assert jitted["nrmse"] == pytest.approx(want_nrmse, rel=1e-5) and jitted["rms"] == pytest.approx(want_rms, rel=1e-5)
+    # ordinary values: unchanged by the scaling
+    small = hf.fit.metrics.metrics(a64 * 1e-30, e64 * 1e-30)
+    assert small["nrmse"] == pytest.approx(want_nrmse, rel=1e-9)

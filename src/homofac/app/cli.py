@@ -15,6 +15,7 @@ import signal
 import sys
 import textwrap
 import time
+import warnings
 from pathlib import Path
 from typing import Callable
 
@@ -27,7 +28,7 @@ from .. import baselines, gl
 from ..errors import HomofacError
 from ..fit import solvers, sums
 from ..fit.options import FitOptions, LinearOptions
-from ..gl.picture import auto_exposure
+from ..gl.picture import auto_exposure, check_finite
 from ..gl.window import require_display, show
 from ..io.files import write_atomically
 from ..light import BUNDLED
@@ -105,16 +106,26 @@ def enable_compilation_cache() -> Path | None:
         return None
 
 
+def warning_line(message, category, filename, lineno, file=None, line=None) -> None:
+    """``warnings.showwarning`` of the CLIs: a Python warning (homofac's, or a library's) as one line
+    ``homofac: warning: <message>`` on stderr, not the two-line ``file:line: Category: message`` + source."""
+    print(f"homofac: warning: {' '.join(str(message).split())}", file=sys.stderr if file is None else file)
+
+
 def run_one_line(body: Callable[[], int], debug: bool, interrupted: str = "homofac: interrupted") -> int:
     """Run a CLI body; every failure becomes one line on stderr (status 2 for HomofacError, 1 for
     anything unexpected, 130 on Ctrl-C); with ``debug`` the exception propagates with its traceback.
+    Warnings are one line each (:func:`warning_line`; with ``debug`` Python's own form).
 
     SIGXFSZ (a file grew past ``ulimit -f``) is ignored so that the write fails with an error the
     output layer reports (naming the file, nothing replaced) instead of killing the process."""
     if hasattr(signal, "SIGXFSZ"):
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
     try:
-        return body()
+        with warnings.catch_warnings():
+            if not debug:
+                warnings.showwarning = warning_line
+            return body()
     except KeyboardInterrupt:
         print(interrupted, file=sys.stderr)
         return 130
@@ -325,6 +336,7 @@ def _preview(args) -> int:
         if v is not None and not (v > 0 and v < float("inf")):
             raise HomofacError(f"--{name.replace('_', '-')} must be a positive number, got {v}")
     fac = load(d, textures=args.textures)
+    check_finite(fac)  # before the window too: a picture of NaN says nothing
     camera = gl.Camera(azimuth=args.azimuth, elevation=args.elevation)
     mesh = gl.load_mesh(args.mesh)
     if args.window:

@@ -33,7 +33,7 @@ import numpy as np
 from .._version import __version__
 from ..errors import HomofacError
 from ..gl.engine import Camera, Light, load_mesh
-from ..gl.picture import BACKGROUND, _VIRIDIS, preview
+from ..gl.picture import BACKGROUND, _VIRIDIS, check_finite, preview
 from ..io.files import write_atomically
 
 #: Meshes the page offers (the first is shown first).
@@ -65,6 +65,7 @@ def viewer_data(fac, target=None, *, size: int = 256, camera: Camera = Camera(),
     """
     if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or not 16 <= size <= 1024:
         raise HomofacError(f"viewer size must be an int in 16 ... 1024, got {size!r}")
+    check_finite(fac)
     if target is None:
         target = getattr(fac, "target", None)
     model = fac.model
@@ -126,11 +127,27 @@ def viewer_html(fac, target=None, **kwargs) -> str:
     return page(data)
 
 
+#: What the data script's JSON escapes: ``<`` (so no ``</script>``, ``<!--`` or ``<script`` can end or nest the
+#: script), ``>``, ``&`` and the JavaScript line terminators U+2028 / U+2029.
+_SCRIPT_ESCAPES = {"<": "\\u003c", ">": "\\u003e", "&": "\\u0026", "\u2028": "\\u2028", "\u2029": "\\u2029"}
+_SCRIPT_TABLE = str.maketrans(_SCRIPT_ESCAPES)
+
+
+def script_json(blob: str) -> str:
+    """JSON text ``blob`` made safe inside ``<script type="application/json">``: the characters that could
+    end or change the script element are written as JSON ``\\uXXXX`` escapes (they only occur in strings),
+    which ``JSON.parse`` reads back as the same string."""
+    return blob.translate(_SCRIPT_TABLE)
+
+
 def page(data: dict) -> str:
     """The HTML of embedded ``data`` (:func:`viewer_data` without ``_previews``)."""
-    blob = json.dumps(data, separators=(",", ":"), allow_nan=False).replace("</", "<\\/")
+    try:
+        blob = json.dumps(data, separators=(",", ":"), allow_nan=False)
+    except ValueError as e:  # NaN or Inf somewhere in the data
+        raise HomofacError(f"viewer data: {e} (non-finite values cannot be shown)") from None
     title = f"homofac viewer: {data['name']}"
-    return (TEMPLATE.replace("__HF_TITLE__", html.escape(title)).replace("__HF_DATA__", blob)
+    return (TEMPLATE.replace("__HF_TITLE__", html.escape(title)).replace("__HF_DATA__", script_json(blob))
             .replace("__HF_SCRIPT__", SCRIPT))
 
 
@@ -590,4 +607,4 @@ void main() {
 })();
 """
 
-__all__ = ["MESHES", "page", "viewer_data", "viewer_html", "write_viewer"]
+__all__ = ["MESHES", "page", "script_json", "viewer_data", "viewer_html", "write_viewer"]

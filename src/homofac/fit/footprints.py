@@ -22,7 +22,7 @@ from jaxtyping import Array, Float
 from ..factorization import Factorization, Quantized
 from ..param import mappers
 from ..param import projections as pj
-from .metrics import channel_metrics, metric_arrays
+from .metrics import channel_metrics, metrics
 
 
 class Footprints(NamedTuple):
@@ -145,8 +145,7 @@ def measure(result, target, samples, fp_train: Footprints, fp_val: Footprints | 
         exact = target.shown(aj, jnp.asarray(y))
         out[split] = {}
         for name, approx in (("float", evaluate(result.model, fp)), ("quantized", evaluate_quantized(result.model, q, fp))):
-            m = metric_arrays(target.shown(aj, approx), exact, eps)
-            out[split][name] = {k: float(v) for k, v in m.items()}
+            out[split][name] = metrics(target.shown(aj, approx), exact, eps)
     return out
 
 

@@ -16,34 +16,43 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
 NAMES = ("avg_abs", "max_abs", "avg_rel", "max_rel", "rms", "nrmse", "log_rms")
+
+
+def _channel(xp, a, e, eps):
+    """The pinned metrics per channel in the array namespace ``xp`` (numpy in float64, or jax.numpy).
+
+    Sums of squares are taken of the values divided by their largest magnitude per channel ``s`` (and the
+    results scaled back): one environment pixel of 1e30 made float32 squares overflow and every rms and
+    nrmse inf (null in factorization.json); rel, max and log terms are computed as they are."""
+    diff = a - e
+    ad = xp.abs(diff)
+    mean_e = xp.mean(e, axis=0)
+    tau = 1e-3 * xp.maximum(mean_e, 1e-30)
+    rel = ad / xp.maximum(e, tau)
+    alpha = xp.maximum(mean_e, 1e-30)
+    log_err = xp.log((xp.maximum(a, 0.0) + eps * alpha) / (xp.maximum(e, 0.0) + eps * alpha))
+    s = xp.maximum(xp.max(xp.maximum(xp.abs(a), xp.abs(e)), axis=0), 1e-30)
+    ds, es = diff / s, e / s
+    return {
+        "avg_abs": xp.mean(ad, axis=0),
+        "max_abs": xp.max(ad, axis=0),
+        "avg_rel": xp.mean(rel, axis=0),
+        "max_rel": xp.max(rel, axis=0),
+        "rms": s * xp.sqrt(xp.mean(ds * ds, axis=0)),
+        "nrmse": xp.sqrt(xp.sum(ds * ds, axis=0)) / xp.maximum(xp.sqrt(xp.sum(es * es, axis=0)), 1e-30 / s),
+        "log_rms": xp.sqrt(xp.mean(log_err * log_err, axis=0)),
+    }
 
 
 @jax.jit
 def channel_metrics(approx: Float[Array, "N C"], exact: Float[Array, "N C"], eps: float = 1e-5) -> dict:
     """The pinned metrics per channel (column), as (C,) arrays: :func:`metric_arrays` averages them over
     RGB; a material library stacks its targets' channels side by side and measures them in one pass."""
-    a = approx
-    e = exact
-    diff = a - e
-    ad = jnp.abs(diff)
-    mean_e = jnp.mean(e, axis=0)
-    tau = 1e-3 * jnp.maximum(mean_e, 1e-30)
-    rel = ad / jnp.maximum(e, tau)
-    alpha = jnp.maximum(mean_e, 1e-30)
-    log_err = jnp.log((jnp.maximum(a, 0.0) + eps * alpha) / (jnp.maximum(e, 0.0) + eps * alpha))
-    norm_e = jnp.sqrt(jnp.sum(e * e, axis=0))
-    return {
-        "avg_abs": jnp.mean(ad, axis=0),
-        "max_abs": jnp.max(ad, axis=0),
-        "avg_rel": jnp.mean(rel, axis=0),
-        "max_rel": jnp.max(rel, axis=0),
-        "rms": jnp.sqrt(jnp.mean(diff * diff, axis=0)),
-        "nrmse": jnp.sqrt(jnp.sum(diff * diff, axis=0)) / jnp.maximum(norm_e, 1e-30),
-        "log_rms": jnp.sqrt(jnp.mean(log_err * log_err, axis=0)),
-    }
+    return _channel(jnp, approx, exact, eps)
 
 
 def metric_arrays(approx: Float[Array, "N 3"], exact: Float[Array, "N 3"], eps: float = 1e-5) -> dict:
@@ -52,8 +61,11 @@ def metric_arrays(approx: Float[Array, "N 3"], exact: Float[Array, "N 3"], eps: 
 
 
 def metrics(approx, exact, eps: float = 1e-5) -> dict[str, float]:
-    """:func:`metric_arrays` as plain floats (for reports and factorization.json)."""
-    return {k: float(v) for k, v in metric_arrays(jnp.asarray(approx), jnp.asarray(exact), eps).items()}
+    """The pinned metrics as plain floats (for reports and factorization.json), accumulated in float64
+    with numpy (the same formulas as :func:`metric_arrays`)."""
+    a, e = np.asarray(approx, np.float64), np.asarray(exact, np.float64)
+    with np.errstate(all="ignore"):  # a NaN or inf in the values gives a NaN metric (reported), not a warning
+        return {k: float(np.mean(v)) for k, v in _channel(np, a, e, float(eps)).items()}
 
 
 def measure(result, target, samples, eps: float = 1e-5, chunk: int = 65536) -> dict:

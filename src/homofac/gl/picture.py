@@ -146,6 +146,20 @@ def compose(panels: list[tuple[str, np.ndarray]], caption: str, colour_bar: tupl
     return np.asarray(img)
 
 
+def check_finite(fac) -> None:
+    """Refuse a factorization with non-finite texels or corrections (one line naming the texture): a picture
+    of NaN says nothing, and the page of :mod:`homofac.app.view` cannot hold it."""
+    model = fac.model
+    for t in model.textures:
+        bad = int(np.count_nonzero(~np.isfinite(np.asarray(t.data))))
+        if bad:
+            raise HomofacError(f"texture {t.name}: {bad} non-finite texels (NaN or Inf); nothing to show "
+                               "(refit, or repair the texture)")
+    for k, term in enumerate(model.terms):
+        if not np.all(np.isfinite(np.asarray(term.correction))):
+            raise HomofacError(f"term {k}: non-finite correction {np.asarray(term.correction).tolist()}; nothing to show")
+
+
 def preview(
     fac,
     target=None,
@@ -181,6 +195,7 @@ def preview(
         ``uint8 (H, W, 3)`` image (and the dict when ``return_data``). Raises HomofacError (one line)
         when no headless GL context can be created.
     """
+    check_finite(fac)
     if target is None:
         target = getattr(fac, "target", None)
     if target is not None and target.kind != fac.kind:
@@ -205,7 +220,8 @@ def preview(
         heat = np.full(frame.value.shape, BACKGROUND, np.uint8)
         heat[frame.mask] = np.round(colormap(err / scale) * 255).astype(np.uint8)
         panels.append(("relative error", heat))
-        nrmse = float(np.linalg.norm(approx - exact) / max(np.linalg.norm(exact), 1e-30)) if err.size else 0.0
+        a64, e64 = np.asarray(approx, np.float64), np.asarray(exact, np.float64)  # float32 squares overflow at 1e19
+        nrmse = float(np.linalg.norm(a64 - e64) / max(np.linalg.norm(e64), 1e-30)) if err.size else 0.0
         mean_rel = float(np.mean(err)) if err.size else 0.0
         img = compose(panels, f"{head}; pixels: nrmse {nrmse:.3g}, mean rel. error {mean_rel:.3g}",
                       colour_bar=(scale, "rel. err."))
@@ -221,5 +237,5 @@ def write_preview(fac, path, target=None, **kwargs) -> Path:
     return path
 
 
-__all__ = ["auto_exposure", "colormap", "compose", "exact_values", "preview", "relative_error", "srgb",
+__all__ = ["auto_exposure", "check_finite", "colormap", "compose", "exact_values", "preview", "relative_error", "srgb",
            "to_display", "write_preview"]

@@ -101,7 +101,8 @@ def example_context() -> dict:
 
 
 def check_context(name: str, value):
-    """``value`` of context key ``name`` as float32 (a number for a scalar key), or a one-line refusal."""
+    """``value`` of context key ``name`` as float32 (a number for a scalar key), or a one-line refusal
+    (also for values that are finite but not as float32, such as 1e39)."""
     key = CONTEXT_KEYS.get(name)
     if key is None:
         raise HomofacError(f"unknown context key {name!r}; known: {', '.join(CONTEXT_KEYS)}")
@@ -110,6 +111,7 @@ def check_context(name: str, value):
     except (TypeError, ValueError):  # ragged lists
         a = None
     if a is None or a.dtype.kind not in "iuf" or a.shape != key.shape or not np.all(np.isfinite(a)) or (
+            not np.all(np.abs(a.astype(np.float64)) <= np.finfo(np.float32).max)) or (
             key.bounds is not None and not np.all((a >= key.bounds[0]) & (a <= key.bounds[1]))):
         raise HomofacError(f"context.{name} must be {key.doc}, got {value!r}")
     return float(a) if key.shape == () else a.astype(np.float32)

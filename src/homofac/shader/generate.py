@@ -32,7 +32,7 @@ import numpy as np
 from .. import sphere
 from .._version import __version__
 from ..errors import HomofacError
-from ..factorization import Factorization, Quantized
+from ..factorization import Factorization, Quantized, check_identifier, check_texture_name
 from ..param import mappers
 from ..param import projections as pj
 from . import languages as L
@@ -236,6 +236,18 @@ def _entry(lang: L.Language, model: Factorization, term: bool = False) -> str:
             f"    return ({valid}) ? {call} : {zero};\n}}")
 
 
+def _check_names(model: Factorization) -> None:
+    """Refuse names that would not be safe in code (docs/format.md, "Names"), whoever built the model: texture
+    names become identifiers (``hf_<name>``), registered mappers and projections function names."""
+    for t in model.textures:
+        check_texture_name(t.name)
+        mappers.get(t.mapper)
+    for i, term in enumerate(model.terms):
+        check_identifier(term.kind, f"term {i}: kind")
+        for f in term.factors:
+            pj.get(f.projection)
+
+
 def source(model: Factorization, language: str = "glsl", *, quantized: Quantized | None = None,
            y_up: bool = False, flip_v: bool = False) -> str:
     """The complete shader source of ``model`` in ``language`` (see the module docstring).
@@ -248,6 +260,7 @@ def source(model: Factorization, language: str = "glsl", *, quantized: Quantized
     compile it that way with glslangValidator).
     """
     lang = L.get(language)
+    _check_names(model)
     q = quantized is not None
     mapper_names = list(dict.fromkeys(t.mapper for t in model.textures))
     proj_names = list(dict.fromkeys(f.projection for term in model.terms for f in term.factors))
@@ -272,7 +285,7 @@ def source(model: Factorization, language: str = "glsl", *, quantized: Quantized
     if lang.name == "msl":
         functions = _msl_thread_textures(functions, model)
     lines = [
-        f"// homofac {__version__}: {model.kind} factorization {model.name!r}, {len(model.terms)} term(s), "
+        f"// homofac {__version__}: {model.kind} factorization {L.comment(repr(model.name))}, {len(model.terms)} term(s), "
         f"{model.lookups} texture lookups, {'8-bit PNG' if q else 'float EXR'} textures.",
         f"// {lang.title}. Generated from homofac's records; the interface is pinned (docs/shaders.md).",
         "// Frame: homofac world, +z up (lighting: n, v point away from the surface; v towards the viewer).",

@@ -33,6 +33,16 @@ def float_literal(x: float, suffix: str = "") -> str:
     return f"({s})" if s.startswith("-") else s
 
 
+def comment(text: str) -> str:
+    """``text`` made safe inside a ``//`` or ``/* */`` comment of every language: printable ASCII only (any
+    other character, a backslash -- a line continuation -- included, becomes ``_``), no ``*/`` or ``/*``.
+    Generated code carries document strings only through this (and validated identifiers)."""
+    s = "".join(c if " " <= c <= "~" and c != "\\" else "_" for c in str(text))
+    while "*/" in s or "/*" in s:
+        s = s.replace("*/", "* /").replace("/*", "/ *")
+    return s
+
+
 @dataclass(frozen=True)
 class Language:
     """How one shading language spells the operations of the expression graph."""
@@ -209,8 +219,8 @@ def function(lang: Language, name: str, params: list[tuple[str, str]], result: E
             text[e.id] = s
     ret = text[result.id]
     sig = lang.signature(name, [(n, lang.type(t)) for n, t in params], lang.type(result.type))
-    comment = f"  // {doc}" if doc else ""
-    return sig + " {" + comment + "\n" + "".join(line + "\n" for line in lines) + f"    return {ret};\n}}"
+    note = f"  // {comment(doc)}" if doc else ""
+    return sig + " {" + note + "\n" + "".join(line + "\n" for line in lines) + f"    return {ret};\n}}"
 
 
 def _print(lang: Language, e: Expr, text: dict[int, str]) -> str:
@@ -240,5 +250,5 @@ def _print(lang: Language, e: Expr, text: dict[int, str]) -> str:
     raise HomofacError(f"cannot print shader node {e.op}")
 
 
-__all__ = ["GLSL", "GLSL_ES", "HLSL", "LANGUAGES", "Language", "MSL", "WGSL", "float_literal", "function", "get",
+__all__ = ["GLSL", "GLSL_ES", "HLSL", "LANGUAGES", "Language", "MSL", "WGSL", "comment", "float_literal", "function", "get",
            "table_source", "tables"]
