@@ -40,7 +40,7 @@ from .errors import HomofacError
 from .factorization import Factor, Factorization, Quantized, Term, Texture, check_rgba, decode_texels
 from .fit.result import Result, register_writer
 from .io.exr import read_exr, write_exr
-from .io.files import one_line
+from .io.files import one_line, read_bounded
 from .io.png import read_png, write_png
 from .options import Options, validate
 from .param import mappers
@@ -121,10 +121,8 @@ def _format_of(path: Path, name: str):
     """The ``format`` field of the JSON file ``path / name`` (None when absent, too big or unreadable)."""
     f = Path(path) / name
     try:
-        if f.stat().st_size > MAX_JSON_BYTES:
-            return None
-        return json.loads(f.read_text()).get("format")
-    except (OSError, ValueError, AttributeError, UnicodeDecodeError, RecursionError):
+        return json.loads(read_bounded(f, "a JSON", MAX_JSON_BYTES)).get("format")
+    except (OSError, ValueError, AttributeError, UnicodeDecodeError, RecursionError, HomofacError):
         return None
 
 
@@ -554,14 +552,13 @@ def read_document(d: Path) -> dict:
         raise HomofacError(f"{d}: cannot read {JSON_NAME} ({e.strerror or e})") from None
     if size > MAX_JSON_BYTES:
         raise HomofacError(f"{f}: {size} bytes; a factorization.json is far smaller (at most {MAX_JSON_BYTES})")
+    raw = read_bounded(f, "a JSON", MAX_JSON_BYTES)
 
     def no_constants(c):
         raise ValueError(f"non-standard JSON constant {c}")
 
     try:
-        doc = json.loads(f.read_bytes().decode("utf-8"), parse_constant=no_constants)
-    except OSError as e:
-        raise HomofacError(f"{d}: cannot read {JSON_NAME} ({e.strerror or e})") from None
+        doc = json.loads(raw.decode("utf-8"), parse_constant=no_constants)
     except UnicodeDecodeError:
         raise HomofacError(f"{f}: not UTF-8 text") from None
     except RecursionError:
