@@ -572,15 +572,29 @@ def read_document(d: Path) -> dict:
     return doc
 
 
-def load(out_dir, textures: str = "exr", *, max_bytes: int = 1 << 28) -> Result:
+#: Default cap on the texture memory of :func:`load`, all textures together: 1 GiB.
+MAX_LOAD_BYTES = 1 << 30
+
+
+def _texture_bytes(d: Path, specs, png: bool, exr: bool) -> int:
+    """Bytes of reading the declared textures: float32 RGB and the reader's temporaries (28 per texel),
+    the RGBA8 copy and its temporaries when PNG files are read (20)."""
+    texels = sum(int(np.prod(mappers.texture_shape(mapper, size))) for _, mapper, size in specs)
+    return texels * ((28 if exr else 12) + (20 if png else 0))
+
+
+def load(out_dir, textures: str = "exr", *, max_bytes: int = 1 << 28, max_total_bytes: int | None = MAX_LOAD_BYTES) -> Result:
     """Read an output directory back into a :class:`~homofac.fit.result.Result` (schema 1 or 2).
 
     ``textures="exr"`` (default): the float textures from the EXR files; when PNG files were written
     they are read too and ``evaluate(a, b, quantized=True)`` decodes exactly those (else the 8-bit
     encoding is recomputed from the EXR textures with the stored settings). ``textures="png"``: only
     the 8-bit PNG textures and their decode rule; ``evaluate(a, b)`` then decodes them and the model's
-    texels are their decoded float values. ``max_bytes`` caps each texture read. A missing, truncated,
-    mismatched or misplaced file raises a one-line HomofacError naming it.
+    texels are their decoded float values. ``max_bytes`` caps each texture read, ``max_total_bytes``
+    (default :data:`MAX_LOAD_BYTES`, None: no cap) the memory of all of them together, counted from the
+    declared sizes before any texture is read (many entries may name one file). A missing, truncated,
+    mismatched or misplaced file raises a one-line HomofacError naming it; running out of memory while
+    reading says so (not "corrupt").
     """
     if textures not in ("exr", "png"):
         raise HomofacError(f"load: textures must be 'exr' or 'png', got {textures!r}")
@@ -602,6 +616,19 @@ def load(out_dir, textures: str = "exr", *, max_bytes: int = 1 << 28) -> Result:
         except HomofacError as e:
             raise HomofacError(f"{d / JSON_NAME}: {e}") from None
     has_png = all(t.png for t, _, _ in specs)
+    need = _texture_bytes(d, specs, textures == "png" or has_png, textures == "exr")
+    if max_total_bytes is not None and need > max_total_bytes:
+        raise HomofacError(f"{d / JSON_NAME}: its {len(specs)} textures need {need / (1 << 30):.2f} GiB to load, over "
+                           f"the memory budget of {max_total_bytes / (1 << 30):.2f} GiB")
+    try:
+        return _load(d, doc, raw, specs, terms_doc, quantity, context, textures, has_png, max_bytes)
+    except MemoryError:
+        raise HomofacError(f"{d}: out of memory loading {len(specs)} textures ({need / (1 << 30):.2f} GiB declared): "
+                           "over the memory this process may use (ulimit -v, cgroup)") from None
+
+
+def _load(d, doc, raw, specs, terms_doc, quantity, context, textures, has_png, max_bytes) -> Result:
+    """The textures and the Result of :func:`load` (after its checks)."""
     quant = None
     if textures == "png" or has_png:
         quant = _read_png(d, doc, raw, specs, terms_doc)
@@ -684,5 +711,6 @@ def _read_png(d: Path, doc: Document, raw: dict, specs, terms_doc) -> Quantized:
 register_writer(save)
 
 __all__ = ["Document", "EXR_TYPES", "FACE_NAMES", "FORMAT", "INDEX_NAME", "JSON_NAME", "LIBRARY_FORMAT", "LIBRARY_VERSION",
+           "MAX_LOAD_BYTES", "read_document",
            "OutputLock", "OutputOptions", "SCHEMA_VERSION", "check_output_dir", "cube_faces", "cube_vertical", "document",
            "is_homofac_dir", "is_library_dir", "load", "recover", "save", "save_library", "shader_files"]

@@ -372,6 +372,8 @@ def read_exr_with_header(
         channels = f.channels()
     except HomofacError:
         raise
+    except MemoryError:
+        raise  # not a corrupt file: the caller reports running out of memory
     except Exception as e:  # OpenEXR raises RuntimeError / ValueError on corrupt or truncated data
         raise HomofacError(f"{p}: cannot read EXR (corrupt or truncated?): {_one_line(e)}") from None
     if not channels:
@@ -516,6 +518,8 @@ def _openexr_strips(p: Path, hd: _Header, rows: int) -> Iterator[tuple[int, np.n
     float_type = Imath.PixelType(Imath.PixelType.FLOAT)
     try:
         f = OpenEXR.InputFile(str(p))
+    except MemoryError:
+        raise  # not a corrupt file: the caller reports running out of memory
     except Exception as e:
         raise HomofacError(f"{p}: cannot read EXR (corrupt or truncated?): {_one_line(e)}") from None
     try:
@@ -523,6 +527,8 @@ def _openexr_strips(p: Path, hd: _Header, rows: int) -> Iterator[tuple[int, np.n
             y1 = min(h, y0 + rows)
             try:
                 planes = f.channels(names, float_type, ymin + y0, ymin + y1 - 1)
+            except MemoryError:
+                raise  # not a corrupt file: the caller reports running out of memory
             except Exception as e:
                 raise HomofacError(
                     f"{p}: cannot read EXR (corrupt or truncated?) rows {y0}..{y1 - 1}: {_one_line(e)}"
