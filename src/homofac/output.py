@@ -27,6 +27,7 @@ import json
 import math
 import os
 import shutil
+import stat
 import uuid
 from pathlib import Path
 from typing import Any, Literal, Optional
@@ -164,7 +165,9 @@ class OutputLock:
 
     The concurrency rule (docs/format.md): one run writes a directory at a time; a second run that
     finds the lock held is refused at once (one line, before any work), never blocked and never
-    silently overwriting the first. The lock file is removed when the lock is released. Taking the lock also cleans what a killed run left behind (its
+    silently overwriting the first. The lock file is removed when the lock is released; one left by a
+    killed run (its flock died with it) is taken over by the next run and removed when it is done, and a
+    run whose opened file was removed meanwhile by its holder opens the new one (same inode checked). Taking the lock also cleans what a killed run left behind (its
     temporary and old directories) and restores a previous result stranded by a kill between the two
     renames of the final swap. Reentrant within a process (``save`` inside ``run``).
     """
@@ -182,11 +185,34 @@ class OutputLock:
             return self
         _make_parent(self.out)
         path = self.out.parent / f".{self.out.name}.lock"
+        for _ in range(100):  # a lock file removed by its holder between our open and flock: open the new one
+            fd = self._take(path)
+            try:
+                same = os.path.samestat(os.fstat(fd), os.stat(path))
+            except OSError:
+                same = False
+            if same:
+                break
+            os.close(fd)
+        else:
+            raise HomofacError(f"output path {self.out}: the lock file {path} keeps changing; is another run looping?")
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()}\n".encode())
+        self.fd = fd
+        OutputLock._held[self.key] = 1
+        recover(self.out)
+        return self
+
+    def _take(self, path: Path) -> int:
+        """Open and flock ``path`` (created when missing). A file left by a killed run has a free flock: it
+        is taken over (and removed on release)."""
         try:
-            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666 & ~_umask())
+            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o666 & ~_umask())
         except OSError as e:
             raise HomofacError(f"output path {self.out}: cannot create the lock file {path}: {one_line(e)}") from None
         try:
+            if not stat.S_ISREG(os.fstat(fd).st_mode):
+                raise HomofacError(f"output path {self.out}: the lock file {path} is not a regular file")
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError as e:
             os.close(fd)
@@ -194,12 +220,10 @@ class OutputLock:
                 raise HomofacError(f"output directory {self.out} is being written by another homofac run "
                                    f"(lock {path}); wait for it or choose another --out") from None
             raise HomofacError(f"output path {self.out}: cannot lock {path}: {one_line(e)}") from None
-        os.ftruncate(fd, 0)
-        os.write(fd, f"{os.getpid()}\n".encode())
-        self.fd = fd
-        OutputLock._held[self.key] = 1
-        recover(self.out)
-        return self
+        except BaseException:
+            os.close(fd)
+            raise
+        return fd
 
     def __exit__(self, *exc) -> None:
         n = OutputLock._held.get(self.key, 0) - 1
