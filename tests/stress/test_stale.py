@@ -12,6 +12,7 @@ import sys
 import textwrap
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 import homofac as hf
@@ -81,3 +82,39 @@ def test_a_killed_runs_lock_file_is_reclaimed_and_removed_by_the_next_run(tmp_pa
     with pytest.raises(HomofacError, match="not a regular file"):
         with OutputLock(out):
             pass
+
+
+@pytest.fixture(scope="module")
+def plastic():
+    from homofac.fit import sampling
+    from homofac.fit.samples import Samples, evaluate_grouped
+
+    env = hf.light.load_environment("forest", resolution=4)
+    target = hf.light.lighting_target(hf.brdf.cook_torrance(kd=(0.3, 0.25, 0.2), ks=1.0, roughness=0.6, f0=0.04), env)
+    g = sampling.grouped_grid("dual_paraboloid", 6, 2000, 0)
+    vg = sampling.grouped_random(500, 1)
+    p, v = g.flatten(), vg.flatten()
+    return target, Samples(p.a, p.b, np.asarray(evaluate_grouped(target, g)), v.a, v.b,
+                           np.asarray(evaluate_grouped(target, vg)))
+
+
+def test_a_long_als_fit_stops_on_convergence_and_shows_progress(plastic, monkeypatch):
+    """``linear.iterations: 100000`` ran every sweep silently (hours); it now stops when a sweep lowers the
+    objective by less than ``linear.tolerance`` of it, logs its progress, and records what it ran."""
+    from homofac.fit import sums
+    from homofac.fit.options import LinearOptions
+    from homofac.fit.structures import Structure
+
+    target, s = plastic
+    st = Structure("NR", 2, "fitted", True)
+    lines: list[str] = []
+    monkeypatch.setattr(sums, "PROGRESS_S", 0.0)  # every sweep's line (the CLI shows one every few seconds)
+    fit = sums.fit_sum(target, st, "dual_paraboloid", 6, s, LinearOptions(method="als", iterations=100_000,
+                                                                          tolerance=1e-3), lines.append)
+    rec = fit.solver
+    assert rec["converged"] is True and 2 <= rec["iterations"] < 1000, rec
+    sweeps = [x for x in lines if x.startswith("ALS sweep ")]
+    assert sweeps and sweeps[-1].endswith("(converged)") and f"ALS sweep {rec['iterations']} / 100000" in sweeps[-1]
+    # a tolerance of 0 runs every sweep and records that it did not converge
+    full = sums.fit_sum(target, st, "dual_paraboloid", 6, s, LinearOptions(method="als", iterations=4, tolerance=0))
+    assert full.solver["iterations"] == 4 and full.solver["converged"] is False
