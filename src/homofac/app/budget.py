@@ -12,10 +12,17 @@ file's header) alone, no sampling:
 * the lighting computation: one lax.map step of at most 2^22 light terms per group, with about 16
   float32 temporaries each (the lobe form's per-light work), plus the light arrays;
 * the environment image: reading it whole (its header's size x 12 bytes and the reader's
-  temporaries), or a few strips when it is read downsampled (:mod:`homofac.light.sources`);
+  temporaries), or a few strips when it is read downsampled (:mod:`homofac.light.sources`), and its
+  resampling to the cube of lights (:data:`RESAMPLE_BYTES` per sub-point);
+* a scene sampling (``kind: scene``): ``sampling.count`` pairs (or every pixel of its cameras), the mesh
+  and the renders;
 * a fixed 1 GB for the JAX/XLA runtime, compilation and compiled code (measured 0.4-0.9 GB);
 * a material library (``target.materials``): per further material its training and validation
   values, its log right-hand side, its own solver state (the solves are vmapped) and its textures.
+
+:func:`view_estimate` is the same count for ``homofac.view`` and ``homofac.preview`` of a saved
+factorization (its textures, the exact target its recorded config rebuilds, the frames), from
+factorization.json alone; :func:`check_view` refuses it over the limit before any texture is read.
 
 It aims at the right order of magnitude and errs high (the tests check it against a measured peak).
 :func:`check` refuses a config whose estimate exceeds the limit: ``limits.memory_gb``, or by default
