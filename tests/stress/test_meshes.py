@@ -221,6 +221,9 @@ def test_counts_follow_triangulation_instancing_and_declared_rows(tmp_path):
     doc["scenes"] = [{"nodes": [0]}]
     g.write_text(json.dumps(doc))
     assert scene.precount(g, g.read_bytes())[1] == 2 * 5
+    b = tmp_path / "b.ply"  # a binary PLY of triangles: counted exactly from its corner counts
+    trimesh.creation.icosphere(subdivisions=3).export(b, encoding="binary")
+    assert scene.precount(b, b.read_bytes()) == (642, 1280)
     doc["nodes"][3]["children"] = [0]  # a cycle
     g.write_text(json.dumps(doc))
     _one_line_refusal(lambda: scene.load_mesh(g), "cycle")

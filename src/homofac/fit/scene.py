@@ -175,6 +175,41 @@ _SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2,
           "int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4, "float32": 4, "double": 8, "float64": 8}
 
 
+def _binary_ply_triangles(head: str, data: bytes, body_at: int, faces: int) -> int:
+    """Triangles a binary PLY's face rows make, bounded from its bytes: exact when every face has the same
+    corner count n (the common case: F max(n - 2, 1)), else the corner entries its face bytes can hold."""
+    elems: list[list] = []  # [name, count, fixed bytes a row, [(count type, item type)]]
+    for line in head.splitlines():
+        t = line.split()
+        if t[:1] == ["element"] and len(t) >= 3 and t[2].isdigit():
+            elems.append([t[1], int(t[2]), 0, []])
+        elif t[:1] == ["property"] and elems:
+            if len(t) >= 5 and t[1] == "list":
+                elems[-1][3].append((_SIZES.get(t[2], 4), _SIZES.get(t[3], 4)))
+            elif len(t) >= 3:
+                elems[-1][2] += _SIZES.get(t[1], 8)
+    body = len(data) - body_at
+    crude = body  # every body byte a corner: an upper bound
+    at = body_at
+    for name, count, fixed, lists in elems:
+        if name == "face" and len(lists) == 1 and fixed == 0 and at < len(data):
+            cs, isz = lists[0]
+            kind = {1: "<u1", 2: "<u2", 4: "<u4"}.get(cs)
+            if kind is None or at + cs > len(data):
+                return crude
+            n0 = int(np.frombuffer(data, kind, 1, at)[0])
+            stride = cs + n0 * isz
+            if count and at + stride * count <= len(data):
+                firsts = np.ndarray((count,), np.dtype(kind), data, at, (stride,))
+                if np.all(firsts == n0):
+                    return count * max(n0 - 2, 1)
+            return min(crude, (body - sum(c * f for _, c, f, _ in elems)) // max(isz, 1))
+        if lists:
+            return crude
+        at += count * fixed
+    return crude if faces else 0
+
+
 def _ply_counts(path: Path, data: bytes) -> tuple[int, int, bytes]:
     """(vertices, triangles bound, the bytes to parse) of a PLY file. An ASCII body is cut after the rows
     its header declares (junk lines beyond them are never parsed) and its face rows are counted as
@@ -192,11 +227,7 @@ def _ply_counts(path: Path, data: bytes) -> tuple[int, int, bytes]:
                            f"{MAX_VERTICES + MAX_FACES}")
     body_at = data.find(b"\n", end) + 1 if data.find(b"\n", end) >= 0 else len(data)
     if "format ascii" not in head:
-        lists = _LIST.findall(data[:end])
-        entries = (len(data) - body_at) // min((_SIZES.get(t.decode(), 4) for _, _, t in lists), default=4)
-        if lists and all(_SIZES.get(c.decode(), 4) == 1 for c, _, _ in lists):
-            entries = min(entries, faces * 253)  # a 1-byte corner count: at most 255 corners a face
-        return vertices, entries, data  # every body byte an index: an upper bound of the triangles
+        return vertices, _binary_ply_triangles(head, data, body_at, faces), data
     rows = sum(n for _, n in elements)
     try:
         body = data[body_at:].decode("utf-8")
