@@ -600,7 +600,7 @@ def read_document(d: Path) -> dict:
 MAX_LOAD_BYTES = 1 << 30
 
 
-def _texture_bytes(d: Path, specs, png: bool, exr: bool) -> int:
+def _texture_bytes(specs, png: bool, exr: bool) -> int:
     """Bytes of reading the declared textures: float32 RGB and the reader's temporaries (28 per texel),
     the RGBA8 copy and its temporaries when PNG files are read (20)."""
     texels = sum(int(np.prod(mappers.texture_shape(mapper, size))) for _, mapper, size in specs)
@@ -640,7 +640,7 @@ def load(out_dir, textures: str = "exr", *, max_bytes: int = 1 << 28, max_total_
         except HomofacError as e:
             raise HomofacError(f"{d / JSON_NAME}: {e}") from None
     has_png = all(t.png for t, _, _ in specs)
-    need = _texture_bytes(d, specs, textures == "png" or has_png, textures == "exr")
+    need = _texture_bytes(specs, textures == "png" or has_png, textures == "exr")
     if max_total_bytes is not None and need > max_total_bytes:
         raise HomofacError(f"{d / JSON_NAME}: its {len(specs)} textures need {need / (1 << 30):.2f} GiB to load, over "
                            f"the memory budget of {max_total_bytes / (1 << 30):.2f} GiB")

@@ -16,7 +16,6 @@ import os
 import signal
 import subprocess
 import sys
-import textwrap
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -282,3 +281,18 @@ def test_fuzz_mesh_files_load_within_limits_or_are_refused(valid, tmp_path_facto
     assert 0 < len(f) <= scene.MAX_FACES and len(v) <= scene.MAX_VERTICES
     assert np.all(np.isfinite(v)) and f.min() >= 0 and f.max() < len(v)
     assert n.shape == v.shape
+
+
+def test_the_preview_mesh_goes_through_the_same_checks(tmp_path):
+    """``homofac.preview --mesh`` / the viewer loaded any path with trimesh, unchecked."""
+    from homofac.gl.engine import load_mesh
+
+    os.mkfifo(tmp_path / "fifo.obj")
+    _one_line_refusal(lambda: load_mesh(str(tmp_path / "fifo.obj")), "FIFO")
+    obj = tmp_path / "long.obj"
+    obj.write_bytes(b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf " + b"1 2 3 " * 400_000 + b"\n")
+    _one_line_refusal(lambda: load_mesh(str(obj)), "faces, more than")
+    tet = tmp_path / "tet.obj"
+    tet.write_text("v 0 0 1\nv 1 0 -0.5\nv -0.5 0.8 -0.5\nv -0.5 -0.8 -0.5\nf 1 2 3\nf 1 3 4\nf 1 4 2\nf 2 4 3\n")
+    m = load_mesh(str(tet))
+    assert len(m.faces) == 4 and np.allclose(np.linalg.norm(m.normals, axis=1), 1, atol=1e-5)

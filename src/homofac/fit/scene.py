@@ -141,7 +141,7 @@ def _gltf_json(path: Path, data: bytes) -> dict:
 
 
 def obj_text(path: Path, data: bytes) -> str:
-    """The text of an OBJ file as trimesh's OBJ reader sees it (UTF-8 only; ``\r\n`` -> ``\n``,
+    r"""The text of an OBJ file as trimesh's OBJ reader sees it (UTF-8 only; ``\r\n`` -> ``\n``,
     backslash line continuations joined)."""
     try:
         text = data.decode("utf-8")
@@ -151,7 +151,7 @@ def obj_text(path: Path, data: bytes) -> str:
 
 
 def _tokens_per_line(text: str) -> np.ndarray:
-    """Whitespace-separated tokens on each ``\n``-separated line of ``text`` (an upper bound of
+    r"""Whitespace-separated tokens on each ``\n``-separated line of ``text`` (an upper bound of
     ``str.split()``: any byte outside printable ASCII separates)."""
     b = np.frombuffer(text.encode("utf-8"), np.uint8)
     word = (b > 32) & (b < 127)
@@ -170,7 +170,6 @@ def _obj_counts(path: Path, data: bytes) -> tuple[int, int]:
 
 
 _BREAK = re.compile("\r\n|[\n\r\x0b\x0c\x1c\x1d\x1e\x85\u2028\u2029]")
-_LIST = re.compile(rb"^property\s+list\s+(\w+)\s+(\w+)\s+(\w+)", re.M)
 _SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2, "uint16": 2,
           "int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4, "float32": 4, "double": 8, "float64": 8}
 
