@@ -63,21 +63,26 @@ import json, resource, sys
 # an address-space cap: without the budget the view would be killed (17 GB); here it fails instead
 resource.setrlimit(resource.RLIMIT_AS, (8 << 30, resource.RLIM_INFINITY))
 from homofac.app.cli import preview_main, view_main
-codes = [view_main([sys.argv[1], "--html", sys.argv[2]]), preview_main([sys.argv[1], "-o", sys.argv[3]])]
+codes = [view_main([sys.argv[1], "--html", sys.argv[2]]), preview_main([sys.argv[1], "-o", sys.argv[3]]),
+         view_main([sys.argv[4], "--html", sys.argv[2]])]
 print(json.dumps(codes))
 """
 
 
 def test_view_and_preview_refuse_a_saved_config_over_the_budget_before_any_work(tmp_path):
+    """Also, under the cap, 64 entries naming one EXR (3.8 GB to load) are refused as over the budget
+    (the limit is half of the 8 GB cap), not as "corrupt or truncated?"."""
     d = _saved_at(tmp_path, 1024)
-    r = subprocess.run([PY, "-c", VIEWS, str(d), str(tmp_path / "v.html"), str(tmp_path / "p.png")],
+    many = _many_entries(tmp_path)
+    r = subprocess.run([PY, "-c", VIEWS, str(d), str(tmp_path / "v.html"), str(tmp_path / "p.png"), str(many)],
                        capture_output=True, text=True, timeout=300)
-    assert json.loads(r.stdout.strip().splitlines()[-1]) == [2, 2], r.stderr[-2000:]
+    assert json.loads(r.stdout.strip().splitlines()[-1]) == [2, 2, 2], r.stderr[-2000:]
     lines = [x for x in r.stderr.splitlines() if x.strip()]
-    assert len(lines) == 2, lines
-    for line, what in zip(lines, ("homofac.view", "homofac.preview")):
+    assert len(lines) == 3, lines
+    for line, what in zip(lines, ("homofac.view", "homofac.preview", "homofac.view")):
         assert line.startswith(f"homofac: error: {what}: estimated memory") and "exceeds the limit" in line, line
-        assert "environment resolution 1024" in line
+    assert "environment resolution 1024" in lines[0] and "environment resolution 1024" in lines[1]
+    assert "corrupt" not in lines[2] and "textures 3.5" in lines[2], lines[2]
     assert not (tmp_path / "v.html").exists() and not (tmp_path / "p.png").exists()
 
 
@@ -95,7 +100,17 @@ def test_the_view_estimate_grows_with_the_lights_and_the_textures(tmp_path):
 def test_loading_caps_the_total_of_the_textures_not_only_each(tmp_path):
     """64 entries naming one EXR of size 1024 (dual paraboloid: 1024 x 2048): each passes the per-texture
     cap, together they would take 1.6 GB of float32 (3.8 GB with the reader's temporaries)."""
+    d = _many_entries(tmp_path)
+    with pytest.raises(HomofacError) as e:
+        load(d)
+    msg = str(e.value)
+    assert "\n" not in msg and "64 textures need" in msg and "over the memory budget" in msg, msg
+
+
+def _many_entries(tmp_path: Path) -> Path:
     d = tmp_path / "many"
+    if d.exists():
+        return d
     shutil.copytree(SCHEMA1, d)
     write_exr(d / "big.exr", np.zeros((1024, 2048, 3), np.float32))
     doc = json.loads((d / JSON_NAME).read_text())
@@ -105,7 +120,4 @@ def test_loading_caps_the_total_of_the_textures_not_only_each(tmp_path):
     doc["factors"] = [{"projection": "n", "texture": "t0"}, {"projection": "r", "texture": "t1"}]
     doc.pop("png_decode", None)
     (d / JSON_NAME).write_text(json.dumps(doc))
-    with pytest.raises(HomofacError) as e:
-        load(d)
-    msg = str(e.value)
-    assert "\n" not in msg and "64 textures need" in msg and "over the memory budget" in msg, msg
+    return d

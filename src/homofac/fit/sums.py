@@ -549,7 +549,7 @@ def _fit_als(structure, specs, fitted_terms, layouts, x0, grid, a, b, y, opts: L
     flags = als.Flags(tuple(flags_p), tuple(flags_q), tuple(flags_w), tuple(flags_h) if has_h else (),
                       tuple(tuple(c[e] is not None for c in cprojs) for e in kinds))
     if has_h:
-        P, Q, W, D, C = _highlight_first(P, Q, W, D, C, data, flags, opts)
+        P, Q, W, D, C = _highlight_first(P, Q, W, D, C, data, flags, opts, log)
     out, steps, converged, _ = als_sweeps(
         jnp.asarray(P, jnp.float32), jnp.asarray(Q, jnp.float32), jnp.asarray(W, jnp.float32), data,
         jnp.float32(opts.laplacian), flags, int(opts.iterations), float(opts.tolerance), log,
@@ -579,7 +579,7 @@ def _scalar_footprints(projs, a, b, context, size: int):
     return jnp.asarray(idx), jnp.asarray(wts)
 
 
-def _highlight_first(P, Q, W, D, C, data, flags, opts: LinearOptions):
+def _highlight_first(P, Q, W, D, C, data, flags, opts: LinearOptions, log=None):
     """Start the highlight terms (and an n-only diffuse texture) on the data alone, the products absent:
     started together, the products' maps of r take the sun's highlight first and the joint ALS stays
     there (near-mirror / city: 0.50 nrmse against 0.2 from this start). Returns the full start."""
@@ -593,9 +593,10 @@ def _highlight_first(P, Q, W, D, C, data, flags, opts: LinearOptions):
     has_c = bool(flags.c)
     data = data._replace(hi=data.hi[:, idx], hw=data.hw[:, idx], ci=tuple(c[:, idx] for c in data.ci),
                          cw=tuple(c[:, idx] for c in data.cw))
-    out = als.run(*(jnp.asarray(x[idx], jnp.float32) for x in (P, Q, W)), data, jnp.float32(opts.laplacian),
-                  flags=sub, sweeps=max(1, int(opts.iterations) // 2), D=jnp.asarray(D[idx], jnp.float32),
-                  C=tuple(jnp.asarray(c[idx], jnp.float32) for c in C) if has_c else None)
+    out, *_ = als_sweeps(*(jnp.asarray(x[idx], jnp.float32) for x in (P, Q, W)), data, jnp.float32(opts.laplacian),
+                         sub, max(1, int(opts.iterations) // 2), float(opts.tolerance), log,
+                         D=jnp.asarray(D[idx], jnp.float32),
+                         C=tuple(jnp.asarray(c[idx], jnp.float32) for c in C) if has_c else None)
     P, Q, W, D, C = (np.array(x) for x in (P, Q, W, D, C))
     for arr, new in zip((P, Q, W, D), out[:4]):
         arr[idx] = np.asarray(new)
