@@ -136,6 +136,14 @@ def test_a_directory_or_a_fifo_as_the_mesh_exits_2_with_one_line(tmp_path, capsy
         assert code == 2, err
         assert len(err) == 1 and err[0].startswith("homofac: error: ") and mesh in err[0] and what in err[0], err
         assert not (tmp_path / "out").exists()
+    os.mkfifo(tmp_path / "env.exr")  # a FIFO as the environment hung in the header read
+    cfg = {"target": {"kind": "lighting", "brdf": {"model": "lambert"}, "environment": {"file": "env.exr", "resolution": 4}},
+           "texture_size": 8, "output": {"dir": str(tmp_path / "out"), "preview": False}}
+    (tmp_path / "c.yaml").write_text(yaml.safe_dump(cfg))
+    with within(60):
+        code = main([str(tmp_path / "c.yaml"), "--quiet"])
+    err = [x for x in capsys.readouterr().err.splitlines() if x.strip()]
+    assert code == 2 and len(err) == 1 and "env.exr" in err[0] and "FIFO" in err[0], err
 
 
 def test_fifos_as_environment_merl_config_and_output_files_are_refused(tmp_path):
