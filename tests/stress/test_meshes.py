@@ -115,6 +115,10 @@ def test_fifos_devices_and_directories_are_refused_in_one_line_without_hanging(t
     fifo_bin = tmp_path / "buf.bin"
     os.mkfifo(fifo_bin)
     _one_line_refusal(lambda: scene.load_mesh(_gltf(tmp_path / "buf.gltf", 1, 1, buffer="buf.bin")), "FIFO")
+    os.mkfifo(tmp_path / "m.mtl")  # an OBJ's material library as a FIFO: materials are not read
+    (tmp_path / "mtl.obj").write_bytes(b"mtllib m.mtl\nusemtl x\n" + TRIANGLE_OBJ)
+    with within(10):
+        assert len(scene.load_mesh(tmp_path / "mtl.obj")[1]) == 1
     # the same glTF with a real image beside it loads (materials are not read)
     (tmp_path / "real.png").write_bytes(b"\x89PNG\r\n\x1a\n" + b"\x00" * 32)
     v, f, _ = scene.load_mesh(_gltf(tmp_path / "ok.gltf", 2, 2, image="real.png"))
