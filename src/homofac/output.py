@@ -28,6 +28,7 @@ import json
 import math
 import os
 import shutil
+import stat
 import uuid
 from pathlib import Path
 from typing import Any, Literal, Optional
@@ -42,7 +43,7 @@ from .factorization import (Factor, Factorization, Quantized, Term, Texture, che
                             check_texture_name, decode_texels)
 from .fit.result import Result, register_writer
 from .io.exr import read_exr, write_exr
-from .io.files import one_line
+from .io.files import one_line, read_bounded
 from .io.ktx2 import write_ktx2
 from .io.png import read_png, write_png
 from .options import Options, validate
@@ -126,10 +127,8 @@ def _format_of(path: Path, name: str):
     """The ``format`` field of the JSON file ``path / name`` (None when absent, too big or unreadable)."""
     f = Path(path) / name
     try:
-        if f.stat().st_size > MAX_JSON_BYTES:
-            return None
-        return json.loads(f.read_text()).get("format")
-    except (OSError, ValueError, AttributeError, UnicodeDecodeError, RecursionError):
+        return json.loads(read_bounded(f, "a JSON", MAX_JSON_BYTES)).get("format")
+    except (OSError, ValueError, AttributeError, UnicodeDecodeError, RecursionError, HomofacError):
         return None
 
 
@@ -171,7 +170,9 @@ class OutputLock:
 
     The concurrency rule (docs/format.md): one run writes a directory at a time; a second run that
     finds the lock held is refused at once (one line, before any work), never blocked and never
-    silently overwriting the first. The lock file is removed when the lock is released. Taking the lock also cleans what a killed run left behind (its
+    silently overwriting the first. The lock file is removed when the lock is released; one left by a
+    killed run (its flock died with it) is taken over by the next run and removed when it is done, and a
+    run whose opened file was removed meanwhile by its holder opens the new one (same inode checked). Taking the lock also cleans what a killed run left behind (its
     temporary and old directories) and restores a previous result stranded by a kill between the two
     renames of the final swap. Reentrant within a process (``save`` inside ``run``).
     """
@@ -189,11 +190,34 @@ class OutputLock:
             return self
         _make_parent(self.out)
         path = self.out.parent / f".{self.out.name}.lock"
+        for _ in range(100):  # a lock file removed by its holder between our open and flock: open the new one
+            fd = self._take(path)
+            try:
+                same = os.path.samestat(os.fstat(fd), os.stat(path))
+            except OSError:
+                same = False
+            if same:
+                break
+            os.close(fd)
+        else:
+            raise HomofacError(f"output path {self.out}: the lock file {path} keeps changing; is another run looping?")
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()}\n".encode())
+        self.fd = fd
+        OutputLock._held[self.key] = 1
+        recover(self.out)
+        return self
+
+    def _take(self, path: Path) -> int:
+        """Open and flock ``path`` (created when missing). A file left by a killed run has a free flock: it
+        is taken over (and removed on release)."""
         try:
-            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666 & ~_umask())
+            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW, 0o666 & ~_umask())
         except OSError as e:
             raise HomofacError(f"output path {self.out}: cannot create the lock file {path}: {one_line(e)}") from None
         try:
+            if not stat.S_ISREG(os.fstat(fd).st_mode):
+                raise HomofacError(f"output path {self.out}: the lock file {path} is not a regular file")
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError as e:
             os.close(fd)
@@ -201,12 +225,10 @@ class OutputLock:
                 raise HomofacError(f"output directory {self.out} is being written by another homofac run "
                                    f"(lock {path}); wait for it or choose another --out") from None
             raise HomofacError(f"output path {self.out}: cannot lock {path}: {one_line(e)}") from None
-        os.ftruncate(fd, 0)
-        os.write(fd, f"{os.getpid()}\n".encode())
-        self.fd = fd
-        OutputLock._held[self.key] = 1
-        recover(self.out)
-        return self
+        except BaseException:
+            os.close(fd)
+            raise
+        return fd
 
     def __exit__(self, *exc) -> None:
         n = OutputLock._held.get(self.key, 0) - 1
@@ -627,14 +649,13 @@ def read_document(d: Path) -> dict:
         raise HomofacError(f"{d}: cannot read {JSON_NAME} ({e.strerror or e})") from None
     if size > MAX_JSON_BYTES:
         raise HomofacError(f"{f}: {size} bytes; a factorization.json is far smaller (at most {MAX_JSON_BYTES})")
+    raw = read_bounded(f, "a JSON", MAX_JSON_BYTES)
 
     def no_constants(c):
         raise ValueError(f"non-standard JSON constant {c}")
 
     try:
-        doc = json.loads(f.read_bytes().decode("utf-8"), parse_constant=no_constants)
-    except OSError as e:
-        raise HomofacError(f"{d}: cannot read {JSON_NAME} ({e.strerror or e})") from None
+        doc = json.loads(raw.decode("utf-8"), parse_constant=no_constants)
     except UnicodeDecodeError:
         raise HomofacError(f"{f}: not UTF-8 text") from None
     except RecursionError:
@@ -648,15 +669,29 @@ def read_document(d: Path) -> dict:
     return doc
 
 
-def load(out_dir, textures: str = "exr", *, max_bytes: int = 1 << 28) -> Result:
+#: Default cap on the texture memory of :func:`load`, all textures together: 1 GiB.
+MAX_LOAD_BYTES = 1 << 30
+
+
+def _texture_bytes(specs, png: bool, exr: bool) -> int:
+    """Bytes of reading the declared textures: float32 RGB and the reader's temporaries (28 per texel),
+    the RGBA8 copy and its temporaries when PNG files are read (20)."""
+    texels = sum(int(np.prod(mappers.texture_shape(mapper, size))) for _, mapper, size in specs)
+    return texels * ((28 if exr else 12) + (20 if png else 0))
+
+
+def load(out_dir, textures: str = "exr", *, max_bytes: int = 1 << 28, max_total_bytes: int | None = MAX_LOAD_BYTES) -> Result:
     """Read an output directory back into a :class:`~homofac.fit.result.Result` (schema 1 or 2).
 
     ``textures="exr"`` (default): the float textures from the EXR files; when PNG files were written
     they are read too and ``evaluate(a, b, quantized=True)`` decodes exactly those (else the 8-bit
     encoding is recomputed from the EXR textures with the stored settings). ``textures="png"``: only
     the 8-bit PNG textures and their decode rule; ``evaluate(a, b)`` then decodes them and the model's
-    texels are their decoded float values. ``max_bytes`` caps each texture read. A missing, truncated,
-    mismatched or misplaced file raises a one-line HomofacError naming it.
+    texels are their decoded float values. ``max_bytes`` caps each texture read, ``max_total_bytes``
+    (default :data:`MAX_LOAD_BYTES`, None: no cap) the memory of all of them together, counted from the
+    declared sizes before any texture is read (many entries may name one file). A missing, truncated,
+    mismatched or misplaced file raises a one-line HomofacError naming it; running out of memory while
+    reading says so (not "corrupt").
     """
     if textures not in ("exr", "png"):
         raise HomofacError(f"load: textures must be 'exr' or 'png', got {textures!r}")
@@ -678,6 +713,19 @@ def load(out_dir, textures: str = "exr", *, max_bytes: int = 1 << 28) -> Result:
         except HomofacError as e:
             raise HomofacError(f"{d / JSON_NAME}: {e}") from None
     has_png = all(t.png for t, _, _ in specs)
+    need = _texture_bytes(specs, textures == "png" or has_png, textures == "exr")
+    if max_total_bytes is not None and need > max_total_bytes:
+        raise HomofacError(f"{d / JSON_NAME}: its {len(specs)} textures need {need / (1 << 30):.2f} GiB to load, over "
+                           f"the memory budget of {max_total_bytes / (1 << 30):.2f} GiB")
+    try:
+        return _load(d, doc, raw, specs, terms_doc, quantity, context, textures, has_png, max_bytes)
+    except MemoryError:
+        raise HomofacError(f"{d}: out of memory loading {len(specs)} textures ({need / (1 << 30):.2f} GiB declared): "
+                           "over the memory this process may use (ulimit -v, cgroup)") from None
+
+
+def _load(d, doc, raw, specs, terms_doc, quantity, context, textures, has_png, max_bytes) -> Result:
+    """The textures and the Result of :func:`load` (after its checks)."""
     quant = None
     if textures == "png" or has_png:
         quant = _read_png(d, doc, raw, specs, terms_doc)
@@ -760,5 +808,6 @@ def _read_png(d: Path, doc: Document, raw: dict, specs, terms_doc) -> Quantized:
 register_writer(save)
 
 __all__ = ["Document", "EXR_TYPES", "FACE_NAMES", "FORMAT", "INDEX_NAME", "JSON_NAME", "LIBRARY_FORMAT", "LIBRARY_VERSION",
+           "MAX_LOAD_BYTES", "read_document",
            "OutputLock", "OutputOptions", "SCHEMA_VERSION", "check_output_dir", "cube_faces", "cube_vertical", "document",
            "is_homofac_dir", "is_library_dir", "load", "recover", "save", "save_library", "shader_files"]

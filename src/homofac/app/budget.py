@@ -12,10 +12,17 @@ file's header) alone, no sampling:
 * the lighting computation: one lax.map step of at most 2^22 light terms per group, with about 16
   float32 temporaries each (the lobe form's per-light work), plus the light arrays;
 * the environment image: reading it whole (its header's size x 12 bytes and the reader's
-  temporaries), or a few strips when it is read downsampled (:mod:`homofac.light.sources`);
+  temporaries), or a few strips when it is read downsampled (:mod:`homofac.light.sources`), and its
+  resampling to the cube of lights (:data:`RESAMPLE_BYTES` per sub-point);
+* a scene sampling (``kind: scene``): ``sampling.count`` pairs (or every pixel of its cameras), the mesh
+  and the renders;
 * a fixed 1 GB for the JAX/XLA runtime, compilation and compiled code (measured 0.4-0.9 GB);
 * a material library (``target.materials``): per further material its training and validation
   values, its log right-hand side, its own solver state (the solves are vmapped) and its textures.
+
+:func:`view_estimate` is the same count for ``homofac.view`` and ``homofac.preview`` of a saved
+factorization (its textures, the exact target its recorded config rebuilds, the frames), from
+factorization.json alone; :func:`check_view` refuses it over the limit before any texture is read.
 
 It aims at the right order of magnitude and errs high (the tests check it against a measured peak).
 :func:`check` refuses a config whose estimate exceeds the limit: ``limits.memory_gb``, or by default
@@ -25,6 +32,7 @@ the cgroup's ``memory.max`` -- with the estimate in the message.
 
 from __future__ import annotations
 
+import math
 import os
 import resource
 from pathlib import Path
@@ -33,12 +41,14 @@ import numpy as np
 
 from .. import baselines
 from ..errors import HomofacError
-from ..fit import als, solvers
+from ..fit import als, scene, solvers
 from ..fit.draw import default_mapper
+from ..fit.options import MAX_SCENE_PIXELS
 from ..fit.pipeline import grid_count, validation_count
 from ..io.limits import image_info
 from ..light import bundled
 from ..light.lighting import STEP_TERMS
+from ..light.resample import MAX_SUPERSAMPLE
 from ..light.sources import MAX_SOURCE_PIXELS
 from ..param import mappers
 from ..param import parametrizations as pz
@@ -46,6 +56,9 @@ from .config import Config, resolve_path
 
 GB = 1024**3
 RUNTIME_BYTES = int(1.0 * GB)
+#: Bytes per sub-point of resampling an environment map to its cube of lights (the sparse matrix, its
+#: COO temporaries, the means): the forest at resolution 512 (2 x 2 sub-points a texel) measured 1.7 GB.
+RESAMPLE_BYTES = 360
 
 
 def physical_memory() -> int:
@@ -137,6 +150,38 @@ def environment_bytes(cfg: Config, base: Path) -> int:
     return 3 * (8 << 20) + 2 * 12 * MAX_SOURCE_PIXELS  # a few strips, the reduced image and its float64 sums
 
 
+def supersample(cfg: Config, base: Path) -> int:
+    """The sub-points per cube-texel side the environment's resampling uses (``homofac.light.resample``:
+    at least as dense as the source pixels, 2 when the header cannot be read)."""
+    env = cfg.target.environment
+    r = env.resolution if env is not None else 32
+    path = Path(resolve_path(env.file, base)) if env is not None else None
+    try:
+        if path is None or not path.is_file():
+            path = bundled(env.file if env is not None else "forest")
+        h = image_info(path).height
+    except (HomofacError, OSError, TypeError):
+        return 2
+    return int(min(MAX_SUPERSAMPLE, max(2, math.ceil(2.0 * h / (math.pi * r)))))
+
+
+def lighting_bytes(cfg: Config, base: Path = Path(".")) -> dict:
+    """Bytes of the lighting target a config describes, by part: ``environment`` (reading the image),
+    ``resample`` (the sparse resampling of the map to ``6 R^2`` light texels, :data:`RESAMPLE_BYTES` per
+    sub-point: measured 1.7 GB for the forest at resolution 512), ``lighting`` (the light arrays and one
+    chunk of the lighting sum). Empty for a BRDF target."""
+    if cfg.target.kind != "lighting":
+        return {}
+    env = cfg.target.environment
+    res = env.resolution if env else 32
+    lights = 6 * res * res + len(env.lights if env else [])
+    return {
+        "environment": environment_bytes(cfg, base),
+        "resample": 6 * res * res * supersample(cfg, base) ** 2 * RESAMPLE_BYTES,
+        "lighting": STEP_TERMS * 16 * 4 + lights * 200,
+    }
+
+
 def estimate(cfg: Config, base: Path = Path(".")) -> dict:
     """Estimated peak bytes of the run a :class:`~homofac.app.config.Config` describes, by part."""
     kind = cfg.target.kind
@@ -155,6 +200,8 @@ def estimate(cfg: Config, base: Path = Path(".")) -> dict:
         m = s.count or s.size**2 * (s.view_size or s.size) ** 2 // 4
     elif s.kind == "latlong":
         m = (s.size * 2 * s.size) * ((s.view_size or s.size) * 2 * (s.view_size or s.size)) // (8 if kind == "brdf" else 2)
+    elif s.kind == "scene":
+        m = s.count or scene_pixels(s)
     else:
         hemi = kind == "brdf"
         m = _grid_count(smapper, s.size, hemi) * _grid_count(smapper, s.view_size or s.size, hemi)
@@ -171,11 +218,9 @@ def estimate(cfg: Config, base: Path = Path(".")) -> dict:
     }
     if cfg.is_sum:
         parts["system"], parts["solver"] = _sum_bytes(cfg, m, mapper, grid and kind == "lighting")
-    if kind == "lighting":
-        res = cfg.target.environment.resolution if cfg.target.environment else 32
-        lights = 6 * res * res + len(cfg.target.environment.lights if cfg.target.environment else [])
-        parts["lighting"] = STEP_TERMS * 16 * 4 + lights * 200
-        parts["environment"] = environment_bytes(cfg, base)
+    parts.update(lighting_bytes(cfg, base))
+    if s.kind == "scene":  # the mesh (at most MAX_FACES triangles), the renders, the covered pixels
+        parts["scene"] = scene.MAX_FACES * 100 + scene.CHUNK * 200 + scene_pixels(s) * 150
     count = len(cfg.target.materials or ())
     if count > 1:  # a library: one layout, per material its values, right-hand side, solver state, textures
         parts["materials"] = (count - 1) * ((m + v) * 24 + m * 12 + parts["solver"] + n * 3 * 4 * 4)
@@ -200,6 +245,73 @@ def _sum_bytes(cfg: Config, m: int, mapper: str, als_path: bool) -> tuple[int, i
     return data, solver
 
 
+def scene_pixels(s) -> int:
+    """Pixels of a scene sampling's cameras (its own, else its bundled scene's; the most allowed when
+    neither is known): the covered pixels cannot exceed them."""
+    cams = s.cameras
+    if not cams:
+        try:
+            cams = scene.resolve_cameras(s)
+        except (HomofacError, OSError, ValueError):
+            return MAX_SCENE_PIXELS
+    return int(sum(c.width * c.height for c in cams))
+
+
+def texture_bytes(doc: dict) -> int:
+    """Bytes of loading the textures a factorization.json declares: per texel the float32 RGB result
+    and the reader's temporaries (28 bytes), the 8-bit RGBA copy when PNG files are listed (20 more)."""
+    total = 0
+    for t in doc.get("textures") or [] if isinstance(doc.get("textures"), list) else []:
+        if not isinstance(t, dict):
+            continue
+        try:
+            mapper = t.get("mapper") or doc.get("mapper")
+            size = int(t.get("size") or doc.get("texture_size"))
+            texels = int(np.prod(mappers.texture_shape(mappers.get(mapper), min(size, 1 << 16))))
+        except (HomofacError, TypeError, ValueError, KeyError):
+            continue  # the loader refuses it with its own message
+        total += texels * (28 + (20 if t.get("png") else 0))
+    return total
+
+
+#: Pixels of the viewer's and the preview's frames per requested ``--size`` squared (sphere and torus).
+VIEW_FRAMES = 2
+#: Bytes per light of computing the exact image of a view (the lighting sum's per-light arrays beyond the
+#: fit's: measured 1.45 GB peak for ``homofac.view`` at resolution 256, 393 216 lights, against 0.7 GB
+#: for loading that environment alone).
+VIEW_LIGHT_BYTES = 2000
+
+
+def view_estimate(doc: dict, cfg: Config | None, size: int, base: Path = Path(".")) -> dict:
+    """Estimated peak bytes of ``homofac.view`` / ``homofac.preview`` of a saved factorization, by part:
+    the runtime, its textures (:func:`texture_bytes`), the exact target rebuilt from its recorded config
+    ``cfg`` (:func:`lighting_bytes` and the per-light work of its exact image) and the frames."""
+    parts = {"runtime": RUNTIME_BYTES, "textures": texture_bytes(doc),
+             "frames": VIEW_FRAMES * int(size) ** 2 * 200}
+    if cfg is not None and cfg.target.kind == "lighting":
+        parts.update(lighting_bytes(cfg, base))
+        res = cfg.target.environment.resolution if cfg.target.environment else 32
+        parts["exact"] = 6 * res * res * VIEW_LIGHT_BYTES
+    parts["total"] = sum(parts.values())
+    return parts
+
+
+def check_view(doc: dict, cfg: Config | None, size: int, base: Path = Path("."), limit_bytes: int | None = None,
+               what: str = "homofac.view") -> dict:
+    """Refuse (HomofacError, one line) a view or preview whose estimate exceeds the limit (as :func:`check`)."""
+    est = view_estimate(doc, cfg, size, base)
+    limit = limit_bytes if limit_bytes is not None else default_limit()
+    if est["total"] > limit:
+        res = cfg.target.environment.resolution if cfg is not None and cfg.target.environment else None
+        env = f", environment resolution {res}" if res and cfg.target.kind == "lighting" else ""
+        raise HomofacError(
+            f"{what}: estimated memory {est['total'] / GB:.1f} GB (textures {est['textures'] / GB:.2f} GB{env}) exceeds "
+            f"the limit {limit / GB:.1f} GB (half of what this process may use: RAM, ulimit -v, cgroup); "
+            f"use a smaller --size, or refit at a lower target.environment.resolution"
+        )
+    return est
+
+
 def check(cfg: Config, base: Path = Path("."), limit_bytes: int | None = None) -> dict:
     """Refuse (HomofacError, one line) when the estimate exceeds the limit; returns the estimate."""
     est = estimate(cfg, base)
@@ -215,4 +327,5 @@ def check(cfg: Config, base: Path = Path("."), limit_bytes: int | None = None) -
     return est
 
 
-__all__ = ["GB", "check", "default_limit", "environment_bytes", "estimate", "physical_memory", "process_limit"]
+__all__ = ["GB", "check", "check_view", "default_limit", "environment_bytes", "estimate", "lighting_bytes",
+           "physical_memory", "process_limit", "scene_pixels", "supersample", "texture_bytes", "view_estimate"]

@@ -32,10 +32,11 @@ from ..gl.picture import auto_exposure, check_finite
 from ..gl.window import require_display, show
 from ..io.files import write_atomically
 from ..light import BUNDLED
-from ..output import JSON_NAME, is_homofac_dir, load
+from ..output import JSON_NAME, is_homofac_dir, load, read_document
 from ..param import mappers
 from ..param import parametrizations as pz
 from ..shader import LANGUAGES
+from . import budget
 from . import config as cfgmod
 from .library import run_library
 from .run import run, run_refit, target_from_config
@@ -44,6 +45,21 @@ from .view import write_viewer
 
 # --------------------------------------------------------------------------------------------------
 # shared
+
+
+def budgeted_load(d: Path, size: int, what: str, textures: str = "exr"):
+    """Load an output directory for a view or preview after :func:`homofac.app.budget.check_view`: the
+    textures it declares, the exact target its recorded config rebuilds and the frames, estimated from
+    factorization.json alone and refused over the memory limit before any texture is read."""
+    raw = read_document(d)
+    cfg = None
+    if isinstance(raw.get("config"), dict):
+        try:
+            cfg = cfgmod.parse(raw["config"], f"{d / JSON_NAME} config")
+        except HomofacError:
+            cfg = None  # the target is not rebuilt: the view warns and shows the factorization only
+    budget.check_view(raw, cfg, size, d, what=what)
+    return load(d, textures=textures, max_total_bytes=budget.default_limit())
 
 
 def polish_line(pol: dict) -> str:
@@ -335,7 +351,7 @@ def _preview(args) -> int:
         v = getattr(args, name)
         if v is not None and not (v > 0 and v < float("inf")):
             raise HomofacError(f"--{name.replace('_', '-')} must be a positive number, got {v}")
-    fac = load(d, textures=args.textures)
+    fac = budgeted_load(d, args.size, "homofac.preview", textures=args.textures)
     check_finite(fac)  # before the window too: a picture of NaN says nothing
     camera = gl.Camera(azimuth=args.azimuth, elevation=args.elevation)
     mesh = gl.load_mesh(args.mesh)
@@ -415,7 +431,7 @@ def _view(args) -> int:
         raise HomofacError(f"--html {out}: is a directory")
     if not out.parent.is_dir():
         raise HomofacError(f"--html {out}: directory {out.parent} does not exist")
-    fac = load(d)
+    fac = budgeted_load(d, args.size, "homofac.view")
     target = None
     try:
         target = target_from_config(fac, base=d)

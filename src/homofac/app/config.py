@@ -23,6 +23,7 @@ from .. import brdf
 from ..errors import HomofacError
 from ..fit.options import FitOptions
 from ..fit.scene import bundled_path as bundled_scene
+from ..io.files import check_regular, read_bounded
 from ..light import BUNDLED, EnvironmentOptions
 from ..options import Options, validate
 from ..output import OutputOptions
@@ -176,16 +177,12 @@ def _depth(node: yaml.Node) -> int:
 def read_yaml(p: Path) -> Any:
     """The data of a YAML file, read strictly (see the module docstring)."""
     try:
-        size = p.stat().st_size
+        size = check_regular(p, "a config").st_size
         if size > MAX_BYTES:
             raise HomofacError(f"{p}: {size} bytes is not a config file (at most {MAX_BYTES})")
-        text = p.read_bytes().decode("utf-8")
+        text = read_bounded(p, "a config", MAX_BYTES).decode("utf-8")
     except UnicodeDecodeError as e:
         raise HomofacError(f"{p}: not UTF-8 text (byte {e.start})") from None
-    except IsADirectoryError:
-        raise HomofacError(f"cannot read config {p}: is a directory") from None
-    except OSError as e:
-        raise HomofacError(f"cannot read config {p}: {e.strerror or e}") from None
     try:
         loader = _StrictLoader(text)
         try:

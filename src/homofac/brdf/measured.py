@@ -33,11 +33,13 @@ import numpy as np
 from jaxtyping import Array
 
 from ..errors import HomofacError
-from ..io.files import write_atomically
+from ..io.files import read_bounded, write_atomically
 from .core import BRDF, ModelSpec, _as_float, make, register
 
 #: Standard MERL resolution (theta_half, theta_diff, phi_diff).
 MERL_DIMS = (90, 90, 180)
+#: MERL files larger than this are not read (the standard 90 x 90 x 180 table is 35 MiB).
+MAX_MERL_BYTES = 256 << 20
 #: Stored value * scale = BRDF value (R, G, B), as in the reference reader.
 MERL_SCALE = np.array([1.0 / 1500.0, 1.15 / 1500.0, 1.66 / 1500.0])
 _HALF_PI = np.pi / 2
@@ -57,12 +59,9 @@ def load_merl(path: str | os.PathLike) -> np.ndarray:
             that does not match the header, or NaN/Inf values (one line, naming the file).
     """
     p = Path(path)
-    try:
-        raw = p.read_bytes()
-    except FileNotFoundError:
-        raise HomofacError(f"{p}: MERL file not found") from None
-    except OSError as e:
-        raise HomofacError(f"{p}: cannot read MERL file ({e.strerror or e})") from None
+    if not p.exists():
+        raise HomofacError(f"{p}: MERL file not found")
+    raw = read_bounded(p, "a MERL", MAX_MERL_BYTES)
     if len(raw) < 12:
         raise HomofacError(f"{p}: not a MERL BRDF file (only {len(raw)} bytes, header needs 12)")
     dims = tuple(int(d) for d in np.frombuffer(raw, dtype="<i4", count=3))

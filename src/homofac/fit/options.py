@@ -134,6 +134,9 @@ class LinearOptions(Options):
     the samples are grid-aligned, else levenberg_marquardt). ``backend``: ``optimistix`` (core) or
     ``jaxopt`` (the optional extra ``homofac[jaxopt]``; unmaintained upstream, for comparisons).
     ``iterations``: ALS sweeps or outer LM / GN steps; ``inner_iterations``: LSMR steps per LM / GN step.
+    ``tolerance``: ALS stops when a sweep lowers the objective by less than this fraction of it
+    (converged; 0: always run ``iterations`` sweeps); the solver record holds the sweeps run and whether
+    it converged, and a long fit logs its progress every few seconds.
     ``laplacian``: the smoothing weight lambda, scaled by samples per texel (mu = lambda N / texels).
     ``start``: ``split_sum`` (term 1 = the split sum; microfacet lighting targets), ``product`` (term 1
     = the log-space product of the parametrization) or ``auto`` (split_sum where it exists).
@@ -166,6 +169,7 @@ class LinearOptions(Options):
     polish: int = Field(0, ge=0, le=1000)
     polish_size: int = Field(24, ge=4, le=256)
     ridge: int = Field(0, ge=0, le=1_000_000)
+    tolerance: float = Field(1e-5, ge=0, le=1, allow_inf_nan=False)
 
     @model_validator(mode="after")
     def _ridge_objective(self):

@@ -26,10 +26,13 @@ covered pixel of every camera (each pixel once), with the pinned metric function
 set (:func:`homofac.fit.metrics.metrics`), for the float and the 8-bit textures;
 :func:`homofac.fit.factorize` records them as ``metrics["scene"]`` and ``counts["scene_pixels"]``.
 
-**Nothing on disk is trusted.** A mesh file is size-checked before it is read (:data:`MAX_MESH_BYTES`),
-its vertex and face counts are read from its header or counted in its text and refused above
-:data:`MAX_VERTICES` / :data:`MAX_FACES` before trimesh parses it, and again after; a glTF's buffers must
-be files beside it. Every refusal is one line. trimesh (``pip install homofac[scene]``) is imported only
+**Nothing on disk is trusted.** A mesh file must be a regular file (not a directory, FIFO, device or
+socket) and is read once, at most :data:`MAX_MESH_BYTES`; trimesh parses those bytes. Its vertices and
+triangles are counted in them as trimesh will build them (OBJ polygons fanned to triangles however long
+the line, an ASCII PLY cut to the rows its header declares, glTF meshes times the node paths that
+instance them) and refused above :data:`MAX_VERTICES` / :data:`MAX_FACES` before trimesh parses them, and
+again after; the files a glTF names must be regular files beside it, read through a checked resolver;
+materials and images are not loaded. Every refusal is one line. trimesh (``pip install homofac[scene]``) is imported only
 when a mesh is loaded. Bundled scenes (:data:`BUNDLED`, ``mesh: demo``) live in ``homofac/data/scenes``
 with their cameras (``<name>.json``), which are the default when ``cameras`` is not given.
 """
@@ -39,6 +42,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import hashlib
+import io
 import json
 import os
 import re
@@ -48,7 +52,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..errors import HomofacError
-from ..io.files import one_line
+from ..io.files import check_regular, one_line, read_bounded
 from ..options import validate
 from . import sampling
 from .metrics import metrics as metric_values
@@ -110,6 +114,15 @@ def _refuse_counts(path: Path, vertices: int, faces: int) -> None:
         raise HomofacError(f"{path}: the mesh has {faces} faces, more than {MAX_FACES}")
 
 
+def read_mesh_file(path: Path) -> bytes:
+    """The bytes of a mesh file: a regular file (not a directory, FIFO, device or socket) of at most
+    :data:`MAX_MESH_BYTES`, read once (what is checked is what is parsed)."""
+    st = check_regular(path, "a mesh")
+    if st.st_size > MAX_MESH_BYTES:
+        raise HomofacError(f"{path}: the mesh file has {st.st_size} bytes, more than {MAX_MESH_BYTES >> 20} MiB")
+    return read_bounded(path, "a mesh", MAX_MESH_BYTES)
+
+
 def _gltf_json(path: Path, data: bytes) -> dict:
     if path.suffix.lower() == ".glb":
         if len(data) < 20 or data[:4] != b"glTF":
@@ -120,74 +133,309 @@ def _gltf_json(path: Path, data: bytes) -> dict:
         data = data[20:20 + n]
     try:
         doc = json.loads(data.decode("utf-8"))
-    except (UnicodeDecodeError, ValueError) as e:
+    except (UnicodeDecodeError, ValueError, RecursionError) as e:
         raise HomofacError(f"{path}: the glTF JSON does not parse ({one_line(e)})") from None
     if not isinstance(doc, dict):
         raise HomofacError(f"{path}: the glTF document is not a JSON object")
     return doc
 
 
-def precount(path: Path, data: bytes) -> tuple[int, int]:
-    """(vertices, faces) a mesh file declares, read from its header or text without parsing the mesh
-    (faces: OBJ face lines, a lower bound of its triangles; checked again after loading)."""
-    kind = FORMATS[path.suffix.lower()]
-    if kind == "obj":
-        return (len(re.findall(rb"^v[ \t]", data, re.M)), len(re.findall(rb"^f[ \t]", data, re.M)))
-    if kind == "ply":
-        end = data.find(b"end_header")
-        if not data.startswith(b"ply") or end < 0:
-            raise HomofacError(f"{path}: not a PLY file (no ply header)")
-        head = data[:end].decode("ascii", "replace")
-        counts = dict(re.findall(r"^element\s+(\w+)\s+(\d+)", head, re.M))
-        return int(counts.get("vertex", 0)), int(counts.get("face", 0))
-    doc = _gltf_json(path, data)
+def obj_text(path: Path, data: bytes) -> str:
+    r"""The text of an OBJ file as trimesh's OBJ reader sees it (UTF-8 only; ``\r\n`` -> ``\n``,
+    backslash line continuations joined)."""
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise HomofacError(f"{path}: not a readable obj mesh (not UTF-8 text: bad byte at {e.start})") from None
+    return "\n{}\n".format(text.strip().replace("\r\n", "\n")).replace("\\\n", "")
+
+
+def _tokens_per_line(text: str) -> np.ndarray:
+    r"""Whitespace-separated tokens on each ``\n``-separated line of ``text`` (an upper bound of
+    ``str.split()``: any byte outside printable ASCII separates)."""
+    b = np.frombuffer(text.encode("utf-8"), np.uint8)
+    word = (b > 32) & (b < 127)
+    start = word & ~np.concatenate([[False], word[:-1]])
+    line = np.cumsum(b == 10)
+    return np.bincount(line[start], minlength=int(line[-1]) + 1 if len(line) else 1)
+
+
+def _obj_counts(path: Path, data: bytes) -> tuple[int, int]:
+    """(vertices, triangles) trimesh makes of an OBJ: every line starting with ``f`` is a polygon of
+    n corners, fanned into max(n - 2, 1) triangles, however long the line."""
+    text = obj_text(path, data)
+    faces = "\n".join(m.group(1) for m in re.finditer(r"^f([^\n]*)", text, re.M))
+    triangles = int(np.maximum(_tokens_per_line(faces) - 2, 1).sum()) if faces else 0
+    return len(re.findall(r"^v[ \t]", text, re.M)), triangles
+
+
+_BREAK = re.compile("\r\n|[\n\r\x0b\x0c\x1c\x1d\x1e\x85\u2028\u2029]")
+_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2, "int16": 2, "uint16": 2,
+          "int": 4, "uint": 4, "int32": 4, "uint32": 4, "float": 4, "float32": 4, "double": 8, "float64": 8}
+
+
+def _binary_ply_triangles(head: str, data: bytes, body_at: int, faces: int) -> int:
+    """Triangles a binary PLY's face rows make, bounded from its bytes: exact when every face has the same
+    corner count n (the common case: F max(n - 2, 1)), else the corner entries its face bytes can hold."""
+    elems: list[list] = []  # [name, count, fixed bytes a row, [(count type, item type)]]
+    for line in head.splitlines():
+        t = line.split()
+        if t[:1] == ["element"] and len(t) >= 3 and t[2].isdigit():
+            elems.append([t[1], int(t[2]), 0, []])
+        elif t[:1] == ["property"] and elems:
+            if len(t) >= 5 and t[1] == "list":
+                elems[-1][3].append((_SIZES.get(t[2], 4), _SIZES.get(t[3], 4)))
+            elif len(t) >= 3:
+                elems[-1][2] += _SIZES.get(t[1], 8)
+    body = len(data) - body_at
+    crude = body  # every body byte a corner: an upper bound
+    at = body_at
+    for name, count, fixed, lists in elems:
+        if name == "face" and len(lists) == 1 and fixed == 0 and at < len(data):
+            cs, isz = lists[0]
+            kind = {1: "<u1", 2: "<u2", 4: "<u4"}.get(cs)
+            if kind is None or at + cs > len(data):
+                return crude
+            n0 = int(np.frombuffer(data, kind, 1, at)[0])
+            stride = cs + n0 * isz
+            if count and at + stride * count <= len(data):
+                firsts = np.ndarray((count,), np.dtype(kind), data, at, (stride,))
+                if np.all(firsts == n0):
+                    return count * max(n0 - 2, 1)
+            return min(crude, (body - sum(c * f for _, c, f, _ in elems)) // max(isz, 1))
+        if lists:
+            return crude
+        at += count * fixed
+    return crude if faces else 0
+
+
+def _ply_counts(path: Path, data: bytes) -> tuple[int, int, bytes]:
+    """(vertices, triangles bound, the bytes to parse) of a PLY file. An ASCII body is cut after the rows
+    its header declares (junk lines beyond them are never parsed) and its face rows are counted as
+    fanned polygons; a binary body's faces are bounded by the index entries its bytes can hold."""
+    end = data.find(b"end_header")
+    if not data.startswith(b"ply") or end < 0:
+        raise HomofacError(f"{path}: not a PLY file (no ply header)")
+    head = data[:end].decode("ascii", "replace")
+    elements = [(k, int(n)) for k, n in re.findall(r"^element\s+(\w+)\s+(\d+)", head, re.M)]
+    counts = dict(elements)
+    vertices, faces = int(counts.get("vertex", 0)), int(counts.get("face", 0))
+    _refuse_counts(path, vertices, faces)
+    if sum(n for _, n in elements) > MAX_VERTICES + MAX_FACES:
+        raise HomofacError(f"{path}: the PLY header declares {sum(n for _, n in elements)} rows, more than "
+                           f"{MAX_VERTICES + MAX_FACES}")
+    body_at = data.find(b"\n", end) + 1 if data.find(b"\n", end) >= 0 else len(data)
+    if "format ascii" not in head:
+        return vertices, _binary_ply_triangles(head, data, body_at, faces), data
+    rows = sum(n for _, n in elements)
+    try:
+        body = data[body_at:].decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise HomofacError(f"{path}: not a readable ply mesh (not UTF-8 text: bad byte at {body_at + e.start})") from None
+    cut = 0  # the end of the last declared row (line breaks as str.splitlines, which trimesh uses)
+    for k, m in enumerate(_BREAK.finditer(body)):
+        if k == rows:
+            break
+        cut = m.end()
+    else:
+        cut = len(body)
+    lines = body[:cut].splitlines(keepends=True)
+    kept = "".join(lines)
+    triangles = 0
+    start = 0
+    for name, n in elements:  # the face rows: first token is the corner count
+        if name == "face":
+            firsts = [ln.split(None, 1)[0] if ln.split() else "0" for ln in lines[start:start + n]]
+            try:
+                corners = np.array([int(float(c)) for c in firsts], np.int64)
+            except ValueError:
+                raise HomofacError(f"{path}: a PLY face row does not start with its corner count") from None
+            triangles += int(np.maximum(corners - 2, 1).sum()) if len(corners) else 0
+        start += n
+    return vertices, triangles, data[:body_at] + kept.encode("utf-8")
+
+
+def _gltf_counts(path: Path, doc: dict) -> tuple[int, int]:
+    """(vertices, triangles) of a glTF's scene: each mesh's primitives (strips and fans: n - 2 triangles
+    per n indices, else n / 3) times the number of node paths that instance it (a node graph with a
+    cycle is refused)."""
     acc = doc.get("accessors") or []
-    vertices = faces = 0
-    for mesh in doc.get("meshes") or []:
-        for prim in (mesh or {}).get("primitives") or []:
+    meshes = doc.get("meshes") or []
+    nodes = doc.get("nodes") or []
+    if not isinstance(acc, list) or not isinstance(meshes, list) or not isinstance(nodes, list):
+        raise HomofacError(f"{path}: the glTF's accessors, meshes and nodes must be lists")
+    per_mesh = []
+    for mesh in meshes:
+        nv = nf = 0
+        for prim in (mesh or {}).get("primitives") or [] if isinstance(mesh, dict) else []:
             try:
                 pos = int(prim["attributes"]["POSITION"])
-                nv = int(acc[pos]["count"])
-                nf = int(acc[int(prim["indices"])]["count"]) // 3 if "indices" in prim else nv // 3
-            except (KeyError, IndexError, TypeError, ValueError):
+                v = int(acc[pos]["count"])
+                n = int(acc[int(prim["indices"])]["count"]) if "indices" in prim else v
+                mode = int(prim.get("mode", 4))
+            except (KeyError, IndexError, TypeError, ValueError, AttributeError):
                 raise HomofacError(f"{path}: a glTF primitive has no readable POSITION accessor") from None
-            vertices, faces = vertices + nv, faces + nf
-    for buf in doc.get("buffers") or []:
-        uri = (buf or {}).get("uri") if isinstance(buf, dict) else None
-        if uri is None or str(uri).startswith("data:"):
+            if v < 0 or n < 0:
+                raise HomofacError(f"{path}: a glTF accessor has a negative count")
+            nv, nf = nv + v, nf + (max(n - 2, 0) if mode in (5, 6) else n // 3)
+        per_mesh.append((nv, nf))
+    children: list[list[int]] = []
+    for node in nodes:
+        try:
+            children.append([int(c) for c in (node.get("children") or [])] if isinstance(node, dict) else [])
+        except (TypeError, ValueError):
+            raise HomofacError(f"{path}: a glTF node's children are not node indices") from None
+    if any(c < 0 or c >= len(nodes) for cs in children for c in cs):
+        raise HomofacError(f"{path}: a glTF node's child is not a node")
+    paths = [0] * len(nodes)  # instances of each node: paths from the scene roots (a DAG)
+    state = [0] * len(nodes)
+    order: list[int] = []
+    for root in range(len(nodes)):  # topological order, iteratively (no recursion on hostile depths)
+        if state[root]:
             continue
-        u = str(uri)
-        if "://" in u or u.startswith(("/", "\\")) or ".." in Path(u).parts:
-            raise HomofacError(f"{path}: the glTF buffer {u!r} is not a file beside it")
-        q = path.parent / u
-        if not q.is_file():
-            raise HomofacError(f"{path}: the glTF buffer {u} is missing")
-        if q.stat().st_size > MAX_MESH_BYTES:
-            raise HomofacError(f"{path}: the glTF buffer {u} is larger than {MAX_MESH_BYTES >> 20} MiB")
-    return vertices, faces
+        stack = [(root, 0)]
+        while stack:
+            k, i = stack.pop()
+            if i == 0:
+                if state[k] == 1:
+                    raise HomofacError(f"{path}: the glTF node graph has a cycle")
+                if state[k] == 2:
+                    continue
+                state[k] = 1
+            if i < len(children[k]):
+                stack.append((k, i + 1))
+                c = children[k][i]
+                if state[c] == 1:
+                    raise HomofacError(f"{path}: the glTF node graph has a cycle")
+                if state[c] == 0:
+                    stack.append((c, 0))
+            else:
+                state[k] = 2
+                order.append(k)
+    roots: list[int] = []  # every scene's root nodes (trimesh may load any scene), else the parentless nodes
+    for sc in doc.get("scenes") or [] if isinstance(doc.get("scenes"), list) else []:
+        try:
+            roots += [int(k) for k in (sc.get("nodes") or [])] if isinstance(sc, dict) else []
+        except (TypeError, ValueError):
+            raise HomofacError(f"{path}: a glTF scene's nodes are not node indices") from None
+    if not roots:
+        is_child = {c for cs in children for c in cs}
+        roots = [k for k in range(len(nodes)) if k not in is_child]
+    for k in roots:
+        if 0 <= k < len(nodes):
+            paths[k] += 1
+    for k in reversed(order):  # parents before children
+        for c in children[k]:
+            paths[c] += paths[k]
+    used = {node.get("mesh") for node in nodes if isinstance(node, dict)}
+    unused = [vf for m, vf in enumerate(per_mesh) if m not in used]  # meshes of no node: counted once
+    vertices, triangles = sum(v for v, _ in unused), sum(f for _, f in unused)
+    for k, node in enumerate(nodes):
+        m = node.get("mesh") if isinstance(node, dict) else None
+        if m is None:
+            continue
+        try:
+            v, f = per_mesh[int(m)]
+        except (IndexError, TypeError, ValueError):
+            raise HomofacError(f"{path}: a glTF node names a mesh that does not exist") from None
+        vertices, triangles = vertices + paths[k] * v, triangles + paths[k] * f
+        if vertices > MAX_VERTICES or triangles > MAX_FACES:
+            break
+    return vertices, triangles
+
+
+def _gltf_uris(path: Path, doc: dict) -> None:
+    """Every file a glTF names (buffers, images) must be a regular file beside it, of at most
+    :data:`MAX_MESH_BYTES`."""
+    for key in ("buffers", "images"):
+        items = doc.get(key) or []
+        for item in items if isinstance(items, list) else []:
+            uri = item.get("uri") if isinstance(item, dict) else None
+            if uri is None or str(uri).startswith("data:"):
+                continue
+            u = str(uri)
+            if "://" in u or u.startswith(("/", "\\")) or ".." in Path(u).parts or "\\" in u or ":" in u:
+                raise HomofacError(f"{path}: the glTF {key[:-1]} {u!r} is not a file beside it")
+            q = path.parent / u
+            if not q.exists():
+                raise HomofacError(f"{path}: the glTF {key[:-1]} {u} is missing")
+            st = check_regular(q, f"a glTF {key[:-1]}")
+            if st.st_size > MAX_MESH_BYTES:
+                raise HomofacError(f"{path}: the glTF {key[:-1]} {u} is larger than {MAX_MESH_BYTES >> 20} MiB")
+
+
+def precount(path: Path, data: bytes) -> tuple[int, int]:
+    """(vertices, triangles) a mesh file makes, counted in the bytes trimesh will parse: OBJ polygons
+    fanned to triangles, PLY face rows (an ASCII body cut to its declared rows), glTF meshes times their
+    node instances. Refused above :data:`MAX_VERTICES` / :data:`MAX_FACES` before trimesh runs."""
+    return _prepare(path, data)[:2]
+
+
+def _prepare(path: Path, data: bytes) -> tuple[int, int, bytes]:
+    """(vertices, triangles, the bytes to hand trimesh) of a mesh file (see :func:`precount`)."""
+    kind = FORMATS[path.suffix.lower()]
+    if kind == "obj":
+        return (*_obj_counts(path, data), data)
+    if kind == "ply":
+        return _ply_counts(path, data)
+    doc = _gltf_json(path, data)
+    _gltf_uris(path, doc)
+    return (*_gltf_counts(path, doc), data)
+
+
+class _Resolver:
+    """trimesh resolver of the files beside a glTF: read through :func:`read_bounded` (regular files of at
+    most :data:`MAX_MESH_BYTES`), plain relative names only."""
+
+    def __init__(self, root: Path):
+        self.root = root
+
+    def get(self, name: str) -> bytes:
+        u = str(name).strip()
+        if "://" in u or u.startswith(("/", "\\")) or ".." in Path(u).parts or "\\" in u:
+            raise HomofacError(f"{self.root / u}: not a file beside the mesh")
+        return read_bounded(self.root / u, "a mesh resource", MAX_MESH_BYTES)
+
+    __getitem__ = get
+
+    def get_base(self) -> bytes:
+        raise HomofacError(f"{self.root}: a mesh resource has no base")
+
+    def namespaced(self, namespace: str) -> "_Resolver":
+        return _Resolver(self.root / namespace)
+
+    def keys(self):
+        return iter(())
+
+    def write(self, name, data):
+        raise HomofacError("a mesh resource cannot be written")
 
 
 def load_mesh(path: str | os.PathLike, up: str = "z") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(vertices (V, 3) float64, faces (F, 3) int64, vertex normals (V, 3))`` of an OBJ / PLY / glTF
     mesh (every object of the file, concatenated), in homofac's +z-up frame (``up="y"`` turns a y-up
-    file, glTF's convention, into it). Sizes and counts are checked before trimesh parses the file."""
+    file, glTF's convention, into it).
+
+    The file is read once (a regular file of at most :data:`MAX_MESH_BYTES`), its vertices and
+    triangles are counted in those bytes as trimesh will build them (:func:`precount`) and refused
+    above the limits before trimesh parses them; trimesh reads from those bytes, materials are skipped
+    and a glTF's buffers come through a checked resolver (regular files beside it)."""
     p = Path(path)
     kind = FORMATS.get(p.suffix.lower())
     if kind is None:
         raise HomofacError(f"{p}: a scene mesh must be an .obj, .ply, .gltf or .glb file")
-    if not p.is_file():
+    if not p.exists():
         raise HomofacError(f"{p}: no such mesh file")
-    size = p.stat().st_size
-    if size > MAX_MESH_BYTES:
-        raise HomofacError(f"{p}: the mesh file has {size} bytes, more than {MAX_MESH_BYTES >> 20} MiB")
-    data = p.read_bytes()
-    _refuse_counts(p, *precount(p, data))
+    data = read_mesh_file(p)
+    nv, nf, data = _prepare(p, data)
+    _refuse_counts(p, nv, nf)
     try:
         import trimesh  # optional heavy dependency (homofac[scene]), imported when a mesh is loaded
     except ImportError:
         raise HomofacError("sampling.kind: scene needs trimesh (pip install 'homofac[scene]')") from None
     try:
-        mesh = trimesh.load(str(p), file_type=kind, force="mesh", process=False)
+        mesh = trimesh.load(io.BytesIO(data), file_type=kind, force="mesh", process=False,
+                            resolver=_Resolver(p.parent), skip_materials=True)
         vertices = np.asarray(mesh.vertices, np.float64)
         faces = np.asarray(mesh.faces, np.int64)
         normals = np.asarray(mesh.vertex_normals, np.float64) if len(faces) else None  # the file's, or computed
@@ -460,11 +708,7 @@ def resolve_cameras(s: SamplingOptions) -> list[CameraOptions]:
 
 def fingerprint(s: SamplingOptions) -> str:
     """The sha256 of the mesh file a scene sampling reads (part of the samples' cache key)."""
-    p = mesh_path(s.mesh)
-    size = p.stat().st_size
-    if size > MAX_MESH_BYTES:
-        raise HomofacError(f"{p}: the mesh file has {size} bytes, more than {MAX_MESH_BYTES >> 20} MiB")
-    return hashlib.sha256(p.read_bytes()).hexdigest()
+    return hashlib.sha256(read_mesh_file(mesh_path(s.mesh))).hexdigest()
 
 
 @functools.lru_cache(maxsize=8)
@@ -481,7 +725,7 @@ def load(s: SamplingOptions | dict) -> Scene:
     if s.kind != "scene":
         raise HomofacError(f"sampling.kind is {s.kind}, not scene")
     p = mesh_path(s.mesh)
-    st = p.stat()
+    st = check_regular(p, "a mesh")
     cams = json.dumps([c.model_dump() for c in resolve_cameras(s)], sort_keys=True)
     return _cached(str(p.resolve()), st.st_mtime_ns, st.st_size, s.mesh_up, cams)
 

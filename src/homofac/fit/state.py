@@ -105,6 +105,21 @@ def from_layout(opts: FitOptions, kind: str, samples: Samples, mapper: str, scen
                       val_groups, structure, scene)
 
 
+def check_layout(opts: FitOptions, mode: str, result, mapper: str) -> None:
+    """Refuse (one line) a saved model whose layout contradicts its recorded config: texture size and
+    mapper, and a product's parametrization (a chooser's, ``target_error``, are limits, not checked). A
+    refit follows the model and records the config, so an output's config would contradict its textures."""
+    if opts.target_error is not None:
+        return
+    saved = (result.model.name if mode == "product" else None, result.mapper, int(result.texture_size))
+    recorded = (opts.parametrization if mode == "product" else None, mapper, int(opts.texture_size))
+    if saved != recorded:
+        what = ", ".join(f"{k} {a!r} in the textures, {b!r} in the config" for k, a, b
+                         in zip(("parametrization", "mapper", "texture_size"), saved, recorded) if a != b)
+        raise HomofacError(f"refit: the saved factorization contradicts its recorded config ({what}); "
+                           "its factorization.json was edited or is stale: fit it again")
+
+
 def from_options(opts: FitOptions, kind: str, result, mapper: str, sampling_options: SamplingOptions) -> RefitState:
     """The state of a result read back from disk: its directions drawn again from ``sampling_options``
     (the resolved sampling of the recorded config) and its layout from the model."""
@@ -116,6 +131,7 @@ def from_options(opts: FitOptions, kind: str, result, mapper: str, sampling_opti
         raise HomofacError(f"refit: the saved model {result.model.name!r} is not a parametrization")
     name = structure.parametrization if structure is not None else (
         opts.parametrization if mode == "baseline" else result.model.name)
+    check_layout(opts, mode, result, mapper)
     train, val, groups, vgroups = draw_pairs(kind, name, sampling_options, result.model.context)
     if len(train) == 0:
         raise HomofacError("refit: the recorded sampling produces no training pairs")
@@ -126,4 +142,4 @@ def from_options(opts: FitOptions, kind: str, result, mapper: str, sampling_opti
                       structure, sc)
 
 
-__all__ = ["RefitState", "from_fit", "from_layout", "from_options"]
+__all__ = ["RefitState", "check_layout", "from_fit", "from_layout", "from_options"]

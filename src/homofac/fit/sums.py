@@ -385,9 +385,8 @@ def fit_sum(target: Target, structure: Structure, mapper: str, size: int, sample
         weights = np.asarray(weights, np.float64) * np.asarray(sample_weights, np.float64)
         weights = (weights / np.mean(weights)).astype(np.float32)
     if method == "als":
-        X, steps, hist = _fit_als(structure, specs, fitted_terms, layouts, x0, grid, a, b, y_fit / sigma, opts, weights,
-                                  target.context)
-        converged = True
+        X, steps, converged, hist = _fit_als(structure, specs, fitted_terms, layouts, x0, grid, a, b, y_fit / sigma, opts,
+                                             weights, target.context, log)
         backend = "homofac"
     else:
         X, steps, converged, hist = _fit_lm(target, fitted_specs, fitted_terms, layouts, x0, a, b, y_fit / sigma, opts,
@@ -399,7 +398,8 @@ def fit_sum(target: Target, structure: Structure, mapper: str, size: int, sample
         raise HomofacError(f"the linear-space fit produced non-finite texels in {', '.join(bad)}; "
                            "try a larger linear.laplacian")
     model = _model(target, structure, specs, terms, fixed_data, {n: X[n] for n in X}, sigma=sigma, layouts=layouts)
-    warnings = [] if converged else [f"linear {method} stopped after {steps} steps without meeting its tolerance"]
+    warnings = [] if converged or method == "als" else [
+        f"linear {method} stopped after {steps} steps without meeting its tolerance"]
     record = {
         "method": method, "backend": backend, "iterations": int(steps), "converged": bool(converged),
         "start": rule, "laplacian": float(opts.laplacian), "nv_balance": float(opts.nv_balance),
@@ -475,7 +475,36 @@ def nv_weights(a, b, y, bins: int, beta: float) -> np.ndarray:
     return (w / np.mean(w)).astype(np.float32)
 
 
-def _fit_als(structure, specs, fitted_terms, layouts, x0, grid, a, b, y, opts: LinearOptions, weights, context=None):
+#: Seconds between two progress lines of a long ALS fit.
+PROGRESS_S = 3.0
+
+
+def als_sweeps(P, Q, W, data, lam, flags, sweeps: int, tolerance: float, log=None, D=None, C=None):
+    """At most ``sweeps`` ALS sweeps (:func:`homofac.fit.als.run`, one compiled sweep called per sweep),
+    stopping when a sweep lowers the objective f by less than ``tolerance * f`` (relative decrease
+    ``(f_prev - f) / f_prev``; 0: never). Logs ``ALS sweep i / sweeps: objective f`` at most every
+    :data:`PROGRESS_S` seconds. Returns ``(out, sweeps run, converged, hist)`` with ``out`` as
+    :func:`als.run` returns it (its ``hist`` replaced by the whole history)."""
+    hist: list[float] = []
+    converged = False
+    shown = time.perf_counter()
+    out = (P, Q, W) + ((D,) if D is not None else ()) + ((C,) if C is not None else ()) + (None,)
+    for i in range(1, int(sweeps) + 1):
+        out = als.run(*out[:3], data, lam, flags=flags, sweeps=1, D=out[3] if D is not None else None,
+                      C=out[3 + (D is not None)] if C is not None else None)
+        hist.append(float(np.asarray(out[-1])[-1]))
+        if len(hist) > 1 and tolerance > 0 and hist[-2] - hist[-1] <= tolerance * abs(hist[-2]):
+            converged = True
+        if log is not None and (time.perf_counter() - shown >= PROGRESS_S or converged) and i < sweeps:
+            log(f"ALS sweep {i} / {sweeps}: objective {hist[-1]:.6g}" + (" (converged)" if converged else ""))
+            shown = time.perf_counter()
+        if converged:
+            break
+    return out[:-1] + (np.asarray(hist, np.float32),), len(hist), converged, np.asarray(hist, np.float32)
+
+
+def _fit_als(structure, specs, fitted_terms, layouts, x0, grid, a, b, y, opts: LinearOptions, weights, context=None,
+             log=None):
     ia, ib, lay = grid
     n = lay.n_valid
     flags_p, flags_q, flags_w, names = [], [], [], []
@@ -520,11 +549,12 @@ def _fit_als(structure, specs, fitted_terms, layouts, x0, grid, a, b, y, opts: L
     flags = als.Flags(tuple(flags_p), tuple(flags_q), tuple(flags_w), tuple(flags_h) if has_h else (),
                       tuple(tuple(c[e] is not None for c in cprojs) for e in kinds))
     if has_h:
-        P, Q, W, D, C = _highlight_first(P, Q, W, D, C, data, flags, opts)
-    out = als.run(jnp.asarray(P, jnp.float32), jnp.asarray(Q, jnp.float32), jnp.asarray(W, jnp.float32),
-                  data, jnp.float32(opts.laplacian), flags=flags, sweeps=int(opts.iterations),
-                  D=jnp.asarray(D, jnp.float32) if has_h else None,
-                  C=tuple(jnp.asarray(c, jnp.float32) for c in C) if has_c else None)
+        P, Q, W, D, C = _highlight_first(P, Q, W, D, C, data, flags, opts, log)
+    out, steps, converged, _ = als_sweeps(
+        jnp.asarray(P, jnp.float32), jnp.asarray(Q, jnp.float32), jnp.asarray(W, jnp.float32), data,
+        jnp.float32(opts.laplacian), flags, int(opts.iterations), float(opts.tolerance), log,
+        D=jnp.asarray(D, jnp.float32) if has_h else None,
+        C=tuple(jnp.asarray(c, jnp.float32) for c in C) if has_c else None)
     P, Q, W, hist = (np.asarray(v) for v in (out[:3] + out[-1:]))
     D = np.asarray(out[3]) if has_h else None
     C = [np.asarray(c) for c in out[4]] if has_c else []
@@ -533,7 +563,7 @@ def _fit_als(structure, specs, fitted_terms, layouts, x0, grid, a, b, y, opts: L
         for name, arr in zip(names_t + tuple(cnames[t][e] for e in kinds), (P, Q, W, D, *C)):
             if name:
                 X[name] = arr[t]
-    return X, int(opts.iterations), hist
+    return X, steps, converged, hist
 
 
 def _scalar_footprints(projs, a, b, context, size: int):
@@ -549,7 +579,7 @@ def _scalar_footprints(projs, a, b, context, size: int):
     return jnp.asarray(idx), jnp.asarray(wts)
 
 
-def _highlight_first(P, Q, W, D, C, data, flags, opts: LinearOptions):
+def _highlight_first(P, Q, W, D, C, data, flags, opts: LinearOptions, log=None):
     """Start the highlight terms (and an n-only diffuse texture) on the data alone, the products absent:
     started together, the products' maps of r take the sun's highlight first and the joint ALS stays
     there (near-mirror / city: 0.50 nrmse against 0.2 from this start). Returns the full start."""
@@ -563,9 +593,10 @@ def _highlight_first(P, Q, W, D, C, data, flags, opts: LinearOptions):
     has_c = bool(flags.c)
     data = data._replace(hi=data.hi[:, idx], hw=data.hw[:, idx], ci=tuple(c[:, idx] for c in data.ci),
                          cw=tuple(c[:, idx] for c in data.cw))
-    out = als.run(*(jnp.asarray(x[idx], jnp.float32) for x in (P, Q, W)), data, jnp.float32(opts.laplacian),
-                  flags=sub, sweeps=max(1, int(opts.iterations) // 2), D=jnp.asarray(D[idx], jnp.float32),
-                  C=tuple(jnp.asarray(c[idx], jnp.float32) for c in C) if has_c else None)
+    out, *_ = als_sweeps(*(jnp.asarray(x[idx], jnp.float32) for x in (P, Q, W)), data, jnp.float32(opts.laplacian),
+                         sub, max(1, int(opts.iterations) // 2), float(opts.tolerance), log,
+                         D=jnp.asarray(D[idx], jnp.float32),
+                         C=tuple(jnp.asarray(c[idx], jnp.float32) for c in C) if has_c else None)
     P, Q, W, D, C = (np.array(x) for x in (P, Q, W, D, C))
     for arr, new in zip((P, Q, W, D), out[:4]):
         arr[idx] = np.asarray(new)

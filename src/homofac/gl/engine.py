@@ -27,6 +27,7 @@ from jaxtyping import Bool, Float, Int
 
 from ..errors import HomofacError
 from ..factorization import Quantized
+from ..fit import scene
 from ..shader import generate
 from . import _server, device
 
@@ -93,14 +94,11 @@ def load_mesh(shape: str | Path = "sphere", *, detail: int = 4) -> Mesh:
                                    minor_sections=8 * detail)
     else:
         p = Path(name).expanduser()
-        if not p.is_file():
+        if not p.exists():
             raise HomofacError(f"mesh {name!r}: no such file (use sphere, torus or a mesh file such as an OBJ)")
-        try:
-            m = trimesh.load(p, force="mesh")
-        except Exception as e:  # noqa: BLE001 - trimesh raises many types
-            raise HomofacError(f"{p}: cannot read the mesh ({' '.join(str(e).split()) or type(e).__name__})") from None
-        if not isinstance(m, trimesh.Trimesh) or len(m.faces) == 0:
-            raise HomofacError(f"{p}: no triangles in the mesh")
+        # the scene loader's checks: a regular file, bounded reads, counts as parsed (homofac.fit.scene)
+        v, faces, normals = scene.load_mesh(p)
+        m = trimesh.Trimesh(v, faces, vertex_normals=normals, process=False)
     v = np.asarray(m.vertices, np.float64)
     v = v - (v.min(0) + v.max(0)) / 2
     r = np.sqrt((v * v).sum(-1)).max()

@@ -50,7 +50,7 @@ from typing import Any, Iterator
 import numpy as np
 
 from ..errors import HomofacError
-from .files import DEFAULT_MAX_BYTES, ImageInfo, check_image_size, check_strip, check_whole_read, read_head
+from .files import DEFAULT_MAX_BYTES, ImageInfo, check_image_size, check_strip, check_whole_read, open_regular, read_head
 from .files import one_line as _one_line
 from .files import strip_rows as _strip_rows
 from .files import write_atomically
@@ -123,9 +123,9 @@ class _Header:
 def is_exr(path: str | os.PathLike) -> bool:
     """True if ``path`` is a readable file that starts with the OpenEXR magic number."""
     try:
-        with open(path, "rb") as f:
+        with open_regular(path, "an EXR") as f:
             return f.read(4) == EXR_MAGIC
-    except OSError:
+    except (OSError, HomofacError):
         return False
 
 
@@ -186,7 +186,7 @@ def _parse_header(path: Path) -> _Header:
     hd = _Header()
     try:
         hd.file_size = path.stat().st_size
-        with open(path, "rb") as f:
+        with open_regular(path, "an EXR") as f:
             head = _read_exact(path, f, 8, "header")
             if head[:4] != EXR_MAGIC:
                 raise HomofacError(f"{path}: not an OpenEXR file (bad magic number)")
@@ -304,7 +304,7 @@ def _chunk_offsets(path: Path, hd: _Header) -> np.ndarray | None:
     if end > hd.file_size:
         raise _corrupt(path, f"the offset table of {n} chunks ends beyond the end of the file")
     try:
-        with open(path, "rb") as f:
+        with open_regular(path, "an EXR") as f:
             f.seek(hd.end)
             table = np.frombuffer(_read_exact(path, f, 8 * n, "chunk offset table"), "<u8")
     except OSError as e:
@@ -372,6 +372,8 @@ def read_exr_with_header(
         channels = f.channels()
     except HomofacError:
         raise
+    except MemoryError:
+        raise  # not a corrupt file: the caller reports running out of memory
     except Exception as e:  # OpenEXR raises RuntimeError / ValueError on corrupt or truncated data
         raise HomofacError(f"{p}: cannot read EXR (corrupt or truncated?): {_one_line(e)}") from None
     if not channels:
@@ -490,7 +492,7 @@ def _builtin_strips(p: Path, hd: _Header, offsets: np.ndarray, rows: int) -> Ite
         return out
 
     try:
-        with open(p, "rb") as f:
+        with open_regular(p, "an EXR") as f:
             last_k, last = -1, None
             for y0 in range(0, h, rows):
                 y1 = min(h, y0 + rows)
@@ -516,6 +518,8 @@ def _openexr_strips(p: Path, hd: _Header, rows: int) -> Iterator[tuple[int, np.n
     float_type = Imath.PixelType(Imath.PixelType.FLOAT)
     try:
         f = OpenEXR.InputFile(str(p))
+    except MemoryError:
+        raise  # not a corrupt file: the caller reports running out of memory
     except Exception as e:
         raise HomofacError(f"{p}: cannot read EXR (corrupt or truncated?): {_one_line(e)}") from None
     try:
@@ -523,6 +527,8 @@ def _openexr_strips(p: Path, hd: _Header, rows: int) -> Iterator[tuple[int, np.n
             y1 = min(h, y0 + rows)
             try:
                 planes = f.channels(names, float_type, ymin + y0, ymin + y1 - 1)
+            except MemoryError:
+                raise  # not a corrupt file: the caller reports running out of memory
             except Exception as e:
                 raise HomofacError(
                     f"{p}: cannot read EXR (corrupt or truncated?) rows {y0}..{y1 - 1}: {_one_line(e)}"

@@ -1,7 +1,10 @@
 """File plumbing shared by the readers and writers: checked reads and atomic writes.
 
-Reads: :func:`read_head` refuses a missing path or a directory and returns the first bytes (the
-format's magic number) with one-line errors that name the file.
+Reads: only regular files are opened. :func:`check_regular` refuses a missing path, a directory, a FIFO,
+a device or a socket in one line naming the path and what it is; :func:`open_regular` opens with
+``O_NONBLOCK`` and checks the open descriptor again (a FIFO swapped in after the check cannot block);
+:func:`read_bounded` reads a whole file up to a stated byte limit; :func:`read_head` returns the first
+bytes (the format's magic number).
 
 Writes: every file homofac writes appears whole or not at all.
 
@@ -21,12 +24,14 @@ what the header-only probes (``homofac.io.exr.exr_info``, ``homofac.io.hdr.hdr_i
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
+import stat
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from typing import BinaryIO, Callable, Iterator
 
 from ..errors import HomofacError
 
@@ -36,21 +41,92 @@ def one_line(e: BaseException) -> str:
     return " ".join(str(e).split()) or type(e).__name__
 
 
+def what_is(mode: int) -> str:
+    """What a file of ``st_mode`` is, with its article: ``a regular file``, ``a FIFO``, ``a directory`` ..."""
+    for test, name in ((stat.S_ISREG, "a regular file"), (stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO"),
+                       (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+                       (stat.S_ISSOCK, "a socket"), (stat.S_ISLNK, "a symbolic link")):
+        if test(mode):
+            return name
+    return "not a regular file"
+
+
+def check_regular(path: str | os.PathLike, kind: str = "a") -> os.stat_result:
+    """``os.stat`` of ``path`` after checking it is a regular file (symlinks followed).
+
+    A missing path, a directory, a FIFO, a device or a socket is refused in one line naming the path and
+    what it is (``kind`` names the expected file with its article: ``an EXR``, ``a mesh``), so nothing
+    blocks on a FIFO or reads a device without end.
+    """
+    p = Path(path)
+    try:
+        st = os.stat(p)
+    except FileNotFoundError:
+        raise HomofacError(f"{p}: no such file") from None
+    except (OSError, ValueError) as e:
+        raise HomofacError(f"{p}: cannot read: {one_line(e)}") from None
+    if not stat.S_ISREG(st.st_mode):
+        raise HomofacError(f"{p}: is {what_is(st.st_mode)}, not {kind} file")
+    return st
+
+
+@contextlib.contextmanager
+def open_regular(path: str | os.PathLike, kind: str = "a", max_bytes: int | None = None) -> Iterator[BinaryIO]:
+    """A binary file object of the regular file at ``path`` (see :func:`check_regular`).
+
+    The file is opened with ``O_NONBLOCK`` (a FIFO swapped in after the check cannot block the open) and
+    checked again on the open descriptor (``fstat``), so what is read is the regular file that was
+    checked. ``max_bytes`` refuses a larger file (its size stated in the message); callers that read
+    it whole should use :func:`read_bounded`, which also stops at the limit if the file grows.
+    """
+    p = Path(path)
+    check_regular(p, kind)
+    try:
+        fd = os.open(p, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    except OSError as e:
+        raise HomofacError(f"{p}: cannot read: {one_line(e)}") from None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise HomofacError(f"{p}: is {what_is(st.st_mode)}, not {kind} file")
+        if max_bytes is not None and st.st_size > max_bytes:
+            raise HomofacError(f"{p}: {kind} file of {format_bytes(st.st_size)}, more than the limit of "
+                               f"{format_bytes(max_bytes)}")
+        os.set_blocking(fd, True)
+        f = os.fdopen(fd, "rb")
+    except BaseException:
+        os.close(fd)
+        raise
+    with f:
+        yield f
+
+
+def read_bounded(path: str | os.PathLike, kind: str = "a", max_bytes: int = 64 << 20) -> bytes:
+    """The whole content of the regular file at ``path``, at most ``max_bytes`` bytes (a larger file, or
+    one that grows past the limit while it is read, is refused in one line)."""
+    p = Path(path)
+    with open_regular(p, kind, max_bytes) as f:
+        try:
+            data = f.read(max_bytes + 1)
+        except OSError as e:
+            raise HomofacError(f"{p}: cannot read: {one_line(e)}") from None
+    if len(data) > max_bytes:
+        raise HomofacError(f"{p}: {kind} file of more than {format_bytes(max_bytes)}, the limit")
+    return data
+
+
 def read_head(path: str | os.PathLike, kind: str, n: int) -> bytes:
-    """The first ``n`` bytes of the file at ``path``, after checking it exists and is not a directory.
+    """The first ``n`` bytes of the file at ``path``, after checking it is a regular file (not missing, a
+    directory, a FIFO, a device or a socket: :func:`check_regular`).
 
     ``kind`` names the expected format with its article (``an EXR``, ``a PNG``) for the messages.
     """
     p = Path(path)
-    if not p.exists():
-        raise HomofacError(f"{p}: no such file")
-    if p.is_dir():
-        raise HomofacError(f"{p}: is a directory, not {kind} file")
-    try:
-        with open(p, "rb") as f:
+    with open_regular(p, kind) as f:
+        try:
             return f.read(n)
-    except OSError as e:
-        raise HomofacError(f"{p}: cannot read: {one_line(e)}") from None
+        except OSError as e:
+            raise HomofacError(f"{p}: cannot read: {one_line(e)}") from None
 
 
 def write_atomically(path: str | os.PathLike, kind: str, write: Callable[[str], None], suffix: str = ".tmp") -> Path:
@@ -210,6 +286,6 @@ def check_strip(info: ImageInfo, rows: int, max_bytes: int | None) -> None:
 
 __all__ = [
     "STRIP_BYTES", "strip_rows", "check_strip",
-    "one_line", "read_head", "write_atomically", "ImageInfo", "DEFAULT_MAX_BYTES", "MAX_PIXELS",
+    "one_line", "read_head", "check_regular", "open_regular", "read_bounded", "what_is", "write_atomically", "ImageInfo", "DEFAULT_MAX_BYTES", "MAX_PIXELS",
     "format_bytes", "check_image_size", "check_whole_read",
 ]

@@ -30,7 +30,7 @@ from typing import Iterator
 import numpy as np
 
 from ..errors import HomofacError
-from .files import DEFAULT_MAX_BYTES, ImageInfo, check_image_size, check_strip, check_whole_read, read_head
+from .files import DEFAULT_MAX_BYTES, ImageInfo, check_image_size, check_strip, check_whole_read, open_regular, read_head
 from .files import one_line as _one_line
 from .files import strip_rows as _strip_rows
 from .files import write_atomically
@@ -144,7 +144,7 @@ def hdr_info(path: str | os.PathLike) -> ImageInfo:
     p = Path(path)
     read_head(p, "an HDR", 0)  # exists, not a directory
     try:
-        with open(p, "rb") as f:
+        with open_regular(p, "an HDR") as f:
             _, h, w, _, first = _open(p, f)
     except OSError as e:
         raise HomofacError(f"{p}: cannot read: {_one_line(e)}") from None
@@ -250,7 +250,7 @@ def iter_hdr_strips(
 
     def gen():
         try:
-            with open(p, "rb") as f:
+            with open_regular(p, "an HDR") as f:
                 _, h, w, flip, data = _open(p, f)
                 yield from _strips(p, f, h, w, flip, data, rows)
         except OSError as e:
@@ -270,7 +270,7 @@ def read_hdr_with_header(
     p = Path(path)
     read_head(p, "an HDR", 0)  # exists, not a directory
     try:
-        with open(p, "rb") as f:
+        with open_regular(p, "an HDR") as f:
             header, h, w, flip, data = _open(p, f)
             check_whole_read(_info(p, h, w, data[:4]), max_bytes)
             rgb = np.empty((h, w, 3), np.float32)

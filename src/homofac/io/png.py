@@ -63,6 +63,8 @@ def read_png(path: str | os.PathLike) -> UInt8[np.ndarray, "H W 4"]:
                 a = np.asarray(im.convert("RGBA"), dtype=np.uint8)
     except HomofacError:
         raise
+    except MemoryError:
+        raise  # not a corrupt file: the caller reports running out of memory
     except Exception as e:  # pillow raises OSError / SyntaxError / ValueError on corrupt data
         raise HomofacError(f"{p}: cannot read PNG (corrupt or truncated?): {_one_line(e)}") from None
     return np.ascontiguousarray(a)
