@@ -10,7 +10,7 @@
 // radiance is (1 - m) 0.96 c I_d + f0 I_A + I_B with f0 = mix(0.04, c, m): the glTF 2.0 BRDF, exact in c and m.
 // applyBake adds that to three's indirect diffuse and specular, after its texture reads (maps, normal maps)
 // and before its ambient-occlusion chunk, so aoMap, lights and everything else in the material keep working.
-// The bake's generated GLSL ES function homofac_ibl_terms (bake/homofac_ibl_es.glsl) is compiled into the
+// The bake's generated GLSL ES function homofac_ibl_terms (its shader_es.glsl) is compiled into the
 // material with HOMOFAC_Y_UP: three's y-up world frame maps to homofac's +z-up one.
 
 import {
@@ -94,7 +94,7 @@ export async function loadBake(url) {
   const doc = await fetchOk(joinUrl(base, 'bake.json'), 'json');
   if (doc.format !== FORMAT) throw new Error(`homofac: ${base}bake.json is not a homofac bake (format ${doc.format})`);
   const glsl = await fetchOk(joinUrl(base, doc.shaders.glsl_es), 'text');
-  const entries = await Promise.all(doc.textures.map(async (t) => [t.uniform, await loadTexture(base, t)]));
+  const entries = await Promise.all(doc.textures.map(async (t) => [`hf_${t.name}`, await loadTexture(base, t)]));
   return { url: base, document: doc, glsl, textures: Object.fromEntries(entries), lookups: doc.lookups };
 }
 
