@@ -103,6 +103,7 @@ PARAMS = {
     "cook_torrance": {"kd": (0.05, 0.04, 0.02), "ks": 1.0, "roughness": 0.3, "f0": (1.0, 0.78, 0.34)},
     "ggx": {"kd": 0.1, "ks": 0.8, "roughness": 0.25, "f0": (0.9, 0.6, 0.3)},
     "ward": {"kd": (0.3, 0.2, 0.1), "ks": 0.4, "roughness": 0.2},
+    "gltf": {"base_color": (0.8, 0.5, 0.2), "metallic": 0.4, "roughness": 0.5},
 }
 # (theta_i, phi_i, theta_o, phi_o) in degrees: mirror pair, a general pair, a near-mirror off-plane pair
 PAIRS = [(30.0, 0.0, 30.0, 180.0), (20.0, 10.0, 50.0, 130.0), (45.0, 60.0, 35.0, 250.0)]

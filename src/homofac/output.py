@@ -38,6 +38,9 @@ from pydantic import Field, field_validator, model_validator
 from ._version import __version__
 from .errors import HomofacError
 from .factorization import Factor, Factorization, Quantized, Term, Texture, check_rgba, decode_texels
+from .bake import Bake, BakePlan
+from .bake import register_writer as register_bake_writer
+from .bake.atlas import assemble, pack, split
 from .fit.result import Result, register_writer
 from .io.exr import read_exr, write_exr
 from .io.files import one_line
@@ -62,6 +65,9 @@ MAX_SIZE = 4096
 LIBRARY_FORMAT = "homofac.library"
 LIBRARY_VERSION = 1
 INDEX_NAME = "index.json"
+BAKE_FORMAT = "homofac.bake"
+BAKE_SCHEMA = 1
+BAKE_JSON = "bake.json"
 
 
 class OutputOptions(Options):
@@ -138,6 +144,11 @@ def is_library_dir(path: Path) -> bool:
     return _format_of(path, INDEX_NAME) == LIBRARY_FORMAT
 
 
+def is_bake_dir(path: Path) -> bool:
+    """True when ``path`` holds a bake's bake.json written by homofac (:func:`save_bake`)."""
+    return _format_of(path, BAKE_JSON) == BAKE_FORMAT
+
+
 def check_output_dir(out_dir) -> Path:
     """Refuse output paths that are files, foreign non-empty directories, or not writable (before any work).
     A directory homofac wrote (a factorization or a material library) may be replaced."""
@@ -147,7 +158,7 @@ def check_output_dir(out_dir) -> Path:
         raise HomofacError(f"output path {out}: parent {parent} is not a directory")
     if out.exists() and not out.is_dir():
         raise HomofacError(f"output path {out} exists and is not a directory")
-    if out.is_dir() and any(out.iterdir()) and not (is_homofac_dir(out) or is_library_dir(out)):
+    if out.is_dir() and any(out.iterdir()) and not (is_homofac_dir(out) or is_library_dir(out) or is_bake_dir(out)):
         raise HomofacError(f"output directory {out} is not empty and was not written by homofac; refusing to overwrite it")
     return out
 
@@ -230,7 +241,7 @@ def recover(out: Path) -> list[str]:
     if not parent.is_dir():
         return done
     olds = sorted(parent.glob(f".{out.name}.old-*"), key=lambda p: p.stat().st_mtime, reverse=True)
-    if not out.exists() and olds and (is_homofac_dir(olds[0]) or is_library_dir(olds[0])):
+    if not out.exists() and olds and (is_homofac_dir(olds[0]) or is_library_dir(olds[0]) or is_bake_dir(olds[0])):
         os.replace(olds[0], out)
         done.append(f"restored {out} from {olds[0].name}")
         olds = olds[1:]
@@ -590,6 +601,8 @@ def load(out_dir, textures: str = "exr", *, max_bytes: int = 1 << 28) -> Result:
     d = Path(out_dir)
     if not d.is_dir():
         raise HomofacError(f"{d}: no such directory" if not d.exists() else f"{d}: not a directory")
+    if (d / BAKE_JSON).is_file() and not (d / JSON_NAME).exists():
+        return load_bake(d, max_bytes=max_bytes)
     raw = read_document(d)
     doc = validate(Document, raw, str(d / JSON_NAME))
     specs = [(t, t.mapper or doc.mapper, int(t.size or doc.texture_size)) for t in doc.textures]
@@ -689,3 +702,142 @@ register_writer(save)
 __all__ = ["Document", "EXR_TYPES", "FACE_NAMES", "FORMAT", "INDEX_NAME", "JSON_NAME", "LIBRARY_FORMAT", "LIBRARY_VERSION",
            "OutputLock", "OutputOptions", "SCHEMA_VERSION", "check_output_dir", "cube_faces", "cube_vertical", "document",
            "is_homofac_dir", "is_library_dir", "load", "recover", "save", "save_library", "shader_files"]
+
+
+# --------------------------------------------------------------------------------------------------
+# The bake directory (docs/format.md "The bake directory")
+
+
+class BakeTextureEntry(Options):
+    name: str
+    file: str
+    kind: Literal["prefiltered", "diffuse", "weights"]
+    width: int = Field(ge=1, le=MAX_SIZE * 6)
+    height: int = Field(ge=1, le=MAX_SIZE * 6)
+    channels: list[str]
+
+
+class BakeLayerEntry(Options):
+    roughness: float = Field(gt=0, le=1)
+    shift: float = Field(ge=0, le=1)
+    size: int = Field(ge=2, le=MAX_SIZE)
+    x: int = Field(ge=0)
+    y: int = Field(ge=0)
+
+
+class BakeDocument(Options):
+    """bake.json (schema 1): see docs/format.md."""
+
+    format: Literal["homofac.bake"]
+    schema_version: Literal[1]
+    brdf: Literal["gltf"]
+    plan: dict
+    lookups: int
+    layer_coordinate: str
+    layers: list[BakeLayerEntry] = Field(min_length=3)
+    diffuse_size: int = Field(ge=2, le=MAX_SIZE)
+    nv_size: int = Field(ge=2, le=MAX_SIZE)
+    textures: list[BakeTextureEntry]
+    exr: str = "half"
+    homofac: str = ""
+    texture_bytes_half: int = 0
+    info: dict = {}
+
+
+def bake_document(bake: Bake, exr: str = "half") -> dict:
+    """The bake.json of ``bake`` (see docs/format.md)."""
+    pl = bake.plan
+    atlas = bake.atlas
+    chans = [f"{c}{k}" for k in range(pl.terms) for c in ("a", "b")] + [f"w{d}" for d in range(pl.diffuse)]
+    tex = [{"name": f"P{k}", "file": f"P{k}.exr", "kind": "prefiltered", "width": atlas.width, "height": atlas.height,
+            "channels": ["r", "g", "b"]} for k in range(pl.terms)]
+    s = pl.diffuse_size
+    tex += [{"name": f"E{d}", "file": f"E{d}.exr", "kind": "diffuse", "width": 6 * s, "height": s,
+             "channels": ["r", "g", "b"]} for d in range(pl.diffuse)]
+    tex += [{"name": f"W{t}", "file": f"W{t}.exr", "kind": "weights", "width": pl.nv_size, "height": pl.layers,
+             "channels": (chans[3 * t:3 * t + 3] + ["-", "-"])[:3]} for t in range(pl.tables)]
+    bad: list = []
+    return {
+        "format": BAKE_FORMAT, "schema_version": BAKE_SCHEMA, "homofac": __version__, "brdf": "gltf",
+        "plan": pl._asdict(), "lookups": bake.lookups,
+        "layer_coordinate": "u = (layers - 1) log(rho / rho_0) / log(rho_last / rho_0), clamped to [0, layers - 1]",
+        "layers": [{"roughness": r, "shift": sh, "size": sz, "x": x, "y": y}
+                   for r, sh, sz, (x, y) in zip(bake.roughness, bake.shift, atlas.sizes, atlas.offsets)],
+        "diffuse_size": s, "nv_size": pl.nv_size, "textures": tex, "exr": exr,
+        "texture_bytes_half": bake.texture_bytes(),
+        "info": _jsonable(bake.info, bad),
+    }
+
+
+def save_bake(bake: Bake, out_dir, *, exr: str | None = None) -> Path:
+    """Write a bake directory atomically: bake.json, ``P<k>.exr`` (layer atlases), ``E<d>.exr`` (cube
+    layout), ``W<t>.exr`` (weight tables, rows = layers, columns = n.v)."""
+    exr = exr or str(bake.info.get("options", {}).get("exr", "half"))
+    if exr not in EXR_TYPES:
+        raise HomofacError(f"bake.save: exr must be one of {', '.join(EXR_TYPES)}, got {exr!r}")
+    half = exr == "half"
+    pl = bake.plan
+
+    def write(tmp: Path) -> None:
+        doc = bake_document(bake, exr)
+        atlas = bake.atlas
+        for k in range(pl.terms):
+            write_exr(tmp / f"P{k}.exr", assemble(atlas, [np.asarray(p)[:, :, k] for p in bake.P], 3), half=half)
+        e = np.asarray(bake.E, np.float32)
+        for d in range(pl.diffuse):
+            write_exr(tmp / f"E{d}.exr", e[:, :, d], half=half)
+        w = np.asarray(bake.W, np.float32)
+        w = np.concatenate([w, np.zeros(w.shape[:2] + (3 * pl.tables - w.shape[2],), np.float32)], axis=-1)
+        for t in range(pl.tables):
+            write_exr(tmp / f"W{t}.exr", w[:, :, 3 * t:3 * t + 3], half=half)
+        _write_json(tmp / BAKE_JSON, doc)
+
+    return _write_dir_atomically(out_dir, "the bake directory", write)
+
+
+def load_bake(d, *, max_bytes: int = 1 << 28) -> Bake:
+    """Read a bake directory back (:func:`save_bake`); one-line errors naming the bad file."""
+    d = Path(d)
+    f = d / BAKE_JSON
+    try:
+        if f.stat().st_size > MAX_JSON_BYTES:
+            raise HomofacError(f"{f}: too big for a bake.json")
+        raw = json.loads(f.read_bytes().decode("utf-8"))
+    except OSError as e:
+        raise HomofacError(f"{d}: cannot read {BAKE_JSON} ({e.strerror or e})") from None
+    except (UnicodeDecodeError, ValueError, RecursionError) as e:
+        raise HomofacError(f"{f}: not valid JSON ({one_line(e)})") from None
+    if not isinstance(raw, dict) or raw.get("format") != BAKE_FORMAT:
+        raise HomofacError(f"{f}: not a homofac bake")
+    doc = validate(BakeDocument, raw, str(f))
+    try:
+        pl = BakePlan(**doc.plan)
+    except TypeError as e:
+        raise HomofacError(f"{f}: plan: {one_line(e)}") from None
+    if len(doc.layers) != pl.layers or doc.lookups != pl.lookups:
+        raise HomofacError(f"{f}: the layers or lookups do not match the plan")
+    atlas = pack(layer.size for layer in doc.layers)
+    if [tuple((layer.x, layer.y)) for layer in doc.layers] != list(atlas.offsets):
+        raise HomofacError(f"{f}: layer offsets do not match the atlas layout")
+    by_kind = {k: [t for t in doc.textures if t.kind == k] for k in ("prefiltered", "diffuse", "weights")}
+    if (len(by_kind["prefiltered"]), len(by_kind["diffuse"]), len(by_kind["weights"])) != (pl.terms, pl.diffuse, pl.tables):
+        raise HomofacError(f"{f}: texture count does not match the plan")
+
+    def read(t: BakeTextureEntry, shape) -> np.ndarray:
+        a = read_exr(_confined(d, t.file, "texture"), max_bytes=max_bytes)
+        if a.shape[:2] != tuple(shape):
+            raise HomofacError(f"{d / t.file}: shape {list(a.shape[:2])} does not match {BAKE_JSON} ({list(shape)})")
+        if not np.all(np.isfinite(a)):
+            raise HomofacError(f"{d / t.file}: non-finite texels")
+        return np.asarray(a, np.float32)
+
+    ps = [split(atlas, read(t, (atlas.height, atlas.width))) for t in by_kind["prefiltered"]]
+    P = tuple(np.stack([p[j] for p in ps], axis=2) for j in range(pl.layers))
+    s = doc.diffuse_size
+    E = np.stack([read(t, (s, 6 * s)) for t in by_kind["diffuse"]], axis=2)
+    W = np.concatenate([read(t, (pl.layers, doc.nv_size)) for t in by_kind["weights"]], axis=-1)[:, :, :2 * pl.terms + pl.diffuse]
+    return Bake(pl, tuple(layer.roughness for layer in doc.layers), tuple(layer.shift for layer in doc.layers), P, E, W,
+                dict(raw.get("info") or {}))
+
+
+register_bake_writer(save_bake)
