@@ -30,7 +30,7 @@ from ..light.sources import BUNDLED, bundled
 from ..options import validate
 from ..param import mappers
 from . import kernels as kn
-from .filter import prefilter
+from .filter import normalized, prefilter
 from .model import Bake
 from .options import BakeOptions
 from .plan import BakePlan, plan as make_plan
@@ -96,9 +96,10 @@ class _Lights:
 
 
 def texel_radius(env: Environment) -> float:
-    """Half the angular size of a light texel (the kernels' smoothing radius)."""
+    """The angular size of a light texel (the kernels' smoothing radius: a narrow kernel then always covers
+    a few texel centres, and :func:`~homofac.bake.filter.normalized` makes their weights sum to its mass)."""
     r = int(env.info.get("resolution", 32))
-    return 0.5 * (math.pi / 2) / r
+    return (math.pi / 2) / r
 
 
 def layer_size(rho: float, max_size: int) -> int:
@@ -154,11 +155,14 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
     # diffuse: I_d ~ sum_d E_d(n) w_d(n.v)
     t = time.perf_counter()
     kd = kn.diffuse_kernels(x)
-    yd = prefilter(kn.smooth(kd, texel_radius(data_env)), dirs, data_env)  # (M, X, 3)
+    kds = kn.smooth(kd, texel_radius(data_env))
+    yd = normalized(*prefilter(kds, dirs, data_env), kn.mass(kds))  # (M, X, 3)
     vd, _ = _svd(yd, pl.diffuse)  # (X, D)
     env_e = lights(min(pl.diffuse_size, max_size))
     e_dirs = mappers.texel_directions("cube", pl.diffuse_size).reshape(-1, 3)
-    e = prefilter(kn.smooth(vd.T @ kd, texel_radius(env_e)), e_dirs, env_e)  # (T, D, 3)
+    ke = kn.smooth(vd.T @ kd, texel_radius(env_e))
+    e, den = prefilter(ke, e_dirs, env_e)  # (T, D, 3)
+    e = normalized(e, den[:, 0], kn.mass(ke)[0])
     E = e.reshape(pl.diffuse_size, 6 * pl.diffuse_size, pl.diffuse, 3).astype(np.float32)
     timings["diffuse_s"] = time.perf_counter() - t
 
@@ -170,12 +174,16 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
     shifts = []
     for rho in roughness:
         ks, v, shift, captured = None, None, 0.0, -1.0
+        t = time.perf_counter()
+        exact = kn.albedos(rho, x)
+        timings["kernels_s"] += time.perf_counter() - t
         for cand in shift_candidates(rho):
             t = time.perf_counter()
-            k_c = kn.specular_kernels(rho, x, shift=cand).reshape(2 * len(x), -1)  # rows (A, x_0..), (B, x_0..)
+            k_c = kn.calibrate(kn.specular_kernels(rho, x, shift=cand), exact).reshape(2 * len(x), -1)  # rows (A, x..), (B, x..)
             timings["kernels_s"] += time.perf_counter() - t
             t = time.perf_counter()
-            y = prefilter(kn.smooth(k_c, texel_radius(data_env)), dirs, data_env)  # (M, 2X, 3)
+            k_s = kn.smooth(k_c, texel_radius(data_env))
+            y = normalized(*prefilter(k_s, dirs, data_env), kn.mass(k_s))  # (M, 2X, 3)
             v_c, energy = _svd(y, pl.terms)
             timings["weights_s"] += time.perf_counter() - t
             if energy > captured:
@@ -186,7 +194,9 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
         t = time.perf_counter()
         s = layer_size(rho, max_size)
         env_j = lights(s)
-        p = prefilter(kn.smooth(v.T @ ks, texel_radius(env_j)), mappers.texel_directions("cube", s).reshape(-1, 3), env_j)
+        kp = kn.smooth(v.T @ ks, texel_radius(env_j))
+        p, den = prefilter(kp, mappers.texel_directions("cube", s).reshape(-1, 3), env_j)
+        p = normalized(p, den[:, 0], kn.mass(kp)[0])  # the first (positive) kernel's quadrature for all terms
         P.append(p.reshape(s, 6 * s, pl.terms, 3).astype(np.float32))
         sizes.append(s)
         timings["maps_s"] += time.perf_counter() - t
