@@ -92,6 +92,18 @@ def ref(model, p, ti, pi_, to, po):
     if model == "ward":
         a = p["roughness"]
         return diffuse + ks * np.exp(-tan2h / a**2) / (4 * PI * a**2 * np.sqrt(ci * co))
+    if model == "gltf":  # glTF 2.0 Appendix B: mix(fresnel_mix(0.04, diffuse, specular), conductor_fresnel, metallic)
+        c, m, a = np.asarray(p["base_color"], float), p["metallic"], p["roughness"] ** 2
+        d = a**2 / (PI * ch**4 * (a**2 + tan2h) ** 2)
+
+        def lam(cos):
+            return (-1 + np.sqrt(1 + a**2 * (1 / cos**2 - 1))) / 2
+
+        spec = d / (1 + lam(ci) + lam(co)) / (4 * ci * co)
+        fd = 0.04 + 0.96 * (1 - vh) ** 5
+        dielectric = (1 - fd) * c / PI + fd * spec
+        metal = (c + (1 - c) * (1 - vh) ** 5) * spec
+        return (1 - m) * dielectric + m * metal
     raise AssertionError(model)
 
 

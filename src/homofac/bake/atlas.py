@@ -1,6 +1,6 @@
 """Packing of a P_k's roughness layers into one 2D texture (what the shaders read).
 
-Layer j is a cube-mapper block of (S_j, 6 S_j) texels (DESIGN.md's ``cube`` layout); the blocks are
+Layer j is a cube-mapper block of (S_j, 6 S_j) texels (the pinned ``cube`` layout, docs/conventions.md); the blocks are
 placed on shelves left to right, each shelf as high as its first block, in the order given (sizes
 non-increasing, so the shelves fill). A shader reads layer j at atlas texel ``(x0_j + col, y0_j + row)``
 with the per-face clamped coordinates of the cube mapper: the hardware's bilinear filter then never

@@ -56,7 +56,7 @@ class Bake:
     # --- structure -------------------------------------------------------------------------------------
     @property
     def lookups(self) -> int:
-        """Texture fetches per pixel (DESIGN.md: a hand blend of two layers counts 2)."""
+        """Texture fetches per pixel (pinned: a hand blend of two layers counts 2)."""
         return self.plan.lookups
 
     @property

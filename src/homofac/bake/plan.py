@@ -6,7 +6,7 @@ A bake approximates the three integrals of :mod:`homofac.light.integrals` by
     I_A(n, v, r)  ~ sum_{k < K} P_k(r, rho) a_k(n.v, rho)      I_B ~ sum_k P_k(r, rho) b_k(n.v, rho)
 
 with E_d cube maps, P_k cube maps in roughness layers and the weights a_k, b_k, w_d in RGB tables over
-(n.v, layer). Lookups per pixel (DESIGN.md's count): one per E_d, two per P_k (the two layers around rho,
+(n.v, layer). Lookups per pixel (the pinned count): one per E_d, two per P_k (the two layers around rho,
 blended by hand), one per RGB weight table.
 """
 

@@ -1,4 +1,4 @@
-"""Shader source of a bake: ``homofac_ibl`` and ``homofac_ibl_terms`` (pinned, DESIGN.md), GLSL and GLSL ES.
+"""Shader source of a bake: ``homofac_ibl`` and ``homofac_ibl_terms`` (pinned, docs/format.md), GLSL and GLSL ES.
 
 The cube mapper's formula is the record's (``hf_map_cube`` traced by :func:`homofac.shader.generate.
 mapper_function`); the rest is the model of :mod:`.model` written once for the GLSL family:
@@ -14,10 +14,13 @@ mapper_function`); the rest is the model of :mod:`.model` written once for the G
 
 from __future__ import annotations
 
+import numpy as np
+
 from .._version import __version__
 from ..errors import HomofacError
 from ..shader import generate
 from ..shader import languages as L
+from .atlas import assemble
 from .model import Bake
 
 LANGUAGES = ("glsl", "glsl_es")
@@ -40,7 +43,7 @@ def source(bake: Bake, language: str = "glsl", *, y_up: bool = False, flip_v: bo
     prec = "highp " if language == "glsl_es" else ""
     lines = [
         f"// homofac {__version__}: material-parametric bake ({pl.preset}), {bake.lookups} texture lookups per pixel.",
-        f"// {lang.title}. Generated from the bake's records; the interface is pinned (DESIGN.md, docs/format.md).",
+        f"// {lang.title}. Generated from the bake's records; the interface is pinned (docs/format.md).",
         "// Frame: homofac world, +z up; n, v point away from the surface (v towards the viewer).",
         "#ifdef GL_ES", "precision highp float;", "precision highp int;", "#endif",
     ]
@@ -130,10 +133,6 @@ def source(bake: Bake, language: str = "glsl", *, y_up: bool = False, flip_v: bo
 
 def texture_arrays(bake: Bake) -> list[tuple[str, object]]:
     """``(uniform name, (H, W, 3) float32 array)`` of every texture, as the files hold them."""
-    import numpy as np
-
-    from .atlas import assemble
-
     pl = bake.plan
     out = [(f"hf_P{k}", assemble(bake.atlas, [np.asarray(p)[:, :, k] for p in bake.P], 3)) for k in range(pl.terms)]
     e = np.asarray(bake.E, np.float32)

@@ -1,4 +1,4 @@
-"""The glTF 2.0 metallic-roughness BRDF (pinned: glTF 2.0 Appendix B; DESIGN.md "Material-parametric bake").
+"""The glTF 2.0 metallic-roughness BRDF (pinned: glTF 2.0 Appendix B; docs/format.md "The bake directory").
 
     alpha = roughness^2,  D = GGX,  V = G2 / (4 (n.l)(n.v)) height-correlated Smith,  S = V D,
     s5 = (1 - |v.h|)^5,   f0_eff = (1 - m) 0.04 + m c

@@ -1,4 +1,4 @@
-"""The bake's three integrals of an environment (DESIGN.md "Material-parametric bake", pinned):
+"""The bake's three integrals of an environment (docs/format.md "The bake directory", pinned):
 
     I_d(n, v)    = sum_k (1 - s5)/pi  L_i(l_k) w_k(n)
     I_A(n, v, r) = sum_k (1 - s5) S   L_i(l_k) w_k(n)
