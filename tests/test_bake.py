@@ -118,6 +118,7 @@ def test_evaluate_interface(forest_bake):
         b.evaluate(n[:, :2], v, c, m, r)
 
 
+@pytest.mark.slow
 def test_bake_is_closer_to_the_integrals_than_split_sum_at_its_layers():
     """At a layer's roughness, the fitted P W is never worse than split-sum (exact prefilter, exact DFG) on I_A
     (Eckart-Young on the azimuth-averaged data; measured on random pairs against the exact integrals)."""

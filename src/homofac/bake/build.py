@@ -198,9 +198,17 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
         t = time.perf_counter()
         s = layer_size(rho, max_size)
         env_j = lights(s)
-        kp = kn.smooth(v.T @ ks, texel_radius(env_j))
+        # the maps' kernels and, last, a positive reference (the A lobe summed over n.v) whose discrete mass
+        # against its exact mass corrects every map's quadrature (a rotated term's kernel may have ~0 mass)
+        # Terms after the first are smoothed as their data were (the data's light texel): the SVD never saw
+        # their finer detail, and a signed kernel's sharp core that the data's texels averaged out would
+        # otherwise come back at full strength on a bright small source (city's sun: P_2 10x P_1).
+        kk = v.T @ ks
+        fine = kn.smooth(np.concatenate([kk[:1], ks[: len(x)].sum(0, keepdims=True)]), texel_radius(env_j))
+        coarse = kn.smooth(kk[1:], max(texel_radius(env_j), texel_radius(data_env)))
+        kp = np.concatenate([fine[:1], coarse, fine[1:]])
         p, den = prefilter_cube(kp, s, env_j, kn.support(kp, SUPPORT))
-        p = normalized(p, den[:, 0], kn.mass(kp)[0])  # the first (positive) kernel's quadrature for all terms
+        p = normalized(p[:, :-1], den[:, -1], kn.mass(kp)[-1])
         P.append(p.reshape(s, 6 * s, pl.terms, 3).astype(np.float32))
         sizes.append(s)
         timings["maps_s"] += time.perf_counter() - t
