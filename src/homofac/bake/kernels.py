@@ -135,6 +135,8 @@ def smooth(kernel: np.ndarray, radius: float) -> np.ndarray:
     width), its mass kept: a lobe narrower than the light texels then covers the texel around its axis
     instead of falling between texel centres (a point-sampled sum would alias), and a wide one is barely
     changed. The box average is exact for any narrow kernel: a difference of the slice's cumulative integral."""
+    if kernel.size == 0:
+        return kernel.copy()
     q = q_grid(kernel.shape[-1])
     gamma = 2.0 * np.arcsin(q)
     g = np.concatenate([-gamma[:0:-1], gamma])  # the slice s in [-pi, pi]
