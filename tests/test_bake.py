@@ -179,19 +179,32 @@ def test_presets_are_one_printable_plan():
     assert "lookups per pixel" in make_plan("best").describe()
 
 
-@pytest.mark.parametrize("language", ["glsl", "glsl_es"])
+@pytest.mark.parametrize("language", ["glsl", "glsl_es", "hlsl"])
 def test_shader_compiles_with_glslang(forest_bake, language, tmp_path):
+    """GLSL 330 and GLSL ES 3.00 through glslangValidator; HLSL through its HLSL front end to SPIR-V, validated."""
     exe = shutil.which("glslangValidator")
     if exe is None:
         pytest.skip("glslangValidator is not installed (Debian glslang-tools)")
-    head = "#version 330 core\n" if language == "glsl" else "#version 300 es\nprecision highp float;\n"
-    main = ("uniform vec3 n_in; uniform vec3 v_in; out vec4 color;\n"
-            "void main() { color = vec4(homofac_ibl(n_in, v_in, vec3(0.5), 0.5, 0.3), 1.0); }\n")
     for y_up in (False, True):
-        f = tmp_path / "bake.frag"
-        f.write_text(head + shader.source(forest_bake, language, y_up=y_up) + main)
-        r = subprocess.run([exe, "-S", "frag", str(f)], capture_output=True, text=True, timeout=120)
+        src = shader.source(forest_bake, language, y_up=y_up)
+        if language == "hlsl":
+            f = tmp_path / "bake.hlsl"
+            f.write_text(src + "\nfloat4 ps_main(float4 pos : SV_Position) : SV_Target {\n"
+                         "    return float4(homofac_ibl(normalize(pos.xyz), float3(0, 0, 1), float3(0.5, 0.5, 0.5), 0.5, 0.3), 1.0);\n}\n")
+            cmd = [exe, "-D", "-e", "ps_main", "-S", "frag", "-V", "-o", str(tmp_path / "bake.spv"), str(f)]
+        else:
+            head = "#version 330 core\n" if language == "glsl" else "#version 300 es\nprecision highp float;\n"
+            f = tmp_path / "bake.frag"
+            f.write_text(head + src + "uniform vec3 n_in; uniform vec3 v_in; out vec4 color;\n"
+                         "void main() { color = vec4(homofac_ibl(n_in, v_in, vec3(0.5), 0.5, 0.3), 1.0); }\n")
+            cmd = [exe, "-S", "frag", str(f)]
+        r = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
         assert r.returncode == 0, r.stdout[-3000:]
+        if language == "hlsl" and shutil.which("spirv-val"):
+            r = subprocess.run(["spirv-val", str(tmp_path / "bake.spv")], capture_output=True, text=True, timeout=120)
+            assert r.returncode == 0, r.stdout + r.stderr
+    with pytest.raises(HomofacError, match="wgsl"):
+        shader.source(forest_bake, "wgsl")
 
 
 def test_gpu_equals_cpu(forest_bake):

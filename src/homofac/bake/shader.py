@@ -1,4 +1,4 @@
-"""Shader source of a bake: ``homofac_ibl`` and ``homofac_ibl_terms`` (pinned, docs/format.md), GLSL and GLSL ES.
+"""Shader source of a bake: ``homofac_ibl`` and ``homofac_ibl_terms`` (pinned, docs/format.md), GLSL, GLSL ES, HLSL.
 
 The cube mapper's formula is the record's (``hf_map_cube`` traced by :func:`homofac.shader.generate.
 mapper_function`); the rest is the model of :mod:`.model` written once for the GLSL family:
@@ -23,7 +23,7 @@ from ..shader import languages as L
 from .atlas import assemble
 from .model import Bake
 
-LANGUAGES = ("glsl", "glsl_es")
+LANGUAGES = ("glsl", "glsl_es", "hlsl")
 
 
 def _f(x: float) -> str:
@@ -34,24 +34,25 @@ def source(bake: Bake, language: str = "glsl", *, y_up: bool = False, flip_v: bo
     """The GLSL (330) or GLSL ES (3.00) source of ``bake``'s two pinned functions; no ``#version`` line."""
     if language not in LANGUAGES:
         raise HomofacError(f"bake shaders are generated for {', '.join(LANGUAGES)}; {language!r} is not supported yet")
-    lang = L.get(language)
+    lang = L.get("glsl" if language == "hlsl" else language)
     pl = bake.plan
     atlas = bake.atlas
     K, D, layers, X = pl.terms, pl.diffuse, pl.layers, pl.nv_size
     se = pl.diffuse_size
-    cube_src, tables = generate.mapper_function(lang, "cube")
+    cube_src, tables = generate.mapper_function(L.get(language), "cube")
     prec = "highp " if language == "glsl_es" else ""
     lines = [
         f"// homofac {__version__}: material-parametric bake ({pl.preset}), {bake.lookups} texture lookups per pixel.",
-        f"// {lang.title}. Generated from the bake's records; the interface is pinned (docs/format.md).",
+        f"// {L.get(language).title}. Generated from the bake's records; the interface is pinned (docs/format.md).",
         "// Frame: homofac world, +z up; n, v point away from the surface (v towards the viewer).",
-        "#ifdef GL_ES", "precision highp float;", "precision highp int;", "#endif",
     ]
+    if language != "hlsl":
+        lines += ["#ifdef GL_ES", "precision highp float;", "precision highp int;", "#endif"]
     if y_up:
         lines.append("#define HOMOFAC_Y_UP")
     if flip_v:
         lines.append("#define HOMOFAC_FLIP_V")
-    lines += [L.table_source(lang, n, v) for n, v in tables.items()]
+    lines += [L.table_source(L.get(language), n, v) for n, v in tables.items()]
     for k in range(K):
         lines.append(f"uniform {prec}sampler2D hf_P{k};  // P{k}.exr: {layers} layers in a {atlas.width} x {atlas.height} atlas")
     for d in range(D):
@@ -128,7 +129,47 @@ def source(bake: Bake, language: str = "glsl", *, y_up: bool = False, flip_v: bo
         "    return (1.0 - metallic) * 0.96 * base_color * I_d + f0 * I_A + I_B;",
         "}",
     ]
-    return "\n".join(lines + body + entry) + "\n"
+    text = "\n".join(lines + body + entry) + "\n"
+    return _to_hlsl(text, bake) if language == "hlsl" else text
+
+
+#: GLSL -> HLSL spellings of the few constructs the bake's code uses (the cube mapper comes traced in HLSL).
+_HLSL = (("vec2", "float2"), ("vec3", "float3"), ("vec4", "float4"), ("mix(", "lerp("),
+         ("int(floor(u))", "(int)floor(u)"), ("float(HF_LAYERS - 1)", "(float)(HF_LAYERS - 1)"), ("float(j)", "(float)j"))
+
+
+def _to_hlsl(text: str, bake: Bake) -> str:
+    """The GLSL source in HLSL (shader model 5): Texture2D + SamplerState per texture (Unity's
+    ``sampler_<name>`` convention), ``SampleLevel``, static const tables."""
+    out = []
+    for line in text.split("\n"):
+        if line.startswith("uniform ") and "sampler2D" in line:
+            name = line.split()[-1].rstrip(";") if "//" not in line else line.split("//")[0].split()[-1].rstrip(";")
+            out.append(f"Texture2D<float4> {name};  //" + line.split("//", 1)[1])
+            out.append(f"SamplerState sampler_{name};  // linear, clamp to edge, no mipmaps")
+            continue
+        if line.startswith("const int ") or line.startswith("const float ") or line.startswith("const vec2 "):
+            line = "static " + line
+        if line.startswith("const vec4 HF_LAYER"):
+            head, rest = line.split(" = ", 1)
+            values, comment = rest.split(";", 1)
+            values = values[values.index("(") + 1:values.rindex(")")]
+            line = "static " + head + " = {" + values + "};" + comment
+        if "sampler2D t" in line:
+            line = line.replace("sampler2D t", "Texture2D<float4> t, SamplerState ts")
+        line = line.replace("textureLod(t, vec2(uv.x, hf_flip_v(uv.y)), 0.0).rgb", "t.SampleLevel(ts, vec2(uv.x, hf_flip_v(uv.y)), 0).rgb")
+        for k in range(bake.plan.terms):
+            line = line.replace(f"hf_layer(hf_P{k}, ", f"hf_layer(hf_P{k}, sampler_hf_P{k}, ")
+        for d in range(bake.plan.diffuse):
+            line = line.replace(f"hf_cube(hf_E{d}, ", f"hf_cube(hf_E{d}, sampler_hf_E{d}, ")
+        for t in range(bake.plan.tables):
+            line = line.replace(f"textureLod(hf_W{t}, wuv, 0.0)", f"hf_W{t}.SampleLevel(sampler_hf_W{t}, wuv, 0)")
+        line = line.replace("I_d = vec3(0.0); I_A = vec3(0.0); I_B = vec3(0.0);", "I_d = (vec3)0; I_A = (vec3)0; I_B = (vec3)0;")
+        line = line.replace("vec3 f0 = mix(vec3(0.04), base_color, metallic);", "vec3 f0 = mix((vec3)0.04, base_color, metallic);")
+        for a, b in _HLSL:
+            line = line.replace(a, b)
+        out.append(line)
+    return "\n".join(out)
 
 
 def texture_arrays(bake: Bake) -> list[tuple[str, object]]:
