@@ -147,7 +147,9 @@ def test_save_load_round_trip(forest_bake, tmp_path):
     out = b.save(tmp_path / "bk")
     doc = json.loads((out / "bake.json").read_text())
     assert doc["format"] == "homofac.bake" and doc["lookups"] == 7
-    assert sorted(p.name for p in out.iterdir()) == ["E0.exr", "P0.exr", "P1.exr", "W0.exr", "W1.exr", "bake.json"]
+    assert sorted(p.name for p in out.iterdir()) == ["E0.exr", "P0.exr", "P1.exr", "W0.exr", "W1.exr", "bake.json",
+                                                     "shader.glsl", "shader.hlsl", "shader_es.glsl"]
+    assert (out / "shader.glsl").read_text() == shader.source(b, "glsl")
     back = hf.load(out)
     n, v = pairs(100, seed=8)
     r = np.linspace(0.04, 1, 100)

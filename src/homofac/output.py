@@ -40,6 +40,7 @@ from .errors import HomofacError
 from .factorization import Factor, Factorization, Quantized, Term, Texture, check_rgba, decode_texels
 from .bake import Bake, BakePlan
 from .bake import register_writer as register_bake_writer
+from .bake import shader as bake_shader
 from .bake.atlas import assemble, pack, split
 from .fit.result import Result, register_writer
 from .io.exr import read_exr, write_exr
@@ -68,6 +69,8 @@ INDEX_NAME = "index.json"
 BAKE_FORMAT = "homofac.bake"
 BAKE_SCHEMA = 1
 BAKE_JSON = "bake.json"
+#: The shader files of a bake directory (homofac_ibl, homofac_ibl_terms).
+BAKE_SHADERS = {"glsl": "shader.glsl", "glsl_es": "shader_es.glsl", "hlsl": "shader.hlsl"}
 
 
 class OutputOptions(Options):
@@ -741,6 +744,7 @@ class BakeDocument(Options):
     exr: str = "half"
     homofac: str = ""
     texture_bytes_half: int = 0
+    shaders: dict = {}
     info: dict = {}
 
 
@@ -763,7 +767,7 @@ def bake_document(bake: Bake, exr: str = "half") -> dict:
         "layer_coordinate": "u = (layers - 1) log(rho / rho_0) / log(rho_last / rho_0), clamped to [0, layers - 1]",
         "layers": [{"roughness": r, "shift": sh, "size": sz, "x": x, "y": y}
                    for r, sh, sz, (x, y) in zip(bake.roughness, bake.shift, atlas.sizes, atlas.offsets)],
-        "diffuse_size": s, "nv_size": pl.nv_size, "textures": tex, "exr": exr,
+        "diffuse_size": s, "nv_size": pl.nv_size, "textures": tex, "exr": exr, "shaders": dict(BAKE_SHADERS),
         "texture_bytes_half": bake.texture_bytes(),
         "info": _jsonable(bake.info, bad),
     }
@@ -771,7 +775,7 @@ def bake_document(bake: Bake, exr: str = "half") -> dict:
 
 def save_bake(bake: Bake, out_dir, *, exr: str | None = None) -> Path:
     """Write a bake directory atomically: bake.json, ``P<k>.exr`` (layer atlases), ``E<d>.exr`` (cube
-    layout), ``W<t>.exr`` (weight tables, rows = layers, columns = n.v)."""
+    layout), ``W<t>.exr`` (weight tables, rows = layers, columns = n.v), and the shaders (:data:`BAKE_SHADERS`)."""
     exr = exr or str(bake.info.get("options", {}).get("exr", "half"))
     if exr not in EXR_TYPES:
         raise HomofacError(f"bake.save: exr must be one of {', '.join(EXR_TYPES)}, got {exr!r}")
@@ -790,6 +794,8 @@ def save_bake(bake: Bake, out_dir, *, exr: str | None = None) -> Path:
         w = np.concatenate([w, np.zeros(w.shape[:2] + (3 * pl.tables - w.shape[2],), np.float32)], axis=-1)
         for t in range(pl.tables):
             write_exr(tmp / f"W{t}.exr", w[:, :, 3 * t:3 * t + 3], half=half)
+        for language, name in BAKE_SHADERS.items():
+            (tmp / name).write_text(bake_shader.source(bake, language))
         _write_json(tmp / BAKE_JSON, doc)
 
     return _write_dir_atomically(out_dir, "the bake directory", write)
