@@ -590,7 +590,8 @@ def read_document(d: Path) -> dict:
 
 
 def load(out_dir, textures: str = "exr", *, max_bytes: int = 1 << 28) -> Result:
-    """Read an output directory back into a :class:`~homofac.fit.result.Result` (schema 1 or 2).
+    """Read an output directory back into a :class:`~homofac.fit.result.Result` (schema 1 or 2), or a bake
+    directory (it holds bake.json, no factorization.json) into a :class:`~homofac.bake.Bake` (:func:`load_bake`).
 
     ``textures="exr"`` (default): the float textures from the EXR files; when PNG files were written
     they are read too and ``evaluate(a, b, quantized=True)`` decodes exactly those (else the 8-bit
