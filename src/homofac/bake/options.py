@@ -22,7 +22,7 @@ class BakeOptions(Options):
     layers: Optional[int] = Field(None, ge=3, le=32, description="roughness layers (default: the preset's)")
     terms: Optional[int] = Field(None, ge=1, le=8, description="specular products (default: the preset's)")
     samples: int = Field(512, ge=64, le=65536, description="directions of the data each layer's weights are fitted on")
-    data_resolution: int = Field(32, ge=4, le=256, description="light resolution of that data")
+    data_resolution: int = Field(16, ge=4, le=256, description="light resolution of that data")
     exr: Literal["half", "float32"] = "half"
 
     @model_validator(mode="after")
