@@ -92,6 +92,18 @@ def ref(model, p, ti, pi_, to, po):
     if model == "ward":
         a = p["roughness"]
         return diffuse + ks * np.exp(-tan2h / a**2) / (4 * PI * a**2 * np.sqrt(ci * co))
+    if model == "gltf":  # glTF 2.0 Appendix B: mix(fresnel_mix(0.04, diffuse, specular), conductor_fresnel, metallic)
+        c, m, a = np.asarray(p["base_color"], float), p["metallic"], p["roughness"] ** 2
+        d = a**2 / (PI * ch**4 * (a**2 + tan2h) ** 2)
+
+        def lam(cos):
+            return (-1 + np.sqrt(1 + a**2 * (1 / cos**2 - 1))) / 2
+
+        spec = d / (1 + lam(ci) + lam(co)) / (4 * ci * co)
+        fd = 0.04 + 0.96 * (1 - vh) ** 5
+        dielectric = (1 - fd) * c / PI + fd * spec
+        metal = (c + (1 - c) * (1 - vh) ** 5) * spec
+        return (1 - m) * dielectric + m * metal
     raise AssertionError(model)
 
 
@@ -103,6 +115,7 @@ PARAMS = {
     "cook_torrance": {"kd": (0.05, 0.04, 0.02), "ks": 1.0, "roughness": 0.3, "f0": (1.0, 0.78, 0.34)},
     "ggx": {"kd": 0.1, "ks": 0.8, "roughness": 0.25, "f0": (0.9, 0.6, 0.3)},
     "ward": {"kd": (0.3, 0.2, 0.1), "ks": 0.4, "roughness": 0.2},
+    "gltf": {"base_color": (0.8, 0.5, 0.2), "metallic": 0.4, "roughness": 0.5},
 }
 # (theta_i, phi_i, theta_o, phi_o) in degrees: mirror pair, a general pair, a near-mirror off-plane pair
 PAIRS = [(30.0, 0.0, 30.0, 180.0), (20.0, 10.0, 50.0, 130.0), (45.0, 60.0, 35.0, 250.0)]

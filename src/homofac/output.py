@@ -41,10 +41,15 @@ from ._version import __version__
 from .errors import HomofacError
 from .factorization import (Factor, Factorization, Quantized, Term, Texture, check_identifier, check_label, check_rgba,
                             check_texture_name, decode_texels)
+from .bake import Bake, BakePlan
+from .bake import register_writer as register_bake_writer
+from .bake import shader as bake_shader
+from .bake.atlas import assemble, pack, split
 from .fit.result import Result, register_writer
 from .io.exr import read_exr, write_exr
 from .io.files import one_line, read_bounded
 from .io.ktx2 import write_ktx2
+from .light.sh import SH9
 from .io.png import read_png, write_png
 from .options import Options, validate
 from .param import mappers
@@ -66,6 +71,15 @@ MAX_SIZE = 4096
 LIBRARY_FORMAT = "homofac.library"
 LIBRARY_VERSION = 1
 INDEX_NAME = "index.json"
+BAKE_FORMAT = "homofac.bake"
+BAKE_SCHEMA = 1
+BAKE_JSON = "bake.json"
+#: The shader files of a bake directory (homofac_ibl, homofac_ibl_terms).
+BAKE_SHADERS = {"glsl": "shader.glsl", "glsl_es": "shader_es.glsl", "hlsl": "shader.hlsl"}
+
+#: The environment's SH9 irradiance beside every bake: pinned ``sh9.json``, and Filament's ``sh.txt`` form.
+SH9_JSON = "sh9.json"
+SH9_FILAMENT = "sh.txt"
 
 
 class OutputOptions(Options):
@@ -142,6 +156,11 @@ def is_library_dir(path: Path) -> bool:
     return _format_of(path, INDEX_NAME) == LIBRARY_FORMAT
 
 
+def is_bake_dir(path: Path) -> bool:
+    """True when ``path`` holds a bake's bake.json written by homofac (:func:`save_bake`)."""
+    return _format_of(path, BAKE_JSON) == BAKE_FORMAT
+
+
 def check_output_dir(out_dir) -> Path:
     """Refuse output paths that are files, foreign non-empty directories, or not writable (before any work).
     A directory homofac wrote (a factorization or a material library) may be replaced."""
@@ -151,7 +170,7 @@ def check_output_dir(out_dir) -> Path:
         raise HomofacError(f"output path {out}: parent {parent} is not a directory")
     if out.exists() and not out.is_dir():
         raise HomofacError(f"output path {out} exists and is not a directory")
-    if out.is_dir() and any(out.iterdir()) and not (is_homofac_dir(out) or is_library_dir(out)):
+    if out.is_dir() and any(out.iterdir()) and not (is_homofac_dir(out) or is_library_dir(out) or is_bake_dir(out)):
         raise HomofacError(f"output directory {out} is not empty and was not written by homofac; refusing to overwrite it")
     return out
 
@@ -257,7 +276,7 @@ def recover(out: Path) -> list[str]:
     if not parent.is_dir():
         return done
     olds = sorted(parent.glob(f".{out.name}.old-*"), key=lambda p: p.stat().st_mtime, reverse=True)
-    if not out.exists() and olds and (is_homofac_dir(olds[0]) or is_library_dir(olds[0])):
+    if not out.exists() and olds and (is_homofac_dir(olds[0]) or is_library_dir(olds[0]) or is_bake_dir(olds[0])):
         os.replace(olds[0], out)
         done.append(f"restored {out} from {olds[0].name}")
         olds = olds[1:]
@@ -640,15 +659,15 @@ def _plain_name_or_fail(d: Path, name: str) -> str:
         raise HomofacError(f"{d / JSON_NAME}: {e}") from None
 
 
-def read_document(d: Path) -> dict:
-    """The raw factorization.json of ``d`` (strict JSON, size-capped), as a dict."""
-    f = d / JSON_NAME
+def read_document(d: Path, name: str = JSON_NAME, fmt: str = FORMAT, what: str = "a homofac factorization") -> dict:
+    """The raw ``name`` JSON of ``d`` (a regular file, strict JSON, size-capped) whose ``format`` is ``fmt``, as a dict."""
+    f = d / name
     try:
         size = f.stat().st_size
     except OSError as e:
-        raise HomofacError(f"{d}: cannot read {JSON_NAME} ({e.strerror or e})") from None
+        raise HomofacError(f"{d}: cannot read {name} ({e.strerror or e})") from None
     if size > MAX_JSON_BYTES:
-        raise HomofacError(f"{f}: {size} bytes; a factorization.json is far smaller (at most {MAX_JSON_BYTES})")
+        raise HomofacError(f"{f}: {size} bytes; a {name} is far smaller (at most {MAX_JSON_BYTES})")
     raw = read_bounded(f, "a JSON", MAX_JSON_BYTES)
 
     def no_constants(c):
@@ -664,8 +683,8 @@ def read_document(d: Path) -> dict:
         raise HomofacError(f"{f}: not valid JSON ({one_line(e)})") from None
     if not isinstance(doc, dict):
         raise HomofacError(f"{f}: the top level must be a JSON object, got {type(doc).__name__}")
-    if doc.get("format") != FORMAT:
-        raise HomofacError(f"{f}: not a homofac factorization")
+    if doc.get("format") != fmt:
+        raise HomofacError(f"{f}: not {what}")
     return doc
 
 
@@ -681,7 +700,8 @@ def _texture_bytes(specs, png: bool, exr: bool) -> int:
 
 
 def load(out_dir, textures: str = "exr", *, max_bytes: int = 1 << 28, max_total_bytes: int | None = MAX_LOAD_BYTES) -> Result:
-    """Read an output directory back into a :class:`~homofac.fit.result.Result` (schema 1 or 2).
+    """Read an output directory back into a :class:`~homofac.fit.result.Result` (schema 1 or 2), or a bake
+    directory (it holds bake.json, no factorization.json) into a :class:`~homofac.bake.Bake` (:func:`load_bake`).
 
     ``textures="exr"`` (default): the float textures from the EXR files; when PNG files were written
     they are read too and ``evaluate(a, b, quantized=True)`` decodes exactly those (else the 8-bit
@@ -698,6 +718,8 @@ def load(out_dir, textures: str = "exr", *, max_bytes: int = 1 << 28, max_total_
     d = Path(out_dir)
     if not d.is_dir():
         raise HomofacError(f"{d}: no such directory" if not d.exists() else f"{d}: not a directory")
+    if (d / BAKE_JSON).is_file() and not (d / JSON_NAME).exists():
+        return load_bake(d, max_bytes=max_bytes)
     raw = read_document(d)
     doc = validate(Document, raw, str(d / JSON_NAME))
     specs = [(t, t.mapper or doc.mapper, int(t.size or doc.texture_size)) for t in doc.textures]
@@ -811,3 +833,155 @@ __all__ = ["Document", "EXR_TYPES", "FACE_NAMES", "FORMAT", "INDEX_NAME", "JSON_
            "MAX_LOAD_BYTES", "read_document",
            "OutputLock", "OutputOptions", "SCHEMA_VERSION", "check_output_dir", "cube_faces", "cube_vertical", "document",
            "is_homofac_dir", "is_library_dir", "load", "recover", "save", "save_library", "shader_files"]
+
+
+# --------------------------------------------------------------------------------------------------
+# The bake directory (docs/format.md "The bake directory")
+
+
+class BakeTextureEntry(Options):
+    name: str = Field(pattern=r"^[PEW][0-9]{1,2}$", description="P<k>, E<d> or W<t>: the shader reads hf_<name>")
+    file: str = Field(pattern=r"^[PEW][0-9]{1,2}\.exr$")
+    ktx2: Optional[str] = Field(None, pattern=r"^[PEW][0-9]{1,2}\.ktx2$")
+    kind: Literal["prefiltered", "diffuse", "weights"]
+    width: int = Field(ge=1, le=MAX_SIZE * 6)
+    height: int = Field(ge=1, le=MAX_SIZE * 6)
+    channels: list[str]
+
+
+class BakeLayerEntry(Options):
+    roughness: float = Field(gt=0, le=1)
+    shift: float = Field(ge=0, le=1)
+    size: int = Field(ge=2, le=MAX_SIZE)
+    x: int = Field(ge=0)
+    y: int = Field(ge=0)
+
+
+class BakePlanEntry(Options):
+    """bake.json's ``plan`` (:class:`homofac.bake.BakePlan`), every field bounded: it reaches generated code."""
+
+    preset: Literal["fast", "balanced", "best"]
+    terms: int = Field(ge=1, le=8)
+    diffuse: int = Field(ge=0, le=8)
+    layers: int = Field(ge=3, le=32)
+    nv_size: int = Field(ge=2, le=MAX_SIZE)
+    max_size: int = Field(ge=2, le=MAX_SIZE)
+    diffuse_size: int = Field(ge=2, le=MAX_SIZE)
+    min_roughness: float = Field(gt=0, le=1)
+
+
+class BakeDocument(Options):
+    """bake.json (schema 1): see docs/format.md."""
+
+    format: Literal["homofac.bake"]
+    schema_version: Literal[1]
+    brdf: Literal["gltf"]
+    plan: BakePlanEntry
+    lookups: int
+    layer_coordinate: str
+    layers: list[BakeLayerEntry] = Field(min_length=3)
+    diffuse_size: int = Field(ge=2, le=MAX_SIZE)
+    nv_size: int = Field(ge=2, le=MAX_SIZE)
+    textures: list[BakeTextureEntry]
+    exr: str = "half"
+    homofac: str = ""
+    texture_bytes_half: int = 0
+    shaders: dict[Literal[tuple(BAKE_SHADERS)], Literal[tuple(BAKE_SHADERS.values())]] = {}  # type: ignore[valid-type]
+    sh9: Optional[dict[Literal["json", "filament"], Literal[SH9_JSON, SH9_FILAMENT]]] = None
+    info: dict = {}
+
+
+def bake_document(bake: Bake, exr: str = "half") -> dict:
+    """The bake.json of ``bake`` (see docs/format.md)."""
+    pl = bake.plan
+    atlas = bake.atlas
+    chans = [f"{c}{k}" for k in range(pl.terms) for c in ("a", "b")] + [f"w{d}" for d in range(pl.diffuse)]
+    tex = [{"name": f"P{k}", "file": f"P{k}.exr", "kind": "prefiltered", "width": atlas.width, "height": atlas.height,
+            "channels": ["r", "g", "b"]} for k in range(pl.terms)]
+    s = pl.diffuse_size
+    tex += [{"name": f"E{d}", "file": f"E{d}.exr", "kind": "diffuse", "width": 6 * s, "height": s,
+             "channels": ["r", "g", "b"]} for d in range(pl.diffuse)]
+    tex += [{"name": f"W{t}", "file": f"W{t}.exr", "kind": "weights", "width": pl.nv_size, "height": pl.layers,
+             "channels": (chans[3 * t:3 * t + 3] + ["-", "-"])[:3]} for t in range(pl.tables)]
+    bad: list = []
+    return {
+        "format": BAKE_FORMAT, "schema_version": BAKE_SCHEMA, "homofac": __version__, "brdf": "gltf",
+        "plan": pl._asdict(), "lookups": bake.lookups,
+        "layer_coordinate": "u = (layers - 1) log(rho / rho_0) / log(rho_last / rho_0), clamped to [0, layers - 1]",
+        "layers": [{"roughness": r, "shift": sh, "size": sz, "x": x, "y": y}
+                   for r, sh, sz, (x, y) in zip(bake.roughness, bake.shift, atlas.sizes, atlas.offsets)],
+        "diffuse_size": s, "nv_size": pl.nv_size, "textures": tex, "exr": exr, "shaders": dict(BAKE_SHADERS),
+        "texture_bytes_half": bake.texture_bytes(),
+        "info": _jsonable(bake.info, bad),
+    }
+
+
+def save_bake(bake: Bake, out_dir, *, exr: str | None = None, ktx2: bool | None = None) -> Path:
+    """Write a bake directory atomically: bake.json, ``P<k>.exr`` (layer atlases), ``E<d>.exr`` (cube
+    layout), ``W<t>.exr`` (weight tables, rows = layers, columns = n.v), the shaders (:data:`BAKE_SHADERS`),
+    the environment's SH9 irradiance (``sh9.json``, pinned, and Filament's ``sh.txt``) and, with ``ktx2``, each
+    texture also as ``<name>.ktx2`` (RGBA half float, the same 2D layout; listed as ``ktx2`` in bake.json)."""
+    exr = exr or str(bake.info.get("options", {}).get("exr", "half"))
+    ktx2 = bool(bake.info.get("options", {}).get("ktx2", False)) if ktx2 is None else ktx2
+    if exr not in EXR_TYPES:
+        raise HomofacError(f"bake.save: exr must be one of {', '.join(EXR_TYPES)}, got {exr!r}")
+    half = exr == "half"
+    pl = bake.plan
+
+    def write(tmp: Path) -> None:
+        doc = bake_document(bake, exr)
+        for entry, (_, array) in zip(doc["textures"], bake_shader.texture_arrays(bake)):
+            write_exr(tmp / entry["file"], array, half=half)
+            if ktx2:
+                entry["ktx2"] = f"{entry['name']}.ktx2"
+                keys = {"homofac": json.dumps({"texture": entry["name"], "kind": entry["kind"], "channels": entry["channels"],
+                                               "layout": "the EXR's 2D layout, rows in file order (docs/format.md)",
+                                               "frame": "homofac world, +z up"})}
+                write_ktx2(tmp / entry["ktx2"], array, kind="2d", format="half" if half else "float", keys=keys)
+        sh = (bake.info or {}).get("sh9")
+        if sh:
+            sh9 = SH9(np.asarray(sh["irradiance"], np.float64), dict(sh.get("error") or {}))
+            (tmp / SH9_JSON).write_text(json.dumps(sh9.document(), indent=1) + "\n")
+            (tmp / SH9_FILAMENT).write_text(sh9.filament_text())
+            doc["sh9"] = {"json": SH9_JSON, "filament": SH9_FILAMENT}
+        for language, name in BAKE_SHADERS.items():
+            (tmp / name).write_text(bake_shader.source(bake, language))
+        _write_json(tmp / BAKE_JSON, doc)
+
+    return _write_dir_atomically(out_dir, "the bake directory", write)
+
+
+def load_bake(d, *, max_bytes: int = 1 << 28) -> Bake:
+    """Read a bake directory back (:func:`save_bake`); one-line errors naming the bad file."""
+    d = Path(d)
+    f = d / BAKE_JSON
+    raw = read_document(d, BAKE_JSON, BAKE_FORMAT, "a homofac bake")
+    doc = validate(BakeDocument, raw, str(f))
+    pl = BakePlan(**doc.plan.model_dump())
+    if len(doc.layers) != pl.layers or doc.lookups != pl.lookups:
+        raise HomofacError(f"{f}: the layers or lookups do not match the plan")
+    atlas = pack(layer.size for layer in doc.layers)
+    if [tuple((layer.x, layer.y)) for layer in doc.layers] != list(atlas.offsets):
+        raise HomofacError(f"{f}: layer offsets do not match the atlas layout")
+    by_kind = {k: [t for t in doc.textures if t.kind == k] for k in ("prefiltered", "diffuse", "weights")}
+    if (len(by_kind["prefiltered"]), len(by_kind["diffuse"]), len(by_kind["weights"])) != (pl.terms, pl.diffuse, pl.tables):
+        raise HomofacError(f"{f}: texture count does not match the plan")
+
+    def read(t: BakeTextureEntry, shape) -> np.ndarray:
+        a = read_exr(_confined(d, t.file, "texture"), max_bytes=max_bytes)
+        if a.shape[:2] != tuple(shape):
+            raise HomofacError(f"{d / t.file}: shape {list(a.shape[:2])} does not match {BAKE_JSON} ({list(shape)})")
+        if not np.all(np.isfinite(a)):
+            raise HomofacError(f"{d / t.file}: non-finite texels")
+        return np.asarray(a, np.float32)
+
+    ps = [split(atlas, read(t, (atlas.height, atlas.width))) for t in by_kind["prefiltered"]]
+    P = tuple(np.stack([p[j] for p in ps], axis=2) for j in range(pl.layers))
+    s = doc.diffuse_size
+    E = np.stack([read(t, (s, 6 * s)) for t in by_kind["diffuse"]], axis=2)
+    W = np.concatenate([read(t, (pl.layers, doc.nv_size)) for t in by_kind["weights"]], axis=-1)[:, :, :2 * pl.terms + pl.diffuse]
+    return Bake(pl, tuple(layer.roughness for layer in doc.layers), tuple(layer.shift for layer in doc.layers), P, E, W,
+                dict(raw.get("info") or {}))
+
+
+register_bake_writer(save_bake)

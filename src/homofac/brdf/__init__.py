@@ -30,6 +30,7 @@ from .measured import (
     tabulate_merl,
 )
 from .integrate import albedo
+from .gltf import gltf
 
 __all__ = [
     "BRDF",
@@ -48,6 +49,7 @@ __all__ = [
     "from_config",
     "from_half_diff",
     "ggx",
+    "gltf",
     "half_diff_angles",
     "lambert",
     "load_merl",

@@ -249,6 +249,8 @@ _RULES: dict[str, tuple[str, float | None, bool, float | None, str]] = {
     "kd": ("color", 0.0, True, None, "finite and >= 0"),
     "ks": ("color", 0.0, True, None, "finite and >= 0"),
     "f0": ("color", 0.0, True, 1.0, "finite and in [0, 1]"),
+    "base_color": ("color", 0.0, True, 1.0, "finite and in [0, 1]"),
+    "metallic": ("scalar", 0.0, True, 1.0, "a number in [0, 1]"),
     "roughness": ("scalar", 0.0, False, None, "a finite number > 0"),
     "exponent": ("scalar", 0.0, True, None, "a finite number >= 0"),
     "table": ("array", None, True, None, "finite (negative entries are holes)"),

@@ -1,0 +1,53 @@
+"""Packing of a P_k's roughness layers into one 2D texture (what the shaders read).
+
+Layer j is a cube-mapper block of (S_j, 6 S_j) texels (the pinned ``cube`` layout, docs/conventions.md); the blocks are
+placed on shelves left to right, each shelf as high as its first block, in the order given (sizes
+non-increasing, so the shelves fill). A shader reads layer j at atlas texel ``(x0_j + col, y0_j + row)``
+with the per-face clamped coordinates of the cube mapper: the hardware's bilinear filter then never
+reads outside the face, exactly as :func:`homofac.param.mappers.lookup` does.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+
+class Atlas(NamedTuple):
+    """``width`` x ``height`` texels; ``offsets[j] = (x0, y0)`` of layer j; ``sizes[j] = S_j``."""
+
+    width: int
+    height: int
+    offsets: tuple[tuple[int, int], ...]
+    sizes: tuple[int, ...]
+
+
+def pack(sizes) -> Atlas:
+    """Shelf packing of blocks (S_j, 6 S_j), sizes non-increasing."""
+    sizes = tuple(int(s) for s in sizes)
+    width = 6 * max(sizes)
+    offsets, x, y, shelf = [], 0, 0, 0
+    for s in sizes:
+        if x + 6 * s > width:
+            x, y, shelf = 0, y + shelf, 0
+        offsets.append((x, y))
+        shelf = max(shelf, s)
+        x += 6 * s
+    return Atlas(width, y + shelf, tuple(offsets), sizes)
+
+
+def assemble(atlas: Atlas, layers, channels: int) -> np.ndarray:
+    """The (height, width, channels) atlas image of ``layers`` (each (S_j, 6 S_j, channels)); unused texels 0."""
+    out = np.zeros((atlas.height, atlas.width, channels), np.float32)
+    for (x0, y0), s, layer in zip(atlas.offsets, atlas.sizes, layers):
+        out[y0:y0 + s, x0:x0 + 6 * s] = np.asarray(layer, np.float32).reshape(s, 6 * s, channels)
+    return out
+
+
+def split(atlas: Atlas, image: np.ndarray) -> list[np.ndarray]:
+    """The layers of an atlas image (the inverse of :func:`assemble`)."""
+    return [np.asarray(image[y0:y0 + s, x0:x0 + 6 * s]) for (x0, y0), s in zip(atlas.offsets, atlas.sizes)]
+
+
+__all__ = ["Atlas", "assemble", "pack", "split"]

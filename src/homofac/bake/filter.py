@@ -1,0 +1,106 @@
+"""Isotropic filtering of an environment by tabulated kernels (the matmul form of every bake texel).
+
+``F_j(d) = sum_k L_k dw_k kappa_j(q(d.l_k))`` with q = sqrt((1 - d.l) / 2) and kappa_j tabulated uniformly
+in sqrt(q) (:mod:`.kernels`): cosines as one (B, 3) @ (3, L) matmul per chunk, the J tables read by linear
+interpolation at a shared index, the sums as (B, L) @ (L, 3) matmuls; directions go through ``lax.map`` in
+chunks, so memory stays B x L per table, never directions x lights x 3.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..light import Environment
+from ..param import mappers
+
+#: Directions per lax.map step.
+CHUNK = 128
+
+
+@eqx.filter_jit
+def _filter(tables, dirs, light_dirs, power, chunk: int):
+    j_count, g = tables.shape
+    count = dirs.shape[0]
+    pad = (-count) % chunk
+    d = jnp.concatenate([dirs, jnp.broadcast_to(dirs[:1], (pad, 3))]) if pad else dirs
+
+    def one(block):
+        c = block @ light_dirs.T  # (B, L)
+        pos = jnp.sqrt(jnp.sqrt(jnp.clip((1.0 - c) * 0.5, 0.0, 1.0))) * (g - 1)
+        i0 = jnp.minimum(jnp.floor(pos).astype(jnp.int32), g - 2)
+        f = pos - i0
+        return jnp.stack([((1.0 - f) * t[i0] + f * t[i0 + 1]) @ power for t in tables], axis=1)  # (B, J, 4)
+
+    out = jax.lax.map(one, d.reshape(-1, chunk, 3))
+    return out.reshape(-1, j_count, power.shape[1])[:count]
+
+
+def prefilter(tables: np.ndarray, dirs: np.ndarray, env: Environment, chunk: int = CHUNK) -> tuple[np.ndarray, np.ndarray]:
+    """The J kernels ``tables`` (J, G) applied to ``env`` at directions ``dirs`` (N, 3): ``(N, J, 3)``, and the
+    discrete masses ``sum_k dw_k kappa_j`` (N, J) of the same sums (the quadrature check of :func:`normalized`)."""
+    sa = env.solid_angle.astype(jnp.float32)
+    power = jnp.concatenate([env.radiance.astype(jnp.float32) * sa[:, None], sa[:, None]], axis=1)
+    out = np.asarray(_filter(jnp.asarray(tables, jnp.float32), jnp.asarray(dirs, jnp.float32),
+                             env.directions.astype(jnp.float32), power, int(min(chunk, max(1, len(dirs))))), np.float64)
+    return out[..., :3], out[..., 3]
+
+
+def normalized(values: np.ndarray, discrete: np.ndarray, exact) -> np.ndarray:
+    """Filtered values scaled by ``exact mass / discrete mass`` (Karis' normalized prefilter): the texel sum of
+    a kernel a few light texels wide then reads a constant environment exactly wherever its axis falls
+    between texel centres. ``discrete`` (N,) or (N, J), ``exact`` scalar or (J,)."""
+    d = np.asarray(discrete, np.float64)
+    e = np.broadcast_to(np.asarray(exact, np.float64), d.shape[-1:] if d.ndim > 1 else ())
+    scale = np.where(np.abs(d) > 1e-30, e / np.where(np.abs(d) > 1e-30, d, 1.0), 0.0)
+    return values * (scale[..., None] if d.ndim == values.ndim - 1 else scale[:, None, None])
+
+
+
+
+@eqx.filter_jit
+def _filter_tiles(tables, tiles, light_dirs, power, slots: int, cos_cone):
+    """:func:`_filter` over tiles of nearby directions (T, B, 3), each with the ``slots`` lights nearest its axis."""
+    j_count, g = tables.shape
+
+    def one(tile):
+        axis = jnp.sum(tile, axis=0)
+        axis = axis / jnp.linalg.norm(axis)
+        _, idx = jax.lax.top_k(light_dirs @ axis, slots)
+        ld, pw = light_dirs[idx], power[idx]
+        c = tile @ ld.T  # (B, slots)
+        pos = jnp.sqrt(jnp.sqrt(jnp.clip((1.0 - c) * 0.5, 0.0, 1.0))) * (g - 1)
+        i0 = jnp.minimum(jnp.floor(pos).astype(jnp.int32), g - 2)
+        f = pos - i0
+        return jnp.stack([((1.0 - f) * t[i0] + f * t[i0 + 1]) @ pw for t in tables], axis=1)
+
+    return jax.lax.map(one, tiles)
+
+
+def prefilter_cube(tables: np.ndarray, size: int, env: Environment, support: float, tile: int = 8):
+    """:func:`prefilter` at every texel centre of a cube-mapper texture of face size ``size`` (rows of the
+    (size, 6 size) layout), skipping the lights farther than ``support`` (radians) from every texel of a
+    tile x tile block: each block reads only the lights within its own radius + ``support`` of its axis
+    (``lax.top_k`` on the cosines, a static count), so sharp layers cost a few hundred lights per texel
+    instead of all of them. Falls back to :func:`prefilter` when the cone holds most lights."""
+    dirs = np.asarray(mappers.texel_directions("cube", size), np.float64)  # (S, 6S, 3)
+    count = int(env.directions.shape[0])
+    tile = min(tile, size)
+    radius = tile * (np.pi / 2) / size  # a block's half-diagonal is below this (texels subtend <= (pi/2)/S)
+    cone = min(np.pi, support + radius)
+    slots = int(min(count, np.ceil(1.3 * count * (1.0 - np.cos(cone)) / 2.0) + 32))
+    if slots > count // 3:
+        return prefilter(tables, dirs.reshape(-1, 3), env)
+    blocks = dirs.reshape(size // tile, tile, 6 * size // tile, tile, 3).transpose(0, 2, 1, 3, 4).reshape(-1, tile * tile, 3)
+    sa = env.solid_angle.astype(jnp.float32)
+    power = jnp.concatenate([env.radiance.astype(jnp.float32) * sa[:, None], sa[:, None]], axis=1)
+    out = np.asarray(_filter_tiles(jnp.asarray(tables, jnp.float32), jnp.asarray(blocks, jnp.float32),
+                                   env.directions.astype(jnp.float32), power, slots, float(np.cos(cone))), np.float64)
+    j = tables.shape[0]
+    out = out.reshape(size // tile, 6 * size // tile, tile, tile, j, 4).transpose(0, 2, 1, 3, 4, 5).reshape(-1, j, 4)
+    return out[..., :3], out[..., 3]
+
+
+__all__ = ["normalized", "prefilter", "prefilter_cube"]

@@ -1,0 +1,38 @@
+"""The bake's options (one pydantic model, shared by ``hf.bake`` and ``python -m homofac.bake``)."""
+
+from __future__ import annotations
+
+from typing import ClassVar, Literal, Optional
+
+from pydantic import Field, model_validator
+
+from ..options import Options
+
+
+class BakeOptions(Options):
+    """What a bake computes. ``preset`` picks the structure (:func:`homofac.bake.plan.plan`: 4, 7 and 16
+    lookups per pixel); the rest override it or set sizes."""
+
+    TAG: ClassVar[str] = "bake"
+    preset: Literal["fast", "balanced", "best"] = "balanced"
+    min_roughness: float = Field(0.045, ge=0.01, le=0.5, description="the sharpest roughness layer")
+    max_size: Optional[int] = Field(None, ge=8, le=512, description="largest P face size; default: the source's detail (lat-long width / 4), at most 256")
+    nv_size: int = Field(32, ge=4, le=256, description="n.v columns of the weight tables")
+    diffuse_size: int = Field(32, ge=8, le=256, description="face size of the diffuse maps E_d")
+    layers: Optional[int] = Field(None, ge=3, le=32, description="roughness layers (default: the preset's)")
+    terms: Optional[int] = Field(None, ge=1, le=8, description="specular products (default: the preset's)")
+    samples: int = Field(512, ge=64, le=65536, description="directions of the data each layer's weights are fitted on")
+    data_resolution: int = Field(16, ge=4, le=256, description="light resolution of that data")
+    exr: Literal["half", "float32"] = "half"
+    ktx2: bool = Field(False, description="also write each texture as <name>.ktx2 (RGBA half or float, as exr)")
+
+    @model_validator(mode="after")
+    def _pow2(self):
+        for name in ("max_size", "diffuse_size"):
+            v = getattr(self, name)
+            if v is not None and v & (v - 1):
+                raise ValueError(f"{name} must be a power of two, got {v}")
+        return self
+
+
+__all__ = ["BakeOptions"]

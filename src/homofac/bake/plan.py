@@ -1,0 +1,73 @@
+"""The bake's plan: what a preset means, in one place (a small frozen, printable record).
+
+A bake approximates the three integrals of :mod:`homofac.light.integrals` by
+
+    I_d(n, v)     ~ sum_{d < D} E_d(n) w_d(n.v)
+    I_A(n, v, r)  ~ sum_{k < K} P_k(r, rho) a_k(n.v, rho)      I_B ~ sum_k P_k(r, rho) b_k(n.v, rho)
+
+with E_d cube maps, P_k cube maps in roughness layers and the weights a_k, b_k, w_d in RGB tables over
+(n.v, layer). Lookups per pixel (the pinned count): one per E_d, two per P_k (the two layers around rho,
+blended by hand), one per RGB weight table.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Literal, NamedTuple
+
+PRESETS = ("fast", "balanced", "best")
+Preset = Literal["fast", "balanced", "best"]
+
+
+class BakePlan(NamedTuple):
+    """What a bake computes: ``terms`` K products P_k W_k for I_A, I_B; ``diffuse`` D products for I_d;
+    ``layers`` roughness layers spaced geometrically from ``min_roughness`` to 1; ``nv_size`` columns of
+    the weight tables; ``max_size`` the largest P face size (the sharpest layers'); ``diffuse_size`` the
+    face size of the E_d maps."""
+
+    preset: str
+    terms: int
+    diffuse: int
+    layers: int
+    nv_size: int
+    max_size: int
+    diffuse_size: int
+    min_roughness: float
+
+    @property
+    def tables(self) -> int:
+        """RGB weight tables: channels a_1, b_1, ..., a_K, b_K, w_1, ..., w_D, three per table."""
+        return math.ceil((2 * self.terms + self.diffuse) / 3)
+
+    @property
+    def lookups(self) -> int:
+        """Texture fetches per pixel: D (E_d) + 2 K (P_k, two layers blended by hand) + the tables."""
+        return self.diffuse + 2 * self.terms + self.tables
+
+    def roughnesses(self) -> tuple[float, ...]:
+        """The layers' roughnesses: min_roughness (1/min_roughness)^(j/(layers-1)) (lobe width alpha = rho^2
+        grows by the same factor from layer to layer)."""
+        r0, n = self.min_roughness, self.layers
+        return tuple(float(r0 * (1.0 / r0) ** (j / (n - 1))) for j in range(n))
+
+    def describe(self) -> str:
+        """One printable line."""
+        return (f"bake plan {self.preset}: {self.terms} specular term(s) x {self.layers} roughness layers "
+                f"({self.min_roughness:g}..1), {self.diffuse} diffuse term(s), {self.tables} weight table(s) of "
+                f"{self.nv_size} n.v columns; P up to {self.max_size}^2 x 6, E {self.diffuse_size}^2 x 6; "
+                f"{self.lookups} lookups per pixel")
+
+
+#: preset -> (terms, diffuse, layers): 4, 7 and 16 lookups (budgets 4, 8, 16).
+_STRUCTURE = {"fast": (1, 1, 10), "balanced": (2, 1, 12), "best": (5, 2, 12)}
+
+
+def plan(preset: str = "balanced", *, max_size: int = 256, min_roughness: float = 0.045, nv_size: int = 32,
+         diffuse_size: int = 32, layers: int | None = None, terms: int | None = None) -> BakePlan:
+    """The plan of a preset, with the given overrides (validated by :class:`homofac.bake.BakeOptions`)."""
+    k, d, n = _STRUCTURE[preset]
+    return BakePlan(preset, int(terms or k), d, int(layers or n), int(nv_size), int(max_size), int(diffuse_size),
+                    float(min_roughness))
+
+
+__all__ = ["BakePlan", "PRESETS", "Preset", "plan"]

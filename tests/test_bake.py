@@ -1,0 +1,229 @@
+"""The material-parametric bake: the glTF BRDF's integrals (furnace, exact material split), the bake's
+accuracy where it must be exact, its directory, CLI, plan, and shaders (GPU equals CPU, glslang)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import homofac as hf
+from homofac.bake import kernels as kn
+from homofac.bake.plan import PRESETS, plan as make_plan
+from homofac.bake import shader
+from homofac.errors import HomofacError
+from homofac.light.integrals import integrals, material_radiance
+
+TINY = dict(layers=3, max_size=8, nv_size=8, samples=64, data_resolution=4, diffuse_size=8)
+
+
+def pairs(count: int, seed: int = 0):
+    rng = np.random.default_rng(seed)
+    n = rng.normal(size=(count, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    v = rng.normal(size=(count, 3))
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    v = np.where((np.sum(n * v, 1) < 0)[:, None], -v, v)
+    return n, v
+
+
+def nrmse(a, e):
+    return float(np.linalg.norm(np.asarray(a) - np.asarray(e)) / np.linalg.norm(np.asarray(e)))
+
+
+@pytest.fixture(scope="module")
+def forest_bake():
+    return hf.bake("forest", preset="balanced", **TINY)
+
+
+def test_white_furnace_integrals(x64):
+    """Uniform radiance 1: I_A + I_B is the white metal's directional albedo, 0.96 I_d + 0.04 I_A + I_B the
+    white dielectric's (the glTF BRDF's albedo by quadrature, :func:`homofac.brdf.albedo`)."""
+    env = hf.light.uniform(1.0, 16)
+    n, v = pairs(6, seed=1)
+    rough = np.array([0.5, 0.6, 0.7, 0.9, 0.8, 1.0])
+    parts = np.asarray(integrals(env, jnp.asarray(n), jnp.asarray(v), jnp.asarray(rough)))
+    wo = np.asarray(hf.sphere.local(jnp.asarray(v), jnp.asarray(n)))
+    for i in range(len(n)):
+        metal = hf.brdf.gltf(base_color=1.0, metallic=1.0, roughness=float(rough[i]))
+        dielectric = hf.brdf.gltf(base_color=1.0, metallic=0.0, roughness=float(rough[i]))
+        a_metal = float(hf.brdf.albedo(metal, jnp.asarray(wo[i]), n=96)[0])
+        a_diel = float(hf.brdf.albedo(dielectric, jnp.asarray(wo[i]), n=96)[0])
+        np.testing.assert_allclose(parts[i, 1, 0] + parts[i, 2, 0], a_metal, rtol=3e-3)
+        np.testing.assert_allclose(0.96 * parts[i, 0, 0] + 0.04 * parts[i, 1, 0] + parts[i, 2, 0], a_diel, rtol=3e-3)
+
+
+def test_three_integrals_give_the_lighting_of_any_material(x64):
+    """L(n, v; c, m, rho) from I_d, I_A, I_B equals the pinned lighting of the full glTF BRDF."""
+    env = hf.light.load_environment("forest", 8)
+    env = jax.tree_util.tree_map(lambda a: a.astype(jnp.float64) if getattr(a, "dtype", None) == jnp.float32 else a, env)
+    n, v = pairs(5, seed=2)
+    rng = np.random.default_rng(3)
+    rough = rng.uniform(0.1, 1.0, len(n))
+    parts = integrals(env, jnp.asarray(n), jnp.asarray(v), jnp.asarray(rough))
+    for i in range(len(n)):
+        c, m = rng.uniform(0, 1, 3), float(rng.uniform())
+        brdf = hf.brdf.gltf(base_color=c, metallic=m, roughness=float(rough[i]))
+        direct = np.asarray(hf.light.lighting(brdf, env, jnp.asarray(n[i:i + 1]), jnp.asarray(v[i:i + 1])))
+        np.testing.assert_allclose(np.asarray(material_radiance(parts[i:i + 1], c, m)), direct, rtol=1e-10, atol=1e-14)
+
+
+def test_kernel_mass_is_the_directional_albedo():
+    """An azimuth-averaged kernel integrates to its lobe's directional albedo (furnace of the bake's filters)."""
+    x = np.array([0.2, 0.6, 0.95])
+    k = kn.specular_kernels(0.5, x)
+    b = hf.brdf.gltf(base_color=1.0, metallic=1.0, roughness=0.5)
+    wo = jnp.asarray(np.stack([np.sqrt(1 - x * x), 0 * x, x], -1))
+    np.testing.assert_allclose(kn.mass(k).sum(0), np.asarray(hf.brdf.albedo(b, wo, n=96))[:, 0], rtol=2e-3)
+
+
+def test_bake_under_uniform_light_is_the_albedo():
+    """Under constant radiance 1 the integrals are the lobes' directional albedos (the white furnace) and the
+    bake must give them within its tables' n.v interpolation, at every layer including the sharpest (whose
+    lobe is far narrower than a light texel here)."""
+    env = hf.light.uniform(1.0, 8)
+    b = hf.bake(env, preset="fast", **TINY)
+    n, v = pairs(300, seed=4)
+    x = np.sum(n * v, 1)
+    xc = kn.nv_centres(TINY["nv_size"])
+    line = lambda values: np.interp(x, xc, values)  # noqa: E731 - the tables' n.v interpolation
+    diffuse = line(kn.mass(kn.diffuse_kernels(xc)))
+    for rho in b.roughness:
+        a, bb = kn.albedos(rho, xc)
+        ref = np.stack([diffuse, line(a), line(bb)])
+        got = np.asarray(b.terms(n, v, rho))
+        for i in range(3):
+            assert nrmse(got[:, i, 0], ref[i]) < 0.01, (rho, i)
+
+
+def test_evaluate_interface(forest_bake):
+    """The pinned evaluate: (N, 3) out, linear in base colour and metallic exactly; 0 for n.v <= 0; lookups."""
+    b = forest_bake
+    n, v = pairs(200, seed=5)
+    rng = np.random.default_rng(6)
+    c, m, r = rng.uniform(size=(200, 3)), rng.uniform(size=200), rng.uniform(0.05, 1, 200)
+    out = np.asarray(b.evaluate(n, v, c, m, r))
+    assert out.shape == (200, 3) and np.all(np.isfinite(out))
+    t = np.asarray(b.terms(n, v, r))
+    f0 = (1 - m[:, None]) * 0.04 + m[:, None] * c
+    np.testing.assert_allclose(out, (1 - m[:, None]) * 0.96 * c * t[:, 0] + f0 * t[:, 1] + t[:, 2], rtol=1e-5, atol=1e-7)
+    assert np.all(np.asarray(b.evaluate(n, -v, c, m, r)) == 0)
+    assert b.lookups == make_plan("balanced").lookups == 7
+    with pytest.raises(HomofacError, match="evaluate"):
+        b.evaluate(n[:, :2], v, c, m, r)
+
+
+@pytest.mark.slow
+def test_bake_is_closer_to_the_integrals_than_split_sum_at_its_layers():
+    """At a layer's roughness, the fitted P W is never worse than split-sum (exact prefilter, exact DFG) on I_A
+    (Eckart-Young on the azimuth-averaged data; measured on random pairs against the exact integrals)."""
+    env = hf.light.load_environment("forest", 8)
+    b = hf.bake(env, preset="fast", layers=3, nv_size=16, samples=256, data_resolution=8, max_size=8, diffuse_size=8)
+    n, v = pairs(400, seed=7)
+    x = np.sum(n * v, 1)
+    r = 2 * x[:, None] * n - v
+    rho = b.roughness[1]
+    ref = np.asarray(integrals(env, jnp.asarray(n, jnp.float32), jnp.asarray(v, jnp.float32), rho))
+    got = np.asarray(b.terms(n, v, rho))
+    q = kn.q_grid()
+    ch = np.sqrt(1 - q * q)
+    a2 = rho ** 4
+    d = a2 / (np.pi * (ch * ch * (a2 - 1) + 1) ** 2) * np.maximum(1 - 2 * q * q, 0)
+    from homofac.bake.filter import prefilter
+    num, den = prefilter(d[None], r, env)
+    p = num[:, 0] / den[:, :1]  # Karis' prefilter at n = v = r
+    xs = kn.nv_centres(128)
+    a = np.interp(x, xs, kn.mass(kn.specular_kernels(rho, xs))[0])
+    assert nrmse(got[:, 1], ref[:, 1]) <= nrmse(p * a[:, None], ref[:, 1])
+
+
+def test_save_load_round_trip(forest_bake, tmp_path):
+    b = forest_bake
+    out = b.save(tmp_path / "bk")
+    doc = json.loads((out / "bake.json").read_text())
+    assert doc["format"] == "homofac.bake" and doc["lookups"] == 7
+    assert sorted(p.name for p in out.iterdir()) == ["E0.exr", "P0.exr", "P1.exr", "W0.exr", "W1.exr", "bake.json",
+                                                     "shader.glsl", "shader.hlsl", "shader_es.glsl"]
+    assert (out / "shader.glsl").read_text() == shader.source(b, "glsl")
+    back = hf.load(out)
+    n, v = pairs(100, seed=8)
+    r = np.linspace(0.04, 1, 100)
+    np.testing.assert_allclose(np.asarray(back.terms(n, v, r)), np.asarray(b.terms(n, v, r)), rtol=3e-3, atol=1e-4)
+    (out / "W1.exr").unlink()
+    with pytest.raises(HomofacError, match="W1.exr"):
+        hf.load(out)
+
+
+def test_cli_writes_a_bake_and_refuses_bad_input(tmp_path, capsys):
+    from homofac.app import bake_cli
+    cfg = tmp_path / "bake.yaml"
+    cfg.write_text("preset: fast\nlayers: 3\nmax_size: 8\nnv_size: 8\nsamples: 64\ndata_resolution: 4\ndiffuse_size: 8\n")
+    assert bake_cli.main(["forest", "--out", str(tmp_path / "out"), "--config", str(cfg)]) == 0
+    assert hf.load(tmp_path / "out").lookups == 4
+    cfg.write_text("preset: fast\nlayer: 3\n")
+    assert bake_cli.main(["forest", "--out", str(tmp_path / "o2"), "--config", str(cfg)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("homofac: error:") and "layer" in err[0]
+    assert bake_cli.main(["forest", "--out", str(tmp_path / "o3"), "--max-size", "12"]) == 2
+    assert "power of two" in capsys.readouterr().err
+    assert bake_cli.main(["no_such_map.exr", "--out", str(tmp_path / "o4"), "--layers", "3"]) == 2
+    assert "no such file" in capsys.readouterr().err
+    assert not (tmp_path / "o2").exists() and not (tmp_path / "o3").exists() and not (tmp_path / "o4").exists()
+
+
+def test_presets_are_one_printable_plan():
+    assert [make_plan(p).lookups for p in PRESETS] == [4, 7, 16]
+    assert "lookups per pixel" in make_plan("best").describe()
+
+
+@pytest.mark.parametrize("language", ["glsl", "glsl_es", "hlsl"])
+def test_shader_compiles_with_glslang(forest_bake, language, tmp_path):
+    """GLSL 330 and GLSL ES 3.00 through glslangValidator; HLSL through its HLSL front end to SPIR-V, validated."""
+    exe = shutil.which("glslangValidator")
+    if exe is None:
+        pytest.skip("glslangValidator is not installed (Debian glslang-tools)")
+    for y_up in (False, True):
+        src = shader.source(forest_bake, language, y_up=y_up)
+        if language == "hlsl":
+            f = tmp_path / "bake.hlsl"
+            f.write_text(src + "\nfloat4 ps_main(float4 pos : SV_Position) : SV_Target {\n"
+                         "    return float4(homofac_ibl(normalize(pos.xyz), float3(0, 0, 1), float3(0.5, 0.5, 0.5), 0.5, 0.3), 1.0);\n}\n")
+            cmd = [exe, "-D", "-e", "ps_main", "-S", "frag", "-V", "-o", str(tmp_path / "bake.spv"), str(f)]
+        else:
+            head = "#version 330 core\n" if language == "glsl" else "#version 300 es\nprecision highp float;\n"
+            f = tmp_path / "bake.frag"
+            f.write_text(head + src + "uniform vec3 n_in; uniform vec3 v_in; out vec4 color;\n"
+                         "void main() { color = vec4(homofac_ibl(n_in, v_in, vec3(0.5), 0.5, 0.3), 1.0); }\n")
+            cmd = [exe, "-S", "frag", str(f)]
+        r = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+        assert r.returncode == 0, r.stdout[-3000:]
+        if language == "hlsl" and shutil.which("spirv-val"):
+            r = subprocess.run(["spirv-val", str(tmp_path / "bake.spv")], capture_output=True, text=True, timeout=120)
+            assert r.returncode == 0, r.stdout + r.stderr
+    with pytest.raises(HomofacError, match="wgsl"):
+        shader.source(forest_bake, "wgsl")
+
+
+def test_gpu_equals_cpu(forest_bake):
+    pytest.importorskip("moderngl")
+    from homofac.gl.engine import run_glsl
+    b = forest_bake
+    n, v = pairs(2000, seed=9)
+    decl = shader.source(b) + ("uniform float rho; uniform vec3 c; uniform float m;\n"
+                               "vec3 hf_part(vec3 n, vec3 v, int i) { vec3 d, a, s; homofac_ibl_terms(n, v, rho, d, a, s);"
+                               " return i == 0 ? d : (i == 1 ? a : s); }\n")
+    for rho in (0.03, 0.2, 0.7):
+        cpu = np.asarray(b.terms(n, v, rho))
+        for i in range(3):
+            gpu = run_glsl(decl, f"hf_part(a, b, {i})", n, v, textures=shader.texture_arrays(b), uniforms={"rho": rho})
+            assert np.abs(gpu - cpu[:, i]).max() <= 1e-4 * np.abs(cpu[:, i]).max()
+    c, m = (0.9, 0.5, 0.2), 0.3
+    gpu = run_glsl(decl, "homofac_ibl(a, b, c, m, rho)", n, v, textures=shader.texture_arrays(b),
+                   uniforms={"rho": 0.4, "c": c, "m": m})
+    cpu = np.asarray(b.evaluate(n, v, np.broadcast_to(c, (len(n), 3)), m, 0.4))
+    assert np.abs(gpu - cpu).max() <= 1e-4 * np.abs(cpu).max()
