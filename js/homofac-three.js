@@ -25,7 +25,8 @@ const VK_R16G16B16A16_SFLOAT = 97;
 const VK_R32G32B32A32_SFLOAT = 109;
 
 function joinUrl(base, file) {
-  return new URL(file, base.endsWith('/') ? base : `${base}/`).href;
+  const dir = new URL(base.endsWith('/') ? base : `${base}/`, globalThis.location ? globalThis.location.href : undefined);
+  return new URL(file, dir).href;
 }
 
 async function fetchOk(url, kind) {
