@@ -77,7 +77,7 @@ window.hfTest = {
     camera.lookAt(0, 0, 0);
     const target = new THREE.WebGLRenderTarget(size, size, { type: THREE.FloatType, format: THREE.RGBAFormat,
       minFilter: THREE.NearestFilter, magFilter: THREE.NearestFilter, depthBuffer: true });
-    Object.assign(state, { renderer, scene, camera, meshes, target, envTexture: envRT.texture, size,
+    Object.assign(state, { renderer, scene, camera, meshes, target, envTexture: envRT.texture, envRT, size,
       originals: meshes.map((m) => m.material) });
     return true;
   },
@@ -93,6 +93,9 @@ window.hfTest = {
     renderer.setRenderTarget(null);
     return b64(readTarget(target));
   },
+
+  // The PMREM render target: [width, height, bytes per texel (RGBA half floats)].
+  pmremInfo() { return [state.envRT.width, state.envRT.height, 8]; },
 
   gbuffer(name) { return this._render((m) => passMaterial(m, PASSES[name])); },
 
