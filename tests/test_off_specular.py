@@ -447,3 +447,23 @@ def test_chooser_polish_applies_to_lighting_als_fits_unless_polish_is_given():
     lm = LinearOptions(method="levenberg_marquardt")
     assert pipeline.chooser_polish(lighting, lm, lm) == 0
     assert pipeline.chooser_polish(brdf, None, lin) == 0
+
+
+@pytest.mark.slow  # about 40 s of compiling (three Levenberg-Marquardt candidates), more on a busy machine
+def test_max_lookups_with_texel_sampling_fits_the_off_specular_candidates_with_their_shift():
+    """Texel pairs are one pool for every candidate (they do not lie on a grid of r or r_off), but each
+    candidate reads its own parametrization's context: NRO / RO read ``shift`` (the crash was "projection
+    r_off needs context['shift']" after the NR candidates had been fitted)."""
+    brdf = hf.brdf.cook_torrance(kd=(0.05, 0.04, 0.02), ks=1.0, roughness=0.3, f0=(1.0, 0.78, 0.34))
+    target = hf.light.lighting_target(brdf, hf.light.load_environment("interior", 8))
+    logs = []
+    fac = hf.fit.factorize(target, "NR", texture_size=S, max_lookups=4, highlight_terms=0,
+                           analysis={"size": 4},
+                           linear={"iterations": 1, "polish": 0},
+                           sampling={"kind": "texels", "size": 4, "validation": 200, "cache": False},
+                           log=logs.append)
+    labels = {t["label"] for t in fac.selection["tried"]}
+    assert any("O" in lab.split("+")[1] for lab in labels)  # an off-specular candidate was fitted
+    assert sum("training pairs" in m for m in logs) == 1  # one texel pool for all
+    if "shift" in pz.get(fac.solver["structure"]["parametrization"]).context:
+        assert "shift" in fac.model.context

@@ -501,14 +501,17 @@ def _sums(target: Target, opts: FitOptions, mapper: str, samples: Samples, recor
     pools = {grid_projection(target.kind, opts.parametrization, resolved): (target, samples, sample_s)}
 
     def pool(structure: Structure) -> tuple[Target, Samples, float]:
+        # the samples are shared by every structure on one grid direction (all of them for texel pairs);
+        # the context is each structure's own (NRO and RO read shift wherever their pairs came from)
+        tgt = with_context(target, structure.parametrization)
         proj = grid_projection(target.kind, structure.parametrization, resolved)
         if proj not in pools:
             t0 = time.perf_counter()
-            tgt = with_context(target, structure.parametrization)
             smp = draw_samples(tgt, structure.parametrization, resolved, log)
             check_values(np.asarray(smp.y), "training")
             pools[proj] = (tgt, smp, time.perf_counter() - t0)
-        return pools[proj]
+        _, smp, s_s = pools[proj]
+        return tgt, smp, s_s
 
     def pairs() -> Samples:  # the polish's off-grid pairs, drawn once for every candidate structure
         if "pairs" not in polished:
