@@ -162,22 +162,43 @@ class LinearOptions(Options):
     inner_iterations: int = Field(100, ge=1, le=100_000)
     laplacian: float = Field(1e-2, ge=0, allow_inf_nan=False)
     start: Literal["auto", "split_sum", "product"] = "auto"
-    nv_balance: float = Field(0.0, ge=0, le=1, allow_inf_nan=False)
-    polish: int = Field(0, ge=0, le=1000)
+    nv_balance: Optional[float] = Field(None, ge=0, le=1, allow_inf_nan=False)
+    polish: Optional[int] = Field(None, ge=0, le=1000)
     polish_size: int = Field(24, ge=4, le=256)
-    ridge: int = Field(0, ge=0, le=1_000_000)
+    ridge: Optional[int] = Field(None, ge=0, le=1_000_000)
 
     @model_validator(mode="after")
     def _ridge_objective(self):
-        if self.ridge > 0 and self.nv_balance > 0:
+        if (self.ridge or 0) > 0 and (self.nv_balance or 0) > 0:
             raise ValueError(RIDGE_NEEDS_PLAIN)
         return self
+
+    def resolved(self, **preset) -> "LinearOptions":
+        """These options with every value left unset (None) taken from ``preset`` (a preset's values,
+        :mod:`homofac.fit.plan`), else 0: the options a fit runs with."""
+        update = {k: preset.get(k, 0) for k in ("nv_balance", "polish", "ridge") if getattr(self, k) is None}
+        if "nv_balance" in update:
+            update["nv_balance"] = float(update["nv_balance"])
+        return self.model_copy(update=update) if update else self
 
 
 #: Why ``linear.ridge`` with ``linear.nv_balance`` is refused.
 RIDGE_NEEDS_PLAIN = ("linear.ridge weighs its pairs as a share of uniform pairs, which the n.v-bin weights of "
                      "nv_balance would change: set one of them")
 
+
+#: The presets (``preset``, pinned names): lookup budgets 4, 8 and 16 with their sample counts and votes
+#: (:data:`homofac.fit.plan.PRESETS`).
+PresetName = Literal["fast", "balanced", "best"]
+
+#: The preset of a config or call that names none and none of :data:`NAMING_KEYS`.
+DEFAULT_PRESET = "balanced"
+
+#: Keys that name what to fit (a parametrization, a structure, a budget, an error goal): given any of
+#: them without ``preset``, no preset applies (``parametrization: NR`` alone is the single product).
+NAMING_KEYS = ("parametrization", "target_error", "terms", "diffuse", "nv_factor", "reflection", "prefiltered",
+               "rw_terms", "highlight_terms", "highlight_fresnel", "highlight_cosine", "highlight_table",
+               "highlight_disc", "max_lookups", "line_size", "linear", "baseline")
 
 #: Largest number of fitted terms accepted (the packed shaders and the ALS blocks grow as K^2).
 MAX_TERMS = 32
@@ -217,6 +238,7 @@ class FitOptions(Options):
     ``texture_size`` texels.
     """
 
+    preset: Optional[PresetName] = None
     parametrization: ParametrizationName = "NR"
     mapper: Optional[MapperName] = None
     texture_size: int = Field(32, ge=MIN_TEXTURE_SIZE, le=MAX_TEXTURE_SIZE)
@@ -231,21 +253,32 @@ class FitOptions(Options):
     reflection: bool = False
     prefiltered: bool = False
     rw_terms: int = Field(0, ge=0, le=MAX_TERMS)
-    highlight_terms: int = Field(0, ge=0, le=len(pj.HIGHLIGHTS))
-    highlight_fresnel: bool = False
-    highlight_cosine: bool = False
-    highlight_table: bool = False
-    highlight_disc: bool = False
+    highlight_terms: Optional[int] = Field(None, ge=0, le=len(pj.HIGHLIGHTS))
+    highlight_fresnel: Optional[bool] = None
+    highlight_cosine: Optional[bool] = None
+    highlight_table: Optional[bool] = None
+    highlight_disc: Optional[bool] = None
     max_lookups: Optional[int] = Field(None, ge=1, le=256)
     line_size: Optional[int] = Field(None, ge=2, le=4096)
     linear: Optional[LinearOptions] = None
+
+    @model_validator(mode="before")
+    @classmethod
+    def _default_preset(cls, data):
+        """No preset and none of the keys that name a fit (:data:`NAMING_KEYS`): the preset
+        :data:`DEFAULT_PRESET`. So ``parametrization: NR`` alone stays the single product."""
+        if isinstance(data, dict) and data.get("preset") is None \
+                and all(data.get(k) is None for k in NAMING_KEYS):
+            return {**data, "preset": DEFAULT_PRESET}
+        return data
 
     @property
     def is_sum(self) -> bool:
         """True when the fit is a linear-space sum of products rather than today's log-space product."""
         return (self.terms > 1 or self.diffuse is not None or self.nv_factor or self.reflection or self.rw_terms > 0
-                or self.highlight_terms > 0 or self.highlight_fresnel or self.highlight_cosine
-                or self.highlight_table or self.highlight_disc or self.prefiltered or self.max_lookups is not None or self.linear is not None)
+                or bool(self.highlight_terms) or bool(self.highlight_fresnel) or bool(self.highlight_cosine)
+                or bool(self.highlight_table) or bool(self.highlight_disc) or self.prefiltered
+                or self.max_lookups is not None or self.linear is not None or self.preset is not None)
 
 
-__all__ = ["AnalysisOptions", "CameraOptions", "DEFAULT_VALIDATION", "MAX_CAMERAS", "MAX_CAMERA_SIDE", "MAX_SCENE_PIXELS", "FitOptions", "LinearOptions", "MAX_TERMS", "MAX_TEXTURE_SIZE", "MIN_TEXTURE_SIZE", "MapperName", "SamplingOptions"]
+__all__ = ["DEFAULT_PRESET", "NAMING_KEYS", "PresetName", "AnalysisOptions", "CameraOptions", "DEFAULT_VALIDATION", "MAX_CAMERAS", "MAX_CAMERA_SIDE", "MAX_SCENE_PIXELS", "FitOptions", "LinearOptions", "MAX_TERMS", "MAX_TEXTURE_SIZE", "MIN_TEXTURE_SIZE", "MapperName", "SamplingOptions"]
