@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import homofac as hf
 from homofac.app import cli
@@ -10,6 +12,7 @@ from homofac.app.config import parse
 from homofac.errors import HomofacError
 from homofac.fit import plan
 from homofac.fit.options import DEFAULT_PRESET, FitOptions
+from homofac.fit.structures import Structure
 
 GOLD = {"model": "cook_torrance", "kd": [0.05, 0.04, 0.02], "ks": 1.0, "roughness": 0.3, "f0": [1.0, 0.78, 0.34]}
 
@@ -116,4 +119,25 @@ def test_the_plan_refuses_in_one_line_before_any_compute(envs):
                        ({"parametrization": "PQP", "max_lookups": 4}, "PQP")):
         with pytest.raises(HomofacError, match=words) as e:
             plan.build_plan(t, None, bad)
+        assert "\n" not in str(e.value)
+
+
+_PARAMS = ("N", "R", "NR", "NRV", "NRHD", "NRO", "RO", "IV", "GSHD", "PQP")
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.builds(Structure, st.sampled_from(_PARAMS + ("NRW",)), st.integers(1, 40),
+                 st.sampled_from([None, "exact", "fitted"]), st.booleans(), st.booleans(), st.booleans(),
+                 st.integers(0, 5), st.integers(0, 3), st.booleans(), st.booleans(), st.booleans(), st.booleans()))
+def test_a_structure_label_parses_back_to_the_structure(s):
+    back = Structure.parse(s.label())
+    assert back.label() == s.label()
+    if s.highlight_terms and s.parametrization != "NRW":  # (without highlight terms the label drops their lines)
+        assert back == s
+
+
+def test_a_string_that_is_no_label_is_refused_in_one_line():
+    for bad in ("", "NR", "NR x0", "E'+XYZ x1", "E'+NRW x2+H x1", 3):
+        with pytest.raises(HomofacError) as e:
+            Structure.parse(bad)
         assert "\n" not in str(e.value)

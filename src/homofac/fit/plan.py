@@ -262,6 +262,8 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
     mode = ("choose" if choosing else "sum") if opts.is_sum else (
         "auto" if opts.target_error is not None else "baseline" if is_baseline else "product")
     lit = _lit(target)
+    s = opts.sampling
+    kind = s.kind if s.kind != "auto" else ("grid" if opts.is_sum and target.kind == "lighting" else "texels")
     given = opts.linear or LinearOptions()
     if opts.linear is not None and opts.linear.ridge and not lit:
         raise HomofacError(RIDGE_NEEDS_ENVIRONMENT)
@@ -270,7 +272,7 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
         # a named structure), else the preset's polishes the kept one (the polish vote)
         kd = target.kind == "lighting" and sums.has_diffuse(target)
         lin = given.resolved(nv_balance=p.nv_balance if kd else 0.0)
-        als_fit = lin.method in ("auto", "als")
+        als_fit = lin.method in ("auto", "als") and (kind == "grid" or samples_given is not None)
         steps = 0 if given.polish is not None or target.kind != "lighting" or not als_fit else p.polish
         ridge = given.ridge if given.ridge is not None else (p.ridge if lit and steps else 0)
         if given.polish is not None and ridge and not lin.polish:
@@ -313,8 +315,6 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
             stages = ("ALS fit", "polish") + (("polish + ridge pairs", "polish + ridge pairs from the ALS fit")
                                               if ridge else ())
             votes.append(Vote("polish", stages, figure + "; the polish is kept only where it falls"))
-    s = opts.sampling
-    kind = s.kind if s.kind != "auto" else ("grid" if opts.is_sum and target.kind == "lighting" else "texels")
     env = getattr(target.fn, "env", None)
     res = (getattr(env, "info", None) or {}).get("resolution") if env is not None else None
     resolved = opts.model_copy(update={"parametrization": base, "max_lookups": budget if choosing else opts.max_lookups,
