@@ -37,7 +37,7 @@ import homofac as hf  # noqa: E402
 PRESETS = ("fast", "balanced", "best")
 
 
-def one(material: str, env: str, method: str, resolution: int) -> dict:
+def one(material: str, env: str, method: str, resolution: int, truth_limit: int = 512) -> dict:
     """One row: fit ``method`` (a preset name or ``split_sum``) and measure it."""
     t0 = time.perf_counter()
     target = hf.light.lighting_target(acc.MATERIALS[material](), hf.light.load_environment(env, resolution))
@@ -49,7 +49,7 @@ def one(material: str, env: str, method: str, resolution: int) -> dict:
     groups = acc.validation_pairs()
     val = groups.flatten()
     nv = np.sum(val.a * val.b, axis=1)
-    gt, r_gt, _ = acc.ground_truth(material, env, groups, log=lambda m: None)
+    gt, r_gt, change = acc.ground_truth(material, env, groups, log=lambda m: None, limit=truth_limit)
     approx = np.asarray(fac.evaluate(val.a, val.b), np.float64)
     err = acc.errors(approx, gt, nv)
     return {"material": material, "environment": env, "method": method, "wall_s": wall,
@@ -57,7 +57,7 @@ def one(material: str, env: str, method: str, resolution: int) -> dict:
             "tried": len((fac.selection or {}).get("tried", [])),
             "nrmse": err["nrmse"], "nrmse_grazing": err["nrmse_grazing"], "nrmse_frontal": err["nrmse_frontal"],
             "fit_validation": float(fac.metrics["validation"]["float"]["nrmse"]),
-            "ground_truth_resolution": r_gt, "light_resolution": resolution,
+            "ground_truth_resolution": r_gt, "ground_truth_change": change, "light_resolution": resolution,
             "timings": {k: float(v) for k, v in (fac.timings or {}).items()}}
 
 
@@ -67,11 +67,13 @@ def main(argv=None) -> int:
     ap.add_argument("--cases", default="metal/forest")
     ap.add_argument("--resolution", type=int, default=32, help="light resolution of the fitted environment")
     ap.add_argument("--json", default=str(HERE / "presets.json"))
+    ap.add_argument("--truth-limit", type=int, default=512,
+                    help="highest light resolution of the ground truth (its last doubling's change is recorded)")
     ap.add_argument("--one", help=argparse.SUPPRESS)  # material/env/method: one row in this process
     args = ap.parse_args(argv)
     if args.one:
         material, env, method = args.one.split("/")
-        print(json.dumps(one(material, env, method, args.resolution)))
+        print(json.dumps(one(material, env, method, args.resolution, args.truth_limit)))
         return 0
     rows = []
     for case in args.cases.split(","):
@@ -79,7 +81,8 @@ def main(argv=None) -> int:
         for method in ["split_sum", *[p for p in args.presets.split(",") if p]]:
             before = os.getloadavg()[0]
             out = subprocess.run([sys.executable, __file__, "--one", f"{material}/{env}/{method}",
-                                  "--resolution", str(args.resolution)], capture_output=True, text=True, check=True)
+                                  "--resolution", str(args.resolution), "--truth-limit", str(args.truth_limit)],
+                                 capture_output=True, text=True, check=True)
             row = json.loads(out.stdout.strip().splitlines()[-1])
             row["load"] = [before, os.getloadavg()[0]]
             rows.append(row)

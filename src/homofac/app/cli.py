@@ -71,7 +71,7 @@ def polish_line(pol: dict) -> str:
 
 def disc_line(disc: dict) -> str:
     """The run summary's line for ``selection.disc`` (the quality mode's disc vote,
-    :func:`homofac.fit.pipeline.disc_rule`): both structures with the error voted on, the lights' disc radii
+    the plan's disc vote, :mod:`homofac.fit.plan`): both structures with the error voted on, the lights' disc radii
     in degrees and which was kept."""
     key, words = sums.scored_by(sums.RIDGE_METRIC in disc)
     errs = disc.get(key, disc["validation_nrmse"])

@@ -72,12 +72,12 @@ class SamplingOptions(Options):
     ``kind``: ``texels`` (reverse-projected texel grids of ``mapper``, default parabolic for BRDFs and
     dual_paraboloid for lighting, of ``size`` and ``view_size``), ``latlong`` (a lat-long grid),
     ``random`` (``count`` uniform pairs) or ``grid`` (lighting: ``count`` pairs, default 300000, 600000 for a
-    ``max_lookups`` above 8 (:func:`homofac.fit.pipeline.grid_count`), of texel
+    the preset's where it sets one (:func:`homofac.fit.plan.grid_count`), of texel
     centres (n, r) of the fitted textures' own grid, drawn by solid angle, so alternating least squares
     decouples per texel; :func:`homofac.fit.sampling.grouped_grid`). ``auto`` (the default) is ``grid``
     for linear-space sums of lighting products and ``texels`` otherwise. ``validation``: the number of
     random validation pairs (seed ``seed + 1``; not given: :data:`DEFAULT_VALIDATION`, 80000 for a
-    ``max_lookups`` above 8, :func:`homofac.fit.pipeline.validation_count`; a recorded config keeps it
+    the preset's where it sets one, :func:`homofac.fit.plan.validation_count`; a recorded config keeps it
     unset, so a refit from disk draws what the fit drew). ``cache``: reuse the samples of an identical (target,
     sampling) from disk.
 
@@ -142,17 +142,17 @@ class LinearOptions(Options):
     grazing views dominate; 1 makes every bin's relative error count by its sample count
     (:func:`homofac.fit.sums.nv_weights`); when the structure is chosen (``max_lookups``,
     ``target_error``) for a lighting target of a BRDF with kd > 0 and ``nv_balance`` is not given, the
-    candidates are fitted with 1 (:func:`homofac.fit.pipeline.chooser_linear`). ``polish`` (after
+    candidates are fitted with the preset's (:data:`homofac.fit.plan.PRESETS`; None: the preset's, else 0). ``polish`` (after
     ``als``): that many Levenberg-Marquardt steps on the grid pairs and texel-sampled pairs at
     ``polish_size`` between the texel centres the grid design sees (:mod:`homofac.fit.polish`); 0 (the
     default) is off. When the structure is chosen and
     ``polish`` is not given, the candidates are ranked on their ALS fits and the kept one is then
-    polished with 8 steps (:func:`homofac.fit.pipeline.chooser_polish`; ``selection.polish`` records
+    polished with the preset's steps (:mod:`homofac.fit.plan`; ``selection.polish`` records
     the validation error before and after); given, every candidate is polished that much (0: none).
     ``ridge``: that many more pairs in the polish, drawn on the grazing ridge of the brightest light(s)
     with weights that keep the objective that of uniform pairs (:mod:`homofac.fit.ridge`); 0 is off; in
-    the quality mode the chooser's polish draws :data:`homofac.fit.pipeline.QUALITY_RIDGE` when it is
-    not given (:func:`homofac.fit.pipeline.chooser_ridge`). It needs the plain objective
+    the ``best`` preset the chooser's polish draws its ridge pairs when it is
+    not given (:data:`homofac.fit.plan.PRESETS`). It needs the plain objective
     (``nv_balance`` 0) and a polish.
     """
 
@@ -207,6 +207,10 @@ MAX_TERMS = 32
 class FitOptions(Options):
     """What :func:`homofac.fit.factorize` takes besides the target (and the config's top level).
 
+    ``preset``: ``fast``, ``balanced`` or ``best`` (4, 8, 16 lookups; docs/presets.md): the plan's sample
+    counts, candidates, linear-fit options and votes (:mod:`homofac.fit.plan`), each replaced by the key
+    of the same meaning where given. Neither a preset nor any of :data:`NAMING_KEYS`: ``balanced``.
+
     ``parametrization``: a registered parametrization of the target's kind (``IV``, ``GSHD``, ``PQP`` for
     BRDFs; ``N``, ``R``, ``NR``, ``NRV``, ``NRHD``, ``NRW``, ``NRO``, ``RO`` for lighting), or a baseline (``split_sum``,
     ``kautz_mccool``; options in ``baseline``). ``mapper``: of the direction textures (default parabolic
@@ -232,9 +236,9 @@ class FitOptions(Options):
     view's in place of c(n.i) w(n.v), one lookup fewer; :mod:`homofac.fit.table`), ``highlight_disc``
     (lighting: each highlight term reads its light's coordinate at the point of the light's disc closest
     to r, ``nhs_dom``: the sun at grazing views; with ``max_lookups`` above 8 a vote when not set,
-    :func:`homofac.fit.pipeline.disc_rule`). ``line_size``: texels
+    :mod:`homofac.fit.plan`). ``line_size``: texels
     of a sum's ``line`` textures (w(n.v) and the highlight lines; default 32; for a ``max_lookups`` above 8
-    a vote between 32 and 4 x ``texture_size``: :func:`homofac.fit.pipeline.line_sizes`); a single log-space product's scalar factor has
+    a vote between 32 and 4 x ``texture_size``: :func:`homofac.fit.plan.line_sizes`); a single log-space product's scalar factor has
     ``texture_size`` texels.
     """
 

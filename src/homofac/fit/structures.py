@@ -306,7 +306,7 @@ def candidates(kind: str, max_lookups: int, *, parametrization: str | None = Non
     near-mirror under the city sun falls from 0.47 to 0.17 nrmse at 4 lookups. With ``table`` the
     highlight terms that would read the cosine line c(n.i) and w(n.v) read a 2D table T(n.i, n.v) instead
     (``highlight_table``: one lookup fewer each, which goes to more terms;
-    :func:`homofac.fit.pipeline.table_wanted`).
+    the ``best`` preset, :mod:`homofac.fit.plan`).
     """
     return _sorted(_variants(kind, max_lookups, parametrization, has_diffuse, max_terms, largest=True,
                              highlight=highlight, table=table))
