@@ -267,6 +267,7 @@ def _sums(target: Target, the_plan: Plan, samples: Samples, record: dict, sample
     grid samples of their own, drawn once per direction (the validation pairs are the same for all),
     unless the samples were given (then the plan holds only the candidates on their direction)."""
     opts, mapper, lin = the_plan.options, the_plan.mapper, the_plan.linear
+    choosing = the_plan.mode == "choose"
     eps = float(opts.solver.epsilon)
     sizes = the_plan.line_sizes  # the candidates' line size first; then the line vote's
     polished: dict = {}
@@ -308,11 +309,13 @@ def _sums(target: Target, the_plan: Plan, samples: Samples, record: dict, sample
         tgt, smp, s_s = pool(structure)
         rec = {**record, "samples": smp if record.get("samples") is not None else None}
         result = Result(sf.model, solver=sf.solver, warnings=sf.warnings, **rec)
+        # a candidate is measured on what the votes read (the validation float nrmse); the kept one fully (kept)
         log("measuring errors")
-        mets = measure(result, tgt, smp, eps=eps)
+        mets = measure(result, tgt, smp, eps=eps, splits=("validation",), kinds=("float",)) if choosing \
+            else measure(result, tgt, smp, eps=eps)
         extra = {"polish_sample_s": polished["sample_s"]} if "sample_s" in polished else {}
         return result.replace(
-            metrics=mets, warnings=tuple(result.warnings) + tuple(quality_warnings(mets)),
+            metrics=mets, warnings=tuple(result.warnings) + (() if choosing else tuple(quality_warnings(mets))),
             timings={"sample_s": s_s, "assemble_s": sf.assemble_s, "solve_s": sf.solve_s, **extra},
             counts={"train": int(len(smp.a)), "validation": int(len(smp.val_a)), "unknowns": sf.unknowns,
                     "lights": int(getattr(tgt.fn, "n_lights", 0)), "lookups": int(sf.model.lookups)},
@@ -321,6 +324,10 @@ def _sums(target: Target, the_plan: Plan, samples: Samples, record: dict, sample
     def kept(result: Result) -> tuple[Result, Target, Samples]:
         structure = Structure.of(result.solver["structure"])
         tgt, smp, _ = pool(structure)
+        if choosing:
+            log("measuring errors of the kept structure")
+            mets = measure(result, tgt, smp, eps=eps)
+            result = result.replace(metrics=mets, warnings=tuple(result.warnings) + tuple(quality_warnings(mets)))
         return result, sums.with_highlight_context(tgt, structure), smp
 
     if the_plan.mode == "sum":
