@@ -30,6 +30,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
+import re
 import sys
 import time
 from pathlib import Path
@@ -39,6 +40,7 @@ import numpy as np
 import homofac as hf
 from homofac.errors import HomofacError
 from homofac.fit import sampling
+from homofac.fit.structures import Structure
 from homofac.fit.samples import Samples, evaluate_grouped
 from homofac.target import Target
 
@@ -59,6 +61,15 @@ BINS = {"grazing": (0.0, 0.25), "mid": (0.25, 0.5), "frontal": (0.5, 1.0001)}
 #: Training pairs of the linear-space sums: the grid design (texel-centre (n, r) pairs of the textures).
 GRID = {"kind": "grid", "count": 300_000}
 
+def _fixed(name: str, linear: dict | None = None) -> dict:
+    """The keywords of hf.fit.factorize for the structure a row's name labels (:meth:`Structure.parse`;
+    "E'+NRW+RW+R" is read as "E'+NRW x1+RW x1+R"), on the grid design."""
+    label = re.sub(r"^((?:E'?\+)?(?:SS\+)?[A-Z]{2,}|(?:E'?\+)?(?:SS\+)?[NR])(?=\+|$)", r"\1 x1", name)
+    label = re.sub(r"\+RW(?= |\+|$)(?! x)", "+RW x1", label)
+    rec = {k: v for k, v in Structure.parse(label).record().items() if v not in (False, 0, None) or k == "terms"}
+    return {**rec, **({"linear": linear} if linear else {}), "sampling": GRID}
+
+
 #: method name -> keywords of hf.fit.factorize (texture size and mapper are common)
 METHODS = {
     "split_sum": {"parametrization": "split_sum"},
@@ -66,33 +77,14 @@ METHODS = {
     "kautz_mccool_3d": {"parametrization": "kautz_mccool", "baseline": {"slices": 4}},
     "NR": {"parametrization": "NR"},
     "NRW": {"parametrization": "NRW"},
-    "E+NRW": {"parametrization": "NR", "diffuse": "exact", "nv_factor": True, "sampling": GRID},
-    "E'+NRW": {"parametrization": "NR", "diffuse": "fitted", "nv_factor": True, "sampling": GRID},
-    "E'+NRW x2+R": {"parametrization": "NR", "terms": 2, "diffuse": "fitted", "nv_factor": True, "reflection": True,
-                    "sampling": GRID},
-    "E'+NRW x2+R bal1": {"parametrization": "NR", "terms": 2, "diffuse": "fitted", "nv_factor": True,
-                         "reflection": True, "linear": {"nv_balance": 1.0}, "sampling": GRID},
-    "E'+NRW x2+R pol8": {"parametrization": "NR", "terms": 2, "diffuse": "fitted", "nv_factor": True,
-                         "reflection": True, "linear": {"polish": 8}, "sampling": GRID},
-    "E'+NRW x2+R bal1 pol8": {"parametrization": "NR", "terms": 2, "diffuse": "fitted", "nv_factor": True,
-                              "reflection": True, "linear": {"nv_balance": 1.0, "polish": 8}, "sampling": GRID},
-    "E'+NRW bal1 pol8": {"parametrization": "NR", "diffuse": "fitted", "nv_factor": True,
-                         "linear": {"nv_balance": 1.0, "polish": 8}, "sampling": GRID},
-    "E'+NROW": {"parametrization": "NRO", "diffuse": "fitted", "nv_factor": True, "sampling": GRID},
-    "E'+ROW+R": {"parametrization": "RO", "diffuse": "fitted", "nv_factor": True, "reflection": True, "sampling": GRID},
-    "E'+NROW x2+R": {"parametrization": "NRO", "terms": 2, "diffuse": "fitted", "nv_factor": True, "reflection": True,
-                     "sampling": GRID},
-    "E'+ROW x3+R": {"parametrization": "RO", "terms": 3, "diffuse": "fitted", "nv_factor": True, "reflection": True,
-                    "sampling": GRID},
-    "E'+RW+R": {"parametrization": "R", "diffuse": "fitted", "nv_factor": True, "reflection": True, "sampling": GRID},
-    "E'+RW x3+R": {"parametrization": "R", "terms": 3, "diffuse": "fitted", "nv_factor": True, "reflection": True,
-                   "sampling": GRID},
-    "E'+NRW+RW+R": {"parametrization": "NR", "diffuse": "fitted", "nv_factor": True, "rw_terms": 1, "reflection": True,
-                    "sampling": GRID},
-    "E'+NRW+RW x2": {"parametrization": "NR", "diffuse": "fitted", "nv_factor": True, "rw_terms": 2, "sampling": GRID},
-    "E'+SS+NRW+R": {"parametrization": "NR", "diffuse": "fitted", "nv_factor": True, "prefiltered": True,
-                    "reflection": True, "sampling": GRID},
-    "E+NRW x5": {"parametrization": "NR", "terms": 5, "diffuse": "exact", "nv_factor": True, "sampling": GRID},
+    # the fixed structures: their labels parsed (Structure.parse), fitted on the grid design; a name
+    # without " x1" is the label of one product (the rows' names predate the labels' " xK")
+    **{name: _fixed(name) for name in ("E+NRW", "E'+NRW", "E'+NRW x2+R", "E'+NROW", "E'+ROW+R", "E'+NROW x2+R",
+                                       "E'+ROW x3+R", "E'+RW+R", "E'+RW x3+R", "E'+NRW+RW+R", "E'+NRW+RW x2",
+                                       "E'+SS+NRW+R", "E+NRW x5")},
+    **{f"E'+NRW x2+R {tag}": _fixed("E'+NRW x2+R", linear) for tag, linear in
+       (("bal1", {"nv_balance": 1.0}), ("pol8", {"polish": 8}), ("bal1 pol8", {"nv_balance": 1.0, "polish": 8}))},
+    "E'+NRW bal1 pol8": _fixed("E'+NRW", {"nv_balance": 1.0, "polish": 8}),
     "max_lookups 4": {"parametrization": "NR", "max_lookups": 4, "sampling": GRID},
     "max_lookups 8": {"parametrization": "NR", "max_lookups": 8, "sampling": GRID},
     # the quality mode: the lighting fitted at resolution 64 (docs/notes/sums-research.md, "The lighting the fit

@@ -941,7 +941,22 @@ def on_startup(command, dirty) -> None:  # noqa: ARG001 - the mkdocs hook signat
 
 _install_filters()
 
+def presets_table() -> str:
+    """What each preset sets (homofac.fit.plan.PRESETS)."""
+    from homofac.fit.plan import PRESETS  # noqa: PLC0415
+
+    rows = []
+    for name, p in PRESETS.items():
+        lines = "32" if not p.line_ratio else f"vote 32 / {p.line_ratio} x texture_size"
+        rows.append([code(name), p.lookups, f"{p.grid_count:,}", f"{p.validation:,}", lines, "yes" if p.table else "no",
+                     "vote" if p.disc_vote else "no", p.nv_balance, f"{p.polish} steps, kept by vote",
+                     f"{p.ridge:,}" if p.ridge else "0"])
+    return table(["preset", "lookups", "grid pairs", "validation pairs", "line texels", "highlight tables",
+                  "light disc", "nv_balance (kd > 0)", "polish", "ridge pairs"], rows)
+
+
 GENERATORS: dict[str, Callable[..., str]] = {
+    "presets": presets_table,
     "mappers": mappers_table,
     "mapper_figures": mapper_figures,
     "projections": projections_table,

@@ -128,18 +128,6 @@ def test_a_fit_with_the_disc_reads_the_measured_radius_and_survives_a_save(tmp_p
     assert back.model.context["radius"] == pytest.approx(ctx["radius"])
 
 
-def test_the_disc_vote_runs_in_the_quality_mode_unless_the_options_set_the_disc():
-    assert pipeline.disc_rule(16, FitOptions(max_lookups=16))
-    assert not pipeline.disc_rule(8, FitOptions(max_lookups=8))
-    assert not pipeline.disc_rule(16, FitOptions(max_lookups=16, highlight_disc=False))
-    assert not pipeline.disc_rule(16, FitOptions(max_lookups=16, highlight_disc=True))
-    cands = structures.candidates("lighting", 8)
-    given = pipeline.constrained(cands, FitOptions(max_lookups=8, highlight_disc=True))
-    assert [c._replace(highlight_disc=False) for c in given] == cands
-    assert all(c.highlight_disc == bool(c.highlight_terms) for c in given)
-    assert pipeline.constrained(cands, FitOptions(max_lookups=8)) == cands
-
-
 def test_the_disc_vote_keeps_the_structure_of_lower_validation_error_and_records_both():
     """The vote of the quality mode on a small fit: the kept structure is fitted again read at its light's
     disc and the lower validation error wins; ``selection.disc`` records the labels, radii and errors."""

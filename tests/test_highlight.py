@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import homofac as hf
+from homofac.fit import plan
 from helpers import visible_pairs
 from homofac.errors import HomofacError
 from homofac.fit import als, pipeline, structures, sums
@@ -134,12 +135,12 @@ def test_a_given_highlight_count_constrains_the_chooser():
     cands = structures.candidates("lighting", 8)
     counts = {c.highlight_terms for c in cands}
     assert counts == {0, 1, 2}
-    assert pipeline.constrained(cands, pipeline.options(max_lookups=8)) == cands  # not given: all of them
+    assert plan.constrained(cands, pipeline.options(max_lookups=8)) == cands  # not given: all of them
     for j in counts:
-        kept = pipeline.constrained(cands, pipeline.options(max_lookups=8, highlight_terms=j))
+        kept = plan.constrained(cands, pipeline.options(max_lookups=8, highlight_terms=j))
         assert kept and all(c.highlight_terms == j for c in kept)
         assert len(kept) == sum(c.highlight_terms == j for c in cands)
-    both = pipeline.constrained(cands, pipeline.options(max_lookups=8, highlight_terms=1, diffuse="fitted"))
+    both = plan.constrained(cands, pipeline.options(max_lookups=8, highlight_terms=1, diffuse="fitted"))
     assert both and all(c.highlight_terms == 1 and c.diffuse == "fitted" for c in both)
 
 
@@ -220,8 +221,8 @@ def test_the_fresnel_line_in_the_skeleton_label_record_candidates_and_refusals()
     assert not any(c.highlight_fresnel for c in structures.candidates("lighting", 4))
     cands = structures.candidates("lighting", 8)
     assert any(c.highlight_fresnel for c in cands) and any(c.highlight_terms and not c.highlight_fresnel for c in cands)
-    off = pipeline.constrained(cands, pipeline.options(max_lookups=8, highlight_fresnel=False))
-    on = pipeline.constrained(cands, pipeline.options(max_lookups=8, highlight_fresnel=True))
+    off = plan.constrained(cands, pipeline.options(max_lookups=8, highlight_fresnel=False))
+    on = plan.constrained(cands, pipeline.options(max_lookups=8, highlight_fresnel=True))
     assert not any(c.highlight_fresnel for c in off) and any(c.highlight_terms for c in off)
     assert all(c.highlight_fresnel for c in on if c.highlight_terms) and any(not c.highlight_terms for c in on)
 
@@ -278,8 +279,8 @@ def test_the_cosine_line_in_the_skeleton_label_record_candidates_and_refusals():
     cands = structures.candidates("lighting", 8)
     assert all(c.highlight_fresnel for c in cands if c.highlight_cosine)
     assert any(c.highlight_cosine for c in cands) and any(c.highlight_fresnel and not c.highlight_cosine for c in cands)
-    off = pipeline.constrained(cands, pipeline.options(max_lookups=8, highlight_cosine=False))
-    on = pipeline.constrained(cands, pipeline.options(max_lookups=8, highlight_cosine=True))
+    off = plan.constrained(cands, pipeline.options(max_lookups=8, highlight_cosine=False))
+    on = plan.constrained(cands, pipeline.options(max_lookups=8, highlight_cosine=True))
     assert not any(c.highlight_cosine for c in off) and any(c.highlight_terms for c in off)
     assert all(c.highlight_cosine for c in on if c.highlight_terms) and any(not c.highlight_terms for c in on)
     with pytest.raises(HomofacError, match="highlight_cosine"):

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 import homofac as hf
+from homofac.fit import plan
 from homofac.errors import HomofacError
 from homofac.fit import pipeline, structures, sums
 from homofac.fit.options import FitOptions
@@ -25,16 +26,16 @@ def test_the_line_sizes_rule_given_quality_mode_vote_and_default():
     """Given, it is the only size; in the quality mode (a chooser budget above 8) the candidates get 32
     texels and the kept structure is tried again with QUALITY_LINE_RATIO x texture_size (unless that is
     32 too); otherwise the 32 of every earlier fit."""
-    q = pipeline.QUALITY_LOOKUPS
-    r = pipeline.QUALITY_LINE_RATIO
-    assert pipeline.line_sizes(FitOptions(max_lookups=q + 1)) == (structures.LINE_SIZE, r * 32) == (32, 128)
-    assert pipeline.line_sizes(FitOptions(max_lookups=16, texture_size=16)) == (32, r * 16)
-    assert pipeline.line_sizes(FitOptions(max_lookups=16, texture_size=8)) == (32,)  # 4 x 8 is 32: no vote
-    assert pipeline.line_sizes(FitOptions(target_error=0.1, terms=2)) == (32, r * 32)  # the chooser's budget 16
-    assert pipeline.line_sizes(FitOptions(max_lookups=q)) == (structures.LINE_SIZE,)
-    assert pipeline.line_sizes(FitOptions(terms=3, nv_factor=True)) == (structures.LINE_SIZE,)
-    assert pipeline.line_sizes(FitOptions(max_lookups=16, line_size=48)) == (48,)
-    assert pipeline.line_sizes(FitOptions(terms=2, line_size=48)) == (48,)
+    q = plan.PRESETS["balanced"].lookups
+    r = plan.PRESETS["best"].line_ratio
+    assert plan.line_sizes(FitOptions(max_lookups=q + 1)) == (structures.LINE_SIZE, r * 32) == (32, 128)
+    assert plan.line_sizes(FitOptions(max_lookups=16, texture_size=16)) == (32, r * 16)
+    assert plan.line_sizes(FitOptions(max_lookups=16, texture_size=8)) == (32,)  # 4 x 8 is 32: no vote
+    assert plan.line_sizes(FitOptions(target_error=0.1, terms=2)) == (32, r * 32)  # the chooser's budget 16
+    assert plan.line_sizes(FitOptions(max_lookups=q)) == (structures.LINE_SIZE,)
+    assert plan.line_sizes(FitOptions(terms=3, nv_factor=True)) == (structures.LINE_SIZE,)
+    assert plan.line_sizes(FitOptions(max_lookups=16, line_size=48)) == (48,)
+    assert plan.line_sizes(FitOptions(terms=2, line_size=48)) == (48,)
 
 
 @pytest.mark.parametrize("bad", [1, 0, 5000, 2.5, "many"])

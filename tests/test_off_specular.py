@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import homofac as hf
+from homofac.fit import plan
 from homofac.errors import HomofacError
 from homofac.factorization import Factor, Factorization, Term
 from homofac.fit import als, draw, pipeline, polish, sampling, sums
@@ -218,7 +219,7 @@ def test_max_lookups_draws_grid_pairs_per_direction_and_keeps_the_chosen_structu
     assert sum("training pairs" in m for m in logs) == 2  # one grid on r, one on r_off (RO's with or without HW)
     best = min(tried.values(), key=lambda t: t["validation_nrmse"])
     assert fac.selection["chosen"]["label"] == best["label"]
-    assert fac.solver["nv_balance"] == pipeline.CHOOSER_NV_BALANCE  # the chooser's default, not given
+    assert fac.solver["nv_balance"] == plan.PRESETS["fast"].nv_balance  # the chooser's default, not given
     chosen = fac.solver["structure"]["parametrization"]
     proj = pz.reflection_projection(chosen)
     lay = texture_layout("n", "dual_paraboloid", S)
@@ -239,39 +240,19 @@ def test_max_lookups_draws_grid_pairs_per_direction_and_keeps_the_chosen_structu
     assert only.solver["nv_balance"] == 0.0  # given: kept
 
 
-def test_the_chooser_balances_the_nv_bins_where_the_brdf_has_a_diffuse_part():
-    """max_lookups / target_error fit their candidates with nv_balance 1 on lighting of a BRDF with
-    kd > 0 at budgets up to 8 lookups, keep the plain objective for kd = 0, for BRDF targets and in the
-    quality mode (above 8), and never override a given value."""
-    env = hf.light.load_environment("interior", 8)
-    plastic = hf.light.lighting_target(hf.brdf.cook_torrance(kd=0.3, ks=1.0, roughness=0.6, f0=0.04), env)
-    mirror = hf.light.lighting_target(hf.brdf.ggx(kd=0.0, ks=1.0, roughness=0.1, f0=0.9), env)
-    brdf = hf.fit.brdf_target(hf.brdf.cook_torrance(kd=0.3, ks=1.0, roughness=0.6, f0=0.04))
-    assert pipeline.chooser_linear(plastic, None, 8).nv_balance == pipeline.CHOOSER_NV_BALANCE
-    given = LinearOptions(iterations=4)
-    assert pipeline.chooser_linear(plastic, given, 4).nv_balance == pipeline.CHOOSER_NV_BALANCE
-    assert pipeline.chooser_linear(plastic, given, 4).iterations == 4
-    assert pipeline.chooser_linear(plastic, LinearOptions(nv_balance=0.0), 8).nv_balance == 0.0
-    assert pipeline.chooser_linear(mirror, None, 8).nv_balance == 0.0
-    assert pipeline.chooser_linear(brdf, None, 8).nv_balance == 0.0
-    quality = pipeline.QUALITY_LOOKUPS + 1
-    assert pipeline.chooser_linear(plastic, None, quality).nv_balance == 0.0
-    assert pipeline.chooser_linear(plastic, LinearOptions(nv_balance=0.5), quality).nv_balance == 0.5
-
-
 def test_the_quality_mode_draws_more_grid_pairs_unless_the_count_is_given():
     """Above 8 lookups the chooser's grid design draws QUALITY_GRID_COUNT pairs; a given count, a
     budget of 8 or one structure keep theirs; the memory estimate reads the same count."""
-    q = pipeline.QUALITY_LOOKUPS
-    assert pipeline.grid_count(FitOptions(max_lookups=q + 1)) == pipeline.QUALITY_GRID_COUNT
-    assert pipeline.grid_count(FitOptions(target_error=0.1, terms=2)) == pipeline.QUALITY_GRID_COUNT  # budget 16
-    assert pipeline.grid_count(FitOptions(max_lookups=q)) == sampling.GRID_COUNT
-    assert pipeline.grid_count(FitOptions(terms=6, nv_factor=True)) == sampling.GRID_COUNT
-    assert pipeline.grid_count(FitOptions(max_lookups=16, sampling={"count": 1000})) == 1000
+    q = plan.PRESETS["balanced"].lookups
+    assert plan.grid_count(FitOptions(max_lookups=q + 1)) == plan.PRESETS["best"].grid_count
+    assert plan.grid_count(FitOptions(target_error=0.1, terms=2)) == plan.PRESETS["best"].grid_count  # budget 16
+    assert plan.grid_count(FitOptions(max_lookups=q)) == sampling.GRID_COUNT
+    assert plan.grid_count(FitOptions(terms=6, nv_factor=True)) == sampling.GRID_COUNT
+    assert plan.grid_count(FitOptions(max_lookups=16, sampling={"count": 1000})) == 1000
     assert pipeline.resolve_sampling(FitOptions(max_lookups=16), "lighting", "dual_paraboloid").count \
-        == pipeline.QUALITY_GRID_COUNT
+        == plan.PRESETS["best"].grid_count
     assert pipeline.resolve_sampling(FitOptions(max_lookups=8), "lighting", "dual_paraboloid").count == 0
-    assert pipeline.QUALITY_GRID_COUNT > sampling.GRID_COUNT
+    assert plan.PRESETS["best"].grid_count > sampling.GRID_COUNT
     gold = {"kind": "lighting", "brdf": {"model": "cook_torrance", "roughness": 0.3}, "environment": {"file": "forest"}}
     small = budget.estimate(Config.model_validate({"target": gold, "max_lookups": 8}))
     large = budget.estimate(Config.model_validate({"target": gold, "max_lookups": 16}))
@@ -281,23 +262,23 @@ def test_the_quality_mode_draws_more_grid_pairs_unless_the_count_is_given():
 def test_the_quality_mode_draws_more_validation_pairs_unless_their_count_is_given():
     """Above 8 lookups the chooser ranks on QUALITY_VALIDATION pairs; a given count (even the default's
     value), a budget of 8 or one structure keep theirs; resolve_sampling and the memory estimate agree."""
-    q = pipeline.QUALITY_LOOKUPS
+    q = plan.PRESETS["balanced"].lookups
     default = DEFAULT_VALIDATION
-    assert pipeline.validation_count(FitOptions(max_lookups=q + 1)) == pipeline.QUALITY_VALIDATION > default
-    assert pipeline.validation_count(FitOptions(target_error=0.1, terms=2)) == pipeline.QUALITY_VALIDATION
-    assert pipeline.validation_count(FitOptions(max_lookups=q)) == default
-    assert pipeline.validation_count(FitOptions(terms=6, nv_factor=True)) == default
-    assert pipeline.validation_count(FitOptions(max_lookups=16, sampling={"validation": default})) == default
-    assert pipeline.validation_count(FitOptions(max_lookups=16, sampling={"validation": 0})) == 0
+    assert plan.validation_count(FitOptions(max_lookups=q + 1)) == plan.PRESETS["best"].validation > default
+    assert plan.validation_count(FitOptions(target_error=0.1, terms=2)) == plan.PRESETS["best"].validation
+    assert plan.validation_count(FitOptions(max_lookups=q)) == default
+    assert plan.validation_count(FitOptions(terms=6, nv_factor=True)) == default
+    assert plan.validation_count(FitOptions(max_lookups=16, sampling={"validation": default})) == default
+    assert plan.validation_count(FitOptions(max_lookups=16, sampling={"validation": 0})) == 0
     for kind in ("grid", "texels"):
         opts = FitOptions(max_lookups=16, sampling={"kind": kind})
-        assert pipeline.resolve_sampling(opts, "lighting", "dual_paraboloid").validation == pipeline.QUALITY_VALIDATION
+        assert pipeline.resolve_sampling(opts, "lighting", "dual_paraboloid").validation == plan.PRESETS["best"].validation
     assert pipeline.resolve_sampling(FitOptions(max_lookups=8), "lighting", "dual_paraboloid").validation == default
     gold = {"kind": "lighting", "brdf": {"model": "cook_torrance", "roughness": 0.3}, "environment": {"file": "forest"}}
-    given = {"count": pipeline.QUALITY_GRID_COUNT, "validation": default}
+    given = {"count": plan.PRESETS["best"].grid_count, "validation": default}
     own = budget.estimate(Config.model_validate({"target": gold, "max_lookups": 16, "sampling": given}))
     rule = budget.estimate(Config.model_validate({"target": gold, "max_lookups": 16}))
-    assert rule["samples"] - own["samples"] == (pipeline.QUALITY_VALIDATION - default) * 72
+    assert rule["samples"] - own["samples"] == (plan.PRESETS["best"].validation - default) * 72
 
 
 
@@ -311,7 +292,7 @@ def test_a_recorded_config_keeps_the_validation_count_unset_so_a_refit_applies_t
     record = cfg.model_dump(mode="json")
     assert record["sampling"]["validation"] is None
     back = pipeline.options(**{k: v for k, v in record.items() if k in FitOptions.model_fields})
-    assert pipeline.validation_count(back) == pipeline.QUALITY_VALIDATION
+    assert plan.validation_count(back) == plan.PRESETS["best"].validation
     assert run.layout_difference(record, cfg, "lighting") is None
     plain = Config.model_validate({"target": gold, "terms": 2, "nv_factor": True})
     old = plain.model_dump(mode="json")
@@ -339,28 +320,19 @@ def test_the_chooser_polishes_the_structure_it_keeps_and_a_refit_repeats_it():
     val = lambda r: r.metrics["validation"]["float"]["nrmse"]  # noqa: E731
     note = fac.selection["polish"]
     before, after = note["validation_nrmse_before"], note["validation_nrmse_after"]
-    assert note["steps"] == pipeline.CHOOSER_POLISH
+    assert note["steps"] == plan.PRESETS["fast"].polish
     assert before == pytest.approx(fac.selection["chosen"]["validation_nrmse"])
     assert val(fac) == pytest.approx(after)
     assert after < before  # small lamps: detail at the texel scale, which the grid fit never sees between centres
-    assert fac.solver["polish"]["steps"] == pipeline.CHOOSER_POLISH and fac.solver["polish"]["size"] == 8
+    assert fac.solver["polish"]["steps"] == plan.PRESETS["fast"].polish and fac.solver["polish"]["size"] == 8
     assert fac.selection["chosen"]["label"] == Structure.of(fac.solver["structure"]).label()
     off = hf.fit.factorize(target, "NR", linear={"iterations": 8, "polish": 0}, **kw)
     assert "polish" not in off.selection and "polish" not in off.solver
     assert val(off) == pytest.approx(before, rel=1e-5)  # the same ALS fits, the same choice
     again = hf.fit.refit(fac, brdf=brdf, start="fresh")
-    assert again.solver["polish"]["steps"] == pipeline.CHOOSER_POLISH
-    assert again.solver["nv_balance"] == fac.solver["nv_balance"] == pipeline.CHOOSER_NV_BALANCE
+    assert again.solver["polish"]["steps"] == plan.PRESETS["fast"].polish
+    assert again.solver["nv_balance"] == fac.solver["nv_balance"] == plan.PRESETS["fast"].nv_balance
     assert val(again) == pytest.approx(val(fac), rel=1e-3)
-
-
-def test_polish_rule_keeps_plain_structures_and_votes_on_highlights_only_in_the_quality_mode():
-    plain = Structure.of({"parametrization": "NR", "terms": 2, "nv_factor": True, "diffuse": "fitted"})
-    lit = Structure.of({"parametrization": "NR", "terms": 2, "nv_factor": True, "diffuse": "fitted",
-                        "highlight_terms": 1, "highlight_fresnel": True})
-    q = pipeline.QUALITY_LOOKUPS
-    assert [pipeline.polish_rule(plain, b) for b in (4, q, q + 1, 16)] == ["keep"] * 4
-    assert [pipeline.polish_rule(lit, b) for b in (4, q, q + 1, 16)] == [None, None, "vote", "vote"]
 
 
 @pytest.mark.slow
@@ -371,13 +343,13 @@ def test_the_quality_mode_polishes_a_kept_highlight_structure_where_the_validati
     structure, the line size and the polish are all chosen on that estimate."""
     brdf = hf.brdf.cook_torrance(kd=(0.3, 0.05, 0.05), ks=1.0, roughness=0.2, f0=0.04)
     target = hf.light.lighting_target(brdf, hf.light.load_environment("city", 8))
-    fac = hf.fit.factorize(target, "NR", texture_size=S, max_lookups=pipeline.QUALITY_LOOKUPS + 1,
+    fac = hf.fit.factorize(target, "NR", texture_size=S, max_lookups=plan.PRESETS["balanced"].lookups + 1,
                            highlight_terms=1, highlight_fresnel=True, highlight_cosine=True, diffuse="fitted",
                            linear={"iterations": 6, "polish_size": 8},
                            sampling={"count": 20000, "validation": 3000, "cache": False})
     assert Structure.of(fac.solver["structure"]).highlight_terms == 1
     note = fac.selection["polish"]
-    assert note["rule"] == "vote" and note["steps"] == pipeline.CHOOSER_POLISH
+    assert note["rule"] == "vote" and note["steps"] == plan.PRESETS["fast"].polish
     key = sums.RIDGE_METRIC
     sel = fac.selection
     assert sel["metric"] == key and sel["chosen"][key] == min(t[key] for t in sel["tried"])
@@ -386,8 +358,8 @@ def test_the_quality_mode_polishes_a_kept_highlight_structure_where_the_validati
     assert note[key + "_before"] == pytest.approx(sel["chosen"][key])
     # three stages: without, then with the quality mode's ridge pairs, and with them from the ALS fit
     stages = note["stages"]
-    assert [(st["ridge"], st["start"]) for st in stages] == [(0, "als"), (pipeline.QUALITY_RIDGE, "polish"),
-                                                             (pipeline.QUALITY_RIDGE, "als")]
+    assert [(st["ridge"], st["start"]) for st in stages] == [(0, "als"), (plan.PRESETS["best"].ridge, "polish"),
+                                                             (plan.PRESETS["best"].ridge, "als")]
     best = int(np.argmin([st[key] for st in stages]))
     assert note[key + "_after"] == stages[best][key]
     assert note["kept"] == (note[key + "_after"] < note[key + "_before"])
@@ -401,7 +373,7 @@ def test_the_quality_mode_polishes_a_kept_highlight_structure_where_the_validati
         assert polish.recorded_direct(fac.solver) == (note["stage"] == 2)
         assert recorded_linear(LinearOptions(), fac.solver).ridge == note["ridge"]
     if note["stage"] == 1:
-        assert fac.solver["polish"]["ridge"]["pairs"] == pipeline.QUALITY_RIDGE
+        assert fac.solver["polish"]["ridge"]["pairs"] == plan.PRESETS["best"].ridge
         assert "ridge" not in fac.solver["polish"]["first"]
     elif note["stage"] == 0:
         assert "ridge" not in fac.solver["polish"]
@@ -435,15 +407,21 @@ def test_the_line_vote_keeps_the_lowest_score_and_records_both_figures():
     assert line == 32 and sums.RIDGE_METRIC not in plain.selection["lines"]
 
 
-def test_chooser_polish_applies_to_lighting_als_fits_unless_polish_is_given():
-    env = hf.light.load_environment("interior", 8)
-    lighting = hf.light.lighting_target(hf.brdf.ggx(kd=0.0, ks=1.0, roughness=0.1, f0=0.9), env)
-    brdf = hf.fit.brdf_target(hf.brdf.cook_torrance(kd=0.3, ks=1.0, roughness=0.6, f0=0.04))
-    lin = LinearOptions()
-    assert pipeline.chooser_polish(lighting, None, lin) == pipeline.CHOOSER_POLISH
-    assert pipeline.chooser_polish(lighting, LinearOptions(iterations=3), lin) == pipeline.CHOOSER_POLISH
-    assert pipeline.chooser_polish(lighting, LinearOptions(polish=0), lin) == 0  # given: as asked
-    assert pipeline.chooser_polish(lighting, LinearOptions(polish=3), lin) == 0  # every candidate polished already
-    lm = LinearOptions(method="levenberg_marquardt")
-    assert pipeline.chooser_polish(lighting, lm, lm) == 0
-    assert pipeline.chooser_polish(brdf, None, lin) == 0
+@pytest.mark.slow  # about 40 s of compiling (three Levenberg-Marquardt candidates), more on a busy machine
+def test_max_lookups_with_texel_sampling_fits_the_off_specular_candidates_with_their_shift():
+    """Texel pairs are one pool for every candidate (they do not lie on a grid of r or r_off), but each
+    candidate reads its own parametrization's context: NRO / RO read ``shift`` (the crash was "projection
+    r_off needs context['shift']" after the NR candidates had been fitted)."""
+    brdf = hf.brdf.cook_torrance(kd=(0.05, 0.04, 0.02), ks=1.0, roughness=0.3, f0=(1.0, 0.78, 0.34))
+    target = hf.light.lighting_target(brdf, hf.light.load_environment("interior", 8))
+    logs = []
+    fac = hf.fit.factorize(target, "NR", texture_size=S, max_lookups=4, highlight_terms=0,
+                           analysis={"size": 4},
+                           linear={"iterations": 1, "polish": 0},
+                           sampling={"kind": "texels", "size": 4, "validation": 200, "cache": False},
+                           log=logs.append)
+    labels = {t["label"] for t in fac.selection["tried"]}
+    assert any("O" in lab.split("+")[1] for lab in labels)  # an off-specular candidate was fitted
+    assert sum("training pairs" in m for m in logs) == 1  # one texel pool for all
+    if "shift" in pz.get(fac.solver["structure"]["parametrization"]).context:
+        assert "shift" in fac.model.context

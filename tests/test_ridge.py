@@ -100,19 +100,6 @@ def test_the_stratified_nrmse_estimates_the_uniform_one_with_less_spread():
         hf.fit.metrics.metrics(approx, ve)["nrmse"], rel=1e-5)
 
 
-def test_chooser_ridge_rule():
-    env = hf.light.sun_sky(SUN, sun_radiance=300.0, sun_angle_deg=4.0, sky=(0.3, 0.4, 0.6), resolution=8)
-    target = hf.light.lighting_target(hf.brdf.ggx(kd=0.3, ks=1.0, roughness=0.4, f0=0.04), env)
-    q = pipeline.QUALITY_LOOKUPS
-    lin = LinearOptions()
-    assert pipeline.chooser_ridge(target, FitOptions(max_lookups=q + 8), lin) == pipeline.QUALITY_RIDGE > 0
-    assert pipeline.chooser_ridge(target, FitOptions(max_lookups=q), lin) == 0
-    given = FitOptions(max_lookups=q + 8, linear={"ridge": 500})
-    assert pipeline.chooser_ridge(target, given, given.linear) == 500
-    brdf = hf.target.brdf_target(hf.brdf.ggx(kd=0.3, ks=1.0, roughness=0.4, f0=0.04))
-    assert pipeline.chooser_ridge(brdf, FitOptions(parametrization="PQP", max_lookups=q + 8), lin) == 0
-
-
 def test_the_polish_adds_the_ridge_pairs_and_records_them_for_a_refit():
     env = hf.light.sun_sky(SUN, sun_radiance=300.0, sun_angle_deg=4.0, sky=(0.3, 0.4, 0.6), resolution=8)
     target = hf.light.lighting_target(hf.brdf.cook_torrance(kd=0.3, ks=1.0, roughness=0.6, f0=0.04), env)

@@ -131,10 +131,6 @@ def test_a_refit_of_a_table_repeats_its_run_and_starts_from_the_separated_lines(
 
 
 def test_the_quality_mode_candidates_read_tables_where_they_would_read_the_cosine_line():
-    opts = FitOptions(max_lookups=16)
-    assert pipeline.table_wanted(16, opts) and not pipeline.table_wanted(8, FitOptions(max_lookups=8))
-    assert not pipeline.table_wanted(16, FitOptions(max_lookups=16, highlight_table=False))
-    assert pipeline.table_wanted(8, FitOptions(max_lookups=8, highlight_table=True))
     lines = structures.candidates("lighting", 16)
     tables = structures.candidates("lighting", 16, table=True)
     assert any(c.highlight_cosine for c in lines) and not any(c.highlight_table for c in lines)

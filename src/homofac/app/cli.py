@@ -27,6 +27,7 @@ from rich.console import Console
 from .. import baselines, gl
 from ..errors import HomofacError
 from ..fit import solvers, sums
+from ..fit.plan import build_plan
 from ..fit.options import FitOptions, LinearOptions
 from ..gl.picture import auto_exposure, check_finite
 from ..gl.window import require_display, show
@@ -39,7 +40,7 @@ from ..shader import LANGUAGES
 from . import budget
 from . import config as cfgmod
 from .library import run_library
-from .run import run, run_refit, target_from_config
+from .run import build_target, run, run_refit, target_from_config
 from .view import write_viewer
 
 
@@ -87,7 +88,7 @@ def polish_line(pol: dict) -> str:
 
 def disc_line(disc: dict) -> str:
     """The run summary's line for ``selection.disc`` (the quality mode's disc vote,
-    :func:`homofac.fit.pipeline.disc_rule`): both structures with the error voted on, the lights' disc radii
+    the plan's disc vote, :mod:`homofac.fit.plan`): both structures with the error voted on, the lights' disc radii
     in degrees and which was kept."""
     key, words = sums.scored_by(sums.RIDGE_METRIC in disc)
     errs = disc.get(key, disc["validation_nrmse"])
@@ -213,6 +214,8 @@ def fit_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", "-q", action="store_true", help="no progress display, only the summary line")
     p.add_argument("--debug", action="store_true", help="show full tracebacks on errors")
     p.add_argument("--print-config", action="store_true", help="print the resolved config as YAML and exit")
+    p.add_argument("--plan", action="store_true",
+                   help="print the plan (samples, candidate structures, linear-fit options, votes) and exit")
     p.add_argument("--no-preview", action="store_true", help="do not write preview.png (output.preview: false)")
     p.add_argument("--ktx2", action="store_true",
                    help="also write each texture as <name>.ktx2 (KTX 2.0, half float; output.ktx2: true)")
@@ -234,6 +237,12 @@ def _fit(args) -> int:
         cfg = cfg.model_copy(update={"output": cfg.output.model_copy(update={"ktx2": True})})
     if args.print_config:
         print(yaml.safe_dump(cfg.model_dump(mode="json"), sort_keys=False), end="")
+        return 0
+    if args.plan:
+        if cfg.is_library:
+            cfg = cfg.material_configs()[0][1]  # one layout: the first material's plan is every material's
+        target, _ = build_target(cfg, base)
+        print(build_plan(target, None, cfg.fit_options()))
         return 0
     if args.out is None and not args.config:
         args.out = cfg.output.dir  # the bundled default writes below the current directory

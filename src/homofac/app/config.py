@@ -21,7 +21,7 @@ from pydantic import Field, model_validator
 
 from .. import brdf
 from ..errors import HomofacError
-from ..fit.options import FitOptions
+from ..fit.options import DEFAULT_PRESET, NAMING_KEYS, FitOptions
 from ..fit.scene import bundled_path as bundled_scene
 from ..io.files import check_regular, read_bounded
 from ..light import BUNDLED, EnvironmentOptions
@@ -100,6 +100,17 @@ class Config(FitOptions):
     target: TargetOptions
     output: OutputOptions = Field(default_factory=OutputOptions)
     limits: LimitsOptions = Field(default_factory=LimitsOptions)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _brdf_family(cls, data):
+        """A preset on a BRDF target (``target.kind: brdf``, no ``parametrization``) fits PQP products (the
+        lighting default NR has no BRDF meaning)."""
+        if not (isinstance(data, dict) and data.get("parametrization") is None
+                and isinstance(data.get("target"), dict) and data["target"].get("kind") == "brdf"):
+            return data
+        named = any(data.get(k) is not None for k in NAMING_KEYS)
+        return {**data, "parametrization": "PQP", **({} if named or data.get("preset") else {"preset": DEFAULT_PRESET})}
 
     def fit_options(self) -> dict:
         """The keywords of :func:`homofac.fit.factorize` this config gives."""

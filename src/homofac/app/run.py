@@ -213,9 +213,15 @@ def layout_difference(saved: dict, cfg: Config, kind: str) -> str | None:
     for key in list(dict.fromkeys(list(lb) + list(la))):
         if any(key == n or key.startswith(n + ".") for n in NOT_LAYOUT):
             continue
-        if la.get(key) != lb.get(key):
+        if la.get(key) != lb.get(key) and not _unset_or_off(la.get(key), lb.get(key)):
             return f"{key}: {la.get(key)!r} in the config, {lb.get(key)!r} in the saved factorization"
     return None
+
+
+def _unset_or_off(a, b) -> bool:
+    """Whether two recorded values differ only as "not set" (None: the preset's) against off (0, False), as
+    records written before presets hold the structure keys (``highlight_terms: 0``, ``linear.ridge: 0``)."""
+    return None in (a, b) and all(v in (None, 0, False) for v in (a, b))
 
 
 def load_for_refit(saved_dir) -> Result:

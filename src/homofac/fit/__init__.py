@@ -1,6 +1,7 @@
 """homofac.fit: sampling, the log-space system, solvers, precision, metrics and the pipeline.
 
-``hf.fit.factorize(target, "NR", ...)`` runs it all and returns a :class:`Result` (the model and its run
+``hf.fit.factorize(target, preset="balanced")`` builds a :class:`Plan` (:mod:`.plan`: what will run,
+printable) and executes it; ``hf.fit.factorize(target, "NR", ...)`` fits one named product. Either and returns a :class:`Result` (the model and its run
 record); each stage is a module of its own so a notebook can stop anywhere: :mod:`.sampling` (direction
 pairs), :mod:`.draw` (samples, cached), :mod:`.system` (eq. 30-37), :mod:`.start` (§3.1.2),
 :mod:`.solvers` (one record per solver), :mod:`.product` (one product in log space),
@@ -20,7 +21,8 @@ from . import als, differentiable, metrics, precision, refine, sampling, scene, 
 from .draw import draw_samples
 from .metrics import measure
 from .options import FitOptions, LinearOptions, SamplingOptions
-from .pipeline import factorize
+from .pipeline import execute, factorize
+from .plan import PRESETS, Plan, build_plan
 from .many import factorize_many
 from .refit import prepare as prepare_refit
 from .refit import refit
@@ -31,6 +33,6 @@ from .structures import Structure
 
 __all__ = [
     "FitOptions", "LinearOptions", "Result", "differentiable", "SamplingOptions", "Structure", "als", "refine", "structures", "sums", "Samples", "SolveResult", "SolverOptions", "Target", "brdf_target",
-    "draw_samples", "evaluate", "evaluate_grouped", "factorize", "factorize_many", "measure", "metrics", "precision", "sampling",
+    "PRESETS", "Plan", "build_plan", "execute", "draw_samples", "evaluate", "evaluate_grouped", "factorize", "factorize_many", "measure", "metrics", "precision", "sampling",
     "prepare_refit", "refit", "scene", "solve", "solvers", "system", "transport",
 ]

@@ -70,7 +70,7 @@ def grid_projection(kind: str, parametrization: str, s: SamplingOptions) -> str:
 
 def counted(s: SamplingOptions) -> SamplingOptions:
     """``s`` with its validation count: not given (None), :data:`~homofac.fit.options.DEFAULT_VALIDATION`
-    (the pipeline resolves the quality mode's count before: :func:`homofac.fit.pipeline.validation_count`)."""
+    (the plan resolves a preset's count before: :func:`homofac.fit.plan.validation_count`)."""
     return s if s.validation is not None else s.model_copy(update={"validation": DEFAULT_VALIDATION})
 
 

@@ -122,7 +122,7 @@ def _samples(targets, parametrization, s, log) -> tuple[list[Samples], object]:
     return out, groups
 
 
-def factorize_many(targets: Sequence[Target], parametrization: str = "NR", *, configs: Sequence[dict] | None = None,
+def factorize_many(targets: Sequence[Target], parametrization: str | None = None, *, configs: Sequence[dict] | None = None,
                    target_infos: Sequence[dict] | None = None, log: Callable[[str], None] | None = None,
                    keep_samples: bool = False, **keywords) -> list[Result]:
     """Factor every target on one layout (see the module docstring); one :class:`Result` per target.
@@ -265,7 +265,8 @@ def _one_by_one(targets, opts: FitOptions, samples, configs, infos, keep_samples
     first = None
     for i, (t, smp) in enumerate(zip(targets, samples)):
         log(f"fitting material {i + 1} of {n}")
-        if first is None or not (opts.target_error is not None or opts.max_lookups is not None):
+        if first is None or not (opts.target_error is not None or opts.max_lookups is not None
+                                 or opts.preset is not None):
             res = factorize(t, name, samples=smp, config=configs[i], target_info=infos[i], log=log,
                             keep_samples=keep_samples, **kw)
             first = first or res

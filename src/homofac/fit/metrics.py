@@ -68,27 +68,29 @@ def metrics(approx, exact, eps: float = 1e-5) -> dict[str, float]:
         return {k: float(np.mean(v)) for k, v in _channel(np, a, e, float(eps)).items()}
 
 
-def measure(result, target, samples, eps: float = 1e-5, chunk: int = 65536) -> dict:
+def measure(result, target, samples, eps: float = 1e-5, chunk: int = 65536,
+            splits: tuple[str, ...] = ("train", "validation"), kinds: tuple[str, ...] = ("float", "quantized")) -> dict:
     """Pinned metrics of a :class:`~homofac.fit.result.Result` on training and validation samples, for the
     float and the 8-bit textures: ``{train, validation} x {float, quantized} -> metric dict``.
 
     ``quantized`` is the thesis' RMS II (§4.3, §6.1.8 step 10): the 8-bit RGBA textures of
     ``result.encoded()`` with their decode rule. Values are compared as the target shows them
-    (:meth:`homofac.target.Target.shown`: f cos theta_i for BRDFs).
+    (:meth:`homofac.target.Target.shown`: f cos theta_i for BRDFs). ``splits``, ``kinds``: a subset
+    (a chooser's candidates need only the validation float figure their vote reads).
     """
-    if result.quantized is None:
+    if result.quantized is None and "quantized" in kinds:
         result = result.replace(quantized=result.encoded())  # encode once, not per chunk
     out = {}
     for split, a, b, y in (
         ("train", samples.a, samples.b, samples.y),
         ("validation", samples.val_a, samples.val_b, samples.val_y),
     ):
-        if len(a) == 0:
+        if len(a) == 0 or split not in splits:
             continue
         aj, bj = jnp.asarray(a), jnp.asarray(b)
         exact = target.shown(aj, jnp.asarray(y))
         out[split] = {}
-        for name, quant in (("float", False), ("quantized", True)):
+        for name, quant in ((k, k == "quantized") for k in kinds):
             parts = [result.evaluate(aj[i : i + chunk], bj[i : i + chunk], quantized=quant)
                      for i in range(0, aj.shape[0], chunk)]
             out[split][name] = metrics(target.shown(aj, jnp.concatenate(parts, axis=0)), exact, eps)

@@ -72,12 +72,12 @@ class SamplingOptions(Options):
     ``kind``: ``texels`` (reverse-projected texel grids of ``mapper``, default parabolic for BRDFs and
     dual_paraboloid for lighting, of ``size`` and ``view_size``), ``latlong`` (a lat-long grid),
     ``random`` (``count`` uniform pairs) or ``grid`` (lighting: ``count`` pairs, default 300000, 600000 for a
-    ``max_lookups`` above 8 (:func:`homofac.fit.pipeline.grid_count`), of texel
+    the preset's where it sets one (:func:`homofac.fit.plan.grid_count`), of texel
     centres (n, r) of the fitted textures' own grid, drawn by solid angle, so alternating least squares
     decouples per texel; :func:`homofac.fit.sampling.grouped_grid`). ``auto`` (the default) is ``grid``
     for linear-space sums of lighting products and ``texels`` otherwise. ``validation``: the number of
     random validation pairs (seed ``seed + 1``; not given: :data:`DEFAULT_VALIDATION`, 80000 for a
-    ``max_lookups`` above 8, :func:`homofac.fit.pipeline.validation_count`; a recorded config keeps it
+    the preset's where it sets one, :func:`homofac.fit.plan.validation_count`; a recorded config keeps it
     unset, so a refit from disk draws what the fit drew). ``cache``: reuse the samples of an identical (target,
     sampling) from disk.
 
@@ -145,17 +145,17 @@ class LinearOptions(Options):
     grazing views dominate; 1 makes every bin's relative error count by its sample count
     (:func:`homofac.fit.sums.nv_weights`); when the structure is chosen (``max_lookups``,
     ``target_error``) for a lighting target of a BRDF with kd > 0 and ``nv_balance`` is not given, the
-    candidates are fitted with 1 (:func:`homofac.fit.pipeline.chooser_linear`). ``polish`` (after
+    candidates are fitted with the preset's (:data:`homofac.fit.plan.PRESETS`; None: the preset's, else 0). ``polish`` (after
     ``als``): that many Levenberg-Marquardt steps on the grid pairs and texel-sampled pairs at
     ``polish_size`` between the texel centres the grid design sees (:mod:`homofac.fit.polish`); 0 (the
     default) is off. When the structure is chosen and
     ``polish`` is not given, the candidates are ranked on their ALS fits and the kept one is then
-    polished with 8 steps (:func:`homofac.fit.pipeline.chooser_polish`; ``selection.polish`` records
+    polished with the preset's steps (:mod:`homofac.fit.plan`; ``selection.polish`` records
     the validation error before and after); given, every candidate is polished that much (0: none).
     ``ridge``: that many more pairs in the polish, drawn on the grazing ridge of the brightest light(s)
     with weights that keep the objective that of uniform pairs (:mod:`homofac.fit.ridge`); 0 is off; in
-    the quality mode the chooser's polish draws :data:`homofac.fit.pipeline.QUALITY_RIDGE` when it is
-    not given (:func:`homofac.fit.pipeline.chooser_ridge`). It needs the plain objective
+    the ``best`` preset the chooser's polish draws its ridge pairs when it is
+    not given (:data:`homofac.fit.plan.PRESETS`). It needs the plain objective
     (``nv_balance`` 0) and a polish.
     """
 
@@ -165,17 +165,25 @@ class LinearOptions(Options):
     inner_iterations: int = Field(100, ge=1, le=100_000)
     laplacian: float = Field(1e-2, ge=0, allow_inf_nan=False)
     start: Literal["auto", "split_sum", "product"] = "auto"
-    nv_balance: float = Field(0.0, ge=0, le=1, allow_inf_nan=False)
-    polish: int = Field(0, ge=0, le=1000)
+    nv_balance: Optional[float] = Field(None, ge=0, le=1, allow_inf_nan=False)
+    polish: Optional[int] = Field(None, ge=0, le=1000)
     polish_size: int = Field(24, ge=4, le=256)
-    ridge: int = Field(0, ge=0, le=1_000_000)
+    ridge: Optional[int] = Field(None, ge=0, le=1_000_000)
     tolerance: float = Field(1e-5, ge=0, le=1, allow_inf_nan=False)
 
     @model_validator(mode="after")
     def _ridge_objective(self):
-        if self.ridge > 0 and self.nv_balance > 0:
+        if (self.ridge or 0) > 0 and (self.nv_balance or 0) > 0:
             raise ValueError(RIDGE_NEEDS_PLAIN)
         return self
+
+    def resolved(self, **preset) -> "LinearOptions":
+        """These options with every value left unset (None) taken from ``preset`` (a preset's values,
+        :mod:`homofac.fit.plan`), else 0: the options a fit runs with."""
+        update = {k: preset.get(k, 0) for k in ("nv_balance", "polish", "ridge") if getattr(self, k) is None}
+        if "nv_balance" in update:
+            update["nv_balance"] = float(update["nv_balance"])
+        return self.model_copy(update=update) if update else self
 
 
 #: Why ``linear.ridge`` with ``linear.nv_balance`` is refused.
@@ -183,12 +191,29 @@ RIDGE_NEEDS_PLAIN = ("linear.ridge weighs its pairs as a share of uniform pairs,
                      "nv_balance would change: set one of them")
 
 
+#: The presets (``preset``, pinned names): lookup budgets 4, 8 and 16 with their sample counts and votes
+#: (:data:`homofac.fit.plan.PRESETS`).
+PresetName = Literal["fast", "balanced", "best"]
+
+#: The preset of a config or call that names none and none of :data:`NAMING_KEYS`.
+DEFAULT_PRESET = "balanced"
+
+#: Keys that name what to fit (a parametrization, a structure, a budget, an error goal): given any of
+#: them without ``preset``, no preset applies (``parametrization: NR`` alone is the single product).
+NAMING_KEYS = ("parametrization", "target_error", "terms", "diffuse", "nv_factor", "reflection", "prefiltered",
+               "rw_terms", "highlight_terms", "highlight_fresnel", "highlight_cosine", "highlight_table",
+               "highlight_disc", "max_lookups", "line_size", "linear", "baseline")
+
 #: Largest number of fitted terms accepted (the packed shaders and the ALS blocks grow as K^2).
 MAX_TERMS = 32
 
 
 class FitOptions(Options):
     """What :func:`homofac.fit.factorize` takes besides the target (and the config's top level).
+
+    ``preset``: ``fast``, ``balanced`` or ``best`` (4, 8, 16 lookups; docs/presets.md): the plan's sample
+    counts, candidates, linear-fit options and votes (:mod:`homofac.fit.plan`), each replaced by the key
+    of the same meaning where given. Neither a preset nor any of :data:`NAMING_KEYS`: ``balanced``.
 
     ``parametrization``: a registered parametrization of the target's kind (``IV``, ``GSHD``, ``PQP`` for
     BRDFs; ``N``, ``R``, ``NR``, ``NRV``, ``NRHD``, ``NRW``, ``NRO``, ``RO`` for lighting), or a baseline (``split_sum``,
@@ -215,12 +240,13 @@ class FitOptions(Options):
     view's in place of c(n.i) w(n.v), one lookup fewer; :mod:`homofac.fit.table`), ``highlight_disc``
     (lighting: each highlight term reads its light's coordinate at the point of the light's disc closest
     to r, ``nhs_dom``: the sun at grazing views; with ``max_lookups`` above 8 a vote when not set,
-    :func:`homofac.fit.pipeline.disc_rule`). ``line_size``: texels
+    :mod:`homofac.fit.plan`). ``line_size``: texels
     of a sum's ``line`` textures (w(n.v) and the highlight lines; default 32; for a ``max_lookups`` above 8
-    a vote between 32 and 4 x ``texture_size``: :func:`homofac.fit.pipeline.line_sizes`); a single log-space product's scalar factor has
+    a vote between 32 and 4 x ``texture_size``: :func:`homofac.fit.plan.line_sizes`); a single log-space product's scalar factor has
     ``texture_size`` texels.
     """
 
+    preset: Optional[PresetName] = None
     parametrization: ParametrizationName = "NR"
     mapper: Optional[MapperName] = None
     texture_size: int = Field(32, ge=MIN_TEXTURE_SIZE, le=MAX_TEXTURE_SIZE)
@@ -235,21 +261,32 @@ class FitOptions(Options):
     reflection: bool = False
     prefiltered: bool = False
     rw_terms: int = Field(0, ge=0, le=MAX_TERMS)
-    highlight_terms: int = Field(0, ge=0, le=len(pj.HIGHLIGHTS))
-    highlight_fresnel: bool = False
-    highlight_cosine: bool = False
-    highlight_table: bool = False
-    highlight_disc: bool = False
+    highlight_terms: Optional[int] = Field(None, ge=0, le=len(pj.HIGHLIGHTS))
+    highlight_fresnel: Optional[bool] = None
+    highlight_cosine: Optional[bool] = None
+    highlight_table: Optional[bool] = None
+    highlight_disc: Optional[bool] = None
     max_lookups: Optional[int] = Field(None, ge=1, le=256)
     line_size: Optional[int] = Field(None, ge=2, le=4096)
     linear: Optional[LinearOptions] = None
+
+    @model_validator(mode="before")
+    @classmethod
+    def _default_preset(cls, data):
+        """No preset and none of the keys that name a fit (:data:`NAMING_KEYS`): the preset
+        :data:`DEFAULT_PRESET`. So ``parametrization: NR`` alone stays the single product."""
+        if isinstance(data, dict) and data.get("preset") is None \
+                and all(data.get(k) is None for k in NAMING_KEYS):
+            return {**data, "preset": DEFAULT_PRESET}
+        return data
 
     @property
     def is_sum(self) -> bool:
         """True when the fit is a linear-space sum of products rather than today's log-space product."""
         return (self.terms > 1 or self.diffuse is not None or self.nv_factor or self.reflection or self.rw_terms > 0
-                or self.highlight_terms > 0 or self.highlight_fresnel or self.highlight_cosine
-                or self.highlight_table or self.highlight_disc or self.prefiltered or self.max_lookups is not None or self.linear is not None)
+                or bool(self.highlight_terms) or bool(self.highlight_fresnel) or bool(self.highlight_cosine)
+                or bool(self.highlight_table) or bool(self.highlight_disc) or self.prefiltered
+                or self.max_lookups is not None or self.linear is not None or self.preset is not None)
 
 
-__all__ = ["AnalysisOptions", "CameraOptions", "DEFAULT_VALIDATION", "MAX_CAMERAS", "MAX_CAMERA_SIDE", "MAX_SCENE_PIXELS", "FitOptions", "LinearOptions", "MAX_TERMS", "MAX_TEXTURE_SIZE", "MIN_TEXTURE_SIZE", "MapperName", "SamplingOptions"]
+__all__ = ["DEFAULT_PRESET", "NAMING_KEYS", "PresetName", "AnalysisOptions", "CameraOptions", "DEFAULT_VALIDATION", "MAX_CAMERAS", "MAX_CAMERA_SIDE", "MAX_SCENE_PIXELS", "FitOptions", "LinearOptions", "MAX_TERMS", "MAX_TEXTURE_SIZE", "MIN_TEXTURE_SIZE", "MapperName", "SamplingOptions"]

@@ -120,6 +120,7 @@ def polish(target: Target, structure: Structure, mapper: str, size: int, fit: Su
     """The polished fit: the last stage of :func:`polish_stages` without ``direct``; with it (and
     ``lin.ridge`` > 0) the ridge stage straight from ``fit``, the third candidate of the chooser's vote.
     A refit passes :func:`recorded_direct` of the record it repeats."""
+    lin = lin.resolved()
     if direct and lin.ridge > 0:
         return polish_stage(target, structure, mapper, size, fit, samples, pairs, lin, log, seed)
     return polish_stages(target, structure, mapper, size, fit, samples, pairs, lin, log, seed)[-1]
@@ -140,11 +141,12 @@ def polish_stages(target: Target, structure: Structure, mapper: str, size: int, 
     from there, ended at 0.164, while eight steps with the ridge pairs straight from the ALS fit reached
     0.135 (on 270 000 uniform pairs: the ALS fit 0.164, the direct stage 0.139; docs/notes/sums-research.md, "A third
     polish stage"). Hence the three candidates the chooser votes between
-    (:func:`homofac.fit.pipeline.chooser_polish`).
+    (the plan's polish vote, :mod:`homofac.fit.plan`).
 
     Each record keeps the ALS fit's entries and adds ``polish`` (steps, samples, objectives, seconds; a
     stage with the ridge pairs also ``ridge``: pairs, lights, the probability of each light's ridge; the
     second stage ``first``: the first stage's record, which the direct stage lacks)."""
+    lin = lin.resolved()
     first = polish_stage(target, structure, mapper, size, fit, samples, pairs, lin.model_copy(update={"ridge": 0}),
                          log, seed)
     if lin.ridge <= 0:
@@ -160,6 +162,7 @@ def polish_stage(target: Target, structure: Structure, mapper: str, size: int, f
     """One stage of :func:`polish_stages`: ``lin.polish`` Levenberg-Marquardt steps from ``fit`` on the
     grid ``samples`` and the off-grid ``pairs``, with ``lin.ridge`` ridge pairs (seeded by ``seed``)
     where it is above 0. ``fit``'s own polish record, if any, becomes the new one's ``first``."""
+    lin = lin.resolved()
     t0 = time.perf_counter()
     a, b, y = (np.concatenate([np.asarray(u), np.asarray(v)]) for u, v in
                ((samples.a, pairs.a), (samples.b, pairs.b), (samples.y, pairs.y)))
@@ -203,10 +206,11 @@ def recorded_direct(solver: dict | None) -> bool:
 def recorded_linear(lin: LinearOptions, solver: dict | None) -> LinearOptions:
     """``lin`` with the ``nv_balance`` and polish (steps, size) a sum's solver record says its fit used.
 
-    A chooser (``max_lookups``, ``target_error``) fits with settings the options may not hold
-    (:func:`homofac.fit.pipeline.chooser_linear`, :func:`~homofac.fit.pipeline.chooser_polish`); a refit
+    A chooser (a preset, ``max_lookups``, ``target_error``) fits with settings the options may not hold
+    (the preset's, :mod:`homofac.fit.plan`); a refit
     of its result repeats them so that it equals the full run.
     """
+    lin = lin.resolved()
     if not solver:
         return lin
     update: dict = {}

@@ -47,6 +47,7 @@ lookup budget for ``max_lookups``.
 
 from __future__ import annotations
 
+import re
 from typing import NamedTuple
 
 from ..errors import HomofacError
@@ -136,6 +137,25 @@ class Structure(NamedTuple):
               if self.highlight_terms else "")
         return f"{d}{self.parametrization}{w} x{self.terms}{rw}{'+R' if self.reflection else ''}{hw}"
 
+    @classmethod
+    def parse(cls, label: str) -> "Structure":
+        """The structure a :meth:`label` names (``E'+NROW x4+R+HSFT x2``): the inverse of :meth:`label`,
+        with one identity: ``NRW x1`` reads as NR products with the n.v factor (the NRW parametrization
+        fits the same sum). A string that is no label is refused in one line."""
+        m = _LABEL.match(label.strip()) if isinstance(label, str) else None
+        if m is None:
+            raise HomofacError(f"{label!r} is not a structure label (such as E'+NRW x2+R or E'+ROW x3+R+HFCW x1)")
+        g = m.groupdict()
+        name, w = g["p"], bool(g["w"])
+        if name not in pz.PARAMETRIZATIONS and w and name + "W" in pz.PARAMETRIZATIONS:
+            name, w = name + "W", False
+        if name not in pz.PARAMETRIZATIONS:
+            raise HomofacError(f"{label!r}: {name} is not a parametrization ({', '.join(pz.PARAMETRIZATIONS)})")
+        diffuse = {None: None, "E+": "exact", "E'+": "fitted"}[g["d"]]
+        j = int(g["j"] or 0)
+        return cls(name, int(g["k"]), diffuse, w, bool(g["r"]), bool(g["ss"]), int(g["rw"] or 0), j,
+                   bool(g["f"]), bool(g["c"]), g["tw"] == "T", bool(g["s"]))
+
     def record(self) -> dict:
         return {"parametrization": self.parametrization, "terms": int(self.terms), "diffuse": self.diffuse,
                 "nv_factor": bool(self.nv_factor or _has_nv(self.parametrization)), "reflection": bool(self.reflection),
@@ -143,6 +163,12 @@ class Structure(NamedTuple):
                 "highlight_terms": int(self.highlight_terms), "highlight_fresnel": bool(self.highlight_fresnel),
                 "highlight_cosine": bool(self.highlight_cosine), "highlight_table": bool(self.highlight_table),
                 "highlight_disc": bool(self.highlight_disc)}
+
+
+#: The grammar of :meth:`Structure.label`.
+_LABEL = re.compile(r"^(?P<d>E'\+|E\+)?(?P<ss>SS\+)?(?P<p>[A-Z]+?)(?P<w>W)? x(?P<k>[1-9][0-9]*)"
+                    r"(?:\+RW x(?P<rw>[1-9][0-9]*))?(?P<r>\+R)?"
+                    r"(?:\+H(?P<s>S)?(?P<f>F)?(?P<c>C)?(?P<tw>[TW]) x(?P<j>[1-9][0-9]*))?$")
 
 
 def lined(structure: Structure) -> Structure:
@@ -280,7 +306,7 @@ def candidates(kind: str, max_lookups: int, *, parametrization: str | None = Non
     near-mirror under the city sun falls from 0.47 to 0.17 nrmse at 4 lookups. With ``table`` the
     highlight terms that would read the cosine line c(n.i) and w(n.v) read a 2D table T(n.i, n.v) instead
     (``highlight_table``: one lookup fewer each, which goes to more terms;
-    :func:`homofac.fit.pipeline.table_wanted`).
+    the ``best`` preset, :mod:`homofac.fit.plan`).
     """
     return _sorted(_variants(kind, max_lookups, parametrization, has_diffuse, max_terms, largest=True,
                              highlight=highlight, table=table))

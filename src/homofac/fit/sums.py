@@ -329,13 +329,13 @@ def fit_sum(target: Target, structure: Structure, mapper: str, size: int, sample
     times the ``nv_balance`` weights, scaled to mean 1.
 
     ``line_size``: texels of the ``line`` textures (w(n.v), the highlight lines;
-    :func:`homofac.fit.pipeline.line_sizes`).
+    :func:`homofac.fit.plan.line_sizes`).
 
     ``previous``: a model of the same structure (a refit, :mod:`homofac.fit.refit`): the fitted textures
     start from its texels (:func:`warm_start`) instead of step 2's start.
     """
     log = log or (lambda msg: None)
-    opts = options or LinearOptions()
+    opts = (options or LinearOptions()).resolved()
     if opts.nv_balance > 0 and target.kind != "lighting":
         raise HomofacError(NV_BALANCE_NEEDS_LIGHTING)
     target = with_highlight_context(target, structure)

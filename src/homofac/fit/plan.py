@@ -1,0 +1,337 @@
+"""The plan of a fit: what will run, decided once before any compute (``preset``, ``--plan``).
+
+:func:`build_plan` turns the target, a preset (``fast``, ``balanced``, ``best``: lookup budgets 4, 8, 16)
+and the options the caller gave into a frozen :class:`Plan`: the sample counts, the candidate structures,
+the linear-fit options of each stage and the votes with the figure each reads.
+:func:`homofac.fit.pipeline.factorize` builds it and then executes it; the execution reads the plan and
+holds no rules of its own. A preset sets values; an option given explicitly replaces the preset's
+(``None`` in the options means "the preset's").
+
+Which preset applies (:func:`preset_of`): ``preset`` when given; else, for ``max_lookups`` N, the
+smallest preset whose budget holds N (``best`` above 8), so that a config of ``max_lookups: 16`` keeps
+the settings it always had; else (``target_error`` with sum keys: the ladder within 16 lookups)
+``best``; else none (a named structure, a single product, a baseline).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from typing import Any, NamedTuple
+
+from .. import baselines
+from ..errors import HomofacError
+from ..options import validate
+from ..param import parametrizations as pz
+from ..target import Target
+from . import structures, sums
+from .draw import default_mapper, grid_projection
+from .options import DEFAULT_VALIDATION, FitOptions, LinearOptions
+from .polish import RIDGE_NEEDS_ENVIRONMENT
+from .sampling import GRID_COUNT
+from .structures import HIGHLIGHT_LINES, Structure
+
+
+class Preset(NamedTuple):
+    """The values a preset sets (each replaced by the option of the same meaning where given).
+
+    ``lookups``: the budget ``max_lookups``; ``grid_count``: training pairs of the grid design
+    (``sampling.count``); ``validation``: validation pairs (``sampling.validation``); ``line_ratio``: 0
+    for 32-texel lines only, k for a vote between 32 and k x ``texture_size`` texels (``line_size``);
+    ``table``: highlight candidates read a 2D table T(n.i, n.v) (``highlight_table``); ``disc_vote``: the
+    kept structure is fitted again reading its lights' discs (``highlight_disc``); ``nv_balance``: of the
+    candidates on lighting of a BRDF with kd > 0 (``linear.nv_balance``); ``polish``: Levenberg-Marquardt
+    steps of the kept structure (``linear.polish``); ``ridge``: ridge pairs of its polish and of the
+    validation estimate (``linear.ridge``); ``analysis``: record Mahajan's in-out analysis."""
+
+    lookups: int
+    grid_count: int
+    validation: int
+    line_ratio: int
+    table: bool
+    disc_vote: bool
+    nv_balance: float
+    polish: int
+    ridge: int
+    analysis: bool
+
+
+#: The presets (names pinned). ``fast`` and ``balanced`` are the 4- and 8-lookup settings measured on
+#: the accuracy benchmark (docs/notes/sums-research.md); ``best`` the 16-lookup ones ("the quality mode" of the notes):
+#: 600 000 grid pairs (300 000 left gold / forest at 0.106 against 0.101 nrmse on the converged ground
+#: truth), 80 000 validation pairs (a ranking steadier than the candidates' differences), a line vote
+#: 32 / 4 x texture_size, tables, the disc vote, the plain objective and 20 000 ridge pairs.
+PRESETS: dict[str, Preset] = {
+    "fast": Preset(lookups=4, grid_count=GRID_COUNT, validation=DEFAULT_VALIDATION, line_ratio=0, table=False,
+                   disc_vote=False, nv_balance=1.0, polish=8, ridge=0, analysis=False),
+    "balanced": Preset(lookups=8, grid_count=GRID_COUNT, validation=DEFAULT_VALIDATION, line_ratio=0, table=False,
+                       disc_vote=False, nv_balance=1.0, polish=8, ridge=0, analysis=True),
+    "best": Preset(lookups=16, grid_count=600_000, validation=80_000, line_ratio=4, table=True, disc_vote=True,
+                   nv_balance=0.0, polish=8, ridge=20_000, analysis=True),
+}
+
+#: The lookup budget of ``target_error`` with sum keys but no ``max_lookups``.
+DEFAULT_MAX_LOOKUPS = 16
+
+#: Why ``linear.ridge`` is refused where no polish runs (the ridge pairs are the polish's).
+RIDGE_NEEDS_POLISH = "linear.ridge adds pairs to the polish: set linear.polish (or use a preset, which polishes)"
+
+
+@dataclasses.dataclass(frozen=True)
+class Vote:
+    """A choice the execution makes by measurement: its name, what it chooses between, what it reads."""
+
+    name: str
+    choices: tuple[str, ...]
+    reads: str
+
+
+@dataclasses.dataclass(frozen=True)
+class Plan:
+    """What a fit will run (see the module docstring). ``mode``: ``product`` (one log-space product),
+    ``auto`` (``target_error`` over products), ``baseline`` (computed, not fitted), ``sum`` (one named
+    structure) or ``choose`` (the best of ``candidates`` by validation error). ``options``: the resolved
+    options the execution reads (the preset's values filled in)."""
+
+    mode: str
+    preset: str | None
+    parametrization: str
+    mapper: str
+    texture_size: int
+    sampling: str
+    grid_count: int
+    validation: int
+    light_resolution: int | None
+    max_lookups: int | None
+    candidates: tuple[Structure, ...]
+    linear: LinearOptions | None
+    polish: int  # steps of the kept structure's polish (0: none, or every candidate polished by linear.polish)
+    ridge: int
+    line_sizes: tuple[int, ...]
+    disc_vote: bool
+    analysis: bool
+    votes: tuple[Vote, ...]
+    options: FitOptions
+
+    def to_dict(self) -> dict[str, Any]:
+        """The plan as plain data (what ``--plan`` prints as JSON, and what tests compare)."""
+        return {"mode": self.mode, "preset": self.preset, "parametrization": self.parametrization,
+                "mapper": self.mapper, "texture_size": self.texture_size,
+                "sampling": {"kind": self.sampling, "grid_count": self.grid_count, "validation": self.validation},
+                "light_resolution": self.light_resolution, "max_lookups": self.max_lookups,
+                "candidates": [c.label() for c in self.candidates],
+                "linear": None if self.linear is None else self.linear.model_dump(),
+                "polish": self.polish, "ridge": self.ridge, "line_sizes": list(self.line_sizes),
+                "disc_vote": self.disc_vote, "analysis": self.analysis,
+                "votes": [dataclasses.asdict(v) for v in self.votes]}
+
+    def __str__(self) -> str:
+        d = self.to_dict()
+        s = d["sampling"]
+        lines = [f"plan: {self.mode}" + (f" (preset {self.preset})" if self.preset else ""),
+                 f"  textures: {self.parametrization} family, {self.mapper} {self.texture_size}",
+                 f"  samples: {s['kind']}" + (f", {s['grid_count']} grid pairs" if s["kind"] == "grid" else "")
+                 + f", {s['validation']} validation pairs"
+                 + (f", lights at resolution {self.light_resolution}" if self.light_resolution else "")]
+        if self.max_lookups is not None:
+            lines.append(f"  budget: {self.max_lookups} lookups per pixel")
+        if self.candidates:
+            lines.append(f"  candidates ({len(self.candidates)}): " + ", ".join(d["candidates"]))
+        if self.linear is not None:
+            lin = self.linear
+            lines.append(f"  linear fit: {lin.method}, {lin.iterations} iterations, laplacian {lin.laplacian:g}, "
+                         f"nv_balance {lin.nv_balance:g}")
+            if self.polish:
+                lines.append(f"  polish: {self.polish} Levenberg-Marquardt steps"
+                             + (f", {self.ridge} ridge pairs" if self.ridge else ""))
+        if len(self.line_sizes) > 1 or self.mode in ("sum", "choose"):
+            lines.append("  line textures: " + " or ".join(str(n) for n in self.line_sizes) + " texels")
+        if self.analysis:
+            lines.append("  records Mahajan's in-out analysis")
+        for v in self.votes:
+            choices = "the candidates" if v.name == "structure" else " | ".join(v.choices)
+            lines.append(f"  vote {v.name}: {choices}; reads {v.reads}")
+        return "\n".join(lines)
+
+
+def preset_of(opts: FitOptions) -> str | None:
+    """The preset that applies to ``opts`` (see the module docstring)."""
+    if opts.preset is not None:
+        return opts.preset
+    budget = opts.max_lookups if opts.max_lookups is not None else (
+        DEFAULT_MAX_LOOKUPS if opts.target_error is not None and opts.is_sum else None)
+    if budget is None:
+        return None
+    return next((name for name, p in PRESETS.items() if budget <= p.lookups), "best")
+
+
+def budget_of(opts: FitOptions) -> int | None:
+    """The lookup budget of the chooser: ``max_lookups``, else the preset's; None for one named fit."""
+    if opts.max_lookups is not None:
+        return int(opts.max_lookups)
+    name = preset_of(opts)
+    return None if name is None else PRESETS[name].lookups
+
+
+def grid_count(opts: FitOptions) -> int:
+    """Training pairs of the ``grid`` design: ``sampling.count`` when set, else the preset's, else
+    :data:`homofac.fit.sampling.GRID_COUNT`."""
+    name = preset_of(opts)
+    return opts.sampling.count or (PRESETS[name].grid_count if name else GRID_COUNT)
+
+
+def validation_count(opts: FitOptions) -> int:
+    """Validation pairs: ``sampling.validation`` when given, else the preset's, else
+    :data:`~homofac.fit.options.DEFAULT_VALIDATION`."""
+    if opts.sampling.validation is not None:
+        return int(opts.sampling.validation)
+    name = preset_of(opts)
+    return PRESETS[name].validation if name else DEFAULT_VALIDATION
+
+
+def line_sizes(opts: FitOptions) -> tuple[int, ...]:
+    """The line sizes the fit tries, the candidates' first: ``(line_size,)`` when given; else with a
+    preset whose ``line_ratio`` k is set, ``(32, k x texture_size)`` (the line vote; measured in
+    docs/notes: plastic / city 0.055 -> 0.038 with 128 texels, gold / city the other way, so a vote);
+    else ``(32,)``."""
+    if opts.line_size is not None:
+        return (int(opts.line_size),)
+    name = preset_of(opts)
+    fine = PRESETS[name].line_ratio * int(opts.texture_size) if name else 0
+    return (structures.LINE_SIZE, fine) if fine and fine != structures.LINE_SIZE else (structures.LINE_SIZE,)
+
+
+def _lit(target: Target) -> bool:
+    return target.kind == "lighting" and getattr(target.fn, "env", None) is not None
+
+
+def _base(target: Target, opts: FitOptions) -> str:
+    """The parametrization whose family the candidates come from: the options'; on a BRDF target the
+    options' default (NR, a lighting family) stands for PQP."""
+    if target.kind == "brdf" and opts.parametrization == FitOptions.model_fields["parametrization"].default:
+        return "PQP"
+    return opts.parametrization
+
+
+def constrained(cands: list[Structure], opts: FitOptions) -> list[Structure]:
+    """The candidates that a ``diffuse``, ``highlight_terms``, extra highlight line or ``highlight_disc``
+    given in ``opts`` allows (each constrains the search; all candidates where none is given)."""
+    if opts.diffuse is not None:
+        cands = [c for c in cands if c.diffuse == opts.diffuse] or cands
+    if opts.highlight_terms is not None:
+        cands = [c for c in cands if c.highlight_terms == opts.highlight_terms] or cands
+    for key in (line.key for line in HIGHLIGHT_LINES if getattr(opts, line.key) is not None):
+        cands = [c for c in cands if getattr(c, key) == getattr(opts, key) or not c.highlight_terms] or cands
+    if opts.highlight_disc:
+        cands = [c._replace(highlight_disc=True) if c.highlight_terms else c for c in cands]
+    return cands
+
+
+def _vote_figure(ridge: int) -> str:
+    return (f"the validation nrmse with a ridge stratum of {ridge} pairs" if ridge
+            else "the validation nrmse")
+
+
+def build_plan(target: Target, preset: str | None = None, overrides: dict | FitOptions | None = None,
+               *, samples_given: str | None = None) -> Plan:
+    """The plan of fitting ``target`` with ``preset`` and the options ``overrides`` (the keywords of
+    :func:`homofac.fit.factorize`, or validated :class:`~homofac.fit.options.FitOptions`), refused in one
+    line (:class:`~homofac.errors.HomofacError`) where they cannot run. ``samples_given``: the grid
+    direction of samples the caller provides (only the candidates on it are tried)."""
+    if isinstance(overrides, FitOptions):
+        opts = overrides if preset is None else overrides.model_copy(update={"preset": preset})
+    else:
+        data = {k: v for k, v in (overrides or {}).items() if v is not None}
+        if preset is not None:
+            data["preset"] = preset
+        opts = validate(FitOptions, data, "")
+    if not isinstance(target, Target):
+        raise HomofacError(f"factorize needs a homofac Target (brdf_target or lighting_target), got {type(target).__name__}")
+    name = preset_of(opts)
+    p = PRESETS.get(name) if name else None
+    base = _base(target, opts) if (name or opts.is_sum) else opts.parametrization
+    mapper = opts.mapper or default_mapper(target.kind)
+    is_baseline = opts.parametrization in baselines.BASELINES
+    if opts.is_sum and is_baseline:
+        raise HomofacError(f"preset, terms, diffuse, nv_factor, max_lookups and linear shape fitted sums; "
+                           f"{opts.parametrization} is a baseline (computed, not fitted)")
+    if not is_baseline and not (opts.target_error is not None and not opts.is_sum):
+        pz.get(base, target.kind)
+    budget = budget_of(opts) if opts.is_sum else None
+    choosing = budget is not None
+    mode = ("choose" if choosing else "sum") if opts.is_sum else (
+        "auto" if opts.target_error is not None else "baseline" if is_baseline else "product")
+    lit = _lit(target)
+    s = opts.sampling
+    kind = s.kind if s.kind != "auto" else ("grid" if opts.is_sum and target.kind == "lighting" else "texels")
+    given = opts.linear or LinearOptions()
+    if opts.linear is not None and opts.linear.ridge and not lit:
+        raise HomofacError(RIDGE_NEEDS_ENVIRONMENT)
+    if choosing:
+        # the candidates: the preset's nv_balance; a polish given explicitly runs on every candidate (as on
+        # a named structure), else the preset's polishes the kept one (the polish vote)
+        kd = target.kind == "lighting" and sums.has_diffuse(target)
+        lin = given.resolved(nv_balance=p.nv_balance if kd else 0.0)
+        als_fit = lin.method in ("auto", "als") and (kind == "grid" or samples_given is not None)
+        steps = 0 if given.polish is not None or target.kind != "lighting" or not als_fit else p.polish
+        ridge = given.ridge if given.ridge is not None else (p.ridge if lit and steps else 0)
+        if given.polish is not None and ridge and not lin.polish:
+            raise HomofacError(RIDGE_NEEDS_POLISH)
+    else:
+        lin = given.resolved() if opts.is_sum else None
+        steps, ridge = 0, 0
+        if lin is not None and lin.ridge and not lin.polish:
+            raise HomofacError(RIDGE_NEEDS_POLISH)
+    if lin is not None and lin.nv_balance and target.kind != "lighting":
+        raise HomofacError(sums.NV_BALANCE_NEEDS_LIGHTING)
+    table = (opts.highlight_table if opts.highlight_table is not None else p.table) if choosing else False
+    cands: tuple[Structure, ...] = ()
+    votes: list[Vote] = []
+    if mode == "sum":
+        cands = (Structure.of(opts.model_copy(update={"parametrization": base})),)
+    elif choosing:
+        has_d = sums.diffuse_albedo(target) is not None if target.kind == "lighting" else sums.has_diffuse(target)
+        pick = structures.ladder if opts.target_error is not None else structures.candidates
+        found = constrained(pick(target.kind, budget, parametrization=base, has_diffuse=has_d, highlight=lit,
+                                  table=table), opts)
+        if samples_given is not None:
+            found = [c for c in found if grid_projection(target.kind, c.parametrization,
+                                                         opts.sampling.model_copy(update={"kind": "grid"}))
+                     == samples_given] or found
+        cands = tuple(found)
+    sizes = line_sizes(opts) if opts.is_sum else ()
+    disc = bool(choosing and p is not None and p.disc_vote and opts.highlight_disc is None
+                and any(c.highlight_terms for c in cands))
+    if choosing:
+        figure = _vote_figure(ridge)
+        rule = (f"the first whose figure meets target_error {opts.target_error:g}" if opts.target_error is not None
+                else "the lowest")
+        votes.append(Vote("structure", tuple(c.label() for c in cands), f"{figure} ({rule})"))
+        if len(sizes) > 1:
+            votes.append(Vote("lines", tuple(f"{n} texels" for n in sizes), figure + " of the kept structure"))
+        if disc:
+            votes.append(Vote("disc", ("point light", "the light's disc"), figure + " of the kept structure"))
+        if steps:
+            stages = ("ALS fit", "polish") + (("polish + ridge pairs", "polish + ridge pairs from the ALS fit")
+                                              if ridge else ())
+            votes.append(Vote("polish", stages, figure + "; the polish is kept only where it falls"))
+    env = getattr(target.fn, "env", None)
+    res = (getattr(env, "info", None) or {}).get("resolution") if env is not None else None
+    resolved = opts.model_copy(update={"parametrization": base, "max_lookups": budget if choosing else opts.max_lookups,
+                                       "linear": lin if opts.is_sum else opts.linear})
+    return Plan(mode=mode, preset=name, parametrization=base, mapper=mapper, texture_size=int(opts.texture_size),
+                sampling=kind, grid_count=grid_count(opts), validation=validation_count(opts),
+                light_resolution=int(res) if res else None, max_lookups=budget if choosing else None,
+                candidates=cands, linear=lin, polish=int(steps or 0), ridge=int(ridge or 0), line_sizes=sizes,
+                disc_vote=disc, analysis=bool(choosing and target.kind == "lighting"
+                                              and (p.analysis if p else True) or opts.analysis is not None),
+                votes=tuple(votes), options=resolved)
+
+
+def dumps(plan: Plan) -> str:
+    """The plan as indented JSON."""
+    return json.dumps(plan.to_dict(), indent=2)
+
+
+__all__ = ["constrained", "DEFAULT_MAX_LOOKUPS", "PRESETS", "Plan", "Preset", "RIDGE_NEEDS_POLISH", "Vote", "budget_of",
+           "build_plan", "dumps", "grid_count", "line_sizes", "preset_of", "validation_count"]
