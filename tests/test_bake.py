@@ -17,6 +17,8 @@ from homofac.bake import kernels as kn
 from homofac.bake.plan import PRESETS, plan as make_plan
 from homofac.bake import shader
 from homofac.errors import HomofacError
+from homofac.io.exr import read_exr
+from homofac.io.ktx2 import read_ktx2
 from homofac.light.integrals import integrals, material_radiance
 
 TINY = dict(layers=3, max_size=8, nv_size=8, samples=64, data_resolution=4, diffuse_size=8)
@@ -148,7 +150,9 @@ def test_save_load_round_trip(forest_bake, tmp_path):
     doc = json.loads((out / "bake.json").read_text())
     assert doc["format"] == "homofac.bake" and doc["lookups"] == 7
     assert sorted(p.name for p in out.iterdir()) == ["E0.exr", "P0.exr", "P1.exr", "W0.exr", "W1.exr", "bake.json",
-                                                     "shader.glsl", "shader.hlsl", "shader_es.glsl"]
+                                                     "sh.txt", "sh9.json", "shader.glsl", "shader.hlsl", "shader_es.glsl"]
+    sh = json.loads((out / "sh9.json").read_text())["irradiance"]  # pinned: 9 RGB coefficients
+    assert np.shape(sh) == (9, 3) and np.all(np.isfinite(sh)) and sh[0][0] > 0
     assert (out / "shader.glsl").read_text() == shader.source(b, "glsl")
     back = hf.load(out)
     n, v = pairs(100, seed=8)
@@ -227,3 +231,15 @@ def test_gpu_equals_cpu(forest_bake):
                    uniforms={"rho": 0.4, "c": c, "m": m})
     cpu = np.asarray(b.evaluate(n, v, np.broadcast_to(c, (len(n), 3)), m, 0.4))
     assert np.abs(gpu - cpu).max() <= 1e-4 * np.abs(cpu).max()
+
+
+def test_ktx2_textures_hold_the_exr_data(forest_bake, tmp_path):
+    """``ktx2=True`` writes every texture also as <name>.ktx2 (RGBA half), listed in bake.json, equal to the EXR."""
+    out = forest_bake.save(tmp_path / "k", ktx2=True)
+    doc = json.loads((out / "bake.json").read_text())
+    for t in doc["textures"]:
+        k = read_ktx2(out / t["ktx2"])
+        exr = read_exr(out / t["file"])
+        np.testing.assert_array_equal(np.asarray(k.levels[0])[..., :3], exr)
+        assert json.loads(k.text("homofac"))["texture"] == t["name"]
+    assert np.asarray(hf.load(out).W).shape == np.asarray(forest_bake.W).shape
