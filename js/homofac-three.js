@@ -20,6 +20,10 @@ import { EXRLoader } from 'three/addons/loaders/EXRLoader.js';
 import { read as readKTX2 } from 'three/addons/libs/ktx-parse.module.js';
 
 const FORMAT = 'homofac.bake';
+// The only names a bake directory holds (docs/format.md): nothing in bake.json can point elsewhere.
+const TEXTURE_NAME = /^[PEW][0-9]{1,2}$/;
+const TEXTURE_FILE = /^[PEW][0-9]{1,2}\.(exr|ktx2)$/;
+const SHADER_FILE = 'shader_es.glsl';
 // VkFormat values of the uncompressed RGBA textures a bake's KTX2 files use.
 const VK_R16G16B16A16_SFLOAT = 97;
 const VK_R32G32B32A32_SFLOAT = 109;
@@ -93,8 +97,13 @@ async function loadTexture(base, entry) {
 export async function loadBake(url) {
   const base = url.endsWith('/') ? url : `${url}/`;
   const doc = await fetchOk(joinUrl(base, 'bake.json'), 'json');
-  if (doc.format !== FORMAT) throw new Error(`homofac: ${base}bake.json is not a homofac bake (format ${doc.format})`);
-  const glsl = await fetchOk(joinUrl(base, doc.shaders.glsl_es), 'text');
+  if (doc.format !== FORMAT) throw new Error(`homofac: ${base}bake.json is not a homofac bake`);
+  if (!doc.shaders || doc.shaders.glsl_es !== SHADER_FILE) throw new Error(`homofac: ${base}bake.json names no ${SHADER_FILE}`);
+  if (!Array.isArray(doc.textures) || !doc.textures.every((t) => TEXTURE_NAME.test(t.name) && TEXTURE_FILE.test(t.file)
+      && (t.ktx2 === undefined || TEXTURE_FILE.test(t.ktx2)))) {
+    throw new Error(`homofac: ${base}bake.json: texture names and files must be P<k>, E<d>, W<t> (.exr, .ktx2)`);
+  }
+  const glsl = await fetchOk(joinUrl(base, SHADER_FILE), 'text');
   const entries = await Promise.all(doc.textures.map(async (t) => [`hf_${t.name}`, await loadTexture(base, t)]));
   return { url: base, document: doc, glsl, textures: Object.fromEntries(entries), lookups: doc.lookups };
 }

@@ -243,3 +243,26 @@ def test_ktx2_textures_hold_the_exr_data(forest_bake, tmp_path):
         np.testing.assert_array_equal(np.asarray(k.levels[0])[..., :3], exr)
         assert json.loads(k.text("homofac"))["texture"] == t["name"]
     assert np.asarray(hf.load(out).W).shape == np.asarray(forest_bake.W).shape
+
+
+@pytest.mark.parametrize("path, value", [
+    (("plan", "preset"), "fast\n    return vec3(1e9);\n//"),
+    (("textures", 0, "name"), "normalize"),
+    (("textures", 0, "file"), "../P0.exr"),
+    (("textures", 0, "ktx2"), "/etc/passwd"),
+    (("shaders", "glsl_es"), "evil.glsl"),
+    (("layers", 0, "roughness"), 1e400),
+    (("plan", "terms"), 10**9),
+])
+def test_a_crafted_bake_json_is_refused_in_one_line(forest_bake, tmp_path, path, value):
+    """bake.json is input like factorization.json: what reaches generated code, file names or sizes is validated."""
+    out = forest_bake.save(tmp_path / "bk")
+    doc = json.loads((out / "bake.json").read_text())
+    node = doc
+    for key in path[:-1]:
+        node = node[key]
+    node[path[-1]] = value
+    (out / "bake.json").write_text(json.dumps(doc).replace("Infinity", "1e400"))
+    with pytest.raises(HomofacError) as e:
+        hf.load(out)
+    assert "\n" not in str(e.value)
