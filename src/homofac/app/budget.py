@@ -45,6 +45,7 @@ from ..fit import als, scene, solvers
 from ..fit.draw import default_mapper
 from ..fit.options import MAX_SCENE_PIXELS
 from ..fit.pipeline import grid_count, validation_count
+from ..fit.plan import budget_of
 from ..io.limits import image_info
 from ..light import bundled
 from ..light.lighting import STEP_TERMS
@@ -231,18 +232,30 @@ def estimate(cfg: Config, base: Path = Path(".")) -> dict:
 
 
 def _sum_bytes(cfg: Config, m: int, mapper: str, als_path: bool) -> tuple[int, int]:
-    """(data, solver) bytes of a linear-space sum (homofac.fit.sums): the largest structure it may fit."""
-    terms = cfg.terms if cfg.max_lookups is None else max(1, cfg.max_lookups // 2)
-    factors = terms * (4 if cfg.nv_factor or cfg.max_lookups is not None else 3) + 2
+    """(data, solver) bytes of a linear-space sum (homofac.fit.sums): the largest structure it may fit within
+    the lookup budget (``max_lookups`` or the preset's, :func:`homofac.fit.plan.budget_of`). A chooser's kept
+    structure is polished off the grid (Levenberg-Marquardt on the grid and polish pairs), so its bytes are the
+    larger of the ALS fit's and the polish's."""
+    lookups = budget_of(cfg)
+    terms = cfg.terms if lookups is None else max(1, lookups // 2)
+    factors = terms * (4 if cfg.nv_factor or lookups is not None else 3) + 2
     texels = int(np.prod(mappers.texture_shape(mappers.get(mapper), cfg.texture_size)))
     n = factors * texels
-    if als_path:  # per-sample factor values and the chunked normal equations (homofac.fit.als)
-        data = m * (16 + 12 + 12) + 6 * terms * m * 12
-        solver = 2 * als.CHUNK_BYTES + texels * 3 * terms * terms * 4 * 4 + (32 * terms) ** 2 * 3 * 8
+
+    def lm(pairs: int) -> tuple[int, int]:
+        data = pairs * factors * 32 + pairs * 12  # ELL footprints of every factor, the targets
+        solver = 12 * (pairs * 3 + n * 3 * 5) * 4 + 3 * factors * pairs * 12  # LSMR vectors, JVP / VJP temporaries
         return data, solver
-    data = m * factors * 32 + m * 12  # ELL footprints of every factor, the targets
-    solver = 12 * (m * 3 + n * 3 * 5) * 4 + 3 * factors * m * 12  # LSMR vectors, JVP / VJP temporaries
-    return data, solver
+
+    if not als_path:
+        return lm(m)
+    # per-sample factor values and the chunked normal equations (homofac.fit.als)
+    data = m * (16 + 12 + 12) + 6 * terms * m * 12
+    solver = 2 * als.CHUNK_BYTES + texels * 3 * terms * terms * 4 * 4 + (32 * terms) ** 2 * 3 * 8
+    if lookups is None:
+        return data, solver
+    polish = lm(2 * m)  # the polish reads the grid pairs and about as many texel pairs again
+    return (data, solver) if data + solver >= sum(polish) else polish
 
 
 def scene_pixels(s) -> int:
