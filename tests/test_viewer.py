@@ -12,10 +12,8 @@ from __future__ import annotations
 
 import base64
 import json
-import os
 import re
 import shutil
-import tempfile
 from pathlib import Path
 
 import jax.numpy as jnp
@@ -35,47 +33,19 @@ from homofac.gl.engine import Camera, Light, render
 from homofac.io.exr import write_exr
 from homofac.param import mappers
 
+from browser import chromium, console_problems
+
 SIZE = 96
 CAMERA = Camera(azimuth=40.0, elevation=25.0)
 CONFIG = {"target": {"kind": "lighting", "brdf": {"model": "cook_torrance", "kd": [0.05, 0.04, 0.02], "ks": 1.0,
                                                    "roughness": 0.3, "f0": [1.0, 0.78, 0.34]},
                      "environment": {"file": "forest", "resolution": 4}},
           "parametrization": "split_sum", "mapper": "dual_paraboloid", "texture_size": 8}
-#: Chromium flags: headless as root, software WebGL2 (SwiftShader through ANGLE), nothing from the network.
-CHROMIUM_FLAGS = ["--headless=new", "--no-sandbox", "--disable-gpu", "--use-gl=angle", "--use-angle=swiftshader",
-                  "--enable-unsafe-swiftshader", "--disable-background-networking", "--disable-component-update",
-                  "--disable-sync", "--no-first-run", "--disable-extensions", "--window-size=1200,900"]
-
-
-def _missing(msg: str):
-    if os.environ.get("CI"):
-        pytest.fail(msg)
-    pytest.skip(msg)
-
-
 @pytest.fixture(scope="module")
 def browser():
-    try:
-        from selenium import webdriver
-        from selenium.webdriver.chrome.service import Service
-    except ImportError:
-        _missing("selenium is not installed (pip install selenium; the dev extra)")
-    chromium = shutil.which("chromium") or shutil.which("chromium-browser")
-    driver_exe = shutil.which("chromedriver")
-    if not chromium or not driver_exe:
-        _missing("chromium / chromedriver are not installed (Debian chromium chromium-driver; make system-packages)")
-    opts = webdriver.ChromeOptions()
-    opts.binary_location = chromium
-    profile = tempfile.mkdtemp(prefix="homofac-chromium-")
-    for a in CHROMIUM_FLAGS + [f"--user-data-dir={profile}"]:
-        opts.add_argument(a)
-    opts.set_capability("goog:loggingPrefs", {"browser": "ALL"})
-    driver = webdriver.Chrome(service=Service(driver_exe), options=opts)
-    try:
+    """Headless Chromium (tests/browser.py)."""
+    with chromium() as driver:
         yield driver
-    finally:
-        driver.quit()
-        shutil.rmtree(profile, ignore_errors=True)
 
 
 @pytest.fixture(scope="module")
@@ -110,13 +80,6 @@ def open_page(browser, path: Path):
         browser.implicitly_wait(0.05)
     assert state and state[1] is None and state[0], state
     return browser.get_log("browser")
-
-
-def console_problems(log) -> list[str]:
-    """Console errors, and WebGL warnings about invalid calls (SwiftShader's 'GPU stall due to ReadPixels'
-    performance note is not a problem)."""
-    return [e["message"] for e in log if e["level"] == "SEVERE" or "GL_INVALID" in e["message"]
-            or "WebGL:" in e["message"]]
 
 
 def panel(browser, i: int, size: int = SIZE) -> np.ndarray:
