@@ -20,18 +20,9 @@ from homofac.errors import HomofacError
 from homofac.io.exr import read_exr
 from homofac.io.ktx2 import read_ktx2
 from homofac.light.integrals import integrals, material_radiance
+from helpers import visible_pairs as pairs
 
 TINY = dict(layers=3, max_size=8, nv_size=8, samples=64, data_resolution=4, diffuse_size=8)
-
-
-def pairs(count: int, seed: int = 0):
-    rng = np.random.default_rng(seed)
-    n = rng.normal(size=(count, 3))
-    n /= np.linalg.norm(n, axis=1, keepdims=True)
-    v = rng.normal(size=(count, 3))
-    v /= np.linalg.norm(v, axis=1, keepdims=True)
-    v = np.where((np.sum(n * v, 1) < 0)[:, None], -v, v)
-    return n, v
 
 
 def nrmse(a, e):

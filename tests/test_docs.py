@@ -175,24 +175,6 @@ def test_relative_links_and_images_exist(page):
     assert not missing, f"{page}: missing {missing}"
 
 
-def test_nav_pages_exist():
-    import yaml
-
-    def files(node):
-        if isinstance(node, str):
-            yield node
-        elif isinstance(node, list):
-            for x in node:
-                yield from files(x)
-        elif isinstance(node, dict):
-            for x in node.values():
-                yield from files(x)
-
-    nav = yaml.safe_load((ROOT / "mkdocs.yml").read_text())["nav"]
-    for f in files(nav):
-        assert (DOCS / f).is_file(), f
-
-
 def _nav() -> list:
     import yaml
 
@@ -208,6 +190,11 @@ def _nav_files(node):
     elif isinstance(node, dict):
         for x in node.values():
             yield from _nav_files(x)
+
+
+def test_nav_pages_exist():
+    for f in _nav_files(_nav()):
+        assert (DOCS / f).is_file(), f
 
 
 def test_every_page_is_in_the_nav_and_the_notes_come_last():

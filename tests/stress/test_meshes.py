@@ -25,7 +25,11 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from homofac.app import config as cfgmod
 from homofac.app.cli import fit_main as main
+from homofac.brdf.measured import load_merl
+from homofac.light import load_environment
+from homofac.output import load
 from homofac.errors import HomofacError
 from homofac.fit import scene
 from homofac.fit.options import SamplingOptions
@@ -151,11 +155,6 @@ def test_a_directory_or_a_fifo_as_the_mesh_exits_2_with_one_line(tmp_path, capsy
 
 
 def test_fifos_as_environment_merl_config_and_output_files_are_refused(tmp_path):
-    from homofac.app import config as cfgmod
-    from homofac.brdf.measured import load_merl
-    from homofac.light import load_environment
-    from homofac.output import load
-
     for name in ("env.exr", "env.hdr", "m.binary", "c.yaml"):
         os.mkfifo(tmp_path / name)
     _one_line_refusal(lambda: load_environment(str(tmp_path / "env.exr"), resolution=4), "FIFO")
