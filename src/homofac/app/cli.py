@@ -29,11 +29,13 @@ from ..errors import HomofacError
 from ..fit import solvers, sums
 from ..fit.plan import build_plan
 from ..fit.options import FitOptions, LinearOptions
+from ..gl.asset import load_asset
+from ..gl.bakes import preview_bake
 from ..gl.picture import auto_exposure, check_finite
 from ..gl.window import require_display, show
 from ..io.files import write_atomically
-from ..light import BUNDLED
-from ..output import JSON_NAME, is_homofac_dir, load, read_document
+from ..light import BUNDLED, load_environment
+from ..output import JSON_NAME, is_bake_dir, is_homofac_dir, load, read_document
 from ..param import mappers
 from ..param import parametrizations as pz
 from ..shader import LANGUAGES
@@ -41,7 +43,7 @@ from . import budget
 from . import config as cfgmod
 from .library import run_library
 from .run import build_target, run, run_refit, target_from_config
-from .view import write_viewer
+from .view import write_bake_viewer, write_viewer
 
 
 # --------------------------------------------------------------------------------------------------
@@ -327,9 +329,16 @@ def preview_parser() -> argparse.ArgumentParser:
         description="Render a factorization (GL, headless) beside the exact lighting and an error heat map.",
         epilog="exit status: 0 success, 2 bad input (one line on stderr), 1 unexpected failure.",
     )
-    p.add_argument("out_dir", metavar="OUT_DIR", help="output directory written by python -m homofac.fit")
+    p.add_argument("out_dir", metavar="OUT_DIR", help="output directory written by python -m homofac.fit, or a bake "
+                   "directory written by python -m homofac.bake (then shown on a textured glTF asset)")
     p.add_argument("-o", "--output", metavar="FILE.png", help="picture to write (default: OUT_DIR/preview.png)")
     p.add_argument("--mesh", default="sphere", help="sphere (default), torus, or a mesh file (OBJ, PLY, ...)")
+    p.add_argument("--asset", default="material_sphere",
+                   help="a bake's object: a glTF file (.glb/.gltf, one textured primitive) or material_sphere (default)")
+    p.add_argument("--environment", metavar="ENV",
+                   help="a bake's exact and split-sum lighting: an EXR/HDR file or a bundled name (default: the bake's source)")
+    p.add_argument("--resolution", type=int, default=32,
+                   help="a bake's exact and split-sum light resolution, cube face size (default 32)")
     p.add_argument("--size", type=int, default=256, help="pixels of each panel (default 256)")
     p.add_argument("--azimuth", type=float, default=30.0, help="camera azimuth in degrees (+z up)")
     p.add_argument("--elevation", type=float, default=20.0, help="camera elevation in degrees")
@@ -352,14 +361,11 @@ def _preview(args) -> int:
     d = Path(args.out_dir)
     if not d.is_dir():
         raise HomofacError(f"{d}: no such directory" if not d.exists() else f"{d}: not a directory")
+    if is_bake_dir(d):
+        return _preview_bake(args, d)
     if not is_homofac_dir(d):
         raise HomofacError(f"{d} is not a homofac output directory (no valid {JSON_NAME})")
-    if not 8 <= args.size <= 4096:
-        raise HomofacError(f"--size must be in 8 ... 4096, got {args.size}")
-    for name in ("exposure", "error_scale"):
-        v = getattr(args, name)
-        if v is not None and not (v > 0 and v < float("inf")):
-            raise HomofacError(f"--{name.replace('_', '-')} must be a positive number, got {v}")
+    _check_common(args, 8, 4096)
     fac = budgeted_load(d, args.size, "homofac.preview", textures=args.textures)
     check_finite(fac)  # before the window too: a picture of NaN says nothing
     camera = gl.Camera(azimuth=args.azimuth, elevation=args.elevation)
@@ -383,15 +389,57 @@ def _preview(args) -> int:
               file=sys.stderr)
     img, data = gl.preview(fac, target, mesh=mesh, size=args.size, camera=camera, exposure=args.exposure,
                            error_scale=args.error_scale, return_data=True)
+    out = _output_png(args, d)
+    write_atomically(out, "PNG", lambda tmp: Image.fromarray(img).save(tmp, format="PNG"), suffix=".tmp.png")
+    what = f"pixel nrmse {data['nrmse']:.4g}, mean rel. error {data['mean_rel']:.4g}" if "nrmse" in data else "no exact target"
+    print(f"wrote {out}: {fac.parametrization} on {fac.mapper} {fac.texture_size}, {what}")
+    return 0
+
+
+def _check_common(args, lo: int, hi: int) -> None:
+    if not lo <= args.size <= hi:
+        raise HomofacError(f"--size must be in {lo} ... {hi}, got {args.size}")
+    for name in ("exposure", "error_scale"):
+        v = getattr(args, name)
+        if v is not None and not (v > 0 and v < float("inf")):
+            raise HomofacError(f"--{name.replace('_', '-')} must be a positive number, got {v}")
+
+
+def _bake_scene(args, d: Path, lo: int, hi: int):
+    """The bake in ``d``, its asset and environment (checked: one-line errors)."""
+    _check_common(args, lo, hi)
+    if not 4 <= args.resolution <= 256:
+        raise HomofacError(f"--resolution must be in 4 ... 256, got {args.resolution}")
+    bake = load(d)
+    env = args.environment or (bake.info or {}).get("source")
+    if not env:
+        raise HomofacError(f"{d}: the bake records no source environment; pass --environment")
+    if not args.environment and not Path(env).exists() and Path(env).stem in BUNDLED:
+        env = Path(env).stem  # a bundled map recorded by another installation's path
+    return bake, load_asset(args.asset), load_environment(env, args.resolution)
+
+
+def _preview_bake(args, d: Path) -> int:
+    if args.window:
+        raise HomofacError("--window shows factorizations; a bake's interactive view is python -m homofac.view BAKE_DIR")
+    bake, asset, env = _bake_scene(args, d, 8, 4096)
+    out = _output_png(args, d)
+    camera = gl.Camera(azimuth=args.azimuth, elevation=args.elevation)
+    img, data = preview_bake(bake, env, asset=asset, size=args.size, camera=camera, exposure=args.exposure,
+                             error_scale=args.error_scale, return_data=True)
+    write_atomically(out, "PNG", lambda tmp: Image.fromarray(img).save(tmp, format="PNG"), suffix=".tmp.png")
+    print(f"wrote {out}: bake {bake.plan.preset} ({bake.lookups} lookups) on {asset.name}, pixel nrmse: bake "
+          f"{data['nrmse']['bake']:.4g}, split-sum {data['nrmse']['split_sum']:.4g}")
+    return 0
+
+
+def _output_png(args, d: Path) -> Path:
     out = Path(args.output) if args.output else d / "preview.png"
     if out.is_dir():
         raise HomofacError(f"-o {out}: is a directory")
     if not out.parent.is_dir():
         raise HomofacError(f"-o {out}: directory {out.parent} does not exist")
-    write_atomically(out, "PNG", lambda tmp: Image.fromarray(img).save(tmp, format="PNG"), suffix=".tmp.png")
-    what = f"pixel nrmse {data['nrmse']:.4g}, mean rel. error {data['mean_rel']:.4g}" if "nrmse" in data else "no exact target"
-    print(f"wrote {out}: {fac.parametrization} on {fac.mapper} {fac.texture_size}, {what}")
-    return 0
+    return out
 
 
 # --------------------------------------------------------------------------------------------------
@@ -406,8 +454,15 @@ def view_parser() -> argparse.ArgumentParser:
                     "per-term toggles, an error heat map and exposure.",
         epilog="exit status: 0 success, 2 bad input (one line on stderr), 1 unexpected failure.",
     )
-    p.add_argument("out_dir", metavar="OUT_DIR", help="output directory written by python -m homofac.fit")
+    p.add_argument("out_dir", metavar="OUT_DIR", help="output directory written by python -m homofac.fit, or a bake "
+                   "directory written by python -m homofac.bake (then shown on a textured glTF asset)")
     p.add_argument("--html", metavar="FILE.html", help="page to write (default: OUT_DIR/viewer.html)")
+    p.add_argument("--asset", default="material_sphere",
+                   help="a bake's object: a glTF file (.glb/.gltf, one textured primitive) or material_sphere (default)")
+    p.add_argument("--environment", metavar="ENV",
+                   help="a bake's exact and split-sum lighting: an EXR/HDR file or a bundled name (default: the bake's source)")
+    p.add_argument("--resolution", type=int, default=32,
+                   help="a bake's exact and split-sum light resolution, cube face size (default 32)")
     p.add_argument("--size", type=int, default=256, help="pixels of each panel (default 256)")
     p.add_argument("--azimuth", type=float, default=30.0, help="reference camera azimuth in degrees (+z up)")
     p.add_argument("--elevation", type=float, default=20.0, help="reference camera elevation in degrees")
@@ -427,19 +482,23 @@ def _view(args) -> int:
     d = Path(args.out_dir)
     if not d.is_dir():
         raise HomofacError(f"{d}: no such directory" if not d.exists() else f"{d}: not a directory")
-    if not is_homofac_dir(d):
+    bake = is_bake_dir(d)
+    if not bake and not is_homofac_dir(d):
         raise HomofacError(f"{d} is not a homofac output directory (no valid {JSON_NAME})")
-    if not 16 <= args.size <= 1024:
-        raise HomofacError(f"--size must be in 16 ... 1024, got {args.size}")
-    for name in ("exposure", "error_scale"):
-        v = getattr(args, name)
-        if v is not None and not (v > 0 and v < float("inf")):
-            raise HomofacError(f"--{name.replace('_', '-')} must be a positive number, got {v}")
+    _check_common(args, 16, 1024)
     out = Path(args.html) if args.html else d / "viewer.html"
     if out.is_dir():
         raise HomofacError(f"--html {out}: is a directory")
     if not out.parent.is_dir():
         raise HomofacError(f"--html {out}: directory {out.parent} does not exist")
+    camera = gl.Camera(azimuth=args.azimuth, elevation=args.elevation)
+    if bake:
+        b, asset, env = _bake_scene(args, d, 16, 1024)
+        write_bake_viewer(b, out, env, asset=asset, size=args.size, camera=camera, exposure=args.exposure,
+                          error_scale=args.error_scale)
+        print(f"wrote {out}: bake {b.plan.preset} on {asset.name}, {out.stat().st_size / 1e6:.1f} MB, beside the exact "
+              "lighting and split-sum's")
+        return 0
     fac = budgeted_load(d, args.size, "homofac.view")
     target = None
     try:
@@ -447,7 +506,6 @@ def _view(args) -> int:
     except HomofacError as e:
         print(f"homofac: warning: cannot rebuild the exact target ({e}); the page shows the factorization only",
               file=sys.stderr)
-    camera = gl.Camera(azimuth=args.azimuth, elevation=args.elevation)
     write_viewer(fac, out, target, size=args.size, camera=camera, exposure=args.exposure, error_scale=args.error_scale)
     print(f"wrote {out}: {fac.parametrization} ({len(fac.model.terms)} term(s)), {out.stat().st_size / 1e6:.1f} MB, "
           f"{'with' if target is not None else 'without'} the exact lighting")

@@ -31,9 +31,12 @@ from pathlib import Path
 import numpy as np
 
 from .._version import __version__
+from ..bake import shader as bake_shader
 from ..errors import HomofacError
+from ..gl.asset import Asset, load_asset
+from ..gl.bakes import MATERIAL, material_textures, material_uniforms, preview_bake
 from ..gl.engine import Camera, Light, load_mesh
-from ..gl.picture import BACKGROUND, _VIRIDIS, check_finite, preview
+from ..gl.picture import BACKGROUND, _VIRIDIS, check_finite, preview, relative_error
 from ..io.files import write_atomically
 
 #: Meshes the page offers (the first is shown first).
@@ -118,6 +121,78 @@ def viewer_data(fac, target=None, *, size: int = 256, camera: Camera = Camera(),
     data["error_scale"] = float(error_scale) if error_scale is not None else 0.1
     data["_previews"] = previews
     return data
+
+
+#: The bake page's toggles: the three parts of L (docs/format.md, "Material-parametric bake").
+BAKE_TERMS = ("diffuse: (1 - m) 0.96 c I_d", "specular: f0 I_A", "specular: I_B")
+
+
+def bake_viewer_data(bake, environment=None, *, asset="material_sphere", size: int = 256, camera: Camera = Camera(),
+                     resolution: int = 32, exposure: float | None = None, error_scale: float | None = None) -> dict:
+    """What the page of a bake embeds: the bake's GLSL ES and float textures, the textured asset (uvs and its
+    material textures, read in the shader as :data:`homofac.gl.bakes.MATERIAL` does), and the reference view's
+    exact lighting, split-sum's and split-sum's error (:func:`homofac.gl.bakes.preview_bake`). The live panel
+    is the bake; its error heat map is computed in the shader against the exact image.
+
+    ``"_preview"`` (not embedded) holds the moderngl preview picture of the reference view."""
+    if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or not 16 <= size <= 1024:
+        raise HomofacError(f"viewer size must be an int in 16 ... 1024, got {size!r}")
+    asset = load_asset(asset) if not isinstance(asset, Asset) else asset
+    img, info = preview_bake(bake, environment, asset=asset, size=size, camera=camera, resolution=resolution,
+                             exposure=exposure, error_scale=error_scale, return_data=True)
+    frame = info["frame"]
+    m = frame.mask
+
+    def image(values) -> str:
+        out = np.zeros(m.shape + (4,), np.float32)
+        out[m, :3] = values
+        out[m, 3] = 1.0
+        return _b64(out, np.float32)
+
+    e = info["exact"]
+    tau = max(1e-3 * float(np.mean(e)) if e.size else 0.0, 1e-12)
+    split_err = np.zeros(e.shape, np.float32)
+    split_err[:, 0] = relative_error(info["split_sum"], e)
+    material = [{"uniform": u, "width": int(a.shape[1]), "height": int(a.shape[0]), "rgba8": _b64(a, np.uint8)}
+                for u, a, _, _ in material_textures(asset)]
+    textures = [{"name": u[3:], "width": int(a.shape[1]), "height": int(a.shape[0]), "float": _b64(_rgba(a), np.float32)}
+                for u, a in bake_shader.texture_arrays(bake)]
+    return {
+        "homofac_version": __version__,
+        "name": f"bake {bake.plan.preset} on {asset.name}",
+        "kind": "bake",
+        "size": int(size),
+        "background": BACKGROUND,
+        "viridis": _VIRIDIS.tolist(),
+        "camera": {"azimuth": camera.azimuth, "elevation": camera.elevation, "distance": camera.distance,
+                   "fov": camera.fov},
+        "terms": list(BAKE_TERMS),
+        "lookups": int(bake.lookups),
+        "textures": textures,
+        "material": material,
+        "material_uniforms": material_uniforms(asset),
+        "material_glsl": MATERIAL,
+        "shaders": {"float": bake_shader.source(bake, "glsl_es")},
+        "meshes": {asset.name: {"positions": _b64(asset.positions, np.float32), "normals": _b64(asset.normals, np.float32),
+                                "uvs": _b64(asset.uv, np.float32), "indices": _b64(asset.faces.reshape(-1), np.uint32),
+                                "count": int(asset.faces.size), "exact": image(e), "split_sum": image(info["split_sum"]),
+                                "split_sum_error": image(split_err), "tau": tau,
+                                "nrmse": info["nrmse"]["bake"], "split_sum_nrmse": info["nrmse"]["split_sum"]}},
+        "exact": True,
+        "exposure": float(info["exposure"]),
+        "error_scale": float(info["error_scale"]),
+        "_preview": img,
+    }
+
+
+def write_bake_viewer(bake, path, environment=None, **kwargs) -> Path:
+    """The page of a bake (:func:`bake_viewer_data`) written atomically to ``path`` (returns it)."""
+    data = bake_viewer_data(bake, environment, **kwargs)
+    data.pop("_preview")
+    text = page(data)
+    path = Path(path)
+    write_atomically(path, "HTML", lambda tmp: Path(tmp).write_text(text, encoding="utf-8"), suffix=".tmp.html")
+    return path
 
 
 def viewer_html(fac, target=None, **kwargs) -> str:
@@ -205,7 +280,8 @@ SCRIPT = r"""
 (function () {
   const data = JSON.parse(document.getElementById("hf-data").textContent);
   const S = data.size, BG = data.background / 255;
-  const panels = data.exact ? 3 : 1;
+  const isBake = data.kind === "bake";
+  const panels = isBake ? 5 : (data.exact ? 3 : 1);
   const hf = window.homofac = { ready: false, error: null, data: data, frames: 0 };
   const status = document.getElementById("hf-status");
   function fail(msg) {
@@ -275,6 +351,7 @@ SCRIPT = r"""
     gl.attachShader(p, shader(gl.FRAGMENT_SHADER, fs));
     gl.bindAttribLocation(p, 0, "in_position");
     gl.bindAttribLocation(p, 1, "in_normal");
+    gl.bindAttribLocation(p, 2, "in_uv");
     gl.linkProgram(p);
     if (!gl.getProgramParameter(p, gl.LINK_STATUS)) throw new Error("program does not link: " + gl.getProgramInfoLog(p));
     return p;
@@ -284,43 +361,27 @@ precision highp float;
 uniform mat4 u_mvp;
 in vec3 in_position;
 in vec3 in_normal;
+in vec2 in_uv;
 out vec3 v_pos;
 out vec3 v_normal;
+out vec2 v_uv;
 void main() {
     v_pos = in_position;
     v_normal = in_normal;
+    v_uv = in_uv;
     gl_Position = u_mvp * vec4(in_position, 1.0);
 }
 `;
   const viridis = data.viridis.map((c) => `vec3(${c[0].toFixed(6)}, ${c[1].toFixed(6)}, ${c[2].toFixed(6)})`).join(", ");
-  // The main of homofac.gl.engine.FRAGMENT_MAIN in GLSL ES, with per-term weights and the heat-map panel.
-  const MAIN = `
-uniform vec3 u_eye;
+  // The value of a pixel: a factorization (homofac.gl.engine.FRAGMENT_MAIN in GLSL ES, with per-term weights),
+  // or a bake on the textured asset (homofac.gl.bakes.FRAGMENT_MAIN, with the three parts of L as toggles).
+  const FAC_VALUE = `
 uniform int u_mode;          // 0: lighting, a = n, b = v; 1: BRDF under one directional light
 uniform vec3 u_light;
 uniform vec3 u_light_rgb;
 uniform int u_times_cos;
-uniform float u_exposure;
 uniform float u_terms[HOMOFAC_TERMS];
-uniform int u_panel;         // 0: the tone-mapped value; 2: the relative-error heat map against u_exact
-uniform highp sampler2D u_exact;
-uniform ivec2 u_origin;
-uniform float u_tau;
-uniform float u_error_scale;
-in vec3 v_pos;
-in vec3 v_normal;
-out vec4 o_color;
-const vec3 HF_VIRIDIS[9] = vec3[9](${viridis});
-vec3 hf_srgb(vec3 x) {
-    x = clamp(x, 0.0, 1.0);
-    return mix(12.92 * x, 1.055 * pow(x, vec3(1.0 / 2.4)) - 0.055, step(vec3(0.0031308), x));
-}
-vec3 hf_viridis(float x) {
-    float t = clamp(x, 0.0, 1.0) * 8.0;
-    int i = min(int(floor(t)), 7);
-    return mix(HF_VIRIDIS[i], HF_VIRIDIS[i + 1], t - float(i));
-}
-void main() {
+vec3 hf_value() {
     vec3 n = hf_normalize(v_normal);
     vec3 v = hf_normalize(u_eye - v_pos);
     vec3 a = n, b = v;
@@ -337,6 +398,47 @@ void main() {
         }
     }
     if (u_mode == 1) value *= u_light_rgb * (u_times_cos == 1 ? max(a.z, 0.0) : 1.0);
+    return value;
+}
+`;
+  const BAKE_VALUE = (data.material_glsl || "") + `
+uniform float u_terms[3];
+in vec2 v_uv;
+vec3 hf_value() {
+    vec3 n = normalize(v_normal);
+    vec3 v = normalize(u_eye - v_pos);
+    vec3 c; float m; float rho;
+    hf_material(v_uv, c, m, rho);
+    vec3 I_d, I_A, I_B;
+    homofac_ibl_terms(n, v, rho, I_d, I_A, I_B);
+    vec3 f0 = mix(vec3(0.04), c, m);
+    return u_terms[0] * (1.0 - m) * 0.96 * c * I_d + u_terms[1] * f0 * I_A + u_terms[2] * I_B;
+}
+`;
+  const MAIN = `
+uniform vec3 u_eye;
+uniform float u_exposure;
+in vec3 v_pos;
+in vec3 v_normal;
+${isBake ? BAKE_VALUE : FAC_VALUE}
+uniform int u_panel;         // 0: the tone-mapped value; otherwise the relative-error heat map against u_exact
+uniform highp sampler2D u_exact;
+uniform ivec2 u_origin;
+uniform float u_tau;
+uniform float u_error_scale;
+out vec4 o_color;
+const vec3 HF_VIRIDIS[9] = vec3[9](${viridis});
+vec3 hf_srgb(vec3 x) {
+    x = clamp(x, 0.0, 1.0);
+    return mix(12.92 * x, 1.055 * pow(x, vec3(1.0 / 2.4)) - 0.055, step(vec3(0.0031308), x));
+}
+vec3 hf_viridis(float x) {
+    float t = clamp(x, 0.0, 1.0) * 8.0;
+    int i = min(int(floor(t)), 7);
+    return mix(HF_VIRIDIS[i], HF_VIRIDIS[i + 1], t - float(i));
+}
+void main() {
+    vec3 value = hf_value();
     if (u_panel == 0) { o_color = vec4(hf_srgb(value * u_exposure), 1.0); return; }
     ivec2 p = ivec2(gl_FragCoord.xy) - u_origin;
     vec4 e = texelFetch(u_exact, ivec2(p.x, ${S - 1} - p.y), 0);   // the exact image's rows run top to bottom
@@ -355,15 +457,24 @@ precision highp float;
 uniform highp sampler2D u_exact;
 uniform ivec2 u_origin;
 uniform float u_exposure;
+uniform int u_heat;          // 1: the image holds a relative error (in r), shown as the heat map
+uniform float u_error_scale;
 out vec4 o_color;
+const vec3 HF_VIRIDIS[9] = vec3[9](${viridis});
 vec3 hf_srgb(vec3 x) {
     x = clamp(x, 0.0, 1.0);
     return mix(12.92 * x, 1.055 * pow(x, vec3(1.0 / 2.4)) - 0.055, step(vec3(0.0031308), x));
 }
+vec3 hf_viridis(float x) {
+    float t = clamp(x, 0.0, 1.0) * 8.0;
+    int i = min(int(floor(t)), 7);
+    return mix(HF_VIRIDIS[i], HF_VIRIDIS[i + 1], t - float(i));
+}
 void main() {
     ivec2 p = ivec2(gl_FragCoord.xy) - u_origin;
     vec4 e = texelFetch(u_exact, ivec2(p.x, ${S - 1} - p.y), 0);
-    o_color = e.a < 0.5 ? vec4(vec3(${BG.toFixed(8)}), 1.0) : vec4(hf_srgb(e.rgb * u_exposure), 1.0);
+    if (e.a < 0.5) { o_color = vec4(vec3(${BG.toFixed(8)}), 1.0); return; }
+    o_color = u_heat == 1 ? vec4(hf_viridis(e.r / u_error_scale), 1.0) : vec4(hf_srgb(e.rgb * u_exposure), 1.0);
 }
 `;
 
@@ -404,34 +515,37 @@ void main() {
     return t;
   }
 
-  let programs, textures, meshes, exactProgram, quad;
+  let programs, textures, meshes, exactProgram, quad, materialTextures;
   try {
     programs = {};
-    for (const key of ["float", "8bit"])
+    for (const key of Object.keys(data.shaders))
       programs[key] = program(VERTEX, "#version 300 es\nprecision highp float;\nprecision highp int;\n" +
                                       data.shaders[key] + MAIN);
     const floatKind = floatLinear ? "rgba32f" : "rgba16f";
-    textures = {
-      "float": data.textures.map((t) => texture(t.width, t.height, floatKind, f32(t.float), gl.LINEAR)),
-      "8bit": data.textures.map((t) => texture(t.width, t.height, "rgba8", bytes(t.rgba8), gl.LINEAR)),
-    };
+    textures = {"float": data.textures.map((t) => texture(t.width, t.height, floatKind, f32(t.float), gl.LINEAR))};
+    if (data.shaders["8bit"])
+      textures["8bit"] = data.textures.map((t) => texture(t.width, t.height, "rgba8", bytes(t.rgba8), gl.LINEAR));
+    // a bake's material textures (glTF: nearest texels, as the bundled asset's sampler says)
+    materialTextures = (data.material || []).map((t) => [t.uniform, texture(t.width, t.height, "rgba8", bytes(t.rgba8), gl.NEAREST)]);
     meshes = {};
     for (const [name, m] of Object.entries(data.meshes)) {
       const vao = gl.createVertexArray();
       gl.bindVertexArray(vao);
-      for (const [loc, key] of [[0, "positions"], [1, "normals"]]) {
+      for (const [loc, key, dim] of [[0, "positions", 3], [1, "normals", 3], [2, "uvs", 2]]) {
+        if (!m[key]) continue;
         const buf = gl.createBuffer();
         gl.bindBuffer(gl.ARRAY_BUFFER, buf);
         gl.bufferData(gl.ARRAY_BUFFER, f32(m[key]), gl.STATIC_DRAW);
         gl.enableVertexAttribArray(loc);
-        gl.vertexAttribPointer(loc, 3, gl.FLOAT, false, 0, 0);
+        gl.vertexAttribPointer(loc, dim, gl.FLOAT, false, 0, 0);
       }
       const ibo = gl.createBuffer();
       gl.bindBuffer(gl.ELEMENT_ARRAY_BUFFER, ibo);
       gl.bufferData(gl.ELEMENT_ARRAY_BUFFER, new Uint32Array(bytes(m.indices).buffer), gl.STATIC_DRAW);
       gl.bindVertexArray(null);
-      meshes[name] = { vao: vao, count: m.count,
-                       exact: m.exact ? texture(S, S, "rgba32f", f32(m.exact), gl.NEAREST) : null };
+      const image = (key) => m[key] ? texture(S, S, "rgba32f", f32(m[key]), gl.NEAREST) : null;
+      meshes[name] = { vao: vao, count: m.count, exact: image("exact"), split: image("split_sum"),
+                       splitError: image("split_sum_error") };
     }
     if (data.exact) {
       exactProgram = program(EXACT_VERTEX, EXACT_FRAGMENT);
@@ -475,14 +589,25 @@ void main() {
     });
     gl.activeTexture(gl.TEXTURE0 + texs.length);
     gl.bindTexture(gl.TEXTURE_2D, mesh.exact);
+    materialTextures.forEach(([name, t], k) => {
+      gl.activeTexture(gl.TEXTURE0 + texs.length + 1 + k);
+      gl.bindTexture(gl.TEXTURE_2D, t);
+      unit[name] = texs.length + 1 + k;
+    });
+    const mu = data.material_uniforms || {};
+    if (isBake) {
+      gl.uniform4fv(gl.getUniformLocation(p, "u_base_factor"), mu.u_base_factor);
+      gl.uniform1f(gl.getUniformLocation(p, "u_metallic_factor"), mu.u_metallic_factor);
+      gl.uniform1f(gl.getUniformLocation(p, "u_roughness_factor"), mu.u_roughness_factor);
+    }
     const c = mvp(camera, 1.0);
     gl.uniformMatrix4fv(gl.getUniformLocation(p, "u_mvp"), false, c.matrix);
     uniforms(p, {
-      i: Object.assign(unit, { u_mode: data.kind === "lighting" ? 0 : 1, u_times_cos: data.times_cos ? 1 : 0,
+      i: Object.assign(unit, { u_mode: data.kind === "brdf" ? 1 : 0, u_times_cos: data.times_cos ? 1 : 0,
                                u_panel: panel, u_exact: texs.length }),
       f: { u_exposure: state.exposure, u_tau: data.meshes[state.mesh].tau || 1e-12, u_error_scale: state.errorScale },
       fv: { u_terms: state.terms },
-      v3: { u_eye: c.eye, u_light: data.light.direction, u_light_rgb: data.light.irradiance },
+      v3: Object.assign({ u_eye: c.eye }, data.light ? { u_light: data.light.direction, u_light_rgb: data.light.irradiance } : {}),
       i2: { u_origin: [panel * S, 0] },
     });
     gl.viewport(panel * S, 0, S, S);
@@ -498,16 +623,26 @@ void main() {
     gl.clearDepth(1.0);
     gl.clear(gl.COLOR_BUFFER_BIT | gl.DEPTH_BUFFER_BIT);
     drawMesh(0, state.camera);
-    if (data.exact) {
+    function image(panel, tex, heat) {
       gl.disable(gl.DEPTH_TEST);
       gl.useProgram(exactProgram);
       gl.activeTexture(gl.TEXTURE0);
-      gl.bindTexture(gl.TEXTURE_2D, meshes[state.mesh].exact);
-      uniforms(exactProgram, { i: { u_exact: 0 }, i2: { u_origin: [S, 0] }, f: { u_exposure: state.exposure } });
-      gl.viewport(S, 0, S, S);
+      gl.bindTexture(gl.TEXTURE_2D, tex);
+      uniforms(exactProgram, { i: { u_exact: 0, u_heat: heat ? 1 : 0 }, i2: { u_origin: [panel * S, 0] },
+                               f: { u_exposure: state.exposure, u_error_scale: state.errorScale } });
+      gl.viewport(panel * S, 0, S, S);
       gl.bindVertexArray(quad);
       gl.drawArrays(gl.TRIANGLES, 0, 3);
       gl.bindVertexArray(null);
+    }
+    if (isBake) {  // bake | exact | split-sum | bake's error | split-sum's error
+      const m = meshes[state.mesh];
+      image(1, m.exact, false);
+      image(2, m.split, false);
+      drawMesh(3, reference);
+      image(4, m.splitError, true);
+    } else if (data.exact) {
+      image(1, meshes[state.mesh].exact, false);
       drawMesh(2, reference);
     }
     const err = gl.getError();
@@ -522,10 +657,16 @@ void main() {
   }
 
   // ---- controls ----
-  document.getElementById("hf-heading").textContent =
-    `homofac ${data.homofac_version}: ${data.name} (${data.kind}, ${data.terms.length} term${data.terms.length > 1 ? "s" : ""})`;
+  const mesh0 = data.meshes[Object.keys(data.meshes)[0]];
+  document.getElementById("hf-heading").textContent = isBake
+    ? `homofac ${data.homofac_version}: ${data.name} (${data.lookups} texture lookups per pixel); reference view nrmse: ` +
+      `bake ${mesh0.nrmse.toPrecision(3)}, split-sum ${mesh0.split_sum_nrmse.toPrecision(3)}`
+    : `homofac ${data.homofac_version}: ${data.name} (${data.kind}, ${data.terms.length} term${data.terms.length > 1 ? "s" : ""})`;
+  if (!data.shaders["8bit"]) document.getElementsByName("hf-textures")[1].disabled = true;
   const titles = document.getElementById("hf-titles");
-  const names = ["factorized (WebGL2, live)", "exact (reference view)", "relative error (reference view)"];
+  const names = isBake ? ["bake (WebGL2, live)", "exact (reference view)", "split-sum (reference view)",
+                          "bake's relative error", "split-sum's relative error"]
+                        : ["factorized (WebGL2, live)", "exact (reference view)", "relative error (reference view)"];
   for (let i = 0; i < panels; ++i) {
     const d = document.createElement("div");
     d.style.width = (S - 8) + "px";
@@ -607,4 +748,5 @@ void main() {
 })();
 """
 
-__all__ = ["MESHES", "page", "script_json", "viewer_data", "viewer_html", "write_viewer"]
+__all__ = ["BAKE_TERMS", "MESHES", "bake_viewer_data", "page", "script_json", "viewer_data", "viewer_html", "write_bake_viewer",
+           "write_viewer"]

@@ -23,6 +23,7 @@ from __future__ import annotations
 import functools
 from typing import ClassVar, Literal
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 from pydantic import Field
@@ -30,7 +31,8 @@ from pydantic import Field
 from ..brdf import MODELS
 from ..errors import HomofacError
 from ..factorization import Factor, Factorization, Term, Texture
-from ..light import Environment
+from ..light import Environment, irradiance, uniform
+from ..light.integrals import integrals
 from ..light.sh import sh9_basis, sh9_irradiance
 from ..options import Options
 from ..param import mappers
@@ -105,6 +107,57 @@ def build(target, mapper: str, texture_size: int, options: SplitSumOptions) -> F
     return Factorization("lighting", "lighting", textures, terms, {}, "split_sum")
 
 
+@jax.jit
+def _karis_gltf(r, alpha2, dirs, power, solid):
+    """Karis' prefilter (module docstring) with GGX D of ``alpha2`` = roughness^4 per pair: (N, 3)."""
+
+    def one(block):
+        rr, a2 = block
+        c = rr @ dirs.T
+        ch2 = jnp.clip((1.0 + c) * 0.5, 0.0, 1.0)
+        w = a2[:, None] / (jnp.pi * (ch2 * (a2[:, None] - 1.0) + 1.0) ** 2) * jnp.maximum(c, 0.0)
+        return (w @ power) / jnp.maximum((w @ solid)[:, None], 1e-30)
+
+    k = _GLTF_CHUNK
+    return jax.lax.map(one, (r.reshape(-1, k, 3), alpha2.reshape(-1, k))).reshape(-1, 3)
+
+
+#: Pairs per lax.map step of :func:`gltf_parts`.
+_GLTF_CHUNK = 64
+
+
+def gltf_parts(env: Environment, n, v, roughness) -> np.ndarray:
+    """Split-sum's ``(I_d, I_A, I_B)`` of the glTF BRDF (docs/format.md, "Material-parametric bake") at pairs
+    with a roughness each, idealized: (N, 3, 3) float32, 0 where n.v <= 0.
+
+        I_d ~ E(n)/pi d(n, v, rho)     I_A ~ P_rho(r) A(n, v, rho)     I_B ~ P_rho(r) B(n, v, rho)
+
+    E the exact irradiance, P_rho Karis' prefilter (GGX D at the pair's own roughness, n = v = r, module
+    docstring), and d, A, B (the "DFG" terms) the integrals of :func:`homofac.light.integrals.integrals` under a
+    uniform radiance 1 of the same light resolution, i.e. the directional albedos of the three lobes at the
+    pair's own (n.v, rho), with no table. Split-sum as engines ship it (a mip chain, a DFG table) is only less
+    accurate than this; :mod:`homofac.baselines.ibl_sampler` evaluates a real one. Then
+    :func:`homofac.light.integrals.material_radiance` gives any material's L."""
+    n = jnp.asarray(n, jnp.float32)
+    v = jnp.asarray(v, jnp.float32)
+    rho = jnp.broadcast_to(jnp.asarray(roughness, jnp.float32), n.shape[:1])
+    count = n.shape[0]
+    if count == 0:
+        return np.zeros((0, 3, 3), np.float32)
+    x = jnp.sum(n * v, axis=-1)
+    r = 2.0 * x[:, None] * n - v
+    pad = (-count) % _GLTF_CHUNK
+    rp = jnp.concatenate([r, jnp.broadcast_to(r[:1], (pad, 3))])
+    a2 = jnp.concatenate([rho, jnp.broadcast_to(rho[:1], (pad,))]) ** 4
+    p = _karis_gltf(rp, a2, env.directions.astype(jnp.float32),
+                    (env.radiance * env.solid_angle[:, None]).astype(jnp.float32),
+                    env.solid_angle.astype(jnp.float32))[:count]
+    albedo = integrals(uniform(1.0, int(env.info.get("resolution", 32))), n, v, rho)
+    e = irradiance(env, n)
+    out = jnp.stack([e / jnp.pi * albedo[:, 0], p * albedo[:, 1], p * albedo[:, 2]], axis=1)
+    return np.asarray(jnp.where((x > 0)[:, None, None], out, 0.0), np.float32)
+
+
 BASELINE = Baseline("split_sum", SplitSumOptions, build, __doc__.split("\n")[0])
 
-__all__ = ["BASELINE", "SplitSumOptions", "build", "dfg", "prefilter", "sh9_basis", "sh9_irradiance"]
+__all__ = ["BASELINE", "SplitSumOptions", "build", "dfg", "gltf_parts", "prefilter", "sh9_basis", "sh9_irradiance"]
