@@ -5,6 +5,10 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
+from homofac.bake import Bake
+from homofac.bake.build import layer_size
+from homofac.bake.model import diffuse_sh9
+from homofac.bake.plan import plan as make_plan
 from homofac.factorization import Factor, Factorization, Term, Texture
 from homofac.param import mappers
 
@@ -74,3 +78,17 @@ def worst(a: dict, b: dict) -> tuple[float, str]:
                 x = a[split][kind][name]
                 out = max(out, (abs(x - y) / max(abs(y), 1e-12), f"{split}.{kind}.{name}: {x} vs {y}"))
     return out
+
+
+def made_up_bake(preset: str = "fast", seed: int = 0, diffuse_basis: str = "texture"):
+    """A bake of the preset's structure (3 layers, small sizes) with smooth made-up positive textures: what the
+    GPU == CPU and viewer tests need, without a fit. ``diffuse_basis="sh9"``: E_d's SH9 projections as well."""
+    pl = make_plan(preset, max_size=16, layers=3, nv_size=8, diffuse_size=8, diffuse_basis=diffuse_basis)
+    rough = pl.roughnesses()
+    P = tuple(np.stack([smooth_texture("cube", layer_size(r, pl.max_size), seed + 10 * j + k) for k in range(pl.terms)],
+                       axis=2) for j, r in enumerate(rough))
+    E = np.stack([smooth_texture("cube", pl.diffuse_size, seed + 100 + d) for d in range(pl.diffuse)], axis=2)
+    rng = np.random.default_rng(seed)
+    W = rng.uniform(0.2, 1.0, (pl.layers, pl.nv_size, 2 * pl.terms + pl.diffuse)).astype(np.float32)
+    return Bake(pl, rough, (0.0,) * pl.layers, P, E, W, {"source": "forest"},
+                diffuse_sh9(E) if diffuse_basis == "sh9" else None)

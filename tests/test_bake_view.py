@@ -13,30 +13,15 @@ import pytest
 
 import homofac as hf
 from homofac.app.cli import preview_main, view_main
-from homofac.bake import Bake
-from homofac.bake.build import layer_size
-from homofac.bake.plan import plan as make_plan
 from homofac.gl import picture
 from homofac.gl.asset import load_asset
 from homofac.gl.bakes import preview_bake, render_bake
 from homofac.gl.engine import Camera
 from homofac.light.integrals import integrals, material_radiance
-from helpers import smooth_texture
+from helpers import made_up_bake
 
 SIZE = 40
 CAMERA = Camera(azimuth=35.0, elevation=25.0)
-
-
-def made_up_bake(preset: str = "fast", seed: int = 0) -> Bake:
-    """A bake of the preset's structure with smooth made-up positive textures (the GPU == CPU tests need no fit)."""
-    pl = make_plan(preset, max_size=16, layers=3, nv_size=8, diffuse_size=8)
-    rough = pl.roughnesses()
-    P = tuple(np.stack([smooth_texture("cube", layer_size(r, pl.max_size), seed + 10 * j + k) for k in range(pl.terms)],
-                       axis=2) for j, r in enumerate(rough))
-    E = np.stack([smooth_texture("cube", pl.diffuse_size, seed + 100 + d) for d in range(pl.diffuse)], axis=2)
-    rng = np.random.default_rng(seed)
-    W = rng.uniform(0.2, 1.0, (pl.layers, pl.nv_size, 2 * pl.terms + pl.diffuse)).astype(np.float32)
-    return Bake(pl, rough, (0.0,) * pl.layers, P, E, W, {"source": "forest"})
 
 
 @pytest.fixture(scope="module")

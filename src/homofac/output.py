@@ -868,6 +868,7 @@ class BakePlanEntry(Options):
     max_size: int = Field(ge=2, le=MAX_SIZE)
     diffuse_size: int = Field(ge=2, le=MAX_SIZE)
     min_roughness: float = Field(gt=0, le=1)
+    diffuse_basis: Literal["texture", "sh9"] = "texture"
 
 
 class BakeDocument(Options):
@@ -888,6 +889,8 @@ class BakeDocument(Options):
     texture_bytes_half: int = 0
     shaders: dict[Literal[tuple(BAKE_SHADERS)], Literal[tuple(BAKE_SHADERS.values())]] = {}  # type: ignore[valid-type]
     sh9: Optional[dict[Literal["json", "filament"], Literal[SH9_JSON, SH9_FILAMENT]]] = None
+    #: with plan.diffuse_basis sh9: the E_d maps' SH9 coefficients (D x 9 x RGB), finite (they reach generated code)
+    diffuse_sh9: Optional[list[list[list[float]]]] = None
     info: dict = {}
 
 
@@ -900,7 +903,7 @@ def bake_document(bake: Bake, exr: str = "half") -> dict:
             "channels": ["r", "g", "b"]} for k in range(pl.terms)]
     s = pl.diffuse_size
     tex += [{"name": f"E{d}", "file": f"E{d}.exr", "kind": "diffuse", "width": 6 * s, "height": s,
-             "channels": ["r", "g", "b"]} for d in range(pl.diffuse)]
+             "channels": ["r", "g", "b"]} for d in range(pl.diffuse if pl.diffuse_basis == "texture" else 0)]
     tex += [{"name": f"W{t}", "file": f"W{t}.exr", "kind": "weights", "width": pl.nv_size, "height": pl.layers,
              "channels": (chans[3 * t:3 * t + 3] + ["-", "-"])[:3]} for t in range(pl.tables)]
     bad: list = []
@@ -912,6 +915,7 @@ def bake_document(bake: Bake, exr: str = "half") -> dict:
                    for r, sh, sz, (x, y) in zip(bake.roughness, bake.shift, atlas.sizes, atlas.offsets)],
         "diffuse_size": s, "nv_size": pl.nv_size, "textures": tex, "exr": exr, "shaders": dict(BAKE_SHADERS),
         "texture_bytes_half": bake.texture_bytes(),
+        **({"diffuse_sh9": np.asarray(bake.sh, np.float64).tolist()} if pl.diffuse_basis == "sh9" else {}),
         "info": _jsonable(bake.info, bad),
     }
 
@@ -964,8 +968,15 @@ def load_bake(d, *, max_bytes: int = 1 << 28) -> Bake:
     if [tuple((layer.x, layer.y)) for layer in doc.layers] != list(atlas.offsets):
         raise HomofacError(f"{f}: layer offsets do not match the atlas layout")
     by_kind = {k: [t for t in doc.textures if t.kind == k] for k in ("prefiltered", "diffuse", "weights")}
-    if (len(by_kind["prefiltered"]), len(by_kind["diffuse"]), len(by_kind["weights"])) != (pl.terms, pl.diffuse, pl.tables):
+    sh9 = pl.diffuse_basis == "sh9"
+    if (len(by_kind["prefiltered"]), len(by_kind["diffuse"]), len(by_kind["weights"])) != (
+            pl.terms, 0 if sh9 else pl.diffuse, pl.tables):
         raise HomofacError(f"{f}: texture count does not match the plan")
+    sh = None
+    if sh9:
+        sh = np.asarray(doc.diffuse_sh9 if doc.diffuse_sh9 is not None else [], np.float64)
+        if sh.shape != (pl.diffuse, 9, 3) or not np.all(np.isfinite(sh)) or np.abs(sh).max(initial=0) > 1e30:
+            raise HomofacError(f"{f}: diffuse_sh9 must hold {pl.diffuse} x 9 x 3 finite coefficients (plan diffuse_basis sh9)")
 
     def read(t: BakeTextureEntry, shape) -> np.ndarray:
         a = read_exr(_confined(d, t.file, "texture"), max_bytes=max_bytes)
@@ -978,10 +989,10 @@ def load_bake(d, *, max_bytes: int = 1 << 28) -> Bake:
     ps = [split(atlas, read(t, (atlas.height, atlas.width))) for t in by_kind["prefiltered"]]
     P = tuple(np.stack([p[j] for p in ps], axis=2) for j in range(pl.layers))
     s = doc.diffuse_size
-    E = np.stack([read(t, (s, 6 * s)) for t in by_kind["diffuse"]], axis=2)
+    E = None if sh9 else np.stack([read(t, (s, 6 * s)) for t in by_kind["diffuse"]], axis=2)
     W = np.concatenate([read(t, (pl.layers, doc.nv_size)) for t in by_kind["weights"]], axis=-1)[:, :, :2 * pl.terms + pl.diffuse]
     return Bake(pl, tuple(layer.roughness for layer in doc.layers), tuple(layer.shift for layer in doc.layers), P, E, W,
-                dict(raw.get("info") or {}))
+                dict(raw.get("info") or {}), None if sh is None else sh.astype(np.float32))
 
 
 register_bake_writer(save_bake)

@@ -32,7 +32,7 @@ from ..options import validate
 from ..param import mappers
 from . import kernels as kn
 from .filter import normalized, prefilter, prefilter_cube
-from .model import Bake
+from .model import Bake, diffuse_sh9
 from .options import BakeOptions
 from .plan import BakePlan, plan as make_plan
 
@@ -150,7 +150,7 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
     timings: dict[str, float] = {}
     max_size = int(opts.max_size or source_size(environment))
     pl = make_plan(opts.preset, max_size=max_size, min_roughness=opts.min_roughness, nv_size=opts.nv_size,
-                   diffuse_size=opts.diffuse_size, layers=opts.layers, terms=opts.terms)
+                   diffuse_size=opts.diffuse_size, layers=opts.layers, terms=opts.terms, diffuse_basis=opts.diffuse)
     lights = _Lights(environment)
     x = kn.nv_centres(pl.nv_size)
     data_env = lights(opts.data_resolution)
@@ -226,7 +226,8 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
     info = {"sh9": sh.document(), "source": str(getattr(environment, "info", {}).get("source", environment)) if isinstance(environment, Environment)
             else str(_path(environment)), "options": opts.model_dump(), "sizes": sizes,
             "data_resolution": int(data_env.info.get("resolution", 0)), "timings": timings}
-    return Bake(pl, roughness, tuple(shifts), tuple(P), E, table, info)
+    return Bake(pl, roughness, tuple(shifts), tuple(P), E, table, info,
+                diffuse_sh9(E) if pl.diffuse_basis == "sh9" else None)
 
 
 __all__ = ["bake", "fibonacci", "layer_size", "source_size"]

@@ -5,6 +5,10 @@
     T_c      = sum_j hat(u - j) line(T_jc, n.v)                 (the RGB weight tables, bilinear in (n.v, u))
     I_A = sum_k P_k a_k,   I_B = sum_k P_k b_k,   I_d = sum_d E_d(n) w_d          (a_k = T_2k, b_k = T_2k+1)
 
+With the plan's ``diffuse_basis`` ``sh9``, E_d(n) is ``sum_i c_di Y_i(n)`` instead (the 9 real SH of
+:mod:`homofac.light.sh`, pinned order, +z up; c_d the least-squares projection of the E_d map on them,
+:func:`diffuse_sh9`): no texture fetch, the weights w_d unchanged.
+
 with hat(t) = max(0, 1 - |t|), r = 2 (n.v) n - v, every 2D read the cube mapper's bilinear lookup and every
 n.v read the line mapper's (:func:`homofac.param.mappers.lookup`: what the GPU's filter computes on the
 clamped coordinates). Pairs with n.v <= 0 give 0.
@@ -22,6 +26,7 @@ from jaxtyping import Array, Float
 
 from ..errors import HomofacError
 from ..light.integrals import material_radiance
+from ..light.sh import SH9_NORM
 from ..param import mappers
 from .atlas import Atlas, pack
 from .plan import BakePlan
@@ -42,7 +47,9 @@ class Bake:
     ``P[j]`` (S_j, 6 S_j, K, 3): layer j of the K prefiltered maps; ``E`` (S_E, 6 S_E, D, 3): the diffuse maps;
     ``W`` (layers, X, 2K + D): the weight tables' channels a_1, b_1, ..., a_K, b_K, w_1, ..., w_D (three
     per RGB table when saved); ``roughness`` the layers' roughnesses; ``shift`` each layer's axis shift s (P_kj is read at
-    a_j = normalize((1 - s_j) r + s_j n)); ``info`` provenance and timings (JSON-friendly).
+    a_j = normalize((1 - s_j) r + s_j n)); ``info`` provenance and timings (JSON-friendly); ``sh`` (D, 9, 3) the
+    SH9 coefficients of the E_d maps when the plan's ``diffuse_basis`` is ``sh9`` (then ``E`` is not read and may
+    be None).
     """
 
     plan: BakePlan
@@ -52,6 +59,7 @@ class Bake:
     E: Any
     W: Any
     info: dict
+    sh: Any = None
 
     # --- structure -------------------------------------------------------------------------------------
     @property
@@ -68,7 +76,7 @@ class Bake:
         """GPU memory of the textures in half floats (RGB): P_k atlases, E_d maps, weight tables."""
         a = self.atlas
         p = self.plan.terms * a.width * a.height * 3
-        e = self.plan.diffuse * int(np.prod(np.shape(self.E)[:2])) * 3
+        e = self.plan.diffuse * 6 * self.plan.diffuse_size ** 2 * 3 if self.plan.diffuse_basis == "texture" else 0
         w = self.plan.tables * self.plan.layers * self.plan.nv_size * 3
         return (p + e + w) * bytes_per_channel
 
@@ -90,10 +98,14 @@ class Bake:
         n = jnp.asarray(n, jnp.float32)
         v = jnp.asarray(v, jnp.float32)
         rho = jnp.broadcast_to(jnp.asarray(roughness, jnp.float32), n.shape[:1])
-        return _terms(tuple(jnp.asarray(p, jnp.float32) for p in self.P), jnp.asarray(self.E, jnp.float32),
+        sh9 = self.plan.diffuse_basis == "sh9"
+        if sh9 and self.sh is None:
+            raise HomofacError("this bake's plan reads the diffuse term from SH9 coefficients, and it has none")
+        diffuse = jnp.asarray(self.sh if sh9 else self.E, jnp.float32)
+        return _terms(tuple(jnp.asarray(p, jnp.float32) for p in self.P), diffuse,
                       jnp.asarray(self.W, jnp.float32), jnp.asarray(self.shift, jnp.float32),
                       self.layer_coordinate(rho), n, v, self.plan.terms,
-                      self.plan.diffuse)
+                      self.plan.diffuse, sh9)
 
     def evaluate(self, n, v, base_color, metallic, roughness) -> Float[Array, "N 3"]:
         """L(n, v; c, m, rho) = (1 - m) 0.96 c I_d + f0_eff I_A + I_B (pinned) from the bake's integrals:
@@ -129,8 +141,29 @@ def _cube(texture, d):
     return mappers.lookup("cube", flat, d)
 
 
-@jax.jit(static_argnums=(7, 8))
-def _terms(P, E, W, shift, u, n, v, K: int, D: int):
+def sh9_basis(d: Float[Array, "N 3"]) -> Float[Array, "N 9"]:
+    """The 9 real SH Y_i(d) of :mod:`homofac.light.sh` (pinned order, +z up) in JAX."""
+    x, y, z = d[..., 0], d[..., 1], d[..., 2]
+    poly = jnp.stack([jnp.ones_like(x), y, z, x, x * y, y * z, 3 * z * z - 1, x * z, x * x - y * y], axis=-1)
+    return poly * jnp.asarray(SH9_NORM, d.dtype)
+
+
+def diffuse_sh9(E) -> np.ndarray:
+    """SH9 coefficients (D, 9, 3) of the diffuse maps E (S, 6S, D, 3): the least-squares fit
+    ``c_d = argmin sum_t dw_t |E_d(n_t) - sum_i c_di Y_i(n_t)|^2`` over the cube texels (solid-angle weights),
+    i.e. the projection of E_d on the first three SH bands (near-orthonormal on the texel grid; solved exactly)."""
+    E = np.asarray(E, np.float64)
+    s = E.shape[0]
+    d = np.asarray(mappers.texel_directions("cube", s), np.float64).reshape(-1, 3)
+    w = np.asarray(mappers.texel_solid_angles("cube", s), np.float64).reshape(-1)
+    y = np.asarray(sh9_basis(jnp.asarray(d)), np.float64) * np.sqrt(w)[:, None]
+    rhs = E.reshape(len(d), -1) * np.sqrt(w)[:, None]
+    c, *_ = np.linalg.lstsq(y, rhs, rcond=None)  # (9, D*3)
+    return np.moveaxis(c.reshape(9, E.shape[2], 3), 1, 0).astype(np.float32)
+
+
+@jax.jit(static_argnums=(7, 8, 9))
+def _terms(P, E, W, shift, u, n, v, K: int, D: int, sh9: bool = False):
     x = jnp.sum(n * v, axis=-1)
     r = 2.0 * x[:, None] * n - v
     xc = jnp.clip(x, 0.0, 1.0)
@@ -145,10 +178,11 @@ def _terms(P, E, W, shift, u, n, v, K: int, D: int):
     t = jnp.sum(hats[:, :, None] * _line(W, xc), axis=1)  # (N, C)
     ia = jnp.sum(pb * t[:, 0:2 * K:2, None], axis=1)
     ib = jnp.sum(pb * t[:, 1:2 * K:2, None], axis=1)
-    e = _cube(E, n).reshape(-1, D, 3)
+    # the diffuse maps: cube textures, or (sh9) E holds their SH coefficients (D, 9, 3)
+    e = jnp.einsum("ni,dic->ndc", sh9_basis(n), E) if sh9 else _cube(E, n).reshape(-1, D, 3)
     idf = jnp.sum(e * t[:, 2 * K:2 * K + D, None], axis=1)
     out = jnp.stack([idf, ia, ib], axis=1)
     return jnp.where((x > 0)[:, None, None], out, 0.0)
 
 
-__all__ = ["Bake", "register_writer"]
+__all__ = ["Bake", "diffuse_sh9", "register_writer", "sh9_basis"]

@@ -23,6 +23,9 @@ class BakeOptions(Options):
     terms: Optional[int] = Field(None, ge=1, le=8, description="specular products (default: the preset's)")
     samples: int = Field(512, ge=64, le=65536, description="directions of the data each layer's weights are fitted on")
     data_resolution: int = Field(16, ge=4, le=256, description="light resolution of that data")
+    diffuse: Literal["texture", "sh9"] = Field(
+        "texture", description="the diffuse maps E_d as cube textures (1 lookup each) or as 9 SH coefficients each, "
+                               "evaluated in the shader from constants (0 lookups; docs/format.md)")
     exr: Literal["half", "float32"] = "half"
     ktx2: bool = Field(False, description="also write each texture as <name>.ktx2 (RGBA half or float, as exr)")
 

@@ -20,7 +20,8 @@ Preset = Literal["fast", "balanced", "best"]
 
 
 class BakePlan(NamedTuple):
-    """What a bake computes: ``terms`` K products P_k W_k for I_A, I_B; ``diffuse`` D products for I_d;
+    """What a bake computes: ``terms`` K products P_k W_k for I_A, I_B; ``diffuse`` D products for I_d
+    (``diffuse_basis``: E_d as cube textures, ``texture``, or as their 9 SH coefficients, ``sh9``);
     ``layers`` roughness layers spaced geometrically from ``min_roughness`` to 1; ``nv_size`` columns of
     the weight tables; ``max_size`` the largest P face size (the sharpest layers'); ``diffuse_size`` the
     face size of the E_d maps."""
@@ -33,6 +34,7 @@ class BakePlan(NamedTuple):
     max_size: int
     diffuse_size: int
     min_roughness: float
+    diffuse_basis: str = "texture"
 
     @property
     def tables(self) -> int:
@@ -41,8 +43,9 @@ class BakePlan(NamedTuple):
 
     @property
     def lookups(self) -> int:
-        """Texture fetches per pixel: D (E_d) + 2 K (P_k, two layers blended by hand) + the tables."""
-        return self.diffuse + 2 * self.terms + self.tables
+        """Texture fetches per pixel: D (E_d; none with ``diffuse_basis`` sh9) + 2 K (P_k, two layers blended by
+        hand) + the tables."""
+        return (self.diffuse if self.diffuse_basis == "texture" else 0) + 2 * self.terms + self.tables
 
     def roughnesses(self) -> tuple[float, ...]:
         """The layers' roughnesses: min_roughness (1/min_roughness)^(j/(layers-1)) (lobe width alpha = rho^2
@@ -54,7 +57,8 @@ class BakePlan(NamedTuple):
         """One printable line."""
         return (f"bake plan {self.preset}: {self.terms} specular term(s) x {self.layers} roughness layers "
                 f"({self.min_roughness:g}..1), {self.diffuse} diffuse term(s), {self.tables} weight table(s) of "
-                f"{self.nv_size} n.v columns; P up to {self.max_size}^2 x 6, E {self.diffuse_size}^2 x 6; "
+                f"{self.nv_size} n.v columns; P up to {self.max_size}^2 x 6, E {self.diffuse_size}^2 x 6"
+                f"{' as SH9 constants' if self.diffuse_basis == 'sh9' else ''}; "
                 f"{self.lookups} lookups per pixel")
 
 
@@ -63,11 +67,12 @@ _STRUCTURE = {"fast": (1, 1, 10), "balanced": (2, 1, 12), "best": (5, 2, 12)}
 
 
 def plan(preset: str = "balanced", *, max_size: int = 256, min_roughness: float = 0.045, nv_size: int = 32,
-         diffuse_size: int = 32, layers: int | None = None, terms: int | None = None) -> BakePlan:
+         diffuse_size: int = 32, layers: int | None = None, terms: int | None = None,
+         diffuse_basis: str = "texture") -> BakePlan:
     """The plan of a preset, with the given overrides (validated by :class:`homofac.bake.BakeOptions`)."""
     k, d, n = _STRUCTURE[preset]
     return BakePlan(preset, int(terms or k), d, int(layers or n), int(nv_size), int(max_size), int(diffuse_size),
-                    float(min_roughness))
+                    float(min_roughness), str(diffuse_basis))
 
 
 __all__ = ["BakePlan", "PRESETS", "Preset", "plan"]

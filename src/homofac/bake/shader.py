@@ -6,7 +6,8 @@ mapper_function`); the rest is the model of :mod:`.model` written once for the G
 * ``hf_P<k>``: layer atlases (:mod:`.atlas`); a layer's texel is read at the cube mapper's per-face clamped
   coordinate plus the layer's offset, so the hardware's bilinear filter reads the four texels the CPU reads;
   the two layers around u(rho) are read and blended by hand (2 lookups per P_k);
-* ``hf_E<d>``: cube-layout diffuse maps (1 lookup each); ``hf_W<t>``: weight tables, rows = layers, columns
+* ``hf_E<d>``: cube-layout diffuse maps (1 lookup each), or with the plan's ``diffuse_basis`` ``sh9`` their 9
+  SH coefficients as constants, ``hf_sh9_<d>(n)`` (no lookup); ``hf_W<t>``: weight tables, rows = layers, columns
   = n.v, read bilinearly at (n.v, u) (1 lookup each, 3 channels);
 * every texture linear, clamp to edge, no mipmaps, rows in file order (``HOMOFAC_FLIP_V`` as for
   ``homofac_radiance``); ``HOMOFAC_Y_UP`` maps a y-up engine frame (x, y, z) -> (x, -z, y).
@@ -18,6 +19,7 @@ import numpy as np
 
 from .._version import __version__
 from ..errors import HomofacError
+from ..light.sh import SH9_NORM
 from ..shader import generate
 from ..shader import languages as L
 from .atlas import assemble
@@ -55,7 +57,8 @@ def source(bake: Bake, language: str = "glsl", *, y_up: bool = False, flip_v: bo
     lines += [L.table_source(L.get(language), n, v) for n, v in tables.items()]
     for k in range(K):
         lines.append(f"uniform {prec}sampler2D hf_P{k};  // P{k}.exr: {layers} layers in a {atlas.width} x {atlas.height} atlas")
-    for d in range(D):
+    sh9 = pl.diffuse_basis == "sh9"
+    for d in range(D if not sh9 else 0):
         lines.append(f"uniform {prec}sampler2D hf_E{d};  // E{d}.exr: cube {se}")
     for t in range(pl.tables):
         lines.append(f"uniform {prec}sampler2D hf_W{t};  // W{t}.exr: {layers} x {X} weight table")
@@ -89,6 +92,8 @@ def source(bake: Bake, language: str = "glsl", *, y_up: bool = False, flip_v: bo
         "    return textureLod(t, vec2(uv.x, hf_flip_v(uv.y)), 0.0).rgb;",
         "}",
     ]
+    if sh9:
+        lines += [_sh9_function(d, np.asarray(bake.sh)[d]) for d in range(D)]
     body = [
         "void homofac_ibl_terms(vec3 n, vec3 v, float roughness, out vec3 I_d, out vec3 I_A, out vec3 I_B) {",
         "#ifdef HOMOFAC_Y_UP",
@@ -119,7 +124,8 @@ def source(bake: Bake, language: str = "glsl", *, y_up: bool = False, flip_v: bo
         body.append(f"    I_A += p{k} * {chans[2 * k]};")
         body.append(f"    I_B += p{k} * {chans[2 * k + 1]};")
     for d in range(D):
-        body.append(f"    I_d += hf_cube(hf_E{d}, {_f(se)}, n) * {chans[2 * K + d]};")
+        read = f"hf_sh9_{d}(n)" if sh9 else f"hf_cube(hf_E{d}, {_f(se)}, n)"
+        body.append(f"    I_d += {read} * {chans[2 * K + d]};")
     body.append("}")
     entry = [
         "vec3 homofac_ibl(vec3 n, vec3 v, vec3 base_color, float metallic, float roughness) {",
@@ -131,6 +137,17 @@ def source(bake: Bake, language: str = "glsl", *, y_up: bool = False, flip_v: bo
     ]
     text = "\n".join(lines + body + entry) + "\n"
     return _to_hlsl(text, bake) if language == "hlsl" else text
+
+
+def _sh9_function(d: int, c) -> str:
+    """``vec3 hf_sh9_<d>(vec3 n)``: sum_i c_i Y_i(n) with the constants folded into the coefficients (the
+    polynomials 1, y, z, x, xy, yz, 3z^2 - 1, xz, x^2 - y^2 of :mod:`homofac.light.sh`, +z up)."""
+    k = np.asarray(c, np.float64) * SH9_NORM[:, None]
+    v = [f"vec3({_f(r)}, {_f(g)}, {_f(b)})" for r, g, b in k]
+    return (f"vec3 hf_sh9_{d}(vec3 n) {{  // E{d}(n) from its 9 SH coefficients (no texture)\n"
+            f"    return {v[0]} + {v[1]} * n.y + {v[2]} * n.z + {v[3]} * n.x\n"
+            f"         + {v[4]} * (n.x * n.y) + {v[5]} * (n.y * n.z) + {v[6]} * (3.0 * n.z * n.z - 1.0)\n"
+            f"         + {v[7]} * (n.x * n.z) + {v[8]} * (n.x * n.x - n.y * n.y);\n}}")
 
 
 #: GLSL -> HLSL spellings of the few constructs the bake's code uses (the cube mapper comes traced in HLSL).
@@ -176,8 +193,8 @@ def texture_arrays(bake: Bake) -> list[tuple[str, object]]:
     """``(uniform name, (H, W, 3) float32 array)`` of every texture, as the files hold them."""
     pl = bake.plan
     out = [(f"hf_P{k}", assemble(bake.atlas, [np.asarray(p)[:, :, k] for p in bake.P], 3)) for k in range(pl.terms)]
-    e = np.asarray(bake.E, np.float32)
-    out += [(f"hf_E{d}", np.ascontiguousarray(e[:, :, d])) for d in range(pl.diffuse)]
+    e = np.asarray(bake.E, np.float32) if pl.diffuse_basis == "texture" else None
+    out += [(f"hf_E{d}", np.ascontiguousarray(e[:, :, d])) for d in range(pl.diffuse if pl.diffuse_basis == "texture" else 0)]
     w = np.asarray(bake.W, np.float32)
     w = np.concatenate([w, np.zeros(w.shape[:2] + (3 * pl.tables - w.shape[2],), np.float32)], axis=-1)
     out += [(f"hf_W{t}", np.ascontiguousarray(w[:, :, 3 * t:3 * t + 3])) for t in range(pl.tables)]
