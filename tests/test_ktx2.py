@@ -20,7 +20,7 @@ from homofac.errors import HomofacError
 from homofac.factorization import Factor, Factorization, Term, Texture
 from homofac.fit.result import Result
 from homofac.io.exr import read_exr
-from homofac.io.ktx2 import decode_ktx2, encode_ktx2, read_ktx2, write_ktx2
+from homofac.io.ktx2 import decode_ktx2, encode_ktx2, mip_chain, read_ktx2, write_ktx2
 
 JS = Path(__file__).resolve().parents[1] / "js"
 
@@ -185,3 +185,54 @@ def test_fit_cli_ktx2(tmp_path):
     assert fit_main([str(_small_config(tmp_path)), "--quiet", "--ktx2", "--out", str(tmp_path / "a")]) == 0
     doc = json.loads((tmp_path / "a" / "factorization.json").read_text())
     assert [read_ktx2(tmp_path / "a" / t["ktx2"]).kind for t in doc["textures"]] == ["2d", "2d"]
+
+
+@pytest.mark.parametrize("kind", ["2d", "array", "3d", "cube"])
+def test_mip_chain_is_box_averages(kind):
+    """Each level is the average of the 2 x 2 (x 2 for 3D) block below it (one axis of size 1 stays); array
+    layers and cube faces stay apart; the chain ends at 1 texel; it round-trips through the container."""
+    rng = np.random.default_rng(5)
+    shape = {"2d": (8, 16), "array": (3, 8, 16), "3d": (4, 8, 16), "cube": (6, 8, 8)}[kind]
+    a = rng.uniform(0, 1, shape + (3,)).astype(np.float32)
+    chain = mip_chain(a, kind)
+    assert len(chain) == (4 if kind == "cube" else 5)
+    axes = {"2d": (0, 1), "array": (1, 2), "3d": (0, 1, 2), "cube": (1, 2)}[kind]
+    for hi, lo in zip(chain, chain[1:]):
+        want = hi
+        for ax in axes:
+            if want.shape[ax] > 1:
+                even = np.take(want, np.arange(0, want.shape[ax], 2), axis=ax)
+                odd = np.take(want, np.arange(1, want.shape[ax], 2), axis=ax)
+                want = (even + odd) / 2
+        np.testing.assert_allclose(lo, want, rtol=1e-6)
+    assert all(chain[-1].shape[ax] == 1 for ax in axes)
+    if kind in ("array", "cube"):
+        assert chain[-1].shape[0] == a.shape[0]  # layers and faces are kept
+    im = decode_ktx2(encode_ktx2(chain, kind, "float"))
+    for x, y in zip(im.levels, chain):
+        np.testing.assert_array_equal(x[..., :3], y)
+
+
+def test_layout_key_and_mips_read_by_ktx_parse(tmp_path, ktx_parse):
+    """``write_ktx2(..., mips=None, layout={...})``: a 2D array and a 3D texture with their full mip chains, read
+    back by ktx-parse with the level count and the layout key naming kind, format and levels."""
+    rng = np.random.default_rng(6)
+    arr = rng.uniform(0, 2, (5, 16, 32, 3)).astype(np.float32)
+    vol = rng.uniform(0, 2, (8, 16, 16, 4)).astype(np.float32)
+    pa = write_ktx2(tmp_path / "a.ktx2", arr, "array", "half", mips=None, layout={"texture": "P0", "layer": "roughness j"})
+    pv = write_ktx2(tmp_path / "v.ktx2", vol, "3d", "float", mips=3, layout={"texture": "P0", "depth": "roughness"})
+    out = subprocess.run([ktx_parse, str(JS / "ktx2-info.mjs"), str(pa), str(pv)], check=True, capture_output=True,
+                         text=True, timeout=60)
+    a, v = json.loads(out.stdout)
+    assert (a["layerCount"], a["pixelDepth"], a["levelCount"]) == (5, 0, 6)
+    assert a["levelBytes"] == [5 * max(1, 16 >> i) * max(1, 32 >> i) * 4 * 2 for i in range(6)]
+    assert (v["layerCount"], v["pixelDepth"], v["levelCount"]) == (0, 8, 3)
+    assert v["levelBytes"] == [(8 >> i) * (16 >> i) * (16 >> i) * 4 * 4 for i in range(3)]
+    la, lv = json.loads(a["keyValue"]["homofac"]), json.loads(v["keyValue"]["homofac"])
+    assert la == {"texture": "P0", "layer": "roughness j",
+                  "ktx2": {"kind": "array", "format": "half", "levels": 6, "mip_filter": "2x2 box"}}
+    assert lv["ktx2"] == {"kind": "3d", "format": "float", "levels": 3, "mip_filter": "2x2 box"}
+    np.testing.assert_array_equal(read_ktx2(pv).levels[0], vol)
+    with pytest.raises(HomofacError, match="levels asked"):
+        write_ktx2(tmp_path / "x.ktx2", vol, "3d", mips=9)
+    assert not (tmp_path / "x.ktx2").exists()

@@ -17,13 +17,16 @@ to 4 bytes), and the level data from the smallest level to the largest, each ali
 ``lcm(texel size, 4)``; within a level: layers, faces, depth slices, rows, pixels.
 
 Keys written: ``KTXorientation`` (``rd``; ``rdi`` for 3D), ``KTXwriter`` (homofac and its version), and
-whatever the caller adds (homofac writes ``homofac``: a JSON string naming the layout). Writes are atomic
+whatever the caller adds (homofac writes ``homofac``: a JSON string naming the layout; :func:`write_ktx2`'s
+``layout=`` writes it with the container's kind, format and level count). :func:`mip_chain` makes the smaller
+levels of a level 0 by 2 x 2 (x 2) box averages. Writes are atomic
 (:func:`homofac.io.files.write_atomically`); reads check every offset against the file size and refuse
 what they do not support (supercompression, other formats) with a one-line error naming the file.
 """
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import struct
@@ -190,9 +193,57 @@ def encode_ktx2(levels, kind: str = "2d", format: str = "half", keys: dict[str, 
     return bytes(out)
 
 
+def mip_chain(level0, kind: str = "2d", count: int | None = None) -> list[np.ndarray]:
+    """``level0`` and its ``count - 1`` smaller levels (default: down to 1 x 1), each the 2 x 2 box average of
+    the one before (2 x 2 x 2 for ``3d``; per layer for ``array``, per face for ``cube``: layers and faces are
+    never mixed). Sizes follow the KTX2 rule ``max(1, n >> level)``; an odd size averages its first 2 floor(n/2)
+    texels (and a size of 1 is kept as it is). ``level0`` shaped as :func:`encode_ktx2` says."""
+    if kind not in KINDS:
+        raise HomofacError(f"KTX2: kind must be one of {', '.join(KINDS)}, got {kind!r}")
+    a = np.asarray(level0, np.float32)
+    spatial = {"2d": (0, 1), "array": (1, 2), "cube": (1, 2), "3d": (0, 1, 2)}[kind]
+    if a.ndim != (3 if kind == "2d" else 4):
+        raise HomofacError(f"KTX2: a {kind} level must be {'(H, W, C)' if kind == '2d' else '(N, H, W, C)'}, got {a.shape}")
+    most = 1 + int(math.floor(math.log2(max(a.shape[i] for i in spatial))))
+    count = most if count is None else int(count)
+    if not 1 <= count <= most:
+        raise HomofacError(f"KTX2: {count} levels asked; a {kind} level of shape {a.shape[:-1]} has 1 ... {most}")
+    out = [a]
+    for _ in range(count - 1):
+        for axis in spatial:
+            n = a.shape[axis]
+            if n > 1:
+                a = np.moveaxis(a, axis, 0)
+                a = 0.5 * (a[0:2 * (n // 2):2] + a[1:2 * (n // 2):2])
+                a = np.moveaxis(a, 0, axis)
+        out.append(np.ascontiguousarray(a))
+    return out
+
+
 def write_ktx2(path: str | os.PathLike, levels, kind: str = "2d", format: str = "half",
-               keys: dict[str, str | bytes] | None = None) -> Path:
-    """Write ``levels`` as a KTX2 file at ``path``, atomically (see :func:`encode_ktx2`); returns the path."""
+               keys: dict[str, str | bytes] | None = None, *, mips: int | None = 1, layout: dict | None = None) -> Path:
+    """Write ``levels`` as a KTX2 file at ``path``, atomically (see :func:`encode_ktx2`); returns the path.
+
+    ``levels``: the level arrays (level 0 first), or one array: with ``mips`` > 1 (``None``: the full chain) the
+    smaller levels are then made by :func:`mip_chain`. ``kind``: ``2d`` (H, W, C), ``array`` (layers, H, W, C),
+    ``3d`` (depth, H, W, C) or ``cube`` (6, S, S, C). ``format``: ``half`` or ``float``. ``layout``: a JSON-able
+    dict written as the key ``homofac`` with ``ktx2: {kind, format, levels}`` added, so that a reader knows
+    what the file's axes mean (e.g. ``{"texture": "P0", "axes": "layer = roughness layer j"}``).
+
+    Example (a 2D array of roughness layers with its mip chain)::
+
+        write_ktx2("P0.ktx2", layers, "array", "half", mips=None, layout={"texture": "P0", "layer": "roughness"})
+    """
+    single = isinstance(levels, np.ndarray) or not isinstance(levels, (list, tuple))
+    if single and mips != 1:
+        levels = mip_chain(levels, kind, mips)
+    elif not single and mips not in (1, None, len(levels)):
+        raise HomofacError("KTX2: pass one level 0 array to make mips, or the whole list of levels")
+    keys = dict(keys or {})
+    if layout is not None:
+        count = 1 if single and mips == 1 else len(levels)
+        keys["homofac"] = json.dumps({**layout, "ktx2": {"kind": kind, "format": format, "levels": count,
+                                                         "mip_filter": "2x2 box" if count > 1 else None}})
     data = encode_ktx2(levels, kind, format, keys)
     return write_atomically(path, "KTX2", lambda tmp: Path(tmp).write_bytes(data), suffix=".tmp.ktx2")
 
@@ -249,4 +300,4 @@ def read_ktx2(path: str | os.PathLike) -> Ktx2Image:
     return decode_ktx2(Path(path).read_bytes(), str(path))
 
 
-__all__ = ["FORMATS", "IDENTIFIER", "KINDS", "Ktx2Image", "decode_ktx2", "encode_ktx2", "read_ktx2", "write_ktx2"]
+__all__ = ["FORMATS", "IDENTIFIER", "KINDS", "Ktx2Image", "decode_ktx2", "encode_ktx2", "mip_chain", "read_ktx2", "write_ktx2"]
