@@ -123,7 +123,7 @@ def viewer_data(fac, target=None, *, size: int = 256, camera: Camera = Camera(),
     return data
 
 
-#: The bake page's toggles: the three parts of L (docs/format.md, "Material-parametric bake").
+#: The bake page's toggles: the three parts of L (docs/format.md, "The bake directory").
 BAKE_TERMS = ("diffuse: (1 - m) 0.96 c I_d", "specular: f0 I_A", "specular: I_B")
 
 

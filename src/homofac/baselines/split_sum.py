@@ -127,7 +127,7 @@ _GLTF_CHUNK = 64
 
 
 def gltf_parts(env: Environment, n, v, roughness) -> np.ndarray:
-    """Split-sum's ``(I_d, I_A, I_B)`` of the glTF BRDF (docs/format.md, "Material-parametric bake") at pairs
+    """Split-sum's ``(I_d, I_A, I_B)`` of the glTF BRDF (docs/format.md, "The bake directory") at pairs
     with a roughness each, idealized: (N, 3, 3) float32, 0 where n.v <= 0.
 
         I_d ~ E(n)/pi d(n, v, rho)     I_A ~ P_rho(r) A(n, v, rho)     I_B ~ P_rho(r) B(n, v, rho)
