@@ -67,6 +67,7 @@ def test_preview_beside_exact_and_split_sum(bake):
     constant environment split-sum equals the exact lighting (both are the albedo times the radiance)."""
     img, data = preview_bake(bake, "forest", size=SIZE, camera=CAMERA, resolution=4, return_data=True)
     assert img.shape[1] > 5 * SIZE and set(data["nrmse"]) == {"bake", "split_sum"}
+    assert sum(b["pixels"] for b in data["bands"].values()) == data["frame"].mask.sum() and len(data["bands"]) == 4
     f = data["frame"]
     m = f.mask
     env = hf.light.load_environment("forest", 4)

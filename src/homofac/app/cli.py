@@ -428,8 +428,9 @@ def _preview_bake(args, d: Path) -> int:
     img, data = preview_bake(bake, env, asset=asset, size=args.size, camera=camera, exposure=args.exposure,
                              error_scale=args.error_scale, return_data=True)
     write_atomically(out, "PNG", lambda tmp: Image.fromarray(img).save(tmp, format="PNG"), suffix=".tmp.png")
-    print(f"wrote {out}: bake {bake.plan.preset} ({bake.lookups} lookups) on {asset.name}, pixel nrmse: bake "
-          f"{data['nrmse']['bake']:.4g}, split-sum {data['nrmse']['split_sum']:.4g}")
+    bands = "; ".join(f"{k}: {v['bake']:.3g} / {v['split_sum']:.3g}" for k, v in data["bands"].items())
+    print(f"wrote {out}: bake {bake.plan.preset} ({bake.lookups} lookups) on {asset.name}; pixel nrmse, bake / "
+          f"split-sum, by roughness band: {bands}")
     return 0
 
 

@@ -34,7 +34,7 @@ from .._version import __version__
 from ..bake import shader as bake_shader
 from ..errors import HomofacError
 from ..gl.asset import Asset, load_asset
-from ..gl.bakes import MATERIAL, material_textures, material_uniforms, preview_bake
+from ..gl.bakes import CONVERGED_FROM, MATERIAL, material_textures, material_uniforms, preview_bake
 from ..gl.engine import Camera, Light, load_mesh
 from ..gl.picture import BACKGROUND, _VIRIDIS, check_finite, preview, relative_error
 from ..io.files import write_atomically
@@ -168,6 +168,7 @@ def bake_viewer_data(bake, environment=None, *, asset="material_sphere", size: i
                    "fov": camera.fov},
         "terms": list(BAKE_TERMS),
         "lookups": int(bake.lookups),
+        "converged_from": CONVERGED_FROM,
         "textures": textures,
         "material": material,
         "material_uniforms": material_uniforms(asset),
@@ -177,7 +178,8 @@ def bake_viewer_data(bake, environment=None, *, asset="material_sphere", size: i
                                 "uvs": _b64(asset.uv, np.float32), "indices": _b64(asset.faces.reshape(-1), np.uint32),
                                 "count": int(asset.faces.size), "exact": image(e), "split_sum": image(info["split_sum"]),
                                 "split_sum_error": image(split_err), "tau": tau,
-                                "nrmse": info["nrmse"]["bake"], "split_sum_nrmse": info["nrmse"]["split_sum"]}},
+                                "nrmse": info["nrmse_converged"]["bake"],
+                                "split_sum_nrmse": info["nrmse_converged"]["split_sum"]}},
         "exact": True,
         "exposure": float(info["exposure"]),
         "error_scale": float(info["error_scale"]),
@@ -659,7 +661,7 @@ void main() {
   // ---- controls ----
   const mesh0 = data.meshes[Object.keys(data.meshes)[0]];
   document.getElementById("hf-heading").textContent = isBake
-    ? `homofac ${data.homofac_version}: ${data.name} (${data.lookups} texture lookups per pixel); reference view nrmse: ` +
+    ? `homofac ${data.homofac_version}: ${data.name} (${data.lookups} texture lookups per pixel); reference view nrmse at roughness >= ${data.converged_from}: ` +
       `bake ${mesh0.nrmse.toPrecision(3)}, split-sum ${mesh0.split_sum_nrmse.toPrecision(3)}`
     : `homofac ${data.homofac_version}: ${data.name} (${data.kind}, ${data.terms.length} term${data.terms.length > 1 ? "s" : ""})`;
   if (!data.shaders["8bit"]) document.getElementsByName("hf-textures")[1].disabled = true;
