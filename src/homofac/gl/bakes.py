@@ -243,7 +243,7 @@ def preview_bake(bake: Bake, environment=None, *, asset: Asset | str = "material
     for lo, hi in BANDS:
         k = (rho >= lo) & (rho < hi)
         if k.any():
-            bands[f"{lo}-{hi:g}"] = {"pixels": int(k.sum()), "bake": _nrmse(approx[k], exact[k]),
+            bands[f"{lo:g}-{min(hi, 1.0):g}"] = {"pixels": int(k.sum()), "bake": _nrmse(approx[k], exact[k]),
                                      "split_sum": _nrmse(split[k], exact[k])}
     k = rho >= CONVERGED_FROM
     nrmse_converged = {"bake": _nrmse(approx[k], exact[k]), "split_sum": _nrmse(split[k], exact[k])}
