@@ -37,12 +37,13 @@ class Preset(NamedTuple):
 
     ``lookups``: the budget ``max_lookups``; ``grid_count``: training pairs of the grid design
     (``sampling.count``); ``validation``: validation pairs (``sampling.validation``); ``line_ratio``: 0
-    for 32-texel lines only, k for a vote between 32 and k x ``texture_size`` texels (``line_size``);
-    ``table``: highlight candidates read a 2D table T(n.i, n.v) (``highlight_table``); ``disc_vote``: the
-    kept structure is fitted again reading its lights' discs (``highlight_disc``); ``nv_balance``: of the
-    candidates on lighting of a BRDF with kd > 0 (``linear.nv_balance``); ``polish``: Levenberg-Marquardt
-    steps of the kept structure (``linear.polish``); ``ridge``: ridge pairs of its polish and of the
-    validation estimate (``linear.ridge``); ``analysis``: record Mahajan's in-out analysis."""
+    for 32-texel lines only, k for a vote between 32 and k x ``texture_size`` texels (``advanced.line_size``);
+    ``table``: highlight candidates read a 2D table T(n.i, n.v) (``advanced.highlights.table``); ``disc_vote``:
+    the kept structure is fitted again reading its lights' discs (``advanced.highlights.disc``); ``nv_balance``:
+    of the candidates on lighting of a BRDF with kd > 0 (``advanced.linear.nv_balance``); ``polish``:
+    Levenberg-Marquardt steps of the kept structure (``advanced.linear.polish``); ``ridge``: ridge pairs of its
+    polish and of the validation estimate (``advanced.linear.ridge``); ``analysis``: record Mahajan's in-out
+    analysis (``advanced.analysis``)."""
 
     lookups: int
     grid_count: int

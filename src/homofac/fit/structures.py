@@ -1,7 +1,10 @@
 """The structure of a sum of products: which terms, factors and textures (docs/format.md, schema 2).
 
-A :class:`Structure` is the pinned config of a sum (``terms: K``, ``diffuse: exact | fitted``,
-``nv_factor``) over a parametrization (the product each fitted term repeats):
+A :class:`Structure` is one nested model of a sum: the pinned config keys (``terms: K``, ``diffuse: exact |
+fitted``, ``nv_factor``) over a parametrization (the product each fitted term repeats), the extra terms
+(``reflection``, ``prefiltered``, ``rw_terms``) and the highlight terms as a sub-model
+(:class:`Highlights`: ``highlights.terms``, ``.fresnel``, ``.cosine``, ``.table``, ``.disc``); the config
+names the extra terms and the highlights under ``advanced:``:
 
     value(a, b) = [diffuse term] + sum_{t < K} prod_(factors of the parametrization) t_(k, t)(pi_j(a, b))
                                                [* w_t(n.v)]
@@ -15,20 +18,20 @@ A :class:`Structure` is the pinned config of a sum (``terms: K``, ``diffuse: exa
 * ``rw_terms`` (lighting): J more fitted terms ``q_t(r) w_t(n.v)`` without a normal texture (two lookups
   each) after the K products: a sum can mix products that carry p(n) (they help under a sun) with ones
   that do not (they fit lamp highlights better; docs/notes/sums-research.md);
-* ``highlight_terms`` (lighting, J <= 3): J more fitted terms ``d_t(x_j) w_t(n.v)`` (two lookups each),
+* ``highlights.terms`` (lighting, J <= 3): J more fitted terms ``d_t(x_j) w_t(n.v)`` (two lookups each),
   ``d_t`` a ``line`` texture read at ``x_j = nh_dom`` (``nh_dom1``, ``nh_dom2``), the NDF argument of
   the half vector of the j-th brightest light (context ``dominant``, ``dominant1``, ``dominant2``:
   :func:`homofac.light.brightest_directions`, the sun or the brightest lamps). A
   microfacet highlight of one light is ``D(n.h') F G / (4 n.v)``: a function of ``x`` times one of n.v,
   which keeps its shape at every view where a map of r smears it (the near-mirror under the city sun:
   the sun alone holds 71 % of the squared lighting; docs/notes/sums-research.md);
-* ``highlight_table`` (lighting): each highlight term reads a 2D table ``T_t(n.i, n.v)`` of its light's
+* ``highlights.table`` (lighting): each highlight term reads a 2D table ``T_t(n.i, n.v)`` of its light's
   cosine and the view's (projection ``ninv_dom``, ``ninv_dom1``, ``ninv_dom2``: :func:`homofac.param.projections.table_point`,
   a ``parabolic`` texture of :data:`TABLE_SIZE`) in place of ``c_t(n.i) w_t(n.v)``: one lookup fewer, and
   the highlight's ``min(1, n.i / n.v)`` near the mirror direction, which no product of the two lines holds
   (docs/notes/sums-research.md, "A 2D table of (n.i, n.v)"). The ALS fits the lines (:func:`lined`), which
   :func:`homofac.fit.table.tabulate` turns into the table for the polish to refine;
-* ``highlight_disc`` (lighting): each highlight term reads its light's coordinate at the point of the
+* ``highlights.disc`` (lighting): each highlight term reads its light's coordinate at the point of the
   light's disc closest to ``r`` (projection ``nhs_dom``, ``nhs_dom1``, ``nhs_dom2``; context ``radius``,
   :func:`homofac.light.light_radii`): at grazing views a point light's half vector is ill-conditioned
   and a sun's highlight there comes from the part of its disc on the mirror direction (docs/notes/sums-research.md,
@@ -60,7 +63,7 @@ from ..param import projections as pj
 #: The line texture read by ``nv_factor`` (and by a BRDF ``brdf_cos`` diffuse term).
 LINE_SIZE = 32
 
-#: The ``parabolic`` size of a highlight term's 2D table (``highlight_table``): its square holds
+#: The ``parabolic`` size of a highlight term's 2D table (``highlights.table``): its square holds
 #: ``TABLE_SPAN x 96 = 58`` texels per axis of (sqrt(n.i), sqrt(n.v)).
 TABLE_SIZE = 96
 
@@ -386,10 +389,10 @@ def candidates(kind: str, max_lookups: int, *, parametrization: str | None = Non
     same light resolution alike on all three (docs/notes/sums-research.md).
     Sums that mix both kinds of product (``rw_terms``) are not candidates: they fitted worse than
     either kind alone (docs/notes/sums-research.md). With ``highlight`` (lighting targets with an environment) each
-    family is tried again with one highlight term of the brightest light (``highlight_terms: 1``): the
+    family is tried again with one highlight term of the brightest light (``highlights.terms: 1``): the
     near-mirror under the city sun falls from 0.47 to 0.17 nrmse at 4 lookups. With ``table`` the
     highlight terms that would read the cosine line c(n.i) and w(n.v) read a 2D table T(n.i, n.v) instead
-    (``highlight_table``: one lookup fewer each, which goes to more terms;
+    (``highlights.table``: one lookup fewer each, which goes to more terms;
     the ``best`` preset, :mod:`homofac.fit.plan`).
     """
     return _sorted(_variants(kind, max_lookups, parametrization, has_diffuse, max_terms, largest=True,
