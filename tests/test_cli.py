@@ -276,3 +276,21 @@ def test_the_polish_line_reads_every_record_generation():
                                 "validation nrmse 0.062 -> 0.118 (not kept)")
     old = {"steps": 8, "validation_nrmse_before": 0.3, "validation_nrmse_after": 0.2}
     assert polish_line(old) == "polish: 8 Levenberg-Marquardt steps off the grid, validation nrmse 0.3 -> 0.2 (kept)"
+
+
+def test_the_summary_names_a_sum_by_its_structure_label_and_nested_model(capsys):
+    """The run summary of a sum: the kept structure's label and its nested model in words, from the
+    solver record (also from a record of the flat layout written before the nested model)."""
+    from homofac.app.cli import _summary
+    from homofac.fit.result import Result
+    from homofac.fit.structures import Structure
+    from helpers import nrw_sum
+
+    metrics = {"validation": {"float": {"nrmse": 0.1, "avg_rel": 0.2}}}
+    structure = Structure("NR", 1, None, True)
+    flat = {**{k: v for k, v in structure.record().items() if k != "highlights"}, "highlight_terms": 0}
+    for rec in (structure.record(), flat):
+        fac = Result(nrw_sum(K=1, S=4), solver={"method": "als", "iterations": 3, "structure": rec}, metrics=metrics)
+        _summary(fac, "out", 1.0)
+        line = capsys.readouterr().out.splitlines()[0]
+        assert line.startswith("wrote out: NRW x1 (NR products x1, nv_factor) on dual_paraboloid 4 (3 lookups)"), line

@@ -230,7 +230,8 @@ class HighlightOptions(Options):
 
 
 class AdvancedOptions(Options):
-    """``advanced``: the research keys (a preset sets what they decide; docs/config.md, "`advanced`: the research keys").
+    """``advanced``: the research keys (a preset sets what they decide; docs/config.md,
+    "`advanced`: the research keys").
 
     The rest of a structure (:class:`homofac.fit.structures.Structure`) beside the top-level ``terms``,
     ``diffuse`` and ``nv_factor``: ``reflection`` (lighting: one more fitted term, an r-only texture),

@@ -35,8 +35,8 @@ from .structures import Structure
 
 
 #: Why ``advanced.line_size`` is refused for a single log-space product.
-LINE_SIZE_NEEDS_SUM = ("advanced.line_size sizes the line textures of a sum of products; a single product's scalar factor "
-                       "has texture_size texels")
+LINE_SIZE_NEEDS_SUM = ("advanced.line_size sizes the line textures of a sum of products; a single product's "
+                       "scalar factor has texture_size texels")
 
 
 def quality_warnings(metrics: dict) -> list[str]:
