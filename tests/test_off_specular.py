@@ -212,7 +212,8 @@ def test_max_lookups_draws_grid_pairs_per_direction_and_keeps_the_chosen_structu
     brdf = hf.brdf.cook_torrance(kd=(0.05, 0.04, 0.02), ks=1.0, roughness=0.3, f0=(1.0, 0.78, 0.34))
     target = hf.light.lighting_target(brdf, hf.light.load_environment("interior", 8))
     logs = []
-    fac = hf.fit.factorize(target, "NR", texture_size=S, max_lookups=4, advanced={"linear": {"iterations": 8, "polish": 0}},
+    fac = hf.fit.factorize(target, "NR", texture_size=S, max_lookups=4,
+                           advanced={"linear": {"iterations": 8, "polish": 0}},
                            sampling={"count": 20000, "validation": 3000, "cache": False}, log=logs.append)
     tried = {t["label"]: t for t in fac.selection["tried"]}
     assert set(tried) == {"E'+NRW x1", "E'+NROW x1", "E'+ROW x1+R", "E'+RO x1+HW x1"}

@@ -119,7 +119,8 @@ def test_a_config_naming_only_a_brdf_an_environment_and_a_preset_is_complete(tmp
 def test_the_plan_refuses_in_one_line_before_any_compute(envs):
     t = _gold(envs["sun"])
     for bad, words in ((({"parametrization": "split_sum", "preset": "fast"}), "baseline"),
-                       ({"parametrization": "NR", "terms": 2, "advanced": {"linear": {"ridge": 10, "polish": 0}}}, "ridge"),
+                       ({"parametrization": "NR", "terms": 2,
+                         "advanced": {"linear": {"ridge": 10, "polish": 0}}}, "ridge"),
                        ({"parametrization": "PQP", "max_lookups": 4}, "PQP")):
         with pytest.raises(HomofacError, match=words) as e:
             plan.build_plan(t, None, bad)
@@ -186,7 +187,8 @@ def test_a_structure_gives_the_keywords_that_fit_it(envs):
     assert p.mode == "sum" and p.candidates == (s,)
     d = p.to_dict()["candidates"][0]
     assert d["label"] == s.label() and Structure.of(d["structure"]) == s and d["structure"]["highlights"]["disc"]
-    assert f"structure: {s.label()} (NRO products x2" in str(p) and "highlights {terms 1, fresnel, table, disc}" in str(p)
+    assert f"structure: {s.label()} (NRO products x2" in str(p)
+    assert "highlights {terms 1, fresnel, table, disc}" in str(p)
     chosen = plan.build_plan(_gold(envs["sun"]), "fast").to_dict()["candidates"]
     assert all(Structure.of(c["structure"]).label() == c["label"] for c in chosen)
 

@@ -251,7 +251,8 @@ def test_factorize_keys_validate_and_record(plastic, tmp_path):
 @pytest.mark.slow
 def test_max_lookups_picks_within_the_budget(plastic):
     target, s = plastic
-    fac = hf.fit.factorize(target, "NR", texture_size=S, max_lookups=8, samples=s, advanced={"linear": {"iterations": 5}})
+    fac = hf.fit.factorize(target, "NR", texture_size=S, max_lookups=8, samples=s,
+                           advanced={"linear": {"iterations": 5}})
     sel = fac.selection
     assert fac.model.lookups <= 8 and sel["max_lookups"] == 8
     assert fac.analysis is not None and fac.analysis["pair"] == "nr"  # Mahajan analysis beside the choice
@@ -268,7 +269,8 @@ def test_diffuse_needs_a_kd(plastic):
     target, s = plastic
     brdf = hf.brdf.phong(exponent=20.0, ks=1.0, kd=0.0)
     t2 = hf.light.lighting_target(brdf, target.fn.env)
-    fac = hf.fit.factorize(t2, "NR", texture_size=S, terms=1, nv_factor=True, samples=s, advanced={"linear": {"iterations": 3}})
+    fac = hf.fit.factorize(t2, "NR", texture_size=S, terms=1, nv_factor=True, samples=s,
+                           advanced={"linear": {"iterations": 3}})
     assert fac.solver["start"] == "product"  # no microfacet NDF: the log-space product starts it
 
 
@@ -551,6 +553,7 @@ def test_polish_lowers_the_off_grid_error():
     assert "polish" not in plain.solver and pol.timings["polish_sample_s"] > 0
     copper = mirror((0.9, 0.6, 0.5))
     refit = hf.fit.refit(pol, brdf=copper)
-    full = hf.fit.factorize(hf.light.lighting_target(copper, env), "NR", advanced={"linear": {"polish": 4, "polish_size": 12}}, **kw)
+    full = hf.fit.factorize(hf.light.lighting_target(copper, env), "NR",
+                            advanced={"linear": {"polish": 4, "polish_size": 12}}, **kw)
     assert "polish" in refit.solver
     assert abs(val(refit) - val(full)) <= 0.01 * val(full)
