@@ -189,8 +189,10 @@ def test_a_structure_gives_the_keywords_that_fit_it(envs):
     assert d["label"] == s.label() and Structure.of(d["structure"]) == s and d["structure"]["highlights"]["disc"]
     assert f"structure: {s.label()} (NRO products x2" in str(p)
     assert "highlights {terms 1, fresnel, table, disc}" in str(p)
-    chosen = plan.build_plan(_gold(envs["sun"]), "fast").to_dict()["candidates"]
+    fast = plan.build_plan(_gold(envs["sun"]), "fast")
+    chosen = fast.to_dict()["candidates"]
     assert all(Structure.of(c["structure"]).label() == c["label"] for c in chosen)
+    assert all(f"    {c.label()} ({c.describe()})" in str(fast).splitlines() for c in fast.candidates)
 
 
 def test_research_keys_live_under_advanced_and_their_old_spellings_name_the_new_place(tmp_path, capsys):

@@ -141,7 +141,8 @@ class Plan:
             c = self.candidates[0]
             lines.append(f"  structure: {c.label()} ({c.describe()})")
         elif self.candidates:
-            lines.append(f"  candidates ({len(self.candidates)}): " + ", ".join(c.label() for c in self.candidates))
+            lines.append(f"  candidates ({len(self.candidates)}):")
+            lines += [f"    {c.label()} ({c.describe()})" for c in self.candidates]
         if self.linear is not None:
             lin = self.linear
             lines.append(f"  linear fit: {lin.method}, {lin.iterations} iterations, laplacian {lin.laplacian:g}, "
