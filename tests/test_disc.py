@@ -103,7 +103,7 @@ def test_the_disc_in_the_skeleton_label_record_options_and_refusals():
     assert Structure.of({**flat, "highlight_disc": None}) == DISC.with_highlights(disc=False)  # older records
     assert Structure.of({**flat, "highlight_disc": True}) == DISC
     assert structures.tabled(structures.lined(two)) == two  # the table's round trip keeps the disc
-    with pytest.raises(HomofacError, match="highlights.disc"):
+    with pytest.raises(HomofacError, match="highlights: disc: the disc's coordinate"):
         Structure("RO", 1, "fitted", True, highlights={"disc": True})
     assert FitOptions(advanced={"highlights": {"disc": True}}).is_sum
     with pytest.raises(HomofacError, match="highlights.disc"):

@@ -216,7 +216,7 @@ def test_the_fresnel_line_in_the_skeleton_label_record_candidates_and_refusals()
     assert structures.lookups(s, "lighting") == structures.lookups(s.with_highlights(fresnel=False), "lighting") + 1
     assert s.label() == "E'+ROW x1+HFW x1"
     assert Structure.of(s.record()) == s
-    with pytest.raises(HomofacError, match="highlights.fresnel"):
+    with pytest.raises(HomofacError, match="highlights: fresnel: the v.h' line"):
         Structure("RO", 1, "fitted", True, highlights={"fresnel": True})
     # the chooser tries it where a budget has room (not at 4 lookups), and a given value constrains it
     assert not any(c.highlights.fresnel for c in structures.candidates("lighting", 4))
@@ -273,7 +273,7 @@ def test_the_cosine_line_in_the_skeleton_label_record_candidates_and_refusals():
     alone = Structure("RO", 1, "fitted", True, highlights={"terms": 1, "cosine": True})
     assert structures.skeleton(alone, "lighting", "lighting", "dual_paraboloid", 8)[1][-1].factors == (
         ("nh_dom", "d1"), ("ni_dom", "c1"), ("nv", "w1"))
-    with pytest.raises(HomofacError, match="highlights.cosine"):
+    with pytest.raises(HomofacError, match="highlights: cosine: the n.i line"):
         Structure("RO", 1, "fitted", True, highlights={"cosine": True})
     # the chooser tries it with the Fresnel line where a budget has room, and a given value constrains it
     assert not any(c.highlights.cosine for c in structures.candidates("lighting", 4))
@@ -285,7 +285,7 @@ def test_the_cosine_line_in_the_skeleton_label_record_candidates_and_refusals():
     on = plan.constrained(cands, pipeline.options(max_lookups=8, advanced={"highlights": {"cosine": True}}))
     assert not any(c.highlights.cosine for c in off) and any(c.highlights.terms for c in off)
     assert all(c.highlights.cosine for c in on if c.highlights.terms) and any(not c.highlights.terms for c in on)
-    with pytest.raises(HomofacError, match="highlights.cosine"):
+    with pytest.raises(HomofacError, match="highlights: cosine: the n.i line"):
         hf.fit.factorize(hf.light.lighting_target(hf.brdf.ggx(roughness=0.4), hf.light.sun_sky(SUN, resolution=8),
                                                   parametrization="RO"),
                          "RO", texture_size=8, diffuse="fitted", advanced={"highlights": {"cosine": True}})

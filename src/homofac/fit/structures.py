@@ -134,10 +134,10 @@ class Highlights(Options):
             for key, what in (("fresnel", "the v.h' line"), ("cosine", "the n.i line"),
                               ("table", "the (n.i, n.v) table"), ("disc", "the disc's coordinate")):
                 if getattr(self, key):
-                    raise ValueError(f"highlights.{key}: {what} is read by highlight terms; set highlights.terms")
+                    raise ValueError(f"{key}: {what} is read by highlight terms; set highlights.terms (got 0 terms)")
         if self.table and self.cosine:
-            raise ValueError("highlights.table holds the light's cosine n.i with n.v in one table: set table or "
-                             "cosine, not both")
+            raise ValueError("table holds the light's cosine n.i with n.v in one table: set table or cosine, not "
+                             "both (got both)")
         return self
 
     def replace(self, **changes) -> "Highlights":
