@@ -266,11 +266,11 @@ MOVED_KEYS = {
 }
 
 
-def _given(value) -> bool:
-    if isinstance(value, Options):
-        value = value.model_dump(exclude_defaults=True)
-    if isinstance(value, dict):
-        return any(v is not None for v in value.values())
+def _given(key: str, value) -> bool:
+    """Whether an ``advanced`` key is given: not None (``highlights``: one of its keys not None)."""
+    if key == "highlights" and isinstance(value, (dict, Options)):
+        items = value.model_dump().values() if isinstance(value, Options) else value.values()
+        return any(v is not None for v in items)
     return value is not None
 
 
@@ -282,7 +282,8 @@ def names_a_fit(data: dict) -> bool:
     if isinstance(adv, Options):
         adv = adv.model_dump(exclude_defaults=True)
     adv = adv if isinstance(adv, dict) else {}
-    return any(data.get(k) is not None for k in NAMING_KEYS) or any(_given(adv.get(k)) for k in ADVANCED_NAMING_KEYS)
+    return (any(data.get(k) is not None for k in NAMING_KEYS)
+            or any(_given(k, adv.get(k)) for k in ADVANCED_NAMING_KEYS))
 
 
 def upgrade_record(config: dict) -> dict:
