@@ -62,19 +62,21 @@ BINS = {"grazing": (0.0, 0.25), "mid": (0.25, 0.5), "frontal": (0.5, 1.0001)}
 GRID = {"kind": "grid", "count": 300_000}
 
 def _fixed(name: str, linear: dict | None = None) -> dict:
-    """The keywords of hf.fit.factorize for the structure a row's name labels (:meth:`Structure.parse`;
-    "E'+NRW+RW+R" is read as "E'+NRW x1+RW x1+R"), on the grid design."""
+    """The keywords of hf.fit.factorize for the structure a row's name labels (:meth:`Structure.parse`, then
+    :meth:`Structure.keywords`; "E'+NRW+RW+R" is read as "E'+NRW x1+RW x1+R"), on the grid design."""
     label = re.sub(r"^((?:E'?\+)?(?:SS\+)?[A-Z]{2,}|(?:E'?\+)?(?:SS\+)?[NR])(?=\+|$)", r"\1 x1", name)
     label = re.sub(r"\+RW(?= |\+|$)(?! x)", "+RW x1", label)
-    rec = {k: v for k, v in Structure.parse(label).record().items() if v not in (False, 0, None) or k == "terms"}
-    return {**rec, **({"linear": linear} if linear else {}), "sampling": GRID}
+    kw = Structure.parse(label).keywords()
+    if linear:
+        kw["advanced"] = {**kw["advanced"], "linear": linear}
+    return {**kw, "sampling": GRID}
 
 
 #: method name -> keywords of hf.fit.factorize (texture size and mapper are common)
 METHODS = {
     "split_sum": {"parametrization": "split_sum"},
     "kautz_mccool": {"parametrization": "kautz_mccool"},
-    "kautz_mccool_3d": {"parametrization": "kautz_mccool", "baseline": {"slices": 4}},
+    "kautz_mccool_3d": {"parametrization": "kautz_mccool", "advanced": {"baseline": {"slices": 4}}},
     "NR": {"parametrization": "NR"},
     "NRW": {"parametrization": "NRW"},
     # the fixed structures: their labels parsed (Structure.parse), fitted on the grid design; a name

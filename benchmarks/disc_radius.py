@@ -1,4 +1,4 @@
-"""The disc of a highlight term's light (``highlight_disc``, projection ``nhs_dom``): its radius against
+"""The disc of a highlight term's light (``advanced.highlights.disc``, projection ``nhs_dom``): its radius against
 the error on the sun's grazing ridge and on uniform pairs.
 
 A glossy metal under a synthetic sun (a disc of ``diameter`` degrees over a sky), the highlight structure
@@ -49,8 +49,8 @@ def main(diameter: float, resolution: int, roughness: float, scales: list[float]
         t = Target(target.kind, target.fn, target.quantity, {**target.context, "radius": scale * measured}) if disc else target
         t0 = time.perf_counter()
         fac = hf.fit.factorize(t, "RO", texture_size=16, samples=samples, terms=2, diffuse="fitted", nv_factor=True,
-                               reflection=True, highlight_terms=1, highlight_fresnel=True, highlight_table=True,
-                               highlight_disc=disc, line_size=64, linear={"polish": 4, "ridge": 4000})
+                               advanced={"reflection": True, "line_size": 64, "linear": {"polish": 4, "ridge": 4000},
+                                         "highlights": {"terms": 1, "fresnel": True, "table": True, "disc": disc}})
         fit_s = time.perf_counter() - t0
         r = np.asarray(fac.model.evaluate(rp.a, rp.b), np.float64)
         u = np.asarray(fac.model.evaluate(n, v), np.float64)

@@ -27,7 +27,7 @@ from homofac.fit.structures import Structure
 COUNT = int(os.environ.get("HOMOFAC_BENCH_GRID", 300_000))
 CASES = {
     "E+NRW x1 (4)": (Structure("NR", 1, "exact", True), {}),
-    "E'+NRW x2+R (8)": (Structure("NR", 2, "fitted", True, True), {}),
+    "E'+NRW x2+R (8)": (Structure("NR", 2, "fitted", True, reflection=True), {}),
     "E+NRW x4 (13)": (Structure("NR", 4, "exact", True), {}),
     "E+NRW x5 (16)": (Structure("NR", 5, "exact", True), {}),
     "E+NRW x1 LM optimistix": (Structure("NR", 1, "exact", True), {"method": "levenberg_marquardt", "iterations": 20}),

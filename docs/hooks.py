@@ -202,18 +202,18 @@ def baselines_table() -> str:
     for name, b in baselines.BASELINES.items():
         fields = ", ".join(code(f) for f in b.options.model_fields)
         rows.append([code(name), rst_to_md(b.doc), code(b.options.__name__), fields or "-"])
-    return table(["parametrization", "doc", "option model (`baseline`)", "option fields"], rows)
+    return table(["parametrization", "doc", "option model (`advanced.baseline`)", "option fields"], rows)
 
 
 def baseline_options_section() -> str:
-    """The ``baseline`` section: the option model of each baseline."""
-    out = ["## `baseline` {#baseline-options}\n",
+    """The ``advanced.baseline`` section: the option model of each baseline."""
+    out = ["## `advanced.baseline` {#baseline-options}\n",
            "Options of a baseline `parametrization` (computed, not fitted; [Baselines](architecture.md#baselines)), "
            "validated by that baseline's option model. Refused with any other parametrization.\n"]
     for name, b in baselines.BASELINES.items():
         out.append(f"### `{name}` {{#baseline-{name.replace('_', '-')}}}\n")
         out.append(f"Model: `{b.options.__module__}.{b.options.__name__}`. {rst_to_md(first_paragraph(b.options.__doc__))}\n")
-        out.append(model_table(b.options, "baseline", {}))
+        out.append(model_table(b.options, "advanced.baseline", {}))
         out.append("")
     return "\n".join(out)
 
@@ -467,7 +467,31 @@ def constraint_text(info: FieldInfo) -> str:
 NOTES = {
     "Config.parametrization": "a registered parametrization of the target's kind ([table](architecture.md#parametrizations)), "
                               "or a [baseline](architecture.md#baselines)",
-    "Config.baseline": "options of a baseline parametrization ([below](#baseline-options)); null: its defaults",
+    "Config.preset": "`fast`, `balanced` or `best`: 4, 8 or 16 texture lookups per pixel with the settings measured "
+                     "for that budget ([Choosing a preset](presets.md)); null: `balanced` unless a key names the fit",
+    "Config.max_lookups": "the lookup budget: homofac chooses the structure within this many texture lookups per "
+                          "pixel by validation error; null: the preset's",
+    "Config.terms": "K products of the parametrization summed (a sum of products, [Sums of products](sums.md))",
+    "Config.diffuse": "`exact`: the computed term kd/pi E(n); `fitted`: an n-only texture started from it; null: none",
+    "Config.nv_factor": "a 1D `line` texture w(n.v) in each product",
+    "Config.advanced": "the research keys ([below](#advancedoptions)): a preset sets what they decide",
+    "AdvancedOptions.reflection": "lighting: one more fitted term, an r-only texture q(r)",
+    "AdvancedOptions.prefiltered": "lighting: the split sum's P(r) W(n.v) computed and kept; the products fit "
+                                   "corrections to it",
+    "AdvancedOptions.rw_terms": "lighting: this many more fitted terms q(r) w(n.v) beside the K products",
+    "AdvancedOptions.highlights": "the highlight terms of the brightest lights ([below](#highlightoptions))",
+    "AdvancedOptions.line_size": "texels of a sum's `line` textures; null: 32, or the `best` preset's vote "
+                                 "between 32 and 4 x texture_size",
+    "AdvancedOptions.linear": "the linear-space fit of a sum ([below](#linearoptions)); null: the defaults and the preset's "
+                              "nv_balance, polish and ridge",
+    "AdvancedOptions.baseline": "options of a baseline parametrization ([below](#baseline-options)); null: its defaults",
+    "HighlightOptions.terms": "J highlight terms d(nh_dom) w(n.v) of the J brightest lights; with a chooser, only "
+                              "candidates with J (0: none); null: the chooser's 0-2",
+    "HighlightOptions.fresnel": "each highlight term also reads f(v.h') of its light (one lookup more)",
+    "HighlightOptions.cosine": "each highlight term also reads c(n.i) of its light (one lookup more)",
+    "HighlightOptions.table": "each highlight term reads a 2D table T(n.i, n.v) in place of c(n.i) w(n.v)",
+    "HighlightOptions.disc": "each highlight term reads its light's coordinate at the disc's point closest to r; "
+                             "null: the `best` preset's vote",
     "Config.mapper": "mapper of the direction textures; null: parabolic (BRDF) or dual_paraboloid (lighting). "
                      "`line` is refused here (it is the mapper of scalar factors)",
     "Config.texture_size": "S of the mapper: textures are (S, S), (S, 2S) dual_paraboloid, (S, 6S) cube",
@@ -518,7 +542,8 @@ NOTES = {
                               "one-term factorizations with non-negative textures only",
     "OutputOptions.preview": "write `preview.png` (needs OpenGL through EGL; skipped with a warning otherwise)",
     "OutputOptions.shaders": "shader files to write ([languages](shaders.md))",
-    "Config.analysis": "record Mahajan et al.'s in-out analysis of the target in factorization.json (`analysis`); null: off",
+    "AdvancedOptions.analysis": "record Mahajan et al.'s in-out analysis of the target in factorization.json "
+                                "(`analysis`); null: the preset's",
     "AnalysisOptions.pair": "grid the target on (n, r) or (n, v)",
     "AnalysisOptions.mapper": "mapper whose texel centres are the grid",
     "AnalysisOptions.size": "S of that mapper",
@@ -544,11 +569,25 @@ def default_text(info: FieldInfo) -> str:
     return code(yaml_value(info.default))
 
 
+#: The order of the top-level keys in the config reference: what a user decides first, ``advanced`` last.
+TOP_ORDER = ("target", "preset", "max_lookups", "texture_size", "output", "parametrization", "mapper", "terms",
+             "diffuse", "nv_factor", "target_error", "sampling", "solver", "limits", "advanced")
+
+
+def _top_rank(key: str) -> int:
+    top = key.split(".")[0].removesuffix("[]")
+    return TOP_ORDER.index(top) if top in TOP_ORDER else len(TOP_ORDER) - 1
+
+
 def model_table(model: type[pydantic.BaseModel], key: str, links: dict, notes_for: tuple[str, ...] = ()) -> str:
-    """The fields of one option model: key, type, default, constraints, description."""
+    """The fields of one option model: key, type, default, constraints, description (the top level in
+    :data:`TOP_ORDER`)."""
     rows = []
     owners = (model.__name__,) + notes_for
-    for name, info in model.model_fields.items():
+    fields = list(model.model_fields.items())
+    if not key:
+        fields.sort(key=lambda kv: _top_rank(kv[0]))
+    for name, info in fields:
         desc = info.description or next((NOTES[f"{o}.{name}"] for o in owners if f"{o}.{name}" in NOTES), "")
         full = f"{key}.{name}" if key else name
         rows.append([code(full), type_text(info.annotation, links), default_text(info), constraint_text(info) or "-",
@@ -597,7 +636,7 @@ def config_sections() -> list[tuple[type, str]]:
                 visit(solvers.SolverOptions, sub)
 
     visit(config_mod.Config, "")
-    return out
+    return sorted(out, key=lambda mk: -1 if not mk[1] else _top_rank(mk[1]))
 
 
 def config_models() -> list[type]:

@@ -156,7 +156,7 @@ def test_baselines_are_ordinary_results(tmp_path):
     env = hf.light.load_environment("studio", 4)
     target = hf.light.lighting_target(hf.brdf.cook_torrance(), env)
     fac = hf.fit.factorize(target, "split_sum", texture_size=8, sampling={"size": 6, "validation": 500},
-                           baseline={"irradiance": "sh9"})
+                           advanced={"baseline": {"irradiance": "sh9"}})
     assert fac.solver["method"] == "split_sum" and fac.metrics["validation"]["float"]["nrmse"] < 1
     out = fac.save(tmp_path / "o", png=True, shaders=list(LANGUAGES))
     back = hf.load(out)
@@ -164,7 +164,7 @@ def test_baselines_are_ordinary_results(tmp_path):
     np.testing.assert_allclose(np.asarray(back.evaluate(a, b)), np.asarray(fac.evaluate(a, b)), rtol=1e-5, atol=1e-7)
     assert back.parametrization == "split_sum" and len(back.model.terms) == 2
     km = hf.fit.factorize(target, "kautz_mccool", texture_size=8, sampling={"size": 6, "validation": 500},
-                          baseline={"slices": 3})
+                          advanced={"baseline": {"slices": 3}})
     assert len(km.model.terms) == 4 and "homofac_radiance" in km.shader("wgsl")
 
 
@@ -177,7 +177,7 @@ def test_baselines_refuse_what_they_cannot_do():
     with pytest.raises(HomofacError, match="baseline: unknown key"):
         baselines.build("split_sum", hf.light.lighting_target(hf.brdf.ggx(), env), "dual_paraboloid", 8, {"x": 1})
     with pytest.raises(HomofacError, match="baseline"):
-        hf.fit.factorize(hf.light.lighting_target(hf.brdf.ggx(), env), "NR", baseline={"slices": 2})
+        hf.fit.factorize(hf.light.lighting_target(hf.brdf.ggx(), env), "NR", advanced={"baseline": {"slices": 2}})
 
 
 def test_split_sum_options_change_what_they_say():

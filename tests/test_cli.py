@@ -14,7 +14,7 @@ import yaml
 
 from homofac.app.cli import fit_epilog
 from homofac.app.cli import fit_main as main
-from homofac.fit.options import FitOptions, LinearOptions
+from homofac.fit.options import AdvancedOptions, FitOptions, HighlightOptions, LinearOptions
 
 SMALL_BRDF = {
     "target": {"kind": "brdf", "brdf": {"model": "cook_torrance", "kd": 0.1, "ks": 1.0, "roughness": 0.3,
@@ -120,6 +120,10 @@ BAD = [
     ("missing brdf", nested(SMALL_BRDF, "target.brdf", _DELETE), "target.brdf"),
     ("empty file", "", "empty"),
     ("not a mapping", "- 1\n- 2\n", "mapping"),
+    ("research key at the top", nested(SMALL_BRDF, "highlight_disc", True),
+     "highlight_disc is an advanced key: write it under advanced: (advanced.highlights.disc)"),
+    ("unknown advanced key", nested(SMALL_BRDF, "advanced.highlights.dics", True),
+     "advanced.highlights: unknown key dics (did you mean disc?)"),
 ]
 
 
@@ -184,9 +188,10 @@ def test_help_documents_options():
 
 
 def test_help_names_every_key_of_the_fit_and_of_its_linear_fit():
-    """--help's config summary is derived from the option models: every FitOptions and LinearOptions key."""
+    """--help's config summary is derived from the option models: every FitOptions, advanced and LinearOptions key."""
     text = fit_epilog()
-    missing = [k for k in (*FitOptions.model_fields, *LinearOptions.model_fields) if k not in text]
+    missing = [k for k in (*FitOptions.model_fields, *AdvancedOptions.model_fields, *HighlightOptions.model_fields,
+                           *LinearOptions.model_fields) if k not in text]
     assert not missing, missing
 
 
@@ -210,6 +215,8 @@ API_CASES = [
     ("texture_size", 2000, "texture_size: Input should be less than or equal to 1024"),
     ("mapper", "cubee", "(did you mean cube?)"),
     ("sampling", {"\n": None}, "sampling: unknown key '\\n'"),  # a key with a newline stays on one line
+    ("linear", {"polish": 1}, "linear is an advanced key: write it under advanced: (advanced.linear)"),
+    ("advanced", {"line_size": 1}, "advanced.line_size: Input should be greater than or equal to 2"),
 ]
 
 
@@ -269,3 +276,21 @@ def test_the_polish_line_reads_every_record_generation():
                                 "validation nrmse 0.062 -> 0.118 (not kept)")
     old = {"steps": 8, "validation_nrmse_before": 0.3, "validation_nrmse_after": 0.2}
     assert polish_line(old) == "polish: 8 Levenberg-Marquardt steps off the grid, validation nrmse 0.3 -> 0.2 (kept)"
+
+
+def test_the_summary_names_a_sum_by_its_structure_label_and_nested_model(capsys):
+    """The run summary of a sum: the kept structure's label and its nested model in words, from the
+    solver record (also from a record of the flat layout written before the nested model)."""
+    from homofac.app.cli import _summary
+    from homofac.fit.result import Result
+    from homofac.fit.structures import Structure
+    from helpers import nrw_sum
+
+    metrics = {"validation": {"float": {"nrmse": 0.1, "avg_rel": 0.2}}}
+    structure = Structure("NR", 1, None, True)
+    flat = {**{k: v for k, v in structure.record().items() if k != "highlights"}, "highlight_terms": 0}
+    for rec in (structure.record(), flat):
+        fac = Result(nrw_sum(K=1, S=4), solver={"method": "als", "iterations": 3, "structure": rec}, metrics=metrics)
+        _summary(fac, "out", 1.0)
+        line = capsys.readouterr().out.splitlines()[0]
+        assert line.startswith("wrote out: NRW x1 (NR products x1, nv_factor) on dual_paraboloid 4 (3 lookups)"), line

@@ -1,4 +1,4 @@
-"""Highlight terms of lights with a disc (``highlight_disc``, issue 13): the projection ``nhs_dom`` (the
+"""Highlight terms of lights with a disc (``highlights.disc``, issue 13): the projection ``nhs_dom`` (the
 highlight coordinate at the point of the light's disc closest to r), the disc's radius measured from the
 environment, the structure and the chooser's disc vote."""
 
@@ -20,7 +20,7 @@ from homofac.param import projections as pj
 SUN = np.array([0.5, -0.3, 0.81])
 SUN /= np.linalg.norm(SUN)
 GRID = {"kind": "grid", "size": 8, "mapper": "dual_paraboloid", "count": 20000, "validation": 3000, "cache": False}
-DISC = Structure("RO", 1, "fitted", True, highlight_terms=1, highlight_disc=True)
+DISC = Structure("RO", 1, "fitted", True, highlights={"terms": 1, "disc": True})
 
 
 def _grazing_pair(nv: float, off_degrees: float):
@@ -92,21 +92,22 @@ def test_light_radii_measure_the_sun_disc_and_read_zero_where_a_cap_holds_no_pow
 def test_the_disc_in_the_skeleton_label_record_options_and_refusals():
     _, terms = structures.skeleton(DISC, "lighting", "lighting", "dual_paraboloid", 8)
     assert terms[-1].factors == (("nhs_dom", "d1"), ("nv", "w1"))
-    two = DISC._replace(highlight_terms=2, highlight_fresnel=True, highlight_table=True)
+    two = DISC.with_highlights(terms=2, fresnel=True, table=True)
     _, terms = structures.skeleton(two, "lighting", "lighting", "dual_paraboloid", 8)
     assert [t.factors[0][0] for t in terms[-2:]] == ["nhs_dom", "nhs_dom1"]
-    assert structures.lookups(two, "lighting") == structures.lookups(two._replace(highlight_disc=False), "lighting")
-    assert "+HS" in DISC.label() and "+HS" not in DISC._replace(highlight_disc=False).label()
+    assert structures.lookups(two, "lighting") == structures.lookups(two.with_highlights(disc=False), "lighting")
+    assert "+HS" in DISC.label() and "+HS" not in DISC.with_highlights(disc=False).label()
     assert "+HSFT x2" in two.label()
-    assert DISC.record()["highlight_disc"] is True and Structure.of(DISC.record()) == DISC
-    assert Structure.of({**DISC.record(), "highlight_disc": None}) == DISC._replace(highlight_disc=False)  # older records
+    assert DISC.record()["highlights"]["disc"] is True and Structure.of(DISC.record()) == DISC
+    flat = {"parametrization": "RO", "terms": 1, "diffuse": "fitted", "nv_factor": True, "highlight_terms": 1}
+    assert Structure.of({**flat, "highlight_disc": None}) == DISC.with_highlights(disc=False)  # older records
+    assert Structure.of({**flat, "highlight_disc": True}) == DISC
     assert structures.tabled(structures.lined(two)) == two  # the table's round trip keeps the disc
-    with pytest.raises(HomofacError, match="highlight_disc"):
-        structures.skeleton(Structure("RO", 1, "fitted", True, highlight_disc=True), "lighting", "lighting",
-                            "dual_paraboloid", 8)
-    assert FitOptions(highlight_disc=True).is_sum
-    with pytest.raises(HomofacError, match="highlight_disc"):
-        pipeline.options(highlight_disc="maybe")
+    with pytest.raises(HomofacError, match="highlights: disc: the disc's coordinate"):
+        Structure("RO", 1, "fitted", True, highlights={"disc": True})
+    assert FitOptions(advanced={"highlights": {"disc": True}}).is_sum
+    with pytest.raises(HomofacError, match="highlights.disc"):
+        pipeline.options(advanced={"highlights": {"disc": "maybe"}})
 
 
 def test_a_fit_with_the_disc_reads_the_measured_radius_and_survives_a_save(tmp_path):
@@ -114,7 +115,7 @@ def test_a_fit_with_the_disc_reads_the_measured_radius_and_survives_a_save(tmp_p
     brdf = hf.brdf.ggx(kd=0.0, ks=1.0, roughness=0.15, f0=(0.95, 0.93, 0.88))
     target = hf.light.lighting_target(brdf, env, parametrization="RO")
     res = hf.fit.factorize(target, "RO", texture_size=8, sampling=GRID, diffuse="fitted", nv_factor=True,
-                           highlight_terms=1, highlight_disc=True)
+                           advanced={"highlights": {"terms": 1, "disc": True}})
     assert res.solver["structure"] == DISC.record()
     ctx = res.model.context
     assert set(ctx) == {"dominant", "radius", "shift"}
@@ -135,11 +136,12 @@ def test_the_disc_vote_keeps_the_structure_of_lower_validation_error_and_records
     brdf = hf.brdf.ggx(kd=0.0, ks=1.0, roughness=0.2, f0=(0.95, 0.93, 0.88))
     target = hf.light.lighting_target(brdf, env, parametrization="RO")
     samples = hf.fit.draw_samples(target, "RO", GRID)
-    point = DISC._replace(highlight_disc=False)
+    point = DISC.with_highlights(disc=False)
 
     def fit(structure, line):
-        return hf.fit.factorize(target, "RO", texture_size=8, samples=samples, line_size=line,
-                                **{k: v for k, v in structure.record().items() if k != "parametrization"})
+        kw = structure.keywords()
+        return hf.fit.factorize(target, texture_size=8, samples=samples,
+                                **{**kw, "advanced": {**kw["advanced"], "line_size": line}})
 
     first = fit(point, 32)
     logged = []
@@ -148,7 +150,7 @@ def test_the_disc_vote_keeps_the_structure_of_lower_validation_error_and_records
     errs = note["validation_nrmse"]
     assert note["labels"] == [point.label(), DISC.label()] and len(errs) == 2
     assert note["kept"] == (errs[1] < errs[0])
-    assert Structure.of(kept.solver["structure"]).highlight_disc == note["kept"]
+    assert Structure.of(kept.solver["structure"]).highlights.disc == note["kept"]
     assert note["radii"][0] == pytest.approx(float(hf.light.light_radii(env, np.asarray(kept.model.context["dominant"])[None])[0]))
     assert any("disc vote" in line and "kept" in line for line in logged)
 

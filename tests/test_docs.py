@@ -94,7 +94,7 @@ def test_config_reference_lists_every_field_of_every_option_model():
             assert full in keys, f"config reference: {full} ({model.__name__}) missing"
     for b in baselines.BASELINES.values():
         for field in b.options.model_fields:
-            assert f"baseline.{field}" in keys
+            assert f"advanced.baseline.{field}" in keys
     for name in solvers.SOLVERS:
         assert f"| `{name}` |" in text
     documented = set(hooks.config_models())

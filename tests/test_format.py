@@ -25,7 +25,7 @@ from homofac.fit.result import Result
 from homofac.output import JSON_NAME
 from homofac.param import mappers
 from homofac.shader import LANGUAGES
-from helpers import two_terms
+from helpers import nrw_sum, two_terms
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = Path(__file__).resolve().parent / "data"
@@ -154,3 +154,36 @@ def test_the_documented_numpy_reader_reads_real_directories(tmp_path):
     for d in (Result(two_terms()).save(tmp_path / "two"), DATA / "schema1_nr"):
         np.testing.assert_allclose(ns["value"](str(d), a, b), np.asarray(hf.load(d).evaluate(a, b)),
                                    rtol=1e-5, atol=1e-6)
+
+
+def test_a_directory_of_the_previous_layout_is_read_and_prepared_for_a_refit(tmp_path):
+    """factorization.json pins "the full resolved config": a directory written before the research keys
+    moved under ``advanced`` (research keys at the top of the recorded config, the structure's highlights
+    flat in ``solver.structure``) loads, rebuilds its target, agrees with today's config of the same
+    layout and is prepared for a refit with the same structure."""
+    from homofac.app.config import parse
+    from homofac.app.run import layout_difference, target_from_config
+    from homofac.fit.structures import Structure
+
+    cfg = parse({"target": {"brdf": {"model": "ggx", "kd": 0.2, "roughness": 0.4, "f0": 0.04},
+                            "environment": {"file": "interior", "resolution": 4}},
+                 "parametrization": "NR", "texture_size": 4, "terms": 1, "nv_factor": True,
+                 "sampling": {"kind": "grid", "count": 3000, "validation": 300, "cache": False},
+                 "advanced": {"linear": {"iterations": 2}, "highlights": {"terms": 0}}})
+    old = cfg.model_dump(mode="json")
+    adv = old.pop("advanced")
+    old.update({k: adv[k] for k in ("reflection", "prefiltered", "rw_terms", "line_size", "linear", "baseline",
+                                    "analysis")})
+    old.update({f"highlight_{k}": v for k, v in adv["highlights"].items()})
+    structure = Structure("NR", 1, None, True)
+    flat = {k: v for k, v in structure.record().items() if k != "highlights"}
+    flat.update({f"highlight_{k}": v for k, v in structure.record()["highlights"].items()})
+    Result(nrw_sum(K=1, S=4), solver={"method": "als", "iterations": 2, "converged": True, "structure": flat},
+           config=old).save(tmp_path / "old")
+    back = hf.load(tmp_path / "old")
+    assert "advanced" not in back.config and back.config["highlight_terms"] == 0
+    assert Structure.of(back.solver["structure"]) == structure
+    assert target_from_config(back) is not None
+    assert layout_difference(back.config, cfg, "lighting") is None  # today's config describes the old layout
+    ready = hf.fit.prepare_refit(back)
+    assert ready.state.structure == structure and ready.state.options.advanced.linear.iterations == 2

@@ -112,36 +112,37 @@ def test_als_extra_line_blocks_recover_a_product_of_four_lines():
 
 
 def test_highlight_terms_in_the_skeleton_label_record_and_lookup_count():
-    s = Structure("RO", 1, "fitted", False, highlight_terms=1)
+    s = Structure("RO", 1, "fitted", False, highlights={"terms": 1})
     textures, terms = structures.skeleton(s, "lighting", "lighting", "dual_paraboloid", 8)
     assert terms[-1].factors == (("nh_dom", "d1"), ("nv", "w1"))
     assert [t.mapper for t in textures if t.name in ("d1", "w1")] == ["line", "line"]
-    assert structures.lookups(s, "lighting") == structures.lookups(s._replace(highlight_terms=0), "lighting") + 2
+    assert structures.lookups(s, "lighting") == structures.lookups(s.with_highlights(terms=0), "lighting") + 2
     assert s.label() == "E'+RO x1+HW x1"
     assert Structure.of(s.record()) == s
     with pytest.raises(HomofacError, match="lighting"):
-        structures.skeleton(Structure("PQP", 1, highlight_terms=1), "brdf", "brdf", "parabolic", 8)
+        structures.skeleton(Structure("PQP", 1, highlights={"terms": 1}), "brdf", "brdf", "parabolic", 8)
 
 
 def test_candidates_try_the_highlight_term_only_when_asked():
     with_h = structures.candidates("lighting", 4)
     without = structures.candidates("lighting", 4, highlight=False)
-    assert any(c.highlight_terms for c in with_h) and not any(c.highlight_terms for c in without)
+    assert any(c.highlights.terms for c in with_h) and not any(c.highlights.terms for c in without)
     assert all(structures.lookups(c, "lighting") <= 4 for c in with_h)
-    assert not any(c.highlight_terms for c in structures.candidates("brdf", 8))
+    assert not any(c.highlights.terms for c in structures.candidates("brdf", 8))
 
 
 def test_a_given_highlight_count_constrains_the_chooser():
     cands = structures.candidates("lighting", 8)
-    counts = {c.highlight_terms for c in cands}
+    counts = {c.highlights.terms for c in cands}
     assert counts == {0, 1, 2}
     assert plan.constrained(cands, pipeline.options(max_lookups=8)) == cands  # not given: all of them
     for j in counts:
-        kept = plan.constrained(cands, pipeline.options(max_lookups=8, highlight_terms=j))
-        assert kept and all(c.highlight_terms == j for c in kept)
-        assert len(kept) == sum(c.highlight_terms == j for c in cands)
-    both = plan.constrained(cands, pipeline.options(max_lookups=8, highlight_terms=1, diffuse="fitted"))
-    assert both and all(c.highlight_terms == 1 and c.diffuse == "fitted" for c in both)
+        kept = plan.constrained(cands, pipeline.options(max_lookups=8, advanced={"highlights": {"terms": j}}))
+        assert kept and all(c.highlights.terms == j for c in kept)
+        assert len(kept) == sum(c.highlights.terms == j for c in cands)
+    both = plan.constrained(cands, pipeline.options(max_lookups=8, advanced={"highlights": {"terms": 1}},
+                                                    diffuse="fitted"))
+    assert both and all(c.highlights.terms == 1 and c.diffuse == "fitted" for c in both)
 
 
 def test_a_glossy_metal_under_a_sun_fits_better_with_the_highlight_term(tmp_path):
@@ -151,8 +152,9 @@ def test_a_glossy_metal_under_a_sun_fits_better_with_the_highlight_term(tmp_path
     target = hf.light.lighting_target(brdf, env, parametrization="RO")
     samples = hf.fit.draw_samples(target, "RO", GRID)
     plain = hf.fit.factorize(target, "RO", texture_size=8, samples=samples, diffuse="fitted", nv_factor=True,
-                             reflection=True)
-    lit = hf.fit.factorize(target, "RO", texture_size=8, samples=samples, diffuse="fitted", highlight_terms=1)
+                             advanced={"reflection": True})
+    lit = hf.fit.factorize(target, "RO", texture_size=8, samples=samples, diffuse="fitted",
+                           advanced={"highlights": {"terms": 1}})
     assert lit.model.lookups == plain.model.lookups == 4
     e_plain = plain.metrics["validation"]["float"]["nrmse"]
     e_lit = lit.metrics["validation"]["float"]["nrmse"]
@@ -170,7 +172,7 @@ def test_a_glossy_metal_under_a_sun_fits_better_with_the_highlight_term(tmp_path
 def test_highlight_terms_refuse_a_brdf_target():
     target = hf.fit.brdf_target(hf.brdf.ggx())
     with pytest.raises(HomofacError, match="lighting"):
-        hf.fit.factorize(target, "PQP", texture_size=8, highlight_terms=1)
+        hf.fit.factorize(target, "PQP", texture_size=8, advanced={"highlights": {"terms": 1}})
 
 
 def test_brightest_directions_find_two_lamps_brightest_first_and_the_terms_read_one_each():
@@ -180,14 +182,14 @@ def test_brightest_directions_find_two_lamps_brightest_first_and_the_terms_read_
     found = hf.light.brightest_directions(env, 2)
     assert np.degrees(np.arccos(np.clip(found[0] @ a, -1, 1))) < 3.0
     assert np.degrees(np.arccos(np.clip(found[1] @ b, -1, 1))) < 3.0
-    _, terms = structures.skeleton(Structure("RO", 1, "fitted", True, highlight_terms=2), "lighting", "lighting",
+    _, terms = structures.skeleton(Structure("RO", 1, "fitted", True, highlights={"terms": 2}), "lighting", "lighting",
                                    "dual_paraboloid", 8)
     assert [t.factors[0][0] for t in terms[-2:]] == ["nh_dom", "nh_dom1"]
     target = hf.light.lighting_target(hf.brdf.ggx(kd=0.0, roughness=0.15), env)
-    ctx = sums.with_highlight_context(target, Structure("RO", 1, highlight_terms=2)).context
+    ctx = sums.with_highlight_context(target, Structure("RO", 1, highlights={"terms": 2})).context
     np.testing.assert_allclose(np.stack([ctx["dominant"], ctx["dominant1"]]), found)
-    with pytest.raises(HomofacError, match="highlight_terms"):
-        hf.fit.factorize(target, "RO", texture_size=8, highlight_terms=4)
+    with pytest.raises(HomofacError, match="highlights.terms"):
+        hf.fit.factorize(target, "RO", texture_size=8, advanced={"highlights": {"terms": 4}})
 
 
 def test_vh_dom_is_the_fresnel_argument_of_the_light_and_n_v_at_the_peak():
@@ -207,24 +209,24 @@ def test_vh_dom_is_the_fresnel_argument_of_the_light_and_n_v_at_the_peak():
 
 
 def test_the_fresnel_line_in_the_skeleton_label_record_candidates_and_refusals():
-    s = Structure("RO", 1, "fitted", True, highlight_terms=1, highlight_fresnel=True)
+    s = Structure("RO", 1, "fitted", True, highlights={"terms": 1, "fresnel": True})
     textures, terms = structures.skeleton(s, "lighting", "lighting", "dual_paraboloid", 8)
     assert terms[-1].factors == (("nh_dom", "d1"), ("vh_dom", "f1"), ("nv", "w1"))
     assert [t.mapper for t in textures if t.name in ("d1", "f1", "w1")] == ["line", "line", "line"]
-    assert structures.lookups(s, "lighting") == structures.lookups(s._replace(highlight_fresnel=False), "lighting") + 1
+    assert structures.lookups(s, "lighting") == structures.lookups(s.with_highlights(fresnel=False), "lighting") + 1
     assert s.label() == "E'+ROW x1+HFW x1"
     assert Structure.of(s.record()) == s
-    with pytest.raises(HomofacError, match="highlight_fresnel"):
-        structures.skeleton(Structure("RO", 1, "fitted", True, highlight_fresnel=True), "lighting", "lighting",
-                            "dual_paraboloid", 8)
+    with pytest.raises(HomofacError, match="highlights: fresnel: the v.h' line"):
+        Structure("RO", 1, "fitted", True, highlights={"fresnel": True})
     # the chooser tries it where a budget has room (not at 4 lookups), and a given value constrains it
-    assert not any(c.highlight_fresnel for c in structures.candidates("lighting", 4))
+    assert not any(c.highlights.fresnel for c in structures.candidates("lighting", 4))
     cands = structures.candidates("lighting", 8)
-    assert any(c.highlight_fresnel for c in cands) and any(c.highlight_terms and not c.highlight_fresnel for c in cands)
-    off = plan.constrained(cands, pipeline.options(max_lookups=8, highlight_fresnel=False))
-    on = plan.constrained(cands, pipeline.options(max_lookups=8, highlight_fresnel=True))
-    assert not any(c.highlight_fresnel for c in off) and any(c.highlight_terms for c in off)
-    assert all(c.highlight_fresnel for c in on if c.highlight_terms) and any(not c.highlight_terms for c in on)
+    assert any(c.highlights.fresnel for c in cands)
+    assert any(c.highlights.terms and not c.highlights.fresnel for c in cands)
+    off = plan.constrained(cands, pipeline.options(max_lookups=8, advanced={"highlights": {"fresnel": False}}))
+    on = plan.constrained(cands, pipeline.options(max_lookups=8, advanced={"highlights": {"fresnel": True}}))
+    assert not any(c.highlights.fresnel for c in off) and any(c.highlights.terms for c in off)
+    assert all(c.highlights.fresnel for c in on if c.highlights.terms) and any(not c.highlights.terms for c in on)
 
 
 def test_a_dielectric_under_a_sun_fits_better_with_the_fresnel_line(tmp_path):
@@ -234,11 +236,11 @@ def test_a_dielectric_under_a_sun_fits_better_with_the_fresnel_line(tmp_path):
     brdf = hf.brdf.ggx(kd=0.3, ks=1.0, roughness=0.4, f0=0.04)
     target = hf.light.lighting_target(brdf, env, parametrization="RO")
     samples = hf.fit.draw_samples(target, "RO", GRID)
-    kw = dict(texture_size=8, samples=samples, diffuse="fitted", nv_factor=True, highlight_terms=1)
-    plain = hf.fit.factorize(target, "RO", **kw)
-    fres = hf.fit.factorize(target, "RO", highlight_fresnel=True, **kw)
+    kw = dict(texture_size=8, samples=samples, diffuse="fitted", nv_factor=True)
+    plain = hf.fit.factorize(target, "RO", advanced={"highlights": {"terms": 1}}, **kw)
+    fres = hf.fit.factorize(target, "RO", advanced={"highlights": {"terms": 1, "fresnel": True}}, **kw)
     assert fres.model.lookups == plain.model.lookups + 1
-    assert fres.solver["method"] == "als" and fres.solver["structure"]["highlight_fresnel"]
+    assert fres.solver["method"] == "als" and fres.solver["structure"]["highlights"]["fresnel"]
     e_plain = plain.metrics["validation"]["float"]["nrmse"]
     e_fres = fres.metrics["validation"]["float"]["nrmse"]
     assert e_fres < 0.9 * e_plain, (e_fres, e_plain)  # 0.092 against 0.104 on 375 normals x 8 views
@@ -261,32 +263,32 @@ def test_ni_dom_is_the_cosine_of_the_light_a_function_of_the_normal_zero_below_i
 
 
 def test_the_cosine_line_in_the_skeleton_label_record_candidates_and_refusals():
-    s = Structure("RO", 1, "fitted", True, highlight_terms=1, highlight_fresnel=True, highlight_cosine=True)
+    s = Structure("RO", 1, "fitted", True, highlights={"terms": 1, "fresnel": True, "cosine": True})
     textures, terms = structures.skeleton(s, "lighting", "lighting", "dual_paraboloid", 8)
     assert terms[-1].factors == (("nh_dom", "d1"), ("vh_dom", "f1"), ("ni_dom", "c1"), ("nv", "w1"))
     assert [t.mapper for t in textures if t.name in ("d1", "f1", "c1", "w1")] == ["line"] * 4
-    assert structures.lookups(s, "lighting") == structures.lookups(s._replace(highlight_cosine=False), "lighting") + 1
+    assert structures.lookups(s, "lighting") == structures.lookups(s.with_highlights(cosine=False), "lighting") + 1
     assert s.label() == "E'+ROW x1+HFCW x1"
     assert Structure.of(s.record()) == s
-    alone = Structure("RO", 1, "fitted", True, highlight_terms=1, highlight_cosine=True)
+    alone = Structure("RO", 1, "fitted", True, highlights={"terms": 1, "cosine": True})
     assert structures.skeleton(alone, "lighting", "lighting", "dual_paraboloid", 8)[1][-1].factors == (
         ("nh_dom", "d1"), ("ni_dom", "c1"), ("nv", "w1"))
-    with pytest.raises(HomofacError, match="highlight_cosine"):
-        structures.skeleton(Structure("RO", 1, "fitted", True, highlight_cosine=True), "lighting", "lighting",
-                            "dual_paraboloid", 8)
+    with pytest.raises(HomofacError, match="highlights: cosine: the n.i line"):
+        Structure("RO", 1, "fitted", True, highlights={"cosine": True})
     # the chooser tries it with the Fresnel line where a budget has room, and a given value constrains it
-    assert not any(c.highlight_cosine for c in structures.candidates("lighting", 4))
+    assert not any(c.highlights.cosine for c in structures.candidates("lighting", 4))
     cands = structures.candidates("lighting", 8)
-    assert all(c.highlight_fresnel for c in cands if c.highlight_cosine)
-    assert any(c.highlight_cosine for c in cands) and any(c.highlight_fresnel and not c.highlight_cosine for c in cands)
-    off = plan.constrained(cands, pipeline.options(max_lookups=8, highlight_cosine=False))
-    on = plan.constrained(cands, pipeline.options(max_lookups=8, highlight_cosine=True))
-    assert not any(c.highlight_cosine for c in off) and any(c.highlight_terms for c in off)
-    assert all(c.highlight_cosine for c in on if c.highlight_terms) and any(not c.highlight_terms for c in on)
-    with pytest.raises(HomofacError, match="highlight_cosine"):
+    assert all(c.highlights.fresnel for c in cands if c.highlights.cosine)
+    assert any(c.highlights.cosine for c in cands)
+    assert any(c.highlights.fresnel and not c.highlights.cosine for c in cands)
+    off = plan.constrained(cands, pipeline.options(max_lookups=8, advanced={"highlights": {"cosine": False}}))
+    on = plan.constrained(cands, pipeline.options(max_lookups=8, advanced={"highlights": {"cosine": True}}))
+    assert not any(c.highlights.cosine for c in off) and any(c.highlights.terms for c in off)
+    assert all(c.highlights.cosine for c in on if c.highlights.terms) and any(not c.highlights.terms for c in on)
+    with pytest.raises(HomofacError, match="highlights: cosine: the n.i line"):
         hf.fit.factorize(hf.light.lighting_target(hf.brdf.ggx(roughness=0.4), hf.light.sun_sky(SUN, resolution=8),
                                                   parametrization="RO"),
-                         "RO", texture_size=8, diffuse="fitted", highlight_cosine=True)
+                         "RO", texture_size=8, diffuse="fitted", advanced={"highlights": {"cosine": True}})
 
 
 def test_a_dielectric_under_a_sun_fits_better_with_the_cosine_line(tmp_path):
@@ -297,11 +299,11 @@ def test_a_dielectric_under_a_sun_fits_better_with_the_cosine_line(tmp_path):
     brdf = hf.brdf.ggx(kd=0.3, ks=1.0, roughness=0.4, f0=0.04)
     target = hf.light.lighting_target(brdf, env, parametrization="RO")
     samples = hf.fit.draw_samples(target, "RO", GRID)
-    kw = dict(texture_size=8, samples=samples, diffuse="fitted", nv_factor=True, highlight_terms=1)
-    fres = hf.fit.factorize(target, "RO", highlight_fresnel=True, **kw)
-    both = hf.fit.factorize(target, "RO", highlight_fresnel=True, highlight_cosine=True, **kw)
+    kw = dict(texture_size=8, samples=samples, diffuse="fitted", nv_factor=True)
+    fres = hf.fit.factorize(target, "RO", advanced={"highlights": {"terms": 1, "fresnel": True}}, **kw)
+    both = hf.fit.factorize(target, "RO", advanced={"highlights": {"terms": 1, "fresnel": True, "cosine": True}}, **kw)
     assert both.model.lookups == fres.model.lookups + 1
-    assert both.solver["method"] == "als" and both.solver["structure"]["highlight_cosine"]
+    assert both.solver["method"] == "als" and both.solver["structure"]["highlights"]["cosine"]
     e_fres = fres.metrics["validation"]["float"]["nrmse"]
     e_both = both.metrics["validation"]["float"]["nrmse"]
     assert e_both < 0.8 * e_fres, (e_both, e_fres)

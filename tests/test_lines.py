@@ -34,14 +34,14 @@ def test_the_line_sizes_rule_given_quality_mode_vote_and_default():
     assert plan.line_sizes(FitOptions(target_error=0.1, terms=2)) == (32, r * 32)  # the chooser's budget 16
     assert plan.line_sizes(FitOptions(max_lookups=q)) == (structures.LINE_SIZE,)
     assert plan.line_sizes(FitOptions(terms=3, nv_factor=True)) == (structures.LINE_SIZE,)
-    assert plan.line_sizes(FitOptions(max_lookups=16, line_size=48)) == (48,)
-    assert plan.line_sizes(FitOptions(terms=2, line_size=48)) == (48,)
+    assert plan.line_sizes(FitOptions(max_lookups=16, advanced={"line_size": 48})) == (48,)
+    assert plan.line_sizes(FitOptions(terms=2, advanced={"line_size": 48})) == (48,)
 
 
 @pytest.mark.parametrize("bad", [1, 0, 5000, 2.5, "many"])
 def test_a_bad_line_size_is_refused_in_one_line(bad):
     with pytest.raises(HomofacError) as e:
-        pipeline.options("NR", terms=2, line_size=bad)
+        pipeline.options("NR", terms=2, advanced={"line_size": bad})
     assert "line_size" in str(e.value) and "\n" not in str(e.value)
 
 
@@ -49,7 +49,7 @@ def test_line_size_is_refused_for_a_single_log_space_product():
     env = hf.light.sun_sky(SUN, sun_radiance=300.0, sun_angle_deg=4.0, sky=(0.3, 0.4, 0.6), resolution=8)
     target = hf.light.lighting_target(hf.brdf.ggx(kd=0.3, ks=1.0, roughness=0.4, f0=0.04), env)
     with pytest.raises(HomofacError, match="line_size sizes the line textures of a sum"):
-        hf.fit.factorize(target, "NRW", texture_size=8, line_size=64, sampling=GRID)
+        hf.fit.factorize(target, "NRW", texture_size=8, advanced={"line_size": 64}, sampling=GRID)
 
 
 def test_every_line_of_a_sum_its_polish_save_and_refit_keep_the_line_size(tmp_path):
@@ -59,9 +59,10 @@ def test_every_line_of_a_sum_its_polish_save_and_refit_keep_the_line_size(tmp_pa
     env = hf.light.sun_sky(SUN, sun_radiance=300.0, sun_angle_deg=4.0, sky=(0.3, 0.4, 0.6), resolution=8)
     brdf = hf.brdf.ggx(kd=0.3, ks=1.0, roughness=0.4, f0=0.04)
     target = hf.light.lighting_target(brdf, env)
-    kw = dict(texture_size=8, sampling=GRID, diffuse="fitted", nv_factor=True, prefiltered=True, highlight_terms=1,
-              highlight_fresnel=True, highlight_cosine=True, line_size=64)
-    fac = hf.fit.factorize(target, "NR", linear={"polish": 2, "polish_size": 6}, **kw)
+    kw = dict(texture_size=8, sampling=GRID, diffuse="fitted", nv_factor=True)
+    fac = hf.fit.factorize(target, "NR", advanced={"prefiltered": True, "line_size": 64,
+                                                   "highlights": {"terms": 1, "fresnel": True, "cosine": True},
+                                                   "linear": {"polish": 2, "polish_size": 6}}, **kw)
     lines = _lines(fac.model)
     assert set(lines) == {"W", "w0", "d1", "f1", "c1", "w1"} and set(lines.values()) == {64}
     assert {t.size for t in fac.model.textures if t.mapper != "line"} == {8}
@@ -87,7 +88,7 @@ def test_the_quality_mode_votes_on_the_line_size_of_the_structure_it_keeps():
     without a polish there are no ridge pairs, so the vote reads the plain validation nrmse, as the plan says)."""
     env = hf.light.sun_sky(SUN, sun_radiance=300.0, sun_angle_deg=4.0, sky=(0.3, 0.4, 0.6), resolution=8)
     target = hf.light.lighting_target(hf.brdf.ggx(kd=0.3, ks=1.0, roughness=0.4, f0=0.04), env)
-    fac = hf.fit.factorize(target, "NR", texture_size=16, max_lookups=9, linear={"polish": 0},
+    fac = hf.fit.factorize(target, "NR", texture_size=16, max_lookups=9, advanced={"linear": {"polish": 0}},
                            sampling={"count": 30000, "validation": 4000, "cache": False})
     note = fac.selection["lines"]
     assert note["sizes"] == [32, 64]

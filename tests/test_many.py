@@ -47,7 +47,7 @@ def test_library_equals_full_runs(env):
 
 @pytest.mark.slow
 def test_library_of_sums_fits_each_target(env):
-    kw = dict(texture_size=8, terms=1, diffuse="exact", linear={"iterations": 4},
+    kw = dict(texture_size=8, terms=1, diffuse="exact", advanced={"linear": {"iterations": 4}},
               sampling={"count": 4000, "validation": 500, "cache": False})
     brdfs = [hf.brdf.cook_torrance(roughness=r) for r in (0.3, 0.5)]
     targets = [hf.light.lighting_target(b, env) for b in brdfs]

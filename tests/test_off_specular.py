@@ -212,7 +212,8 @@ def test_max_lookups_draws_grid_pairs_per_direction_and_keeps_the_chosen_structu
     brdf = hf.brdf.cook_torrance(kd=(0.05, 0.04, 0.02), ks=1.0, roughness=0.3, f0=(1.0, 0.78, 0.34))
     target = hf.light.lighting_target(brdf, hf.light.load_environment("interior", 8))
     logs = []
-    fac = hf.fit.factorize(target, "NR", texture_size=S, max_lookups=4, linear={"iterations": 8, "polish": 0},
+    fac = hf.fit.factorize(target, "NR", texture_size=S, max_lookups=4,
+                           advanced={"linear": {"iterations": 8, "polish": 0}},
                            sampling={"count": 20000, "validation": 3000, "cache": False}, log=logs.append)
     tried = {t["label"]: t for t in fac.selection["tried"]}
     assert set(tried) == {"E'+NRW x1", "E'+NROW x1", "E'+ROW x1+R", "E'+RO x1+HW x1"}
@@ -235,7 +236,7 @@ def test_max_lookups_draws_grid_pairs_per_direction_and_keeps_the_chosen_structu
     s = hf.fit.draw_samples(target, "NR", {"kind": "grid", "size": S, "mapper": "dual_paraboloid", "count": 20000,
                                            "validation": 3000, "cache": False})
     only = hf.fit.factorize(target, "NR", texture_size=S, max_lookups=4, samples=s,
-                            linear={"iterations": 8, "nv_balance": 0.0})
+                            advanced={"linear": {"iterations": 8, "nv_balance": 0.0}})
     assert [t["label"] for t in only.selection["tried"]] == ["E'+NRW x1"]
     assert only.solver["nv_balance"] == 0.0  # given: kept
 
@@ -313,10 +314,11 @@ def test_the_chooser_polishes_the_structure_it_keeps_and_a_refit_repeats_it():
     (its solver record says what the full run did)."""
     brdf = hf.brdf.cook_torrance(kd=(0.05, 0.04, 0.02), ks=1.0, roughness=0.3, f0=(1.0, 0.78, 0.34))
     target = hf.light.lighting_target(brdf, hf.light.load_environment("interior", 8))
-    kw = dict(texture_size=S, max_lookups=4, highlight_terms=0,  # a kept highlight structure is not polished
-              sampling={"count": 20000, "validation": 3000, "cache": False})
-    fac = hf.fit.factorize(target, "NR", linear={"iterations": 8, "polish_size": 8}, **kw)
-    assert not Structure.of(fac.solver["structure"]).highlight_terms
+    kw = dict(texture_size=S, max_lookups=4, sampling={"count": 20000, "validation": 3000, "cache": False})
+    no_highlights = {"highlights": {"terms": 0}}  # a kept highlight structure is not polished
+    fac = hf.fit.factorize(target, "NR", advanced={**no_highlights, "linear": {"iterations": 8, "polish_size": 8}},
+                           **kw)
+    assert not Structure.of(fac.solver["structure"]).highlights.terms
     val = lambda r: r.metrics["validation"]["float"]["nrmse"]  # noqa: E731
     note = fac.selection["polish"]
     before, after = note["validation_nrmse_before"], note["validation_nrmse_after"]
@@ -326,7 +328,7 @@ def test_the_chooser_polishes_the_structure_it_keeps_and_a_refit_repeats_it():
     assert after < before  # small lamps: detail at the texel scale, which the grid fit never sees between centres
     assert fac.solver["polish"]["steps"] == plan.PRESETS["fast"].polish and fac.solver["polish"]["size"] == 8
     assert fac.selection["chosen"]["label"] == Structure.of(fac.solver["structure"]).label()
-    off = hf.fit.factorize(target, "NR", linear={"iterations": 8, "polish": 0}, **kw)
+    off = hf.fit.factorize(target, "NR", advanced={**no_highlights, "linear": {"iterations": 8, "polish": 0}}, **kw)
     assert "polish" not in off.selection and "polish" not in off.solver
     assert val(off) == pytest.approx(before, rel=1e-5)  # the same ALS fits, the same choice
     again = hf.fit.refit(fac, brdf=brdf, start="fresh")
@@ -344,10 +346,10 @@ def test_the_quality_mode_polishes_a_kept_highlight_structure_where_the_validati
     brdf = hf.brdf.cook_torrance(kd=(0.3, 0.05, 0.05), ks=1.0, roughness=0.2, f0=0.04)
     target = hf.light.lighting_target(brdf, hf.light.load_environment("city", 8))
     fac = hf.fit.factorize(target, "NR", texture_size=S, max_lookups=plan.PRESETS["balanced"].lookups + 1,
-                           highlight_terms=1, highlight_fresnel=True, highlight_cosine=True, diffuse="fitted",
-                           linear={"iterations": 6, "polish_size": 8},
+                           diffuse="fitted", advanced={"highlights": {"terms": 1, "fresnel": True, "cosine": True},
+                                                       "linear": {"iterations": 6, "polish_size": 8}},
                            sampling={"count": 20000, "validation": 3000, "cache": False})
-    assert Structure.of(fac.solver["structure"]).highlight_terms == 1
+    assert Structure.of(fac.solver["structure"]).highlights.terms == 1
     note = fac.selection["polish"]
     assert note["rule"] == "vote" and note["steps"] == plan.PRESETS["fast"].polish
     key = sums.RIDGE_METRIC
@@ -415,9 +417,9 @@ def test_max_lookups_with_texel_sampling_fits_the_off_specular_candidates_with_t
     brdf = hf.brdf.cook_torrance(kd=(0.05, 0.04, 0.02), ks=1.0, roughness=0.3, f0=(1.0, 0.78, 0.34))
     target = hf.light.lighting_target(brdf, hf.light.load_environment("interior", 8))
     logs = []
-    fac = hf.fit.factorize(target, "NR", texture_size=S, max_lookups=4, highlight_terms=0,
-                           analysis={"size": 4},
-                           linear={"iterations": 1, "polish": 0},
+    fac = hf.fit.factorize(target, "NR", texture_size=S, max_lookups=4,
+                           advanced={"highlights": {"terms": 0}, "analysis": {"size": 4},
+                                     "linear": {"iterations": 1, "polish": 0}},
                            sampling={"kind": "texels", "size": 4, "validation": 200, "cache": False},
                            log=logs.append)
     labels = {t["label"] for t in fac.selection["tried"]}

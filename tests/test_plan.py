@@ -2,16 +2,19 @@
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import homofac as hf
 from homofac.app import cli
-from homofac.app.config import parse
+from homofac.app.config import parse, parse_record
 from homofac.errors import HomofacError
 from homofac.fit import plan
-from homofac.fit.options import DEFAULT_PRESET, FitOptions
+from homofac.fit.options import DEFAULT_PRESET, FitOptions, recorded_fit_options
 from homofac.fit.structures import Structure
 
 GOLD = {"model": "cook_torrance", "kd": [0.05, 0.04, 0.02], "ks": 1.0, "roughness": 0.3, "f0": [1.0, 0.78, 0.34]}
@@ -45,24 +48,25 @@ def test_an_override_replaces_the_presets_value_and_nothing_else(envs):
     t = _gold(envs["sun"])
     best = plan.build_plan(t, "best")
     assert best.ridge > 0 and best.disc_vote and len(best.line_sizes) == 2 and best.linear.nv_balance == 0
-    less = plan.build_plan(t, "best", {"sampling": {"count": 1000, "validation": 500}, "line_size": 48,
-                                       "linear": {"ridge": 0, "nv_balance": 0.5}, "highlight_disc": False})
+    less = plan.build_plan(t, "best", {"sampling": {"count": 1000, "validation": 500},
+                                       "advanced": {"line_size": 48, "linear": {"ridge": 0, "nv_balance": 0.5},
+                                                    "highlights": {"disc": False}}})
     assert (less.grid_count, less.validation, less.line_sizes, less.ridge) == (1000, 500, (48,), 0)
     assert less.linear.nv_balance == 0.5 and not less.disc_vote
     assert [v.name for v in less.votes] == ["structure", "polish"]  # no line vote (one size), no disc vote
     assert less.candidates == best.candidates  # the candidates were not overridden
     assert plan.build_plan(t, "best", {"max_lookups": 6}).max_lookups == 6
-    fewer = plan.build_plan(t, "balanced", {"highlight_terms": 0})
-    assert fewer.candidates and not any(c.highlight_terms for c in fewer.candidates)
+    fewer = plan.build_plan(t, "balanced", {"advanced": {"highlights": {"terms": 0}}})
+    assert fewer.candidates and not any(c.highlights.terms for c in fewer.candidates)
 
 
 def test_polish_given_runs_on_every_candidate_and_the_kept_structure_gets_no_second_polish(envs):
     t = _gold(envs["interior"])
-    p = plan.build_plan(t, "fast", {"linear": {"polish": 3}})
+    p = plan.build_plan(t, "fast", {"advanced": {"linear": {"polish": 3}}})
     assert p.linear.polish == 3 and p.polish == 0 and "polish" not in [v.name for v in p.votes]
-    off = plan.build_plan(t, "fast", {"linear": {"polish": 0}})
+    off = plan.build_plan(t, "fast", {"advanced": {"linear": {"polish": 0}}})
     assert off.linear.polish == 0 and off.polish == 0
-    lm = plan.build_plan(t, "fast", {"linear": {"method": "levenberg_marquardt"}})
+    lm = plan.build_plan(t, "fast", {"advanced": {"linear": {"method": "levenberg_marquardt"}}})
     assert lm.polish == 0  # the polish follows an ALS fit
 
 
@@ -75,9 +79,9 @@ def test_the_candidates_balance_the_nv_bins_only_where_the_brdf_has_a_diffuse_pa
     assert plan.build_plan(mirror, "balanced").linear.nv_balance == 0
     bp = plan.build_plan(brdf, "balanced")
     assert bp.parametrization == "PQP" and bp.linear.nv_balance == 0 and bp.polish == 0 and bp.ridge == 0
-    assert plan.build_plan(plastic, "balanced", {"linear": {"nv_balance": 0.0}}).linear.nv_balance == 0.0
+    assert plan.build_plan(plastic, "balanced", {"advanced": {"linear": {"nv_balance": 0.0}}}).linear.nv_balance == 0.0
     with pytest.raises(HomofacError, match="nv_balance"):
-        plan.build_plan(brdf, "balanced", {"linear": {"nv_balance": 0.5}})
+        plan.build_plan(brdf, "balanced", {"advanced": {"linear": {"nv_balance": 0.5}}})
 
 
 def test_no_preset_and_no_naming_key_is_the_default_preset_and_a_named_parametrization_a_single_product(envs):
@@ -115,29 +119,139 @@ def test_a_config_naming_only_a_brdf_an_environment_and_a_preset_is_complete(tmp
 def test_the_plan_refuses_in_one_line_before_any_compute(envs):
     t = _gold(envs["sun"])
     for bad, words in ((({"parametrization": "split_sum", "preset": "fast"}), "baseline"),
-                       ({"parametrization": "NR", "terms": 2, "linear": {"ridge": 10, "polish": 0}}, "ridge"),
+                       ({"parametrization": "NR", "terms": 2,
+                         "advanced": {"linear": {"ridge": 10, "polish": 0}}}, "ridge"),
                        ({"parametrization": "PQP", "max_lookups": 4}, "PQP")):
         with pytest.raises(HomofacError, match=words) as e:
             plan.build_plan(t, None, bad)
         assert "\n" not in str(e.value)
 
 
-_PARAMS = ("N", "R", "NR", "NRV", "NRHD", "NRO", "RO", "IV", "GSHD", "PQP")
+_PARAMS = ("N", "R", "NR", "NRV", "NRHD", "NRO", "RO", "IV", "GSHD", "PQP", "NRW")
+
+
+@st.composite
+def _highlights(draw):
+    """Valid highlights: the flags only with highlight terms, a table or the cosine line, not both."""
+    terms = draw(st.integers(0, 3))
+    if not terms:
+        return {"terms": 0}
+    table = draw(st.booleans())
+    return {"terms": terms, "fresnel": draw(st.booleans()), "cosine": not table and draw(st.booleans()),
+            "table": table, "disc": draw(st.booleans())}
+
+
+_STRUCTURES = st.builds(lambda p, k, d, w, r, ss, rw, h: Structure(p, k, d, w, reflection=r, prefiltered=ss,
+                                                                  rw_terms=rw, highlights=h),
+                        st.sampled_from(_PARAMS), st.integers(1, 40), st.sampled_from([None, "exact", "fitted"]),
+                        st.booleans(), st.booleans(), st.booleans(), st.integers(0, 5), _highlights())
 
 
 @settings(max_examples=300, deadline=None)
-@given(st.builds(Structure, st.sampled_from(_PARAMS + ("NRW",)), st.integers(1, 40),
-                 st.sampled_from([None, "exact", "fitted"]), st.booleans(), st.booleans(), st.booleans(),
-                 st.integers(0, 5), st.integers(0, 3), st.booleans(), st.booleans(), st.booleans(), st.booleans()))
-def test_a_structure_label_parses_back_to_the_structure(s):
+@given(_STRUCTURES)
+def test_a_structure_label_parses_back_to_the_structure_and_its_record_reads_back(s):
     back = Structure.parse(s.label())
+    # one identity: NRW products read as NR products with the n.v factor (the same sum)
+    assert back == (s.replace(parametrization="NR") if s.parametrization == "NRW" else s)
     assert back.label() == s.label()
-    if s.highlight_terms and s.parametrization != "NRW":  # (without highlight terms the label drops their lines)
-        assert back == s
+    assert Structure.of(s.record()) == s and hash(Structure.of(s.record())) == hash(s)
+    assert Structure.of(json.loads(json.dumps(s.record()))) == s  # as factorization.json holds it
+
+
+def test_records_of_the_flat_layout_read_as_the_nested_structure():
+    flat = {"parametrization": "RO", "terms": 3, "diffuse": "fitted", "nv_factor": True, "reflection": True,
+            "prefiltered": False, "rw_terms": 0, "highlight_terms": 2, "highlight_fresnel": True,
+            "highlight_cosine": False, "highlight_table": True, "highlight_disc": None}
+    s = Structure.of(flat)
+    assert s.label() == "E'+ROW x3+R+HFT x2" and s.highlights.terms == 2 and not s.highlights.disc
+    assert Structure.of(s.record()) == s and "highlights" in s.record()
+
+
+def test_an_inconsistent_structure_is_refused_in_one_line():
+    for kw in ({"highlights": {"disc": True}}, {"highlights": {"terms": 1, "table": True, "cosine": True}},
+               {"highlights": {"terms": 4}}, {"terms": 0}, {"diffuse": "half"}):
+        with pytest.raises(HomofacError) as e:
+            Structure("NR", **kw)
+        assert "\n" not in str(e.value)
+    with pytest.raises(HomofacError, match="parametrization"):
+        Structure("XYZ")
+    with pytest.raises(HomofacError, match="highlights.terms"):
+        Structure("RO", highlights={"terms": 1}).with_highlights(terms=0, fresnel=True)
+
+
+def test_a_structure_gives_the_keywords_that_fit_it(envs):
+    s = Structure.parse("E'+NROW x2+R+HSFT x1")
+    kw = s.keywords()
+    assert set(kw) == {"parametrization", "terms", "diffuse", "nv_factor", "advanced"}
+    p = plan.build_plan(_gold(envs["sun"]), None, kw)
+    assert p.mode == "sum" and p.candidates == (s,)
+    d = p.to_dict()["candidates"][0]
+    assert d["label"] == s.label() and Structure.of(d["structure"]) == s and d["structure"]["highlights"]["disc"]
+    assert f"structure: {s.label()} (NRO products x2" in str(p)
+    assert "highlights {terms 1, fresnel, table, disc}" in str(p)
+    fast = plan.build_plan(_gold(envs["sun"]), "fast")
+    chosen = fast.to_dict()["candidates"]
+    assert all(Structure.of(c["structure"]).label() == c["label"] for c in chosen)
+    assert all(f"    {c.label()} ({c.describe()})" in str(fast).splitlines() for c in fast.candidates)
+
+
+def test_research_keys_live_under_advanced_and_their_old_spellings_name_the_new_place(tmp_path, capsys):
+    for key, place in (("highlight_disc", "advanced.highlights.disc"), ("linear", "advanced.linear"),
+                       ("rw_terms", "advanced.rw_terms"), ("line_size", "advanced.line_size")):
+        with pytest.raises(HomofacError) as e:
+            parse({"target": {"brdf": GOLD}, key: 1}, "c.yaml")
+        assert str(e.value) == f"c.yaml: {key} is an advanced key: write it under advanced: ({place})"
+        with pytest.raises(HomofacError, match=f"{key} is an advanced key"):
+            hf.fit.factorize(_gold(hf.light.sun_sky((0, 0, 1), resolution=4)), **{key: 1})
+    path = tmp_path / "c.yaml"
+    path.write_text("target:\n  brdf: {model: ggx, roughness: 0.3}\n  environment: {file: interior, resolution: 8}\n"
+                    "highlight_terms: 1\n")
+    assert cli.fit_main([str(path), "--plan"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.endswith("highlight_terms is an advanced key: write it under advanced: (advanced.highlights.terms)")
+    assert err.startswith("homofac: error:") and "\n" not in err
+    # the pinned keys stay at the top level; the research keys are under advanced
+    top = set(FitOptions.model_fields)
+    assert {"preset", "max_lookups", "terms", "diffuse", "nv_factor"} <= top
+    assert not top & {"linear", "line_size", "reflection", "highlight_terms", "analysis", "baseline"}
+    cfg = parse({"target": {"brdf": GOLD}, "advanced": {"highlights": {"terms": 1, "fresnel": True},
+                                                        "linear": {"polish": 0}}})
+    assert cfg.preset is None and cfg.is_sum and cfg.structure().label() == "NR x1+HFW x1"
+
+
+def test_a_config_recorded_before_the_advanced_section_reads_in_todays_layout():
+    old = {"target": {"brdf": GOLD}, "parametrization": "NR", "terms": 2, "reflection": True, "rw_terms": 0,
+           "highlight_terms": 1, "highlight_fresnel": None, "highlight_disc": True, "line_size": None,
+           "linear": {"iterations": 4}, "baseline": None, "analysis": None}
+    cfg = parse_record(old)
+    assert cfg.advanced.reflection and cfg.advanced.highlights.terms == 1 and cfg.advanced.highlights.disc
+    assert cfg.advanced.linear.iterations == 4 and cfg.structure().label() == "NR x2+R+HSW x1"
+    assert recorded_fit_options(old)["advanced"] == {"reflection": True, "rw_terms": 0,
+                                                     "highlights": {"terms": 1, "disc": True},
+                                                     "linear": {"iterations": 4}}
+    assert parse_record(cfg.model_dump(mode="json")) == cfg  # today's records read as they are
+
+
+def test_the_config_has_fewer_top_level_keys_than_before_and_docs_say_how_many():
+    """docs/config.md counts the keys: the top level, and the keys of the reference outside and under
+    ``advanced`` (without the BRDF parameters, materials, cameras and extra lights)."""
+    import sys
+    from homofac.app.config import Config
+    root = Path(__file__).resolve().parents[1]
+    sys.path.insert(0, str(root / "docs"))
+    import hooks
+    keys = len(Config.model_fields)
+    skip = {"cameras[]", "lights[]", "materials[]"}
+    sections = [(m, k) for m, k in hooks.config_sections() if not skip & set(k.split("."))]
+    outside = sum(len(m.model_fields) for m, k in sections if not k.startswith("advanced"))
+    under = sum(len(m.model_fields) for m, k in sections if k.startswith("advanced"))
+    text = " ".join((root / "docs" / "config.md").read_text().split())
+    assert keys <= 16 and f"{keys} top-level keys" in text
+    assert f"there are {outside} outside `advanced` and {under} under it" in text
 
 
 def test_a_string_that_is_no_label_is_refused_in_one_line():
-    for bad in ("", "NR", "NR x0", "E'+XYZ x1", "E'+NRW x2+H x1", 3):
+    for bad in ("", "NR", "NR x0", "E'+XYZ x1", "E'+NRW x2+H x1", "NR x1+HSW x4", "NR x1+HFCT x1", 3):
         with pytest.raises(HomofacError) as e:
             Structure.parse(bad)
         assert "\n" not in str(e.value)

@@ -165,7 +165,7 @@ def test_brdf_factorization_refit():
 
 @pytest.mark.slow
 def test_sum_refit_warm_start_and_fresh(envs):
-    kw = dict(texture_size=8, terms=2, diffuse="exact", nv_factor=True, linear={"iterations": 8},
+    kw = dict(texture_size=8, terms=2, diffuse="exact", nv_factor=True, advanced={"linear": {"iterations": 8}},
               sampling={"count": 6000, "validation": 1000, "cache": False})
     fac = hf.fit.factorize(hf.light.lighting_target(gold(), envs[0]), "NR", **kw)
     # from its own optimum on the same target the exact block ALS can only go down

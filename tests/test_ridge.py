@@ -103,9 +103,10 @@ def test_the_stratified_nrmse_estimates_the_uniform_one_with_less_spread():
 def test_the_polish_adds_the_ridge_pairs_and_records_them_for_a_refit():
     env = hf.light.sun_sky(SUN, sun_radiance=300.0, sun_angle_deg=4.0, sky=(0.3, 0.4, 0.6), resolution=8)
     target = hf.light.lighting_target(hf.brdf.cook_torrance(kd=0.3, ks=1.0, roughness=0.6, f0=0.04), env)
-    kw = dict(texture_size=8, sampling=GRID, diffuse="fitted", nv_factor=True, highlight_terms=1)
-    plain = hf.fit.factorize(target, "NR", linear={"polish": 2, "polish_size": 6}, **kw)
-    fac = hf.fit.factorize(target, "NR", linear={"polish": 2, "polish_size": 6, "ridge": 500}, **kw)
+    kw = dict(texture_size=8, sampling=GRID, diffuse="fitted", nv_factor=True)
+    hl = {"highlights": {"terms": 1}}
+    plain = hf.fit.factorize(target, "NR", advanced={**hl, "linear": {"polish": 2, "polish_size": 6}}, **kw)
+    fac = hf.fit.factorize(target, "NR", advanced={**hl, "linear": {"polish": 2, "polish_size": 6, "ridge": 500}}, **kw)
     note = fac.solver["polish"]["ridge"]
     assert note["pairs"] == 500 and 0 < note["probability"][0] < 0.01
     np.testing.assert_allclose(note["lights"][0], np.asarray(fac.model.context["dominant"]), atol=1e-6)
@@ -135,14 +136,14 @@ def test_bad_ridge_options_are_refused_in_one_line(linear, kw, match):
     target = hf.light.lighting_target(hf.brdf.ggx(kd=0.3, ks=1.0, roughness=0.4, f0=0.04), env)
     with pytest.raises(HomofacError, match=match) as e:
         hf.fit.factorize(target, "NR", texture_size=8, sampling=GRID, diffuse="fitted", nv_factor=True,
-                         linear=linear, **kw)
+                         advanced={"linear": linear}, **kw)
     assert "\n" not in str(e.value)
 
 
 def test_ridge_needs_an_environment():
     brdf = hf.target.brdf_target(hf.brdf.ggx(kd=0.3, ks=1.0, roughness=0.4, f0=0.04))
     with pytest.raises(HomofacError, match="ridge") as e:
-        hf.fit.factorize(brdf, "PQP", terms=2, linear={"polish": 2, "ridge": 100})
+        hf.fit.factorize(brdf, "PQP", terms=2, advanced={"linear": {"polish": 2, "ridge": 100}})
     assert "\n" not in str(e.value)
 
 
@@ -152,8 +153,7 @@ def test_the_direct_stage_starts_from_the_als_fit_and_a_refit_repeats_the_record
     refit of a direct stage's record takes that path, not the two-stage one."""
     env = hf.light.sun_sky(SUN, sun_radiance=300.0, sun_angle_deg=4.0, sky=(0.3, 0.4, 0.6), resolution=8)
     target = hf.light.lighting_target(hf.brdf.cook_torrance(kd=0.3, ks=1.0, roughness=0.6, f0=0.04), env)
-    structure = Structure.of({"parametrization": "NR", "terms": 1, "diffuse": "fitted", "nv_factor": True,
-                              "highlight_terms": 1})
+    structure = Structure("NR", 1, "fitted", True, highlights={"terms": 1})
     tgt = sums.with_highlight_context(target, structure)
     lin = LinearOptions(polish=2, polish_size=6, ridge=500)
     samples = hf.fit.draw_samples(tgt, "NR", GRID)
@@ -177,8 +177,9 @@ def test_the_direct_stage_starts_from_the_als_fit_and_a_refit_repeats_the_record
         np.testing.assert_allclose(np.asarray(got.model.evaluate(n, v)), np.asarray(want.model.evaluate(n, v)),
                                    rtol=1e-5, atol=1e-6)
     # a refit of a direct stage's record repeats the direct path
-    kw = dict(texture_size=8, sampling=GRID, diffuse="fitted", nv_factor=True, highlight_terms=1)
-    fac = hf.fit.factorize(target, "NR", linear={"polish": 2, "polish_size": 6, "ridge": 500}, **kw)
+    kw = dict(texture_size=8, sampling=GRID, diffuse="fitted", nv_factor=True)
+    fac = hf.fit.factorize(target, "NR", advanced={"highlights": {"terms": 1},
+                                                   "linear": {"polish": 2, "polish_size": 6, "ridge": 500}}, **kw)
     record = {k: v for k, v in fac.solver["polish"].items() if k != "first"}
     direct = hf.fit.refit(fac.replace(solver={**fac.solver, "polish": record}), target=target)
     assert polish.recorded_direct(direct.solver) and direct.solver["polish"]["ridge"]["pairs"] == 500

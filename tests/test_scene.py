@@ -219,7 +219,8 @@ def test_a_refit_of_a_scene_sampled_fit_measures_the_scene_too(target):
 @pytest.mark.slow
 def test_sums_of_products_take_scene_samples(target):
     fac = hf.fit.factorize(target, "NR", texture_size=8, terms=1, diffuse="exact",
-                           linear={"method": "levenberg_marquardt", "iterations": 3, "inner_iterations": 20},
+                           advanced={"linear": {"method": "levenberg_marquardt", "iterations": 3,
+                                                "inner_iterations": 20}},
                            sampling={"kind": "scene", "mesh": "demo", "count": 4000, "validation": 500,
                                      "cache": False})
     assert fac.counts["train"] == 4000 and np.isfinite(fac.metrics["scene"]["float"]["nrmse"])

@@ -62,7 +62,7 @@ def test_skeleton_names_lookups_and_labels():
     assert terms[0].kind == "irradiance" and not terms[0].fitted
     assert structures.lookups(Structure("NR", 1, "exact", True), "lighting") == 4  # the issue's count
     assert structures.lookups(Structure("NR", 2, "exact", True), "lighting") == 7
-    assert structures.lookups(Structure("NR", 2, "fitted", True, True), "lighting") == 8
+    assert structures.lookups(Structure("NR", 2, "fitted", True, reflection=True), "lighting") == 8
     # BRDF: PQP with w(cos_i) w(cos_o) and the constant diffuse term (no lookup)
     tex, terms = structures.skeleton(Structure("PQP", 2, "exact", True), "brdf", "brdf", "parabolic", 16)
     assert terms[0].factors == () and [f[0] for f in terms[1].factors] == ["wi", "h", "wo", "cos_i", "cos_o"]
@@ -161,7 +161,7 @@ def test_rw_terms_are_refused_where_they_mean_nothing():
     with pytest.raises(HomofacError, match="rw_terms: R products are already"):
         structures.skeleton(Structure("R", 1, None, True, rw_terms=1), "lighting", "lighting", "dual_paraboloid", 8)
     with pytest.raises(HomofacError, match="rw_terms"):
-        pipeline.options("NR", rw_terms=-1)
+        pipeline.options("NR", advanced={"rw_terms": -1})
 
 
 @pytest.mark.slow
@@ -232,7 +232,7 @@ def test_more_structure_fits_better_and_beats_one_product(plastic):
 def test_factorize_keys_validate_and_record(plastic, tmp_path):
     target, s = plastic
     fac = hf.fit.factorize(target, "NR", texture_size=S, terms=2, diffuse="exact", nv_factor=True, samples=s,
-                           linear={"iterations": 5})
+                           advanced={"linear": {"iterations": 5}})
     assert fac.model.lookups == 7 and fac.solver["structure"]["terms"] == 2
     assert fac.metrics["validation"]["float"]["nrmse"] < 1
     fac.save(tmp_path / "out")
@@ -240,7 +240,8 @@ def test_factorize_keys_validate_and_record(plastic, tmp_path):
     np.testing.assert_allclose(np.asarray(back.evaluate(s.val_a[:200], s.val_b[:200])),
                                np.asarray(fac.evaluate(s.val_a[:200], s.val_b[:200])), rtol=2e-5, atol=1e-6)
     for bad, msg in [({"terms": 0}, "terms"), ({"diffuse": "approx"}, "diffuse"), ({"max_lookups": 0}, "max_lookups"),
-                     ({"linear": {"method": "adam"}}, "linear.method"), ({"linear": {"sweeps": 3}}, "sweeps")]:
+                     ({"advanced": {"linear": {"method": "adam"}}}, "linear.method"),
+                     ({"advanced": {"linear": {"sweeps": 3}}}, "sweeps")]:
         with pytest.raises(HomofacError, match=msg):
             hf.fit.factorize(target, "NR", texture_size=S, samples=s, **bad)
     with pytest.raises(HomofacError, match="baseline"):
@@ -250,7 +251,8 @@ def test_factorize_keys_validate_and_record(plastic, tmp_path):
 @pytest.mark.slow
 def test_max_lookups_picks_within_the_budget(plastic):
     target, s = plastic
-    fac = hf.fit.factorize(target, "NR", texture_size=S, max_lookups=8, samples=s, linear={"iterations": 5})
+    fac = hf.fit.factorize(target, "NR", texture_size=S, max_lookups=8, samples=s,
+                           advanced={"linear": {"iterations": 5}})
     sel = fac.selection
     assert fac.model.lookups <= 8 and sel["max_lookups"] == 8
     assert fac.analysis is not None and fac.analysis["pair"] == "nr"  # Mahajan analysis beside the choice
@@ -267,7 +269,8 @@ def test_diffuse_needs_a_kd(plastic):
     target, s = plastic
     brdf = hf.brdf.phong(exponent=20.0, ks=1.0, kd=0.0)
     t2 = hf.light.lighting_target(brdf, target.fn.env)
-    fac = hf.fit.factorize(t2, "NR", texture_size=S, terms=1, nv_factor=True, samples=s, linear={"iterations": 3})
+    fac = hf.fit.factorize(t2, "NR", texture_size=S, terms=1, nv_factor=True, samples=s,
+                           advanced={"linear": {"iterations": 3}})
     assert fac.solver["start"] == "product"  # no microfacet NDF: the log-space product starts it
 
 
@@ -338,7 +341,7 @@ def test_two_term_pqp_fits_a_sum_of_two_lobes():
     s = hf.fit.draw_samples(target, "PQP", {"cache": False, "size": 12, "validation": 3000})
     one = hf.fit.factorize(target, "PQP", texture_size=16, samples=s)
     two = hf.fit.factorize(target, "PQP", texture_size=16, samples=s, terms=2,
-                           linear={"iterations": 30, "laplacian": 1e-4})
+                           advanced={"linear": {"iterations": 30, "laplacian": 1e-4}})
     assert two.solver["method"] == "levenberg_marquardt" and two.model.lookups == 6
     e1 = one.metrics["validation"]["float"]["nrmse"]
     e2 = two.metrics["validation"]["float"]["nrmse"]
@@ -362,7 +365,7 @@ def test_prefiltered_keeps_the_split_sum_and_corrects_it(plastic):
     """E + SS + corrections: the split sum's own terms are in the model unchanged, and the corrections
     lower the training error below split-sum's."""
     target, s = plastic
-    fit = sums.fit_sum(target, Structure("NR", 1, "exact", True, False, True), "dual_paraboloid", S, s,
+    fit = sums.fit_sum(target, Structure("NR", 1, "exact", True, prefiltered=True), "dual_paraboloid", S, s,
                        LinearOptions(iterations=15))
     base = hf.baselines.build("split_sum", target, "dual_paraboloid", S, None)
     m = fit.model
@@ -500,7 +503,7 @@ def test_nv_balance_needs_a_lighting_target():
     """BRDF pairs have no n.v: refused in one line before sampling, and by fit_sum."""
     target = hf.target.brdf_target(hf.brdf.phong(kd=0.2, ks=0.5, exponent=10.0))
     with pytest.raises(HomofacError, match="nv_balance weighs the n.v bins of lighting pairs") as err:
-        hf.fit.factorize(target, "PQP", texture_size=S, terms=2, linear={"nv_balance": 1.0},
+        hf.fit.factorize(target, "PQP", texture_size=S, terms=2, advanced={"linear": {"nv_balance": 1.0}},
                          sampling={"kind": "random", "count": 200, "validation": 10})
     assert "\n" not in str(err.value)
 
@@ -510,7 +513,7 @@ def test_polish_needs_grid_samples(exact_sum):
     fit_sum for a fit that is not ALS."""
     _, target, s = exact_sum
     with pytest.raises(HomofacError, match="polish follows an als fit on grid samples") as err:
-        hf.fit.factorize(target, "NR", texture_size=S, terms=1, linear={"polish": 2},
+        hf.fit.factorize(target, "NR", texture_size=S, terms=1, advanced={"linear": {"polish": 2}},
                          sampling={"kind": "texels", "size": 6, "validation": 0, "cache": False})
     assert "\n" not in str(err.value)
     with pytest.raises(HomofacError, match="polish follows an als fit"):
@@ -540,7 +543,7 @@ def test_polish_lowers_the_off_grid_error():
     kw = dict(texture_size=16, terms=1, diffuse="fitted", nv_factor=True,
               sampling={"kind": "grid", "count": 60000, "validation": 4000, "cache": False})
     plain = hf.fit.factorize(target, "NR", **kw)
-    pol = hf.fit.factorize(target, "NR", linear={"polish": 4, "polish_size": 12}, **kw)
+    pol = hf.fit.factorize(target, "NR", advanced={"linear": {"polish": 4, "polish_size": 12}}, **kw)
     val = lambda r: r.metrics["validation"]["float"]["nrmse"]  # noqa: E731
     # 0.5105 -> 0.5072 on the validation pairs (500 normals x 8 views); on 63 normals x 64 views it read
     # more than 1 %: the gain of 4 steps is small here, and 8 steps raised it (0.514)
@@ -550,6 +553,7 @@ def test_polish_lowers_the_off_grid_error():
     assert "polish" not in plain.solver and pol.timings["polish_sample_s"] > 0
     copper = mirror((0.9, 0.6, 0.5))
     refit = hf.fit.refit(pol, brdf=copper)
-    full = hf.fit.factorize(hf.light.lighting_target(copper, env), "NR", linear={"polish": 4, "polish_size": 12}, **kw)
+    full = hf.fit.factorize(hf.light.lighting_target(copper, env), "NR",
+                            advanced={"linear": {"polish": 4, "polish_size": 12}}, **kw)
     assert "polish" in refit.solver
     assert abs(val(refit) - val(full)) <= 0.01 * val(full)

@@ -1,4 +1,4 @@
-"""The 2D table T(n.i, n.v) of a highlight term (``highlight_table``, issue 13): its projection, the lines
+"""The 2D table T(n.i, n.v) of a highlight term (``highlights.table``, issue 13): its projection, the lines
 turned into a table and back, the structure, the fit (ALS on the lines, the polish on the table), the
 chooser's table vote and a refit."""
 
@@ -20,7 +20,7 @@ from homofac.param import projections as pj
 SUN = np.array([0.5, -0.3, 0.81])
 SUN /= np.linalg.norm(SUN)
 GRID = {"kind": "grid", "size": 8, "mapper": "dual_paraboloid", "count": 20000, "validation": 3000, "cache": False}
-LINES = Structure("RO", 1, "fitted", True, highlight_terms=1, highlight_fresnel=True, highlight_cosine=True)
+LINES = Structure("RO", 1, "fitted", True, highlights={"terms": 1, "fresnel": True, "cosine": True})
 TABLE = structures.tabled(LINES)
 
 
@@ -55,11 +55,11 @@ def test_the_table_in_the_skeleton_label_record_and_refusals():
     assert ("T1", "parabolic", structures.TABLE_SIZE, "table") in specs
     assert Structure.of(TABLE.record()) == TABLE and structures.lined(TABLE) == LINES
     with pytest.raises(HomofacError, match="not both"):
-        structures.skeleton(TABLE._replace(highlight_cosine=True), "lighting", "lighting", "dual_paraboloid", 8)
-    with pytest.raises(HomofacError, match="set highlight_terms"):
-        structures.skeleton(Structure("RO", 1, highlight_table=True), "lighting", "lighting", "dual_paraboloid", 8)
+        TABLE.with_highlights(cosine=True)
+    with pytest.raises(HomofacError, match="set highlights.terms"):
+        Structure("RO", 1, highlights={"table": True})
     with pytest.raises(HomofacError, match="cosine line"):
-        structures.tabled(LINES._replace(highlight_cosine=False))
+        structures.tabled(LINES.with_highlights(cosine=False))
 
 
 @pytest.fixture(scope="module")
@@ -72,10 +72,11 @@ def target():
 def fits(target):
     """A dielectric under a sun, lines and tables, each polished twice off the grid on the same pairs."""
     samples = hf.fit.draw_samples(target, "RO", GRID)
-    kw = dict(texture_size=8, samples=samples, diffuse="fitted", nv_factor=True, highlight_terms=1,
-              highlight_fresnel=True, linear={"polish": 2})
-    lines = hf.fit.factorize(target, "RO", highlight_cosine=True, **kw)
-    tab = hf.fit.factorize(target, "RO", highlight_table=True, **kw)
+    kw = dict(texture_size=8, samples=samples, diffuse="fitted", nv_factor=True)
+    lines = hf.fit.factorize(target, "RO", advanced={"highlights": {"terms": 1, "fresnel": True, "cosine": True},
+                                                     "linear": {"polish": 2}}, **kw)
+    tab = hf.fit.factorize(target, "RO", advanced={"highlights": {"terms": 1, "fresnel": True, "table": True},
+                                                   "linear": {"polish": 2}}, **kw)
     return lines, tab
 
 
@@ -133,9 +134,9 @@ def test_a_refit_of_a_table_repeats_its_run_and_starts_from_the_separated_lines(
 def test_the_quality_mode_candidates_read_tables_where_they_would_read_the_cosine_line():
     lines = structures.candidates("lighting", 16)
     tables = structures.candidates("lighting", 16, table=True)
-    assert any(c.highlight_cosine for c in lines) and not any(c.highlight_table for c in lines)
-    assert not any(c.highlight_cosine for c in tables) and any(c.highlight_table for c in tables)
+    assert any(c.highlights.cosine for c in lines) and not any(c.highlights.table for c in lines)
+    assert not any(c.highlights.cosine for c in tables) and any(c.highlights.table for c in tables)
     assert all(structures.lookups(c, "lighting") <= 16 for c in tables)
     # the lookup a table saves goes to a term: gold's E'+ROW x3+R+HFCW x2 becomes E'+ROW x4+R+HFT x2
-    gold = Structure("RO", 3, "fitted", True, True, highlight_terms=2, highlight_fresnel=True, highlight_cosine=True)
-    assert gold in lines and structures.tabled(gold)._replace(terms=4) in tables
+    gold = Structure("RO", 3, "fitted", True, reflection=True, highlights={"terms": 2, "fresnel": True, "cosine": True})
+    assert gold in lines and structures.tabled(gold).replace(terms=4) in tables

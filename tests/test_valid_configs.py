@@ -19,7 +19,8 @@ def _target():
     return hf.light.lighting_target(hf.brdf.ggx(kd=0.2, ks=1.0, roughness=0.4, f0=0.04), env)
 
 
-TINY = {"texture_size": 4, "linear": {"iterations": 2, "inner_iterations": 5, "polish_size": 4}}
+TINY = {"texture_size": 4}
+TINY_LINEAR = {"iterations": 2, "inner_iterations": 5, "polish_size": 4}
 
 configs = st.fixed_dictionaries({}, optional={
     "preset": st.sampled_from(["fast", "balanced"]),
@@ -29,7 +30,7 @@ configs = st.fixed_dictionaries({}, optional={
     "terms": st.integers(1, 2),
     "diffuse": st.sampled_from(["exact", "fitted"]),
     "nv_factor": st.booleans(),
-    "highlight_terms": st.integers(0, 1),
+    "highlight_terms": st.integers(0, 1),  # advanced.highlights.terms
     "max_lookups": st.integers(2, 4),
 })
 
@@ -37,10 +38,14 @@ configs = st.fixed_dictionaries({}, optional={
 def _tiny(cfg: dict) -> dict:
     """``cfg`` at tiny sizes: 4-texel textures, a few thousand pairs, two iterations."""
     s = {"size": 4, "count": 3000, "validation": 300, "cache": False, **cfg.get("sampling", {})}
-    out = {**TINY, **cfg, "sampling": s}
+    out = {**TINY, **{k: v for k, v in cfg.items() if k != "highlight_terms"}, "sampling": s}
+    advanced = {"linear": TINY_LINEAR}
+    if "highlight_terms" in cfg:
+        advanced["highlights"] = {"terms": cfg["highlight_terms"]}
     if cfg.get("parametrization") == "split_sum" and not any(
             k in cfg for k in ("preset", "terms", "diffuse", "nv_factor", "highlight_terms", "max_lookups")):
-        out.pop("linear")
+        advanced.pop("linear")
+    out["advanced"] = advanced
     return out
 
 

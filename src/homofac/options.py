@@ -49,8 +49,9 @@ def _models_in(annotation: Any) -> list[type[BaseModel]]:
     return out
 
 
-def _resolve(model: type[BaseModel] | None, loc: tuple) -> tuple[tuple, list[str]]:
-    """``loc`` without the tags pydantic inserts for tagged unions, and the keys known where it ends.
+def _resolve(model: type[BaseModel] | None, loc: tuple) -> tuple[tuple, list[str], dict[str, str]]:
+    """``loc`` without the tags pydantic inserts for tagged unions, the keys known where it ends, and the
+    keys moved elsewhere there (a model's ``MOVED``: old key -> its place).
 
     A location is a path of field names and list indices; a tagged union (``solver`` options chosen
     by ``method``) adds its tag value as an extra part, which is not a key the user wrote.
@@ -77,9 +78,11 @@ def _resolve(model: type[BaseModel] | None, loc: tuple) -> tuple[tuple, list[str
                 nxt.extend(_models_in(info.annotation))
         current = nxt
     known: list[str] = []
+    moved: dict[str, str] = {}
     for m in current:
         known.extend(k for k in m.model_fields if k not in known)
-    return tuple(clean), known
+        moved.update(getattr(m, "MOVED", None) or {})
+    return tuple(clean), known, moved
 
 
 def _key_text(part: Any) -> str:
@@ -99,13 +102,16 @@ def format_error(e: ValidationError, where: str, model: type[BaseModel] | None =
     errors = e.errors()
     err = errors[0]
     raw = tuple(x for x in err["loc"] if not (isinstance(x, str) and x.startswith("function-")))
-    loc, known = _resolve(model, raw)
+    loc, known, moved = _resolve(model, raw)
     key = ".".join(_key_text(x) for x in loc)
     full = f"{where}.{key}" if where and key else (where or key)
     prefix = f"{full}: " if full else ""
     more = f" (and {len(errors) - 1} more problems)" if len(errors) > 1 else ""
     if err["type"] == "extra_forbidden":
         name = str(loc[-1]) if loc else ""
+        if name in moved:
+            section, _, rest = moved[name].partition(".")
+            return f"{name} is an {section} key: write it under {section}: ({moved[name]}){more}"
         close = difflib.get_close_matches(name, known, n=1, cutoff=0.6)
         hint = f" (did you mean {close[0]}?)" if close else (f"; known keys: {', '.join(known)}" if known else "")
         name = _key_text(name)

@@ -28,7 +28,8 @@ from .. import baselines, gl
 from ..errors import HomofacError
 from ..fit import solvers, sums
 from ..fit.plan import build_plan
-from ..fit.options import FitOptions, LinearOptions
+from ..fit.options import AdvancedOptions, FitOptions, HighlightOptions, LinearOptions
+from ..fit.structures import Structure
 from ..gl.asset import load_asset
 from ..gl.bakes import preview_bake
 from ..gl.picture import auto_exposure, check_finite
@@ -58,7 +59,7 @@ def budgeted_load(d: Path, size: int, what: str, textures: str = "exr"):
     cfg = None
     if isinstance(raw.get("config"), dict):
         try:
-            cfg = cfgmod.parse(raw["config"], f"{d / JSON_NAME} config")
+            cfg = cfgmod.parse_record(raw["config"], f"{d / JSON_NAME} config")
         except HomofacError:
             cfg = None  # the target is not rebuilt: the view warns and shows the factorization only
     budget.check_view(raw, cfg, size, d, what=what)
@@ -171,28 +172,31 @@ def fit_epilog() -> str:
     lighting = " | ".join(pz.names("lighting"))
     brdfs = " | ".join(pz.names("brdf"))
     maps = " | ".join(m for m, r in mappers.MAPPERS.items() if not r.scalar)
-    # the keys of a sum of products: FitOptions' fields that the lines above do not name
-    named = {"parametrization", "baseline", "analysis", "mapper", "texture_size", "sampling", "solver",
-             "target_error", "linear"}
     pad = "\n" + " " * 19
-    sums = pad.join(textwrap.wrap(", ".join(k for k in FitOptions.model_fields if k not in named) + " (docs/sums.md)", 78))
-    linear = pad.join(textwrap.wrap("{" + ", ".join(LinearOptions.model_fields) + "}: the linear-space fit of a sum", 78))
+    structure = ", ".join(k for k in AdvancedOptions.model_fields if k not in ("highlights", "line_size", "linear",
+                                                                               "baseline", "analysis"))
+    highlights = ", ".join(HighlightOptions.model_fields)
+    advanced = pad.join(textwrap.wrap(
+        f"{{{structure}, highlights {{{highlights}}}: the rest of a structure (docs/sums.md); line_size; "
+        f"linear {{{', '.join(LinearOptions.model_fields)}}}: the linear-space fit of a sum; baseline: options of "
+        "a baseline (split_sum: irradiance, weighting, line_size; kautz_mccool: slices); analysis {pair: nr | nv, "
+        "mapper, size}: Mahajan's in-out analysis}: research keys a preset sets", 78, break_on_hyphens=False))
     return f"""\
 config keys (docs/config.md; unknown keys are errors):
   target:          kind (brdf | lighting), brdf {{model, ...its parameters}} (docs/models.md)
                    or materials [{{name, brdf}}, ...] (a library: OUT/<name>/ each, OUT/index.json),
                    environment {{file ({' | '.join(BUNDLED)} | a file), resolution, boost, lights, cull}},
                    quantity (brdf | brdf_cos; brdf only), clamp, lobe_cull, shift (beta of r_off: NRO, RO)
+  preset:          fast | balanced | best: 4, 8 or 16 texture lookups per pixel (docs/presets.md)
+  max_lookups:     the lookup budget; terms, diffuse (exact | fitted), nv_factor: one sum of products
   parametrization: {brdfs} (brdf); {lighting} (lighting); baselines: {' | '.join(baselines.BASELINES)}
-  baseline:        options of a baseline (split_sum: irradiance, weighting, line_size; kautz_mccool: slices)
-  analysis:        {{pair: nr | nv, mapper, size}}: Mahajan's in-out analysis of the target, recorded
   mapper:          {maps}
   texture_size:    S of the mapper (4 ... 1024)
-  sampling:        {{kind: texels | latlong | random, size, view_size, validation, seed, count, mapper, cache}}
+  sampling:        {{kind: auto | grid | texels | latlong | random | scene, size, view_size, validation, seed,
+                   count, mapper, cache}}
   solver:          {{method: {' | '.join(solvers.SOLVERS)}, tolerance, max_iterations, laplacian, epsilon, levels}}
   target_error:    validation nrmse to meet with the cheapest candidate
-  sums:            {sums}
-  linear:          {linear}
+  advanced:        {advanced}
   output:          {{dir, png, ktx2, samples, exr (float32 | half), alpha, prescale [w0 .. wT], preview,
                    shaders [{' | '.join(LANGUAGES)}]}}
   limits:          {{memory_gb}}
@@ -287,8 +291,13 @@ def _summary(fac, out, seconds: float | None) -> None:
     s = fac.solver
     how = f"{s['method']} {s['iterations']} iterations{'' if s.get('converged', True) else ' (NOT converged)'}" if s else ""
     took = f", {seconds:.1f} s" if seconds is not None else ""
+    rec = (s or {}).get("structure")
+    what = fac.parametrization
+    if isinstance(rec, dict):  # a sum of products: its structure's label and the nested model in words
+        structure = Structure.of(rec)
+        what = f"{structure.label()} ({structure.describe()})"
     print(
-        f"wrote {out}: {fac.parametrization} on {fac.mapper} {fac.texture_size} ({fac.model.lookups} lookups), "
+        f"wrote {out}: {what} on {fac.mapper} {fac.texture_size} ({fac.model.lookups} lookups), "
         f"validation nrmse {val.get('nrmse', float('nan')):.4g} avg_rel {val.get('avg_rel', float('nan')):.4g}, "
         f"{how}{took}"
     )

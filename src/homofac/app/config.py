@@ -21,7 +21,7 @@ from pydantic import Field, model_validator
 
 from .. import brdf
 from ..errors import HomofacError
-from ..fit.options import DEFAULT_PRESET, NAMING_KEYS, FitOptions
+from ..fit.options import DEFAULT_PRESET, FitOptions, names_a_fit, upgrade_record
 from ..fit.scene import bundled_path as bundled_scene
 from ..io.files import check_regular, read_bounded
 from ..light import BUNDLED, EnvironmentOptions
@@ -94,8 +94,9 @@ class LimitsOptions(Options):
 
 
 class Config(FitOptions):
-    """A whole config file: the fit options (``parametrization``, ``mapper``, ``texture_size``,
-    ``target_error``, ``sampling``, ``solver``) plus ``target``, ``output`` and ``limits``."""
+    """A whole config file: the fit options (``preset``, ``parametrization``, ``mapper``, ``texture_size``,
+    ``target_error``, ``max_lookups``, ``terms``, ``diffuse``, ``nv_factor``, ``sampling``, ``solver`` and the
+    research keys under ``advanced``) plus ``target``, ``output`` and ``limits``."""
 
     target: TargetOptions
     output: OutputOptions = Field(default_factory=OutputOptions)
@@ -109,7 +110,7 @@ class Config(FitOptions):
         if not (isinstance(data, dict) and data.get("parametrization") is None
                 and isinstance(data.get("target"), dict) and data["target"].get("kind") == "brdf"):
             return data
-        named = any(data.get(k) is not None for k in NAMING_KEYS)
+        named = names_a_fit(data)
         return {**data, "parametrization": "PQP", **({} if named or data.get("preset") else {"preset": DEFAULT_PRESET})}
 
     def fit_options(self) -> dict:
@@ -145,6 +146,12 @@ def parse(data: Any, source: str = "config") -> Config:
         return validate(Config, data, "")
     except HomofacError as e:
         raise HomofacError(f"{source}: {e}") from None
+
+
+def parse_record(data: Any, source: str = "recorded config") -> Config:
+    """A config recorded by a run (factorization.json's ``config``), also in the layout of earlier
+    versions (research keys at the top level: :func:`homofac.fit.options.upgrade_record`)."""
+    return parse(upgrade_record(data) if isinstance(data, dict) else data, source)
 
 
 class _StrictLoader(yaml.SafeLoader):
@@ -239,5 +246,5 @@ def resolve_path(value: str, base: Path) -> str:
 
 
 __all__ = ["Config", "LimitsOptions", "MATERIAL_NAME", "MAX_BYTES", "MAX_DEPTH", "MAX_MATERIALS", "MaterialOptions",
-           "TargetOptions", "default_config_path", "load", "parse",
+           "TargetOptions", "default_config_path", "load", "parse", "parse_record",
            "read_yaml", "resolve_path"]

@@ -21,7 +21,7 @@ from .. import brdf as brdf_mod
 from ..errors import HomofacError
 from ..fit import factorize, prepare_refit, refit, scene
 from ..fit.draw import default_mapper
-from ..fit.options import FitOptions
+from ..fit.options import FitOptions, recorded_fit_options
 from ..fit.metrics import measure
 from ..fit.precision import prescale_factors
 from ..fit.pipeline import validation_count
@@ -34,7 +34,7 @@ from ..options import validate
 from ..output import JSON_NAME, OutputLock, check_output_dir, is_homofac_dir, load
 from ..target import Target, brdf_target
 from . import budget
-from .config import Config, parse, resolve_path
+from .config import Config, parse_record, resolve_path
 
 
 def build_target(cfg: Config, base: Path) -> tuple[Target, dict]:
@@ -80,7 +80,7 @@ def target_from_config(fac: Result, base: str | Path | None = None) -> Target | 
         f = env_cfg.get("file", "forest")
         if not Path(resolve_path(f, base)).exists():
             env_cfg["file"] = src
-    cfg = parse(data, "factorization.json config")
+    cfg = parse_record(data, "factorization.json config")
     target, _ = build_target(cfg, base)
     return target
 
@@ -183,7 +183,7 @@ def run(cfg: Config, base: Path = Path("."), out_dir: str | None = None, log=Non
 
 
 #: Fit options that do not describe the layout of a fit (a refit may change them).
-NOT_LAYOUT = ("analysis", "sampling.cache")
+NOT_LAYOUT = ("advanced.analysis", "sampling.cache")
 
 
 def _leaves(d, prefix: str = "") -> dict:
@@ -201,7 +201,7 @@ def layout_difference(saved: dict, cfg: Config, kind: str) -> str | None:
     (parametrization, mapper with its default resolved, texture size, sampling, solver, structure)
     except those of :data:`NOT_LAYOUT`."""
     try:
-        old = validate(FitOptions, {k: v for k, v in saved.items() if k in FitOptions.model_fields}, "")
+        old = validate(FitOptions, recorded_fit_options(saved), "")
     except HomofacError as e:
         raise HomofacError(f"--refit: the saved factorization's recorded config is not valid here: {e}") from None
     a = cfg.model_dump(mode="json", include=set(FitOptions.model_fields))

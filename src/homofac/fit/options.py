@@ -9,7 +9,7 @@ one-line message from the Python API and from the CLI. Allowed names derive from
 
 from __future__ import annotations
 
-from typing import Annotated, Literal, Optional
+from typing import Annotated, ClassVar, Literal, Optional
 
 from pydantic import Field, model_validator
 
@@ -19,6 +19,7 @@ from ..param import mappers
 from ..param import parametrizations as pz
 from ..param import projections as pj
 from . import solvers
+from .structures import Structure
 
 #: Direction mapper names, from the registry (the scalar ``line`` mapper is for 1D factors only).
 MapperName = Literal[tuple(n for n, m in mappers.MAPPERS.items() if not m.scalar)]  # type: ignore[valid-type]
@@ -187,7 +188,7 @@ class LinearOptions(Options):
 
 
 #: Why ``linear.ridge`` with ``linear.nv_balance`` is refused.
-RIDGE_NEEDS_PLAIN = ("linear.ridge weighs its pairs as a share of uniform pairs, which the n.v-bin weights of "
+RIDGE_NEEDS_PLAIN = ("ridge weighs its pairs as a share of uniform pairs, which the n.v-bin weights of "
                      "nv_balance would change: set one of them")
 
 
@@ -195,17 +196,121 @@ RIDGE_NEEDS_PLAIN = ("linear.ridge weighs its pairs as a share of uniform pairs,
 #: (:data:`homofac.fit.plan.PRESETS`).
 PresetName = Literal["fast", "balanced", "best"]
 
-#: The preset of a config or call that names none and none of :data:`NAMING_KEYS`.
+#: The preset of a config or call that names none and no fit (:func:`names_a_fit`).
 DEFAULT_PRESET = "balanced"
 
-#: Keys that name what to fit (a parametrization, a structure, a budget, an error goal): given any of
-#: them without ``preset``, no preset applies (``parametrization: NR`` alone is the single product).
-NAMING_KEYS = ("parametrization", "target_error", "terms", "diffuse", "nv_factor", "reflection", "prefiltered",
-               "rw_terms", "highlight_terms", "highlight_fresnel", "highlight_cosine", "highlight_table",
-               "highlight_disc", "max_lookups", "line_size", "linear", "baseline")
+#: Top-level keys that name what to fit (a parametrization, a structure, a budget, an error goal): given
+#: any of them (or an ``advanced`` key of :data:`ADVANCED_NAMING_KEYS`) without ``preset``, no preset
+#: applies (``parametrization: NR`` alone is the single product).
+NAMING_KEYS = ("parametrization", "target_error", "terms", "diffuse", "nv_factor", "max_lookups")
+#: The ``advanced`` keys that name a fit in the same way.
+ADVANCED_NAMING_KEYS = ("reflection", "prefiltered", "rw_terms", "highlights", "line_size", "linear", "baseline")
 
 #: Largest number of fitted terms accepted (the packed shaders and the ALS blocks grow as K^2).
 MAX_TERMS = 32
+
+
+class HighlightOptions(Options):
+    """``advanced.highlights``: the highlight terms of the structure (:class:`homofac.fit.structures.Highlights`):
+    ``terms`` J fitted terms d(nh_dom) w(n.v), the highlights of the J brightest lights (at most one per
+    highlight projection, ``projections.HIGHLIGHTS``; when the structure is chosen, J restricts the
+    candidates to that count and 0 turns the highlight candidates off); each term also reads a ``line``
+    texture f(v.h') of its light's Fresnel argument (``fresnel``) or c(n.i) of its light's cosine
+    (``cosine``: the shadowing G1(n.i) and the light's horizon), one lookup more each; ``table``: a 2D
+    ``parabolic`` table T(n.i, n.v) in place of c(n.i) w(n.v), one lookup fewer (:mod:`homofac.fit.table`);
+    ``disc``: its light's coordinate at the point of the light's disc closest to r (``nhs_dom``: the sun at
+    grazing views). ``null`` (the default) is the preset's: off for a named structure, the chooser's
+    candidates and votes otherwise (:mod:`homofac.fit.plan`)."""
+
+    terms: Optional[int] = Field(None, ge=0, le=len(pj.HIGHLIGHTS))
+    fresnel: Optional[bool] = None
+    cosine: Optional[bool] = None
+    table: Optional[bool] = None
+    disc: Optional[bool] = None
+
+
+class AdvancedOptions(Options):
+    """``advanced``: the research keys (a preset sets what they decide; docs/config.md,
+    "`advanced`: the research keys").
+
+    The rest of a structure (:class:`homofac.fit.structures.Structure`) beside the top-level ``terms``,
+    ``diffuse`` and ``nv_factor``: ``reflection`` (lighting: one more fitted term, an r-only texture),
+    ``prefiltered`` (lighting: the split sum's P(r) W(n.v) computed and kept; the products fit
+    corrections to it), ``rw_terms`` (lighting: J more fitted terms q(r) w(n.v), without a normal
+    texture, beside the K products), ``highlights`` (:class:`HighlightOptions`). ``line_size``: texels of
+    a sum's ``line`` textures (w(n.v) and the highlight lines; default 32, or the preset's line vote:
+    :func:`homofac.fit.plan.line_sizes`); a single log-space product's scalar factor has ``texture_size``
+    texels. ``linear``: the linear-space fit of sums (:class:`LinearOptions`). ``baseline``: options of a
+    baseline ``parametrization`` (validated by the baseline's option model). ``analysis``: record
+    Mahajan's in-out analysis of the target (:class:`AnalysisOptions`)."""
+
+    reflection: bool = False
+    prefiltered: bool = False
+    rw_terms: int = Field(0, ge=0, le=MAX_TERMS)
+    highlights: HighlightOptions = Field(default_factory=HighlightOptions)
+    line_size: Optional[int] = Field(None, ge=2, le=4096)
+    linear: Optional[LinearOptions] = None
+    baseline: Optional[dict] = None  # validated by the chosen baseline's option model (homofac.baselines)
+    analysis: Optional[AnalysisOptions] = None
+
+
+#: Keys of earlier configs (and keywords of ``factorize``) that live under ``advanced`` now: key -> its
+#: place. A config or call giving one at the top level is refused in one line naming the place
+#: (:func:`homofac.options.format_error`); a recorded config of an earlier run is read through
+#: :func:`upgrade_record`.
+MOVED_KEYS = {
+    "reflection": "advanced.reflection", "prefiltered": "advanced.prefiltered", "rw_terms": "advanced.rw_terms",
+    **{f"highlight_{k}": f"advanced.highlights.{k}" for k in HighlightOptions.model_fields},
+    "line_size": "advanced.line_size", "linear": "advanced.linear", "baseline": "advanced.baseline",
+    "analysis": "advanced.analysis",
+}
+
+
+def _given(key: str, value) -> bool:
+    """Whether an ``advanced`` key is given: not None (``highlights``: one of its keys not None)."""
+    if key == "highlights" and isinstance(value, (dict, Options)):
+        items = value.model_dump().values() if isinstance(value, Options) else value.values()
+        return any(v is not None for v in items)
+    return value is not None
+
+
+def names_a_fit(data: dict) -> bool:
+    """Whether the raw keys ``data`` (a config's top level, ``factorize``'s keywords) name what to fit:
+    any of :data:`NAMING_KEYS`, or of :data:`ADVANCED_NAMING_KEYS` under ``advanced`` (a model given
+    as ``advanced`` names what differs from its defaults)."""
+    adv = data.get("advanced")
+    if isinstance(adv, Options):
+        adv = adv.model_dump(exclude_defaults=True)
+    adv = adv if isinstance(adv, dict) else {}
+    return (any(data.get(k) is not None for k in NAMING_KEYS)
+            or any(_given(k, adv.get(k)) for k in ADVANCED_NAMING_KEYS))
+
+
+def upgrade_record(config: dict) -> dict:
+    """A config recorded by an earlier run (factorization.json's ``config``, index.json's) in today's
+    layout: the keys of :data:`MOVED_KEYS` moved from the top level under ``advanced`` (``None`` values
+    dropped); a config already in today's layout is returned as it is."""
+    moved = [k for k in MOVED_KEYS if k in config]
+    if not moved:
+        return config
+    out = {k: v for k, v in config.items() if k not in MOVED_KEYS}
+    adv = dict(out.get("advanced") or {})
+    for key in moved:
+        value = config[key]
+        if value is None:
+            continue
+        *path, leaf = MOVED_KEYS[key].split(".")[1:]
+        node = adv
+        for part in path:
+            node = node.setdefault(part, {})
+        node[leaf] = value
+    out["advanced"] = adv
+    return out
+
+
+def recorded_fit_options(config: dict) -> dict:
+    """The keywords of :func:`homofac.fit.factorize` a recorded config holds (:func:`upgrade_record`)."""
+    return {k: v for k, v in upgrade_record(dict(config)).items() if k in FitOptions.model_fields}
 
 
 class FitOptions(Options):
@@ -213,80 +318,69 @@ class FitOptions(Options):
 
     ``preset``: ``fast``, ``balanced`` or ``best`` (4, 8, 16 lookups; docs/presets.md): the plan's sample
     counts, candidates, linear-fit options and votes (:mod:`homofac.fit.plan`), each replaced by the key
-    of the same meaning where given. Neither a preset nor any of :data:`NAMING_KEYS`: ``balanced``.
+    of the same meaning where given. Neither a preset nor a key that names a fit (:func:`names_a_fit`):
+    ``balanced``.
 
     ``parametrization``: a registered parametrization of the target's kind (``IV``, ``GSHD``, ``PQP`` for
     BRDFs; ``N``, ``R``, ``NR``, ``NRV``, ``NRHD``, ``NRW``, ``NRO``, ``RO`` for lighting), or a baseline (``split_sum``,
-    ``kautz_mccool``; options in ``baseline``). ``mapper``: of the direction textures (default parabolic
-    for BRDFs, dual_paraboloid for lighting). ``texture_size``: S of the mapper. ``target_error``: the
-    validation nrmse to meet (fit/auto.py picks the cheapest candidate). ``analysis``: record the
-    in-out analysis of the target.
+    ``kautz_mccool``; options in ``advanced.baseline``). ``mapper``: of the direction textures (default
+    parabolic for BRDFs, dual_paraboloid for lighting). ``texture_size``: S of the mapper.
+    ``target_error``: the validation nrmse to meet (fit/auto.py picks the cheapest candidate).
 
-    Sums of products (schema 2, docs/format.md), fitted in linear space with ``linear``: ``terms`` K
-    products of the parametrization, ``diffuse`` ``exact`` (the computed term kd/pi E(n); the products
-    fit the rest) or ``fitted`` (an n-only texture started from it), ``nv_factor`` (a 1D ``line`` texture
-    w(n.v) in each product; for BRDFs w(cos_i) w(cos_o)), ``max_lookups`` (homofac chooses the structure
-    within that many texture lookups per pixel, by validation error; :mod:`homofac.fit.structures`),
-    ``reflection`` (lighting: one more fitted term, an r-only texture), ``prefiltered`` (lighting: the split
-    sum's P(r) W(n.v) computed and kept; the products fit corrections to it), ``rw_terms`` (lighting: J
-    more fitted terms q(r) w(n.v), without a normal texture, beside the K products), ``highlight_terms``
-    (lighting: J more fitted terms d(nh_dom) w(n.v), the highlights of the J brightest lights; at most one
-    per highlight projection, ``projections.HIGHLIGHTS``; with ``max_lookups`` it restricts the candidates
-    to that count, 0 turns the highlight candidates off), ``highlight_fresnel`` (lighting: each highlight
-    term also reads a ``line`` texture f(v.h') of its light's Fresnel argument, one lookup more a term),
-    ``highlight_cosine`` (lighting: each highlight term also reads a ``line`` texture c(n.i) of its light's
-    cosine, the shadowing G1(n.i) and the light's horizon, one lookup more a term), ``highlight_table``
-    (lighting: each highlight term reads a 2D ``parabolic`` table T(n.i, n.v) of its light's cosine and the
-    view's in place of c(n.i) w(n.v), one lookup fewer; :mod:`homofac.fit.table`), ``highlight_disc``
-    (lighting: each highlight term reads its light's coordinate at the point of the light's disc closest
-    to r, ``nhs_dom``: the sun at grazing views; with ``max_lookups`` above 8 a vote when not set,
-    :mod:`homofac.fit.plan`). ``line_size``: texels
-    of a sum's ``line`` textures (w(n.v) and the highlight lines; default 32; for a ``max_lookups`` above 8
-    a vote between 32 and 4 x ``texture_size``: :func:`homofac.fit.plan.line_sizes`); a single log-space product's scalar factor has
-    ``texture_size`` texels.
+    Sums of products (schema 2, docs/format.md), fitted in linear space: ``terms`` K products of the
+    parametrization, ``diffuse`` ``exact`` (the computed term kd/pi E(n); the products fit the rest) or
+    ``fitted`` (an n-only texture started from it), ``nv_factor`` (a 1D ``line`` texture w(n.v) in each
+    product; for BRDFs w(cos_i) w(cos_o)), ``max_lookups`` (homofac chooses the structure within that many
+    texture lookups per pixel, by validation error; :mod:`homofac.fit.structures`). The rest of a
+    structure and the research keys are under ``advanced`` (:class:`AdvancedOptions`); the keys of
+    :data:`MOVED_KEYS` at the top level are refused with their place.
     """
+
+    MOVED: ClassVar[dict[str, str]] = MOVED_KEYS
 
     preset: Optional[PresetName] = None
     parametrization: ParametrizationName = "NR"
     mapper: Optional[MapperName] = None
     texture_size: int = Field(32, ge=MIN_TEXTURE_SIZE, le=MAX_TEXTURE_SIZE)
     target_error: Optional[float] = Field(None, gt=0, lt=10)
-    sampling: SamplingOptions = Field(default_factory=SamplingOptions)
-    solver: solvers.options_type() = Field(default_factory=lambda: solvers.options())  # type: ignore[valid-type]
-    baseline: Optional[dict] = None  # validated by the chosen baseline's option model (homofac.baselines)
-    analysis: Optional[AnalysisOptions] = None
+    max_lookups: Optional[int] = Field(None, ge=1, le=256)
     terms: int = Field(1, ge=1, le=MAX_TERMS)
     diffuse: Optional[Literal["exact", "fitted"]] = None
     nv_factor: bool = False
-    reflection: bool = False
-    prefiltered: bool = False
-    rw_terms: int = Field(0, ge=0, le=MAX_TERMS)
-    highlight_terms: Optional[int] = Field(None, ge=0, le=len(pj.HIGHLIGHTS))
-    highlight_fresnel: Optional[bool] = None
-    highlight_cosine: Optional[bool] = None
-    highlight_table: Optional[bool] = None
-    highlight_disc: Optional[bool] = None
-    max_lookups: Optional[int] = Field(None, ge=1, le=256)
-    line_size: Optional[int] = Field(None, ge=2, le=4096)
-    linear: Optional[LinearOptions] = None
+    sampling: SamplingOptions = Field(default_factory=SamplingOptions)
+    solver: solvers.options_type() = Field(default_factory=lambda: solvers.options())  # type: ignore[valid-type]
+    advanced: AdvancedOptions = Field(default_factory=AdvancedOptions)
 
     @model_validator(mode="before")
     @classmethod
     def _default_preset(cls, data):
-        """No preset and none of the keys that name a fit (:data:`NAMING_KEYS`): the preset
-        :data:`DEFAULT_PRESET`. So ``parametrization: NR`` alone stays the single product."""
-        if isinstance(data, dict) and data.get("preset") is None \
-                and all(data.get(k) is None for k in NAMING_KEYS):
+        """No preset and no key that names a fit (:func:`names_a_fit`): the preset :data:`DEFAULT_PRESET`.
+        So ``parametrization: NR`` alone stays the single product."""
+        if isinstance(data, dict) and data.get("preset") is None and not names_a_fit(data):
             return {**data, "preset": DEFAULT_PRESET}
         return data
 
     @property
     def is_sum(self) -> bool:
         """True when the fit is a linear-space sum of products rather than today's log-space product."""
-        return (self.terms > 1 or self.diffuse is not None or self.nv_factor or self.reflection or self.rw_terms > 0
-                or bool(self.highlight_terms) or bool(self.highlight_fresnel) or bool(self.highlight_cosine)
-                or bool(self.highlight_table) or bool(self.highlight_disc) or self.prefiltered
-                or self.max_lookups is not None or self.linear is not None or self.preset is not None)
+        a, h = self.advanced, self.advanced.highlights
+        return (self.terms > 1 or self.diffuse is not None or self.nv_factor or a.reflection or a.rw_terms > 0
+                or bool(h.terms) or bool(h.fresnel) or bool(h.cosine) or bool(h.table) or bool(h.disc)
+                or a.prefiltered or self.max_lookups is not None or a.linear is not None or self.preset is not None)
+
+    def structure(self, parametrization: str | None = None) -> Structure:
+        """The one structure these options name (``parametrization`` in place of theirs where given): the
+        top-level ``terms``, ``diffuse``, ``nv_factor`` and the rest from ``advanced`` (a highlight key
+        not given is off)."""
+        a = self.advanced
+        h = {k: v for k, v in a.highlights.model_dump().items() if v is not None}
+        return Structure.of({"parametrization": parametrization or self.parametrization, "terms": self.terms,
+                             "diffuse": self.diffuse, "nv_factor": self.nv_factor, "reflection": a.reflection,
+                             "prefiltered": a.prefiltered, "rw_terms": a.rw_terms, "highlights": h})
 
 
-__all__ = ["DEFAULT_PRESET", "NAMING_KEYS", "PresetName", "AnalysisOptions", "CameraOptions", "DEFAULT_VALIDATION", "MAX_CAMERAS", "MAX_CAMERA_SIDE", "MAX_SCENE_PIXELS", "FitOptions", "LinearOptions", "MAX_TERMS", "MAX_TEXTURE_SIZE", "MIN_TEXTURE_SIZE", "MapperName", "SamplingOptions"]
+__all__ = ["ADVANCED_NAMING_KEYS", "DEFAULT_PRESET", "MOVED_KEYS", "NAMING_KEYS", "PresetName", "AdvancedOptions",
+           "AnalysisOptions", "CameraOptions", "DEFAULT_VALIDATION", "HighlightOptions", "MAX_CAMERAS",
+           "MAX_CAMERA_SIDE", "MAX_SCENE_PIXELS", "FitOptions", "LinearOptions", "MAX_TERMS", "MAX_TEXTURE_SIZE",
+           "MIN_TEXTURE_SIZE", "MapperName", "SamplingOptions", "names_a_fit", "recorded_fit_options",
+           "upgrade_record"]

@@ -24,7 +24,7 @@ from ..target import Target
 from . import auto, polish, programs, scene, sums
 from .draw import default_mapper, draw_samples, grid_projection
 from .metrics import measure
-from .options import AnalysisOptions, FitOptions, SamplingOptions
+from .options import AdvancedOptions, AnalysisOptions, FitOptions, SamplingOptions
 from .plan import Plan, build_plan, grid_count, validation_count
 from .product import fit_product
 from .result import Result
@@ -34,9 +34,9 @@ from .state import from_fit
 from .structures import Structure
 
 
-#: Why ``line_size`` is refused for a single log-space product.
-LINE_SIZE_NEEDS_SUM = ("line_size sizes the line textures of a sum of products; a single product's scalar factor "
-                       "has texture_size texels")
+#: Why ``advanced.line_size`` is refused for a single log-space product.
+LINE_SIZE_NEEDS_SUM = ("advanced.line_size sizes the line textures of a sum of products; a single product's "
+                       "scalar factor has texture_size texels")
 
 
 def quality_warnings(metrics: dict) -> list[str]:
@@ -73,27 +73,17 @@ def factorize(
     sampling: dict | None = None,
     solver: dict | None = None,
     target_error: float | None = None,
+    max_lookups: int | None = None,
     terms: int | None = None,
     diffuse: str | None = None,
     nv_factor: bool | None = None,
-    reflection: bool | None = None,
-    prefiltered: bool | None = None,
-    rw_terms: int | None = None,
-    highlight_terms: int | None = None,
-    highlight_fresnel: bool | None = None,
-    highlight_cosine: bool | None = None,
-    highlight_table: bool | None = None,
-    highlight_disc: bool | None = None,
-    max_lookups: int | None = None,
-    line_size: int | None = None,
-    linear: dict | None = None,
-    baseline: dict | None = None,
-    analysis: dict | None = None,
+    advanced: dict | AdvancedOptions | None = None,
     samples: Samples | None = None,
     config: dict | None = None,
     target_info: dict | None = None,
     log: Callable[[str], None] | None = None,
     keep_samples: bool = False,
+    **moved,
 ) -> Result:
     """Factor ``target`` into textures: the whole pipeline of thesis §6.1.8 (steps 1-10).
 
@@ -116,35 +106,17 @@ def factorize(
         target_error: fit candidates cheapest first and keep the first whose validation nrmse meets it
             (:mod:`homofac.fit.auto`); ``parametrization`` and ``texture_size`` are then the limits. With
             the sum keys below, the candidates are structures within ``max_lookups`` (default 16).
+        max_lookups: choose the structure within this many texture lookups per pixel by validation error
+            (:func:`homofac.fit.sums.choose`).
         terms: K products of ``parametrization`` summed, fitted in linear space (:mod:`homofac.fit.sums`).
         diffuse: ``exact`` (the computed term kd/pi E(n), the products fit the rest) or ``fitted``.
         nv_factor: a 1D ``line`` texture w(n.v) in each product (BRDF: w(cos_i) w(cos_o)).
-        reflection: one more fitted term, an r-only texture (lighting).
-        prefiltered: keep the split sum's P(r) W(n.v) (computed) and fit corrections to it (lighting).
-        rw_terms: J more fitted terms q(r) w(n.v) without a normal texture, beside the K products (lighting).
-        highlight_terms: J more fitted terms d(nh_dom_j) w(n.v), the highlights of the J brightest lights of
-            the environment (context ``dominant``, ``dominant1``, ...; lighting). With ``max_lookups``,
-            given, only candidates with J highlight terms are tried (0: none); not given, the chooser
-            tries 0-2 where the lighting is an environment.
-        highlight_fresnel: each highlight term also reads f(v.h'_j), a line texture of its light's Fresnel
-            argument (one lookup more a term; lighting).
-        highlight_cosine: each highlight term also reads c(n.i_j), a line texture of its light's cosine (the
-            shadowing G1(n.i) and the light's horizon; one lookup more a term; lighting).
-        highlight_table: each highlight term reads a 2D table T(n.i_j, n.v) in place of c(n.i_j) w(n.v) (one
-            lookup fewer; lighting; :mod:`homofac.fit.table`). Not given, the preset's (``best``: the chooser's
-            highlight candidates read tables where they would read the cosine line).
-        highlight_disc: each highlight term reads its light's coordinate at the point of the light's disc
-            closest to r (projection ``nhs_dom``, context ``radius``; lighting). With ``max_lookups`` above 8
-            and not given, the kept structure is fitted with and without it and the better kept (the plan's disc vote).
-        max_lookups: choose the structure (terms, nv_factor, diffuse) within this many texture lookups
-            per pixel by validation error (:func:`homofac.fit.sums.choose`).
-        line_size: texels of a sum's ``line`` textures (default 32; for a ``max_lookups`` above 8 a vote
-            between 32 and 4 x texture_size: :func:`homofac.fit.plan.line_sizes`).
-        linear: :class:`~homofac.fit.options.LinearOptions` of the linear-space fit as a dict
-            (``method``, ``backend``, ``iterations``, ``laplacian``, ``start``).
-        baseline: options of a baseline ``parametrization`` (``split_sum``: irradiance, weighting,
-            line_size; ``kautz_mccool``: slices, line_size), validated by its option model.
-        analysis: ``{pair, mapper, size}`` of Mahajan's in-out analysis, recorded in ``fac.analysis``.
+        advanced: the research keys, a dict or :class:`~homofac.fit.options.AdvancedOptions` (the config's
+            ``advanced:`` section): the rest of a structure (``reflection``, ``prefiltered``, ``rw_terms``,
+            ``highlights: {terms, fresnel, cosine, table, disc}``), ``line_size``, ``linear`` (the
+            linear-space fit), ``baseline`` (options of a baseline ``parametrization``) and ``analysis``
+            (Mahajan's in-out analysis, recorded in ``fac.analysis``). A preset sets what they decide.
+            ``Structure.parse(label).keywords()`` gives the keywords of one structure.
         samples: precomputed :class:`~homofac.fit.samples.Samples` (skip sampling, e.g. to compare solvers).
         config: the resolved config to record in the result.
         target_info: description of the target to record.
@@ -158,11 +130,8 @@ def factorize(
     t_start = time.perf_counter()
     programs.bound_compiled_programs()
     given_opts = options(parametrization, preset=preset, mapper=mapper, texture_size=texture_size, sampling=sampling,
-                         solver=solver, target_error=target_error, baseline=baseline, analysis=analysis, terms=terms,
-                         diffuse=diffuse, nv_factor=nv_factor, reflection=reflection, prefiltered=prefiltered,
-                         rw_terms=rw_terms, highlight_terms=highlight_terms, highlight_fresnel=highlight_fresnel,
-                         highlight_cosine=highlight_cosine, highlight_table=highlight_table,
-                         highlight_disc=highlight_disc, max_lookups=max_lookups, line_size=line_size, linear=linear)
+                         solver=solver, target_error=target_error, max_lookups=max_lookups, terms=terms,
+                         diffuse=diffuse, nv_factor=nv_factor, advanced=advanced, **moved)
     own = None
     if samples is not None and target.kind == "lighting" and given_opts.is_sum:  # candidates on their direction only
         own = grid_projection(target.kind, given_opts.parametrization,
@@ -184,16 +153,16 @@ def execute(the_plan: Plan, target: Target, *, samples: Samples | None = None, c
     opts = the_plan.options
     mapper = the_plan.mapper
     is_baseline = the_plan.mode == "baseline"
-    if opts.baseline is not None and not is_baseline:
+    if opts.advanced.baseline is not None and not is_baseline:
         raise HomofacError(f"baseline: options are for a baseline parametrization ({', '.join(baselines.BASELINES)}), "
                            f"not {opts.parametrization}")
-    if opts.line_size is not None and not opts.is_sum:
+    if opts.advanced.line_size is not None and not opts.is_sum:
         raise HomofacError(LINE_SIZE_NEEDS_SUM)
     if target.kind == "lighting" and opts.parametrization in pz.PARAMETRIZATIONS:
         target = with_context(target, opts.parametrization)  # NRHD's dominant light, NRO's shift
     t0 = time.perf_counter()
     resolved = resolve_sampling(opts, target.kind, mapper)
-    if (the_plan.polish or (opts.linear is not None and opts.linear.polish)) and samples is None \
+    if (the_plan.polish or (opts.advanced.linear is not None and opts.advanced.linear.polish)) and samples is None \
             and resolved.kind != "grid":
         raise HomofacError(f"{sums.POLISH_NEEDS_GRID}, not sampling.kind: {resolved.kind}")
     if samples is None:
@@ -225,7 +194,7 @@ def execute(the_plan: Plan, target: Target, *, samples: Samples | None = None, c
     else:
         result = fit(target, opts.parametrization, opts.texture_size)
     if the_plan.analysis and result.analysis is None:
-        a = opts.analysis or AnalysisOptions()
+        a = opts.advanced.analysis or AnalysisOptions()
         log(f"in-out analysis ({a.pair}) on {a.mapper} {a.size}")
         result = result.replace(analysis=baselines.analyse(target, a.pair, a.mapper, a.size).record())
     sc = None
@@ -339,7 +308,7 @@ def _sums(target: Target, the_plan: Plan, samples: Samples, record: dict, sample
     if the_plan.analysis:
         # Mahajan et al. 2008: the rank-K error of the gridded target bounds what K products p(n) q(r)
         # can reach; the products with w(n.v) need fewer. Recorded beside the choice (and printed).
-        a = opts.analysis or AnalysisOptions()
+        a = opts.advanced.analysis or AnalysisOptions()
         log(f"in-out analysis ({a.pair}) on {a.mapper} {a.size}")
         analysis = baselines.analyse(target, a.pair, a.mapper, a.size).record()
     ridge = the_plan.ridge
@@ -355,7 +324,7 @@ def _sums(target: Target, the_plan: Plan, samples: Samples, record: dict, sample
     line = sizes[0]  # the kept fit's line size (fits[structure, line] is its SumFit)
     if len(sizes) > 1 and any(t.mapper == "line" for t in result.model.textures):
         result, line = _line_vote(result, structure, sizes, fit, log, score)
-    if structure.highlight_terms and the_plan.disc_vote:
+    if structure.highlights.terms and the_plan.disc_vote:
         result = _disc_vote(result, structure, line, fit, log, score)
         structure = Structure.of(result.solver["structure"])
     steps = the_plan.polish
@@ -429,21 +398,21 @@ def _line_vote(result: Result, structure: Structure, sizes: tuple[int, ...], fit
 
 def _disc_vote(result: Result, structure: Structure, line: int, fit: Callable, log,
                score: Callable | None = None) -> Result:
-    """The kept ``structure`` (``result``) against the same read at its lights' discs (``highlight_disc``,
+    """The kept ``structure`` (``result``) against the same read at its lights' discs (``highlights.disc``,
     fitted with ``line``-texel lines): the one of lower validation error (``score``'s where given; ties:
     the kept one). ``selection.disc`` records the radii, both errors and whether the disc was kept
     (:func:`disc_rule`)."""
-    other = structure._replace(highlight_disc=not structure.highlight_disc)
+    other = structure.with_highlights(disc=not structure.highlights.disc)
     log(f"disc vote: {other.label()}")
     tried = [result, fit(other, line)]
     plain, errs, what = _vote_errors(tried, score)
     k = int(errs[1] < errs[0])
     log(f"disc vote: {what} {errs[0]:.4g} ({structure.label()}), {errs[1]:.4g} ({other.label()}): "
         f"{(structure, other)[k].label()} kept")
-    disc = tried[1] if other.highlight_disc else tried[0]
-    radii = [float(disc.model.context[r]) for _, _, r in pj.HIGHLIGHT_DISCS[:structure.highlight_terms]]
+    disc = tried[1] if other.highlights.disc else tried[0]
+    radii = [float(disc.model.context[r]) for _, _, r in pj.HIGHLIGHT_DISCS[:structure.highlights.terms]]
     note = {"radii": radii, "labels": [structure.label(), other.label()], "validation_nrmse": plain,
-            "kept": bool((structure, other)[k].highlight_disc), **({} if score is None else {sums.RIDGE_METRIC: errs})}
+            "kept": bool((structure, other)[k].highlights.disc), **({} if score is None else {sums.RIDGE_METRIC: errs})}
     return tried[k].replace(selection={**(result.selection or {}), "disc": note})
 
 
@@ -451,11 +420,12 @@ def _baseline(target: Target, opts: FitOptions, mapper: str, samples: Samples, r
     """A baseline's model (computed, not fitted) with the same metrics and record as a fit."""
     log(f"computing the {opts.parametrization} baseline ({mapper} {opts.texture_size})")
     t0 = time.perf_counter()
-    model = baselines.build(opts.parametrization, target, mapper, opts.texture_size, opts.baseline)
+    model = baselines.build(opts.parametrization, target, mapper, opts.texture_size, opts.advanced.baseline)
     build_s = time.perf_counter() - t0
     result = Result(model, solver={"method": opts.parametrization, "iterations": 0, "converged": True,
                                    "options": validate(baselines.get(opts.parametrization).options,
-                                                       opts.baseline, "baseline").model_dump()}, **record)
+                                                       opts.advanced.baseline, "advanced.baseline").model_dump()},
+                    **record)
     mets = measure(result, target, samples, eps=float(opts.solver.epsilon))
     return result.replace(metrics=mets, warnings=tuple(quality_warnings(mets)),
                           timings={"build_s": build_s, "assemble_s": 0.0, "solve_s": 0.0},

@@ -37,12 +37,13 @@ class Preset(NamedTuple):
 
     ``lookups``: the budget ``max_lookups``; ``grid_count``: training pairs of the grid design
     (``sampling.count``); ``validation``: validation pairs (``sampling.validation``); ``line_ratio``: 0
-    for 32-texel lines only, k for a vote between 32 and k x ``texture_size`` texels (``line_size``);
-    ``table``: highlight candidates read a 2D table T(n.i, n.v) (``highlight_table``); ``disc_vote``: the
-    kept structure is fitted again reading its lights' discs (``highlight_disc``); ``nv_balance``: of the
-    candidates on lighting of a BRDF with kd > 0 (``linear.nv_balance``); ``polish``: Levenberg-Marquardt
-    steps of the kept structure (``linear.polish``); ``ridge``: ridge pairs of its polish and of the
-    validation estimate (``linear.ridge``); ``analysis``: record Mahajan's in-out analysis."""
+    for 32-texel lines only, k for a vote between 32 and k x ``texture_size`` texels (``advanced.line_size``);
+    ``table``: highlight candidates read a 2D table T(n.i, n.v) (``advanced.highlights.table``); ``disc_vote``:
+    the kept structure is fitted again reading its lights' discs (``advanced.highlights.disc``); ``nv_balance``:
+    of the candidates on lighting of a BRDF with kd > 0 (``advanced.linear.nv_balance``); ``polish``:
+    Levenberg-Marquardt steps of the kept structure (``advanced.linear.polish``); ``ridge``: ridge pairs of its
+    polish and of the validation estimate (``advanced.linear.ridge``); ``analysis``: record Mahajan's in-out
+    analysis (``advanced.analysis``)."""
 
     lookups: int
     grid_count: int
@@ -74,7 +75,8 @@ PRESETS: dict[str, Preset] = {
 DEFAULT_MAX_LOOKUPS = 16
 
 #: Why ``linear.ridge`` is refused where no polish runs (the ridge pairs are the polish's).
-RIDGE_NEEDS_POLISH = "linear.ridge adds pairs to the polish: set linear.polish (or use a preset, which polishes)"
+RIDGE_NEEDS_POLISH = ("advanced.linear.ridge adds pairs to the polish: set advanced.linear.polish (or use a preset, "
+                      "which polishes)")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -119,7 +121,7 @@ class Plan:
                 "mapper": self.mapper, "texture_size": self.texture_size,
                 "sampling": {"kind": self.sampling, "grid_count": self.grid_count, "validation": self.validation},
                 "light_resolution": self.light_resolution, "max_lookups": self.max_lookups,
-                "candidates": [c.label() for c in self.candidates],
+                "candidates": [{"label": c.label(), "structure": c.record()} for c in self.candidates],
                 "linear": None if self.linear is None else self.linear.model_dump(),
                 "polish": self.polish, "ridge": self.ridge, "line_sizes": list(self.line_sizes),
                 "disc_vote": self.disc_vote, "analysis": self.analysis,
@@ -135,8 +137,12 @@ class Plan:
                  + (f", lights at resolution {self.light_resolution}" if self.light_resolution else "")]
         if self.max_lookups is not None:
             lines.append(f"  budget: {self.max_lookups} lookups per pixel")
-        if self.candidates:
-            lines.append(f"  candidates ({len(self.candidates)}): " + ", ".join(d["candidates"]))
+        if self.mode == "sum":
+            c = self.candidates[0]
+            lines.append(f"  structure: {c.label()} ({c.describe()})")
+        elif self.candidates:
+            lines.append(f"  candidates ({len(self.candidates)}):")
+            lines += [f"    {c.label()} ({c.describe()})" for c in self.candidates]
         if self.linear is not None:
             lin = self.linear
             lines.append(f"  linear fit: {lin.method}, {lin.iterations} iterations, laplacian {lin.laplacian:g}, "
@@ -194,8 +200,8 @@ def line_sizes(opts: FitOptions) -> tuple[int, ...]:
     preset whose ``line_ratio`` k is set, ``(32, k x texture_size)`` (the line vote; measured in
     docs/notes: plastic / city 0.055 -> 0.038 with 128 texels, gold / city the other way, so a vote);
     else ``(32,)``."""
-    if opts.line_size is not None:
-        return (int(opts.line_size),)
+    if opts.advanced.line_size is not None:
+        return (int(opts.advanced.line_size),)
     name = preset_of(opts)
     fine = PRESETS[name].line_ratio * int(opts.texture_size) if name else 0
     return (structures.LINE_SIZE, fine) if fine and fine != structures.LINE_SIZE else (structures.LINE_SIZE,)
@@ -214,16 +220,18 @@ def _base(target: Target, opts: FitOptions) -> str:
 
 
 def constrained(cands: list[Structure], opts: FitOptions) -> list[Structure]:
-    """The candidates that a ``diffuse``, ``highlight_terms``, extra highlight line or ``highlight_disc``
-    given in ``opts`` allows (each constrains the search; all candidates where none is given)."""
+    """The candidates that a ``diffuse``, ``advanced.highlights.terms``, extra highlight line or
+    ``advanced.highlights.disc`` given in ``opts`` allows (each constrains the search; all candidates
+    where none is given)."""
+    h = opts.advanced.highlights
     if opts.diffuse is not None:
         cands = [c for c in cands if c.diffuse == opts.diffuse] or cands
-    if opts.highlight_terms is not None:
-        cands = [c for c in cands if c.highlight_terms == opts.highlight_terms] or cands
-    for key in (line.key for line in HIGHLIGHT_LINES if getattr(opts, line.key) is not None):
-        cands = [c for c in cands if getattr(c, key) == getattr(opts, key) or not c.highlight_terms] or cands
-    if opts.highlight_disc:
-        cands = [c._replace(highlight_disc=True) if c.highlight_terms else c for c in cands]
+    if h.terms is not None:
+        cands = [c for c in cands if c.highlights.terms == h.terms] or cands
+    for key in (line.key for line in HIGHLIGHT_LINES if getattr(h, line.key) is not None):
+        cands = [c for c in cands if getattr(c.highlights, key) == getattr(h, key) or not c.highlights.terms] or cands
+    if h.disc:
+        cands = [c.with_highlights(disc=True) if c.highlights.terms else c for c in cands]
     return cands
 
 
@@ -264,8 +272,8 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
     lit = _lit(target)
     s = opts.sampling
     kind = s.kind if s.kind != "auto" else ("grid" if opts.is_sum and target.kind == "lighting" else "texels")
-    given = opts.linear or LinearOptions()
-    if opts.linear is not None and opts.linear.ridge and not lit:
+    given = opts.advanced.linear or LinearOptions()
+    if given.ridge and not lit:
         raise HomofacError(RIDGE_NEEDS_ENVIRONMENT)
     if choosing:
         # the candidates: the preset's nv_balance; a polish given explicitly runs on every candidate (as on
@@ -284,11 +292,12 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
             raise HomofacError(RIDGE_NEEDS_POLISH)
     if lin is not None and lin.nv_balance and target.kind != "lighting":
         raise HomofacError(sums.NV_BALANCE_NEEDS_LIGHTING)
-    table = (opts.highlight_table if opts.highlight_table is not None else p.table) if choosing else False
+    hl = opts.advanced.highlights
+    table = (hl.table if hl.table is not None else p.table) if choosing else False
     cands: tuple[Structure, ...] = ()
     votes: list[Vote] = []
     if mode == "sum":
-        cands = (Structure.of(opts.model_copy(update={"parametrization": base})),)
+        cands = (opts.structure(base),)
     elif choosing:
         has_d = sums.diffuse_albedo(target) is not None if target.kind == "lighting" else sums.has_diffuse(target)
         pick = structures.ladder if opts.target_error is not None else structures.candidates
@@ -300,8 +309,8 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
                      == samples_given] or found
         cands = tuple(found)
     sizes = line_sizes(opts) if opts.is_sum else ()
-    disc = bool(choosing and p is not None and p.disc_vote and opts.highlight_disc is None
-                and any(c.highlight_terms for c in cands))
+    disc = bool(choosing and p is not None and p.disc_vote and hl.disc is None
+                and any(c.highlights.terms for c in cands))
     if choosing:
         figure = _vote_figure(ridge)
         rule = (f"the first whose figure meets target_error {opts.target_error:g}" if opts.target_error is not None
@@ -317,14 +326,15 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
             votes.append(Vote("polish", stages, figure + "; the polish is kept only where it falls"))
     env = getattr(target.fn, "env", None)
     res = (getattr(env, "info", None) or {}).get("resolution") if env is not None else None
+    advanced = opts.advanced.model_copy(update={"linear": lin if opts.is_sum else opts.advanced.linear})
     resolved = opts.model_copy(update={"parametrization": base, "max_lookups": budget if choosing else opts.max_lookups,
-                                       "linear": lin if opts.is_sum else opts.linear})
+                                       "advanced": advanced})
     return Plan(mode=mode, preset=name, parametrization=base, mapper=mapper, texture_size=int(opts.texture_size),
                 sampling=kind, grid_count=grid_count(opts), validation=validation_count(opts),
                 light_resolution=int(res) if res else None, max_lookups=budget if choosing else None,
                 candidates=cands, linear=lin, polish=int(steps or 0), ridge=int(ridge or 0), line_sizes=sizes,
                 disc_vote=disc, analysis=bool(choosing and target.kind == "lighting"
-                                              and (p.analysis if p else True) or opts.analysis is not None),
+                                              and (p.analysis if p else True) or opts.advanced.analysis is not None),
                 votes=tuple(votes), options=resolved)
 
 

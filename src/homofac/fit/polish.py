@@ -64,9 +64,9 @@ def ridge_lights(target: Target, structure: Structure) -> np.ndarray:
     context), else the environment's brightest one."""
     if target.kind != "lighting" or getattr(target.fn, "env", None) is None:
         raise HomofacError(RIDGE_NEEDS_ENVIRONMENT)
-    if structure.highlight_terms > 0:
+    if structure.highlights.terms > 0:
         tgt = with_highlight_context(target, structure)
-        return np.asarray([tgt.context[key] for _, key in pj.HIGHLIGHTS[:structure.highlight_terms]], np.float64)
+        return np.asarray([tgt.context[key] for _, key in pj.HIGHLIGHTS[:structure.highlights.terms]], np.float64)
     return np.asarray(brightest_directions(target.fn.env, 1), np.float64)
 
 

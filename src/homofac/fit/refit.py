@@ -47,7 +47,7 @@ from ..param import parametrizations as pz
 from ..target import Target, evaluate
 from . import footprints, precision, programs, solvers, sums, transport
 from .draw import default_mapper
-from .options import FitOptions, LinearOptions
+from .options import FitOptions, LinearOptions, recorded_fit_options
 from .pipeline import quality_warnings, resolve_sampling
 from .polish import polish, polish_pairs, recorded_direct, recorded_linear
 from .product import unpack, zeros_rule
@@ -438,7 +438,7 @@ def refit(fac: Result, environment: Environment | None = None, brdf: BRDF | None
         model, record, solve_s = refit_product(state, fac, tgt, y, log, solve)
         warnings: tuple = ()
     elif state.mode == "sum":
-        lin = recorded_linear(opts.linear or LinearOptions(), fac.solver)  # what the full run used
+        lin = recorded_linear(opts.advanced.linear or LinearOptions(), fac.solver)  # what the full run used
         if linear:
             lin = validate(LinearOptions, {**lin.model_dump(), **linear}, "linear")
         sf = sums.fit_sum(tgt, state.structure, state.mapper, state.texture_size, samples, lin, log,
@@ -450,7 +450,7 @@ def refit(fac: Result, environment: Environment | None = None, brdf: BRDF | None
         model, record, solve_s, warnings = sf.model, {**sf.solver, "refit": True}, sf.solve_s, sf.warnings
     else:
         t1 = time.perf_counter()
-        model = baselines.build(opts.parametrization, tgt, state.mapper, state.texture_size, opts.baseline)
+        model = baselines.build(opts.parametrization, tgt, state.mapper, state.texture_size, opts.advanced.baseline)
         record, solve_s, warnings = {**(fac.solver or {}), "refit": True}, time.perf_counter() - t1, ()
     t1 = time.perf_counter()
     result = Result(model, solver=record, config=fac.config if config is None else config,
@@ -502,7 +502,7 @@ def prepare(fac: Result, options: FitOptions | dict | None = None) -> Result:
     if options is None:
         if not fac.config:
             raise HomofacError("refit: the result records no config to rebuild its layout from")
-        options = {k: v for k, v in fac.config.items() if k in FitOptions.model_fields}
+        options = recorded_fit_options(fac.config)
     opts = options if isinstance(options, FitOptions) else validate(FitOptions, options, "")
     mapper = opts.mapper or default_mapper(fac.kind)
     state = from_options(opts, fac.kind, fac, mapper, resolve_sampling(opts, fac.kind, mapper))

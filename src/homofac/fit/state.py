@@ -95,7 +95,7 @@ def from_layout(opts: FitOptions, kind: str, samples: Samples, mapper: str, scen
     """The state of the layout ``opts`` describes (no fit yet: products, sums and baselines of fixed
     structure), on the directions of ``samples`` (``scene``: the scene of a scene sampling)."""
     mode = _mode(opts)
-    structure = Structure.of(opts) if mode == "sum" else None
+    structure = opts.structure() if mode == "sum" else None
     train = sampling.Pairs(np.asarray(samples.a, np.float32), np.asarray(samples.b, np.float32))
     val = sampling.Pairs(np.asarray(samples.val_a, np.float32), np.asarray(samples.val_b, np.float32))
     groups = val_groups = None

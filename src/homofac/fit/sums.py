@@ -282,9 +282,9 @@ def with_highlight_context(target: Target, structure: Structure) -> Target:
     """``target`` with the context its highlight terms read (``dominant``, ``dominant1``, ... for the J
     brightest lights, :func:`~homofac.light.brightest_directions`; with ``highlight_disc`` also ``radius``,
     ``radius1``, ... of their discs, :func:`~homofac.light.light_radii`), keys the target already has kept."""
-    J = structure.highlight_terms
+    J = structure.highlights.terms
     keys = [key for _, key in pj.HIGHLIGHTS[:J]]
-    radii = [r for _, _, r in pj.HIGHLIGHT_DISCS[:J]] if structure.highlight_disc else []
+    radii = [r for _, _, r in pj.HIGHLIGHT_DISCS[:J]] if structure.highlights.disc else []
     missing = [k for k in keys + radii if k not in target.context]
     if not missing:
         return target
@@ -356,7 +356,7 @@ def fit_sum(target: Target, structure: Structure, mapper: str, size: int, sample
         method = "als" if grid is not None else "levenberg_marquardt"
     if opts.polish > 0 and method != "als":
         raise HomofacError(f"{POLISH_NEEDS_GRID}, not {method}")
-    if method == "als" and structure.highlight_table:  # the ALS fits the lines; the table is their product
+    if method == "als" and structure.highlights.table:  # the ALS fits the lines; the table is their product
         prev = None if previous is None else table.separate(previous, line_size)
         sf = fit_sum(target, lined(structure), mapper, size, samples, opts, log, previous=prev, line_size=line_size,
                      sample_weights=sample_weights)

@@ -1,4 +1,4 @@
-"""A highlight term's lines ``c(n.i) w(n.v)`` as a 2D table ``T(n.i, n.v)`` and back (``highlight_table``).
+"""A highlight term's lines ``c(n.i) w(n.v)`` as a 2D table ``T(n.i, n.v)`` and back (``advanced.highlights.table``).
 
 Near the mirror direction a light's microfacet highlight is ``D F n.h'^2 min(n.v, n.i) / (n.v (n.v + n.i))``
 (the height-correlated shadowing over ``4 n.v``): ``min(1, n.i / n.v)`` is no product of a function of
@@ -40,11 +40,11 @@ def _line(texture: Texture, x: np.ndarray) -> np.ndarray:
 
 def tabulate(model: Factorization, structure: Structure, size: int = TABLE_SIZE) -> Factorization:
     """``model`` (of :func:`~homofac.fit.structures.lined` ``(structure)``, ``structure`` one with
-    ``highlight_table``: highlight terms reading ``c_t(n.i)`` and ``w_t(n.v)``) with each such pair replaced by the table ``T_t``, its texels
+    ``highlights.table``: highlight terms reading ``c_t(n.i)`` and ``w_t(n.v)``) with each such pair replaced by the table ``T_t``, its texels
     ``c_t(n.i) w_t(n.v)`` at their centres (:func:`homofac.param.projections.table_cosines`): the same
     function up to bilinear interpolation, one lookup fewer. The other terms and textures are kept."""
-    if not structure.highlight_table:
-        raise HomofacError(f"tabulate: {structure.label()} reads no table (highlight_table)")
+    if not structure.highlights.table:
+        raise HomofacError(f"tabulate: {structure.label()} reads no table (highlights.table)")
     ni, nv = _grid_cosines(size)
     textures = {t.name: t for t in model.textures}
     gone, new_textures, terms = set(), [], []

@@ -82,9 +82,9 @@ CONTEXT_KEYS: dict[str, ContextKey] = {k.name: k for k in (
                "a number in [0, 0.5]", 0.01, (0.0, 0.5)),
 )}
 
-#: The highlight projections, brightest light first, and the context key each reads (``highlight_terms``).
+#: The highlight projections, brightest light first, and the context key each reads (``advanced.highlights.terms``).
 HIGHLIGHTS = (("nh_dom", "dominant"), ("nh_dom1", "dominant1"), ("nh_dom2", "dominant2"))
-#: The highlight projections of lights with a disc (``highlight_disc``), brightest first: the projection,
+#: The highlight projections of lights with a disc (``advanced.highlights.disc``), brightest first: the projection,
 #: the light's direction key and its radius key (:func:`_nh_disc`).
 HIGHLIGHT_DISCS = (("nhs_dom", "dominant", "radius"), ("nhs_dom1", "dominant1", "radius1"),
                    ("nhs_dom2", "dominant2", "radius2"))
@@ -347,7 +347,7 @@ def table_cosines(u, v):
 def _table_light(n, v, ctx, key: str):
     """``(sqrt(n.i), sqrt(n.v))`` of the context's light ``key`` placed in a parabolic map
     (:func:`table_point`): the coordinate of a 2D table T(n.i, n.v) in a highlight term
-    ``d(nh_dom) f(v.h') T(n.i, n.v)`` (``highlight_table``). Near the mirror direction a light's highlight
+    ``d(nh_dom) f(v.h') T(n.i, n.v)`` (``advanced.highlights.table``). Near the mirror direction a light's highlight
     is ``D F n.h'^2 min(n.v, n.i) / (n.v (n.v + n.i))`` (the height-correlated shadowing over 4 n.v), and
     ``min(1, n.i / n.v)`` is no product of a function of n.i and one of n.v: c(n.i) w(n.v) holds it only on
     average, the table exactly. Square roots spread the grazing end, where the highlight climbs
@@ -394,7 +394,7 @@ for _j, (_name, _key) in enumerate(HIGHLIGHTS):
                          if _j == 0 else f"nh_dom of light {_j + 1} (brightest first), context {_key}"),
                         scalar=True, context=(_key,)))
 
-# the same of a light with a disc (``highlight_disc``), one record per light of HIGHLIGHT_DISCS
+# the same of a light with a disc (``advanced.highlights.disc``), one record per light of HIGHLIGHT_DISCS
 for _j, (_name, _key, _radius) in enumerate(HIGHLIGHT_DISCS):
     register(Projection(_name, "lighting", functools.partial(_nh_disc, key=_key, radius=_radius), False,
                         f"nh_dom{_j or ''} at the point of light {_j + 1}'s disc (context {_key}, radius the sine of "
@@ -408,14 +408,14 @@ for _j, (_name, _key) in enumerate(HIGHLIGHT_FRESNEL):
                         f"v.h' with h' the half vector of light {_j + 1} (brightest first, context {_key}) and v, "
                         f"clamped to [0, 1]", scalar=True, context=(_key,)))
 
-#: The cosine coordinates of highlight terms (``highlight_cosine``), one per light of HIGHLIGHTS.
+#: The cosine coordinates of highlight terms (``advanced.highlights.cosine``), one per light of HIGHLIGHTS.
 HIGHLIGHT_COSINE = (("ni_dom", "dominant"), ("ni_dom1", "dominant1"), ("ni_dom2", "dominant2"))
 for _j, (_name, _key) in enumerate(HIGHLIGHT_COSINE):
     register(Projection(_name, "lighting", functools.partial(_ni_light, key=_key), False,
                         f"n.i with i light {_j + 1} (brightest first, context {_key}), clamped to [0, 1]",
                         scalar=True, context=(_key,)))
 
-#: The table coordinates of highlight terms (``highlight_table``), one per light of HIGHLIGHTS: read with the
+#: The table coordinates of highlight terms (``advanced.highlights.table``), one per light of HIGHLIGHTS: read with the
 #: ``parabolic`` mapper.
 HIGHLIGHT_TABLE = (("ninv_dom", "dominant"), ("ninv_dom1", "dominant1"), ("ninv_dom2", "dominant2"))
 for _j, (_name, _key) in enumerate(HIGHLIGHT_TABLE):
