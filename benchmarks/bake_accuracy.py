@@ -21,15 +21,16 @@ third, 1 for a third, uniform for the rest); the nrmse of L = (1 - m) 0.96 c I_d
 * split-sum the engines' way (emulated here): E(n) from a 32^2 x 6 irradiance map, P from a prefiltered mip
   chain (face size the source's detail down to 4, level lod = rho (levels - 1), each level prefiltered at its
   roughness, read bilinearly per face and blended between levels), A, B, d from 32 x 32 tables (bilinear);
-* a per-material homofac fit (``--fits`` materials per band, drawn like the others): ``hf.fit.factorize`` of
+* a per-material homofac fit (``--fits`` materials per band on the ``--fit-envs``, drawn like the others): ``hf.fit.factorize`` of
   that material's lighting (``hf.brdf.gltf``) at ``max_lookups`` ``--fit-lookups`` with small settings
   (:data:`FIT_SETTINGS`), on the band's pairs with that material, beside the bake and split-sum on the same.
 
     PYTHONPATH=src python benchmarks/bake_accuracy.py [--pairs 150] [--presets fast balanced] [--envs forest ...]
-        [--fits 1] [--fit-lookups 4] [--cap 65536] [--no-sampler]
+        [--fits 1] [--fit-envs forest studio] [--fit-lookups 4] [--cap 65536] [--bands 0 1 2 3] [--no-sampler]
 
 writes benchmarks/bake_accuracy.json and .md (``--out`` another stem); ``python benchmarks/pages.py`` turns the JSON
-into docs/benchmarks/bake.md. The default run (four environments) takes about 15 minutes on this 2-core machine.
+into docs/benchmarks/bake.md. The default run takes about 40 minutes on this shared 2-core machine (load 14;
+the eight per-material fits are half of it: ``--fits 0`` for the rest alone).
 """
 
 from __future__ import annotations
@@ -208,6 +209,7 @@ def main(argv=None):
     ap.add_argument("--envs", nargs="+", default=list(hf.light.BUNDLED))
     ap.add_argument("--cap", type=int, default=65536, help="largest reference sample count per strategy")
     ap.add_argument("--fits", type=int, default=1, help="per-material homofac fits per band (0: none)")
+    ap.add_argument("--fit-envs", nargs="+", default=["forest", "studio"], help="environments with per-material fits")
     ap.add_argument("--fit-lookups", type=int, default=4, help="max_lookups of the per-material fits")
     ap.add_argument("--bands", nargs="+", type=int, default=list(range(len(BANDS))), help="indices into BANDS")
     ap.add_argument("--no-sampler", action="store_true", help="leave glTF-IBL-Sampler out")
@@ -266,7 +268,7 @@ def main(argv=None):
                 row[f"bake_{preset}_lookups"] = b.lookups
             rows.append(row)
             print(json.dumps({k: (round(x, 4) if isinstance(x, float) else x) for k, x in row.items()}), flush=True)
-            if args.fits:
+            if args.fits and name in args.fit_envs:
                 fits += fit_rows(name, band, n, v, fit_rng, args.fits, args.fit_lookups, src, samples, bakes,
                                  args.presets, uniform)
     doc = {"machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "date_utc": time.strftime("%Y-%m-%d %H:%M", time.gmtime()),
