@@ -29,8 +29,8 @@ third, 1 for a third, uniform for the rest); the nrmse of L = (1 - m) 0.96 c I_d
         [--fits 1] [--fit-envs forest studio] [--fit-lookups 4] [--cap 65536] [--bands 0 1 2 3] [--no-sampler]
 
 writes benchmarks/bake_accuracy.json and .md (``--out`` another stem); ``python benchmarks/pages.py`` turns the JSON
-into docs/benchmarks/bake.md. The default run takes about 40 minutes on this shared 2-core machine (load 14;
-the eight per-material fits are half of it: ``--fits 0`` for the rest alone).
+into docs/benchmarks/bake.md. The default run took 22 minutes on this shared 2-core machine (load 10-14; the eight
+per-material fits about 5 of them: ``--fits 0`` leaves them out; ``--envs forest --bands 0`` is a 3-minute look).
 """
 
 from __future__ import annotations
