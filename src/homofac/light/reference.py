@@ -10,12 +10,12 @@ energy (as the resampler rescales every resolution). For pairs (n, v) with a rou
     I_d = int (1 - s5)/pi Li(l) (n.l)+ dl,   I_A = int (1 - s5) S Li(l) (n.l)+ dl,   I_B = int s5 S Li(l) (n.l)+ dl
 
 (the lobes of :func:`homofac.brdf.gltf.gltf_lobes_at`) are estimated by multiple importance sampling with the
-balance heuristic (Veach 1997, eq. 9.13), ``S`` samples per strategy:
+balance heuristic (Veach 1997, ch. 9), ``S`` samples per strategy:
 
     F = 1/S  sum_{x in X_brdf u X_env}  f(x) Li(x) (n.x)+ / (p_brdf(x) + p_env(x))
 
 * ``X_brdf``: for I_A, I_B the GGX distribution of visible normals (Heitz 2018, "Sampling the GGX
-  distribution of visible normals", listing 1), ``l = reflect(-v, h)``, ``p = G1(v) D(h) / (4 n.v)``;
+  distribution of visible normals", JCGT 7(4)), ``l = reflect(-v, h)``, ``p = G1(v) D(h) / (4 n.v)``;
   for I_d the cosine distribution ``p = (n.l)/pi``;
 * ``X_env``: the source pixels drawn in proportion to their luminance (3 x 3 maximum, so the bilinear
   spread of a bright pixel is covered) times their solid angle, plus a uniform floor, then uniform in solid
@@ -165,7 +165,7 @@ def _ggx_d(h, a2):
 
 
 def _vndf(wo, alpha, u1, u2):
-    """Heitz 2018, listing 1: a visible normal (local components) for view ``wo`` (components, (B, 1))."""
+    """Heitz 2018: a visible normal (local components) for view ``wo`` (components, (B, 1))."""
     vx, vy, vz = alpha * wo[0], alpha * wo[1], wo[2]
     vn = jnp.sqrt(vx * vx + vy * vy + vz * vz)
     vx, vy, vz = vx / vn, vy / vn, vz / vn
