@@ -158,3 +158,12 @@ def test_the_presets_try_the_candidates_of_their_grid_directions_and_trial_the_p
     assert plan.build_plan(t, "fast", {"linear": {"polish": 4}}).polish_trial == 0  # every candidate polished
     given_r = plan.build_plan(t, "fast", samples_given="r")
     assert {hf.fit.draw.grid_projection("lighting", c.parametrization, grid) for c in given_r.candidates} == {"r"}
+
+
+def test_a_polish_trial_that_did_not_lower_the_figure_is_summarised_as_no_polish():
+    before, after = {"validation_nrmse": 0.2141}, {"validation_nrmse": 0.2143}
+    note = {"steps": 8, "validation_nrmse_before": 0.2141, "validation_nrmse_after": 0.2143, "stages": [],
+            "rule": "vote", "kept": False, "stage": None, "ridge": 0, "start": None,
+            "trial": {"steps": 2, "falls": False, "before": before, "after": after}}
+    line = cli.polish_line(note)
+    assert "2-step trial" in line and "0.2141 -> 0.2143" in line and "none run" in line
