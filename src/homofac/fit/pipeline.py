@@ -197,8 +197,8 @@ def execute(the_plan: Plan, target: Target, *, samples: Samples | None = None, c
     if (the_plan.polish or (opts.linear is not None and opts.linear.polish)) and samples is None \
             and resolved.kind != "grid":
         raise HomofacError(f"{sums.POLISH_NEEDS_GRID}, not sampling.kind: {resolved.kind}")
+    first = opts.parametrization if samples is not None else drawn_for(the_plan)  # the samples' direction
     if samples is None:  # on the grid direction of the first candidate (every candidate's, for texel pairs)
-        first = drawn_for(the_plan)
         samples = draw_samples(with_context(target, first) if target.kind == "lighting" else target, first,
                                resolved, log)
     sample_s = time.perf_counter() - t0
@@ -218,7 +218,7 @@ def execute(the_plan: Plan, target: Target, *, samples: Samples | None = None, c
         )
 
     if opts.is_sum:
-        result, target, samples = _sums(target, the_plan, samples, record, sample_s, log, resolved)
+        result, target, samples = _sums(target, the_plan, samples, record, sample_s, log, resolved, first)
     elif opts.target_error is not None:
         result = auto.choose(target, opts.target_error, fit, samples, mapper=mapper, max_size=opts.texture_size,
                              log=log)
@@ -267,20 +267,21 @@ def resolve_sampling(opts: FitOptions, kind: str, mapper: str) -> SamplingOption
 
 
 def _sums(target: Target, the_plan: Plan, samples: Samples, record: dict, sample_s: float,
-          log, resolved: SamplingOptions) -> tuple[Result, Target, Samples]:
+          log, resolved: SamplingOptions, drawn: str) -> tuple[Result, Target, Samples]:
     """A linear-space sum of products: the structure of the options, or the one chosen within a budget;
     with the target (its projection context) and the samples the kept structure was fitted on.
 
     The grid design puts ``n`` and the structure's reflection-like direction on texel centres (``r``, or
     ``r_off`` for NRO and RO): candidates on another direction than the options' parametrization get
     grid samples of their own, drawn once per direction (the validation pairs are the same for all),
-    unless the samples were given (then the plan holds only the candidates on their direction)."""
+    unless the samples were given (then the plan holds only the candidates on their direction).
+    ``drawn``: the parametrization whose grid direction ``samples`` lie on."""
     opts, mapper, lin = the_plan.options, the_plan.mapper, the_plan.linear
     choosing = the_plan.mode == "choose"
     eps = float(opts.solver.epsilon)
     sizes = the_plan.line_sizes  # the candidates' line size first; then the line vote's
     polished: dict = {}
-    pools = {grid_projection(target.kind, drawn_for(the_plan), resolved): (target, samples, sample_s)}
+    pools = {grid_projection(target.kind, drawn, resolved): (target, samples, sample_s)}
 
     def pool(structure: Structure) -> tuple[Target, Samples, float]:
         # the samples are shared by every structure on one grid direction (all of them for texel pairs);
