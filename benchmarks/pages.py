@@ -121,9 +121,14 @@ def preset_table(accuracy_rows: list[dict], preset_rows: list[dict]) -> str:
     if time_src == {"presets.json"}:
         notes.append("Fit times: the preset benchmark (`benchmarks/presets.json`).")
     else:
+        loaded = [r for r in preset_rows if r.get("run") == "loaded" and "wall_s" in r]
         notes.append("Fit times: the accuracy benchmark's runs of the lookup budgets 4, 8 and 16 "
                      "(`max_lookups`, before the presets' speed-up"
                      + (", for the presets `benchmarks/presets.json` does not hold" if "presets.json" in time_src
+                        else "; the preset benchmark of this code ran on a loaded machine only: "
+                        + ", ".join(f"`{r['method']}` {r['wall_s']:.0f} s wall, {r['cpu_s']:.0f} s CPU at load "
+                                    f"{r['load'][0]:.0f}" for r in loaded if "cpu_s" in r)
+                        + " in `benchmarks/presets.json`" if loaded
                         else "; `benchmarks/presets.json` is not there yet") + ").")
     if err_src == {"presets.json"}:
         notes.append("Errors: the preset benchmark against the accuracy benchmark's ground truth.")

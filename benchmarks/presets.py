@@ -6,8 +6,9 @@
 
 Each preset is fitted as a user would fit it: ``hf.fit.factorize(target, preset=NAME)`` on the
 environment at its default light resolution (32) with the default texture size (32), in a fresh
-process per row (so each row pays its own JAX compilation, as a user's first run does; ``--warm`` runs
-them in one process after one warm-up fit). ``wall_s`` is the whole call. Errors are on the accuracy
+process per row with no persistent compilation cache and an empty sample cache (so each row pays its
+own JAX compilation and lighting integrals, as a user's first run does). ``wall_s`` is the whole call,
+``cpu_s`` its CPU time (both cores). Errors are on the accuracy
 benchmark's 20000 validation pairs against its converged ground truth (:func:`accuracy.ground_truth`):
 ``nrmse`` beside split-sum's (``ratio``), and the fit's own validation nrmse (``fit_validation``).
 
@@ -22,6 +23,7 @@ import json
 import os
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -39,20 +41,20 @@ PRESETS = ("fast", "balanced", "best")
 
 def one(material: str, env: str, method: str, resolution: int, truth_limit: int = 512) -> dict:
     """One row: fit ``method`` (a preset name or ``split_sum``) and measure it."""
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     target = hf.light.lighting_target(acc.MATERIALS[material](), hf.light.load_environment(env, resolution))
     if method == "split_sum":
         fac = hf.fit.factorize(target, "split_sum")
     else:
         fac = hf.fit.factorize(target, preset=method)
-    wall = time.perf_counter() - t0
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     groups = acc.validation_pairs()
     val = groups.flatten()
     nv = np.sum(val.a * val.b, axis=1)
     gt, r_gt, change = acc.ground_truth(material, env, groups, log=lambda m: None, limit=truth_limit)
     approx = np.asarray(fac.evaluate(val.a, val.b), np.float64)
     err = acc.errors(approx, gt, nv)
-    return {"material": material, "environment": env, "method": method, "wall_s": wall,
+    return {"material": material, "environment": env, "method": method, "wall_s": wall, "cpu_s": cpu,
             "lookups": int(fac.model.lookups), "structure": fac.parametrization,
             "tried": len((fac.selection or {}).get("tried", [])),
             "nrmse": err["nrmse"], "nrmse_grazing": err["nrmse_grazing"], "nrmse_frontal": err["nrmse_frontal"],
@@ -80,13 +82,16 @@ def main(argv=None) -> int:
         material, env = case.split("/")
         for method in ["split_sum", *[p for p in args.presets.split(",") if p]]:
             before = os.getloadavg()[0]
-            out = subprocess.run([sys.executable, __file__, "--one", f"{material}/{env}/{method}",
-                                  "--resolution", str(args.resolution), "--truth-limit", str(args.truth_limit)],
-                                 capture_output=True, text=True, check=True)
+            with tempfile.TemporaryDirectory(prefix="homofac-presets-") as fresh:  # cold caches: a first run
+                child = {**os.environ, "HOMOFAC_JAX_CACHE": "0", "HOMOFAC_CACHE_DIR": fresh}
+                child.pop("JAX_COMPILATION_CACHE_DIR", None)
+                out = subprocess.run([sys.executable, __file__, "--one", f"{material}/{env}/{method}",
+                                      "--resolution", str(args.resolution), "--truth-limit", str(args.truth_limit)],
+                                     capture_output=True, text=True, check=True, env=child)
             row = json.loads(out.stdout.strip().splitlines()[-1])
             row["load"] = [before, os.getloadavg()[0]]
             rows.append(row)
-            print(f"{case} {method}: {row['wall_s']:.1f} s, nrmse {row['nrmse']:.4f}, {row['lookups']} lookups, "
+            print(f"{case} {method}: {row['wall_s']:.1f} s ({row['cpu_s']:.0f} s CPU), nrmse {row['nrmse']:.4f}, {row['lookups']} lookups, "
                   f"{row['structure']} ({row['tried']} tried), load {before:.1f}", flush=True)
     ss = {(r["material"], r["environment"]): r["nrmse"] for r in rows if r["method"] == "split_sum"}
     for r in rows:

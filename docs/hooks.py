@@ -988,10 +988,11 @@ def presets_table() -> str:
     for name, p in PRESETS.items():
         lines = "32" if not p.line_ratio else f"vote 32 / {p.line_ratio} x texture_size"
         rows.append([code(name), p.lookups, f"{p.grid_count:,}", f"{p.validation:,}", lines, "yes" if p.table else "no",
-                     "vote" if p.disc_vote else "no", p.nv_balance, f"{p.polish} steps, kept by vote",
-                     f"{p.ridge:,}" if p.ridge else "0"])
+                     "vote" if p.disc_vote else "no", p.nv_balance,
+                     f"{p.polish} steps, kept by vote" + (f", after a {p.polish_trial}-step trial" if p.polish_trial else ""),
+                     f"{p.ridge:,}" if p.ridge else "0", ", ".join(p.directions) or "all"])
     return table(["preset", "lookups", "grid pairs", "validation pairs", "line texels", "highlight tables",
-                  "light disc", "nv_balance (kd > 0)", "polish", "ridge pairs"], rows)
+                  "light disc", "nv_balance (kd > 0)", "polish", "ridge pairs", "grid directions"], rows)
 
 
 GENERATORS: dict[str, Callable[..., str]] = {

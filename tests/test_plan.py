@@ -255,3 +255,29 @@ def test_a_string_that_is_no_label_is_refused_in_one_line():
         with pytest.raises(HomofacError) as e:
             Structure.parse(bad)
         assert "\n" not in str(e.value)
+
+
+def test_the_presets_try_the_candidates_of_their_grid_directions_and_trial_the_polish_without_ridge_pairs(envs):
+    """A preset's candidates lie on its grid directions (one grid of training pairs to draw); a named
+    parametrization's samples given decide the direction instead. The polish trial is planned where the
+    polish has no ridge stage (whose benefit a short polish without ridge pairs cannot show)."""
+    t = _gold(envs["interior"])
+    grid = FitOptions().sampling.model_copy(update={"kind": "grid"})
+    for name, p in plan.PRESETS.items():
+        got = plan.build_plan(t, name)
+        dirs = {hf.fit.draw.grid_projection("lighting", c.parametrization, grid) for c in got.candidates}
+        assert dirs <= set(p.directions or dirs)
+        assert got.polish_trial == (p.polish_trial if got.polish and not got.ridge else 0)
+        assert ("trial" in str(got)) == bool(got.polish_trial)
+    assert plan.build_plan(t, "fast", {"linear": {"polish": 4}}).polish_trial == 0  # every candidate polished
+    given_r = plan.build_plan(t, "fast", samples_given="r")
+    assert {hf.fit.draw.grid_projection("lighting", c.parametrization, grid) for c in given_r.candidates} == {"r"}
+
+
+def test_a_polish_trial_that_did_not_lower_the_figure_is_summarised_as_no_polish():
+    before, after = {"validation_nrmse": 0.2141}, {"validation_nrmse": 0.2143}
+    note = {"steps": 8, "validation_nrmse_before": 0.2141, "validation_nrmse_after": 0.2143, "stages": [],
+            "rule": "vote", "kept": False, "stage": None, "ridge": 0, "start": None,
+            "trial": {"steps": 2, "falls": False, "before": before, "after": after}}
+    line = cli.polish_line(note)
+    assert "2-step trial" in line and "0.2141 -> 0.2143" in line and "none run" in line

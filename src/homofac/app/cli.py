@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 import signal
 import sys
 import textwrap
@@ -19,7 +18,6 @@ import warnings
 from pathlib import Path
 from typing import Callable
 
-import jax
 import yaml
 from PIL import Image
 from rich.console import Console
@@ -27,6 +25,7 @@ from rich.console import Console
 from .. import baselines, gl
 from ..errors import HomofacError
 from ..fit import solvers, sums
+from ..fit.programs import compilation_cache_dir, enable_compilation_cache
 from ..fit.plan import build_plan
 from ..fit.options import AdvancedOptions, FitOptions, HighlightOptions, LinearOptions
 from ..fit.structures import Structure
@@ -81,6 +80,10 @@ def polish_line(pol: dict) -> str:
                          f"or {pol['steps']} with them from the ALS fit"][:len(stages)])
         after = " / ".join(f"{st[key]:.4g}" for st in stages)
         kept = f"stage {pol['stage'] + 1} kept" if pol.get("kept") else "not kept"
+    elif pol.get("trial"):  # the trial did not lower the figure: no polish ran
+        how = f"a {pol['trial']['steps']}-step trial of the polish"
+        after = f"{pol[key + '_after']:.4g}"
+        kept = "none run"
     else:
         ridge = f" and {pol['ridge']} ridge pairs" if pol.get("ridge") else ""
         how = f"{pol['steps']} Levenberg-Marquardt steps off the grid{ridge}"
@@ -98,32 +101,6 @@ def disc_line(disc: dict) -> str:
     radii = ", ".join(f"{math.degrees(math.asin(r)):.2g}" for r in disc["radii"])
     tried = ", ".join(f"{label} {e:.4g}" for label, e in zip(disc["labels"], errs))
     return f"disc: {words} {tried} (disc radius {radii} degrees); {'the disc' if disc['kept'] else 'the point light'} kept"
-
-
-def compilation_cache_dir() -> Path | None:
-    """``$HOMOFAC_JAX_CACHE`` (``0`` turns the cache off) or ``~/.cache/homofac/jax``; None when off or
-    when the user configured JAX's own ``JAX_COMPILATION_CACHE_DIR`` (then JAX uses that)."""
-    value = os.environ.get("HOMOFAC_JAX_CACHE")
-    if value == "0" or os.environ.get("JAX_COMPILATION_CACHE_DIR"):
-        return None
-    return Path(value).expanduser() if value else Path.home() / ".cache" / "homofac" / "jax"
-
-
-def enable_compilation_cache() -> Path | None:
-    """Point JAX's persistent compilation cache at :func:`compilation_cache_dir`, for every program (a
-    run's ~100 programs each compile in well under 0.2 s, so a time threshold would keep none). Measured
-    on the default run: 9.1 s cold, 5.2 s with the cache warm. Call before the first compilation; never
-    fails a run."""
-    path = compilation_cache_dir()
-    if path is None:
-        return None
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-        jax.config.update("jax_compilation_cache_dir", str(path))
-        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
-        return path
-    except Exception:  # noqa: BLE001 - a cache is an optimisation
-        return None
 
 
 def warning_line(message, category, filename, lineno, file=None, line=None) -> None:

@@ -133,6 +133,7 @@ def factorize_many(targets: Sequence[Target], parametrization: str | None = None
     """
     log = log or (lambda msg: None)
     programs.bound_compiled_programs()
+    programs.enable_compilation_cache()
     t_start = time.perf_counter()
     targets = list(targets)
     if not targets:

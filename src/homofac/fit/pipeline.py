@@ -129,6 +129,7 @@ def factorize(
     log = log or (lambda msg: None)
     t_start = time.perf_counter()
     programs.bound_compiled_programs()
+    programs.enable_compilation_cache()
     given_opts = options(parametrization, preset=preset, mapper=mapper, texture_size=texture_size, sampling=sampling,
                          solver=solver, target_error=target_error, max_lookups=max_lookups, terms=terms,
                          diffuse=diffuse, nv_factor=nv_factor, advanced=advanced, **moved)
@@ -165,8 +166,10 @@ def execute(the_plan: Plan, target: Target, *, samples: Samples | None = None, c
     if (the_plan.polish or (opts.advanced.linear is not None and opts.advanced.linear.polish)) and samples is None \
             and resolved.kind != "grid":
         raise HomofacError(f"{sums.POLISH_NEEDS_GRID}, not sampling.kind: {resolved.kind}")
-    if samples is None:
-        samples = draw_samples(target, opts.parametrization, resolved, log)
+    first = opts.parametrization if samples is not None else drawn_for(the_plan)  # the samples' direction
+    if samples is None:  # on the grid direction of the first candidate (every candidate's, for texel pairs)
+        samples = draw_samples(with_context(target, first) if target.kind == "lighting" else target, first,
+                               resolved, log)
     sample_s = time.perf_counter() - t0
     check_values(np.asarray(samples.y), "training")
     record = {"config": config or {}, "target_info": target_info or {}, "samples": samples if keep_samples else None}
@@ -184,7 +187,7 @@ def execute(the_plan: Plan, target: Target, *, samples: Samples | None = None, c
         )
 
     if opts.is_sum:
-        result, target, samples = _sums(target, the_plan, samples, record, sample_s, log, resolved)
+        result, target, samples = _sums(target, the_plan, samples, record, sample_s, log, resolved, first)
     elif opts.target_error is not None:
         result = auto.choose(target, opts.target_error, fit, samples, mapper=mapper, max_size=opts.texture_size,
                              log=log)
@@ -208,6 +211,12 @@ def execute(the_plan: Plan, target: Target, *, samples: Samples | None = None, c
                           state=state)
 
 
+def drawn_for(the_plan: Plan) -> str:
+    """The parametrization whose grid direction the first training pairs are drawn on: the first
+    candidate's (a preset may try only candidates on ``r_off``), else the options'."""
+    return the_plan.candidates[0].parametrization if the_plan.candidates else the_plan.options.parametrization
+
+
 def resolve_sampling(opts: FitOptions, kind: str, mapper: str) -> SamplingOptions:
     """``sampling.kind: auto`` resolved (grid for linear-space sums of lighting products, else texels);
     grid samples always lie on the fitted textures' own grid (``mapper``, ``texture_size``), their count
@@ -227,20 +236,21 @@ def resolve_sampling(opts: FitOptions, kind: str, mapper: str) -> SamplingOption
 
 
 def _sums(target: Target, the_plan: Plan, samples: Samples, record: dict, sample_s: float,
-          log, resolved: SamplingOptions) -> tuple[Result, Target, Samples]:
+          log, resolved: SamplingOptions, drawn: str) -> tuple[Result, Target, Samples]:
     """A linear-space sum of products: the structure of the options, or the one chosen within a budget;
     with the target (its projection context) and the samples the kept structure was fitted on.
 
     The grid design puts ``n`` and the structure's reflection-like direction on texel centres (``r``, or
     ``r_off`` for NRO and RO): candidates on another direction than the options' parametrization get
     grid samples of their own, drawn once per direction (the validation pairs are the same for all),
-    unless the samples were given (then the plan holds only the candidates on their direction)."""
+    unless the samples were given (then the plan holds only the candidates on their direction).
+    ``drawn``: the parametrization whose grid direction ``samples`` lie on."""
     opts, mapper, lin = the_plan.options, the_plan.mapper, the_plan.linear
     choosing = the_plan.mode == "choose"
     eps = float(opts.solver.epsilon)
     sizes = the_plan.line_sizes  # the candidates' line size first; then the line vote's
     polished: dict = {}
-    pools = {grid_projection(target.kind, opts.parametrization, resolved): (target, samples, sample_s)}
+    pools = {grid_projection(target.kind, drawn, resolved): (target, samples, sample_s)}
 
     def pool(structure: Structure) -> tuple[Target, Samples, float]:
         # the samples are shared by every structure on one grid direction (all of them for texel pairs);
@@ -330,11 +340,21 @@ def _sums(target: Target, the_plan: Plan, samples: Samples, record: dict, sample
     steps = the_plan.polish
     if steps and result.solver.get("method") == "als":
         tgt, smp, _ = pool(structure)
-        plin = lin.model_copy(update={"polish": steps, "ridge": ridge})
-        stages = [as_result(structure, sf) for sf in polish.polish_stages(
-            tgt, structure, mapper, opts.texture_size, fits[structure, line], smp, pairs(), plin, log,
-            seed=opts.sampling.seed, direct=True)]
-        result = _polish_vote(result, stages, score, steps, ridge, structure.label(), log)
+        trial = None
+        if the_plan.polish_trial:  # a short polish first: where it does not lower the figure, none runs
+            tlin = lin.model_copy(update={"polish": the_plan.polish_trial, "ridge": 0})
+            short = as_result(structure, polish.polish_stage(tgt, structure, mapper, opts.texture_size,
+                                                             fits[structure, line], smp, pairs(), tlin, log,
+                                                             seed=opts.sampling.seed))
+            trial = _trial(result, short, score, the_plan.polish_trial, structure.label(), log)
+        if trial is None or trial["falls"]:
+            plin = lin.model_copy(update={"polish": steps, "ridge": ridge})
+            stages = [as_result(structure, sf) for sf in polish.polish_stages(
+                tgt, structure, mapper, opts.texture_size, fits[structure, line], smp, pairs(), plin, log,
+                seed=opts.sampling.seed, direct=True)]
+            result = _polish_vote(result, stages, score, steps, ridge, structure.label(), log, trial)
+        else:
+            result = result.replace(selection={**result.selection, "polish": _unpolished(trial, steps)})
     return kept(result if analysis is None else result.replace(analysis=analysis))
 
 
@@ -344,8 +364,28 @@ def _figures(res: Result, score: Callable | None) -> dict:
     return plain if score is None else {**plain, sums.RIDGE_METRIC: float(score(res))}
 
 
+def _trial(result: Result, short: Result, score: Callable | None, steps: int, label: str, log) -> dict:
+    """The polish's trial: ``short`` (``steps`` Levenberg-Marquardt steps from the ALS fit ``result``,
+    without ridge pairs) against ``result`` on the figure the votes read; ``falls``: whether it is lower
+    (then the whole polish runs and votes, else none does: the plan's ``polish_trial``)."""
+    key, what = sums.scored_by(score is not None)
+    before, after = _figures(result, score), _figures(short, score)
+    falls = bool(after[key] < before[key])
+    log(f"polish trial of {label}: {steps} steps, {what} {before[key]:.4g} -> {after[key]:.4g}"
+        + ("" if falls else ": no polish (the validation error did not fall)"))
+    return {"steps": steps, "falls": falls, "before": before, "after": after}
+
+
+def _unpolished(trial: dict, steps: int) -> dict:
+    """``selection.polish`` where the trial (:func:`_trial`) did not lower the figure: nothing kept, the
+    trial's errors as the after figures, no stages."""
+    return {"steps": steps, **{f"{k}_before": v for k, v in trial["before"].items()},
+            **{f"{k}_after": v for k, v in trial["after"].items()}, "stages": [], "rule": "vote", "kept": False,
+            "stage": None, "ridge": 0, "start": None, "trial": trial}
+
+
 def _polish_vote(result: Result, stages: list[Result], score: Callable | None, steps: int, ridge: int,
-                 label: str, log) -> Result:
+                 label: str, log, trial: dict | None = None) -> Result:
     """The kept structure's ALS fit (``result``) or one of its polish ``stages`` (:func:`polish.polish_stages`
     with ``direct``: without the ridge pairs, then with them, then with them from the ALS fit): the stage
     of lowest validation error (``score``, the ridge stratum's, where given), kept only where its error is
@@ -364,7 +404,7 @@ def _polish_vote(result: Result, stages: list[Result], score: Callable | None, s
     note = {"steps": steps, **{f"{k}_before": v for k, v in before.items()},
             **{f"{k}_after": v for k, v in figures[best].items()}, "stages": described, "rule": "vote", "kept": keep,
             "stage": best if keep else None, "ridge": described[best]["ridge"] if keep else 0,
-            "start": described[best]["start"] if keep else None}
+            "start": described[best]["start"] if keep else None, **({"trial": trial} if trial else {})}
     return (stages[best] if keep else result).replace(selection={**result.selection, "polish": note})
 
 

@@ -43,7 +43,10 @@ class Preset(NamedTuple):
     of the candidates on lighting of a BRDF with kd > 0 (``advanced.linear.nv_balance``); ``polish``:
     Levenberg-Marquardt steps of the kept structure (``advanced.linear.polish``); ``ridge``: ridge pairs of its
     polish and of the validation estimate (``advanced.linear.ridge``); ``analysis``: record Mahajan's in-out
-    analysis (``advanced.analysis``)."""
+    analysis (``advanced.analysis``); ``directions``: the grid directions
+    (:func:`~homofac.fit.draw.grid_projection`) whose candidates a lighting fit tries (empty: all);
+    ``polish_trial``: steps of a short polish (no ridge pairs) run first, the polish running only where it
+    lowers the validation figure (0: no trial)."""
 
     lookups: int
     grid_count: int
@@ -55,6 +58,15 @@ class Preset(NamedTuple):
     polish: int
     ridge: int
     analysis: bool
+    directions: tuple[str, ...] = ()
+    polish_trial: int = 0
+
+
+#: The grid directions of the presets' candidates: the off-specular reflection ``r_off`` only. On the
+#: 16-case accuracy benchmark (benchmarks/accuracy.json) the candidates on ``r`` (NRW, SS+NRW: 6 of 15 at
+#: 8 lookups, 1 of 4 at 4) were never kept at 4, 8 or 16 lookups, and each direction costs its own grid
+#: of training pairs (the lighting integral at every pair, the largest stage of a fit: docs/notes/speed.md).
+PRESET_DIRECTIONS = ("r_off",)
 
 
 #: The presets (names pinned). ``fast`` and ``balanced`` are the 4- and 8-lookup settings measured on
@@ -64,11 +76,13 @@ class Preset(NamedTuple):
 #: 32 / 4 x texture_size, tables, the disc vote, the plain objective and 20 000 ridge pairs.
 PRESETS: dict[str, Preset] = {
     "fast": Preset(lookups=4, grid_count=GRID_COUNT, validation=DEFAULT_VALIDATION, line_ratio=0, table=False,
-                   disc_vote=False, nv_balance=1.0, polish=8, ridge=0, analysis=False),
+                   disc_vote=False, nv_balance=1.0, polish=8, ridge=0, analysis=False, directions=PRESET_DIRECTIONS,
+                   polish_trial=2),
     "balanced": Preset(lookups=8, grid_count=GRID_COUNT, validation=DEFAULT_VALIDATION, line_ratio=0, table=False,
-                       disc_vote=False, nv_balance=1.0, polish=8, ridge=0, analysis=True),
+                       disc_vote=False, nv_balance=1.0, polish=8, ridge=0, analysis=True,
+                       directions=PRESET_DIRECTIONS, polish_trial=2),
     "best": Preset(lookups=16, grid_count=600_000, validation=80_000, line_ratio=4, table=True, disc_vote=True,
-                   nv_balance=0.0, polish=8, ridge=20_000, analysis=True),
+                   nv_balance=0.0, polish=8, ridge=20_000, analysis=True, directions=PRESET_DIRECTIONS),
 }
 
 #: The lookup budget of ``target_error`` with sum keys but no ``max_lookups``.
@@ -108,6 +122,7 @@ class Plan:
     candidates: tuple[Structure, ...]
     linear: LinearOptions | None
     polish: int  # steps of the kept structure's polish (0: none, or every candidate polished by linear.polish)
+    polish_trial: int  # steps of the short polish that decides whether the polish runs (0: it runs)
     ridge: int
     line_sizes: tuple[int, ...]
     disc_vote: bool
@@ -123,7 +138,8 @@ class Plan:
                 "light_resolution": self.light_resolution, "max_lookups": self.max_lookups,
                 "candidates": [{"label": c.label(), "structure": c.record()} for c in self.candidates],
                 "linear": None if self.linear is None else self.linear.model_dump(),
-                "polish": self.polish, "ridge": self.ridge, "line_sizes": list(self.line_sizes),
+                "polish": self.polish, "polish_trial": self.polish_trial, "ridge": self.ridge,
+                "line_sizes": list(self.line_sizes),
                 "disc_vote": self.disc_vote, "analysis": self.analysis,
                 "votes": [dataclasses.asdict(v) for v in self.votes]}
 
@@ -149,7 +165,9 @@ class Plan:
                          f"nv_balance {lin.nv_balance:g}")
             if self.polish:
                 lines.append(f"  polish: {self.polish} Levenberg-Marquardt steps"
-                             + (f", {self.ridge} ridge pairs" if self.ridge else ""))
+                             + (f", {self.ridge} ridge pairs" if self.ridge else "")
+                             + (f"; runs where a {self.polish_trial}-step trial lowers the validation figure"
+                                if self.polish_trial else ""))
         if len(self.line_sizes) > 1 or self.mode in ("sum", "choose"):
             lines.append("  line textures: " + " or ".join(str(n) for n in self.line_sizes) + " texels")
         if self.analysis:
@@ -283,11 +301,12 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
         als_fit = lin.method in ("auto", "als") and (kind == "grid" or samples_given is not None)
         steps = 0 if given.polish is not None or target.kind != "lighting" or not als_fit else p.polish
         ridge = given.ridge if given.ridge is not None else (p.ridge if lit and steps else 0)
+        trial = p.polish_trial if steps and not ridge and p.polish_trial < steps else 0
         if given.polish is not None and ridge and not lin.polish:
             raise HomofacError(RIDGE_NEEDS_POLISH)
     else:
         lin = given.resolved() if opts.is_sum else None
-        steps, ridge = 0, 0
+        steps, ridge, trial = 0, 0, 0
         if lin is not None and lin.ridge and not lin.polish:
             raise HomofacError(RIDGE_NEEDS_POLISH)
     if lin is not None and lin.nv_balance and target.kind != "lighting":
@@ -303,10 +322,11 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
         pick = structures.ladder if opts.target_error is not None else structures.candidates
         found = constrained(pick(target.kind, budget, parametrization=base, has_diffuse=has_d, highlight=lit,
                                   table=table), opts)
+        grid = opts.sampling.model_copy(update={"kind": "grid"})
         if samples_given is not None:
-            found = [c for c in found if grid_projection(target.kind, c.parametrization,
-                                                         opts.sampling.model_copy(update={"kind": "grid"}))
-                     == samples_given] or found
+            found = [c for c in found if grid_projection(target.kind, c.parametrization, grid) == samples_given] or found
+        elif p is not None and p.directions and target.kind == "lighting":
+            found = [c for c in found if grid_projection(target.kind, c.parametrization, grid) in p.directions] or found
         cands = tuple(found)
     sizes = line_sizes(opts) if opts.is_sum else ()
     disc = bool(choosing and p is not None and p.disc_vote and hl.disc is None
@@ -323,7 +343,8 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
         if steps:
             stages = ("ALS fit", "polish") + (("polish + ridge pairs", "polish + ridge pairs from the ALS fit")
                                               if ridge else ())
-            votes.append(Vote("polish", stages, figure + "; the polish is kept only where it falls"))
+            votes.append(Vote("polish", stages, figure + "; the polish is kept only where it falls"
+                              + (f" (it runs where {trial} steps lower it)" if trial else "")))
     env = getattr(target.fn, "env", None)
     res = (getattr(env, "info", None) or {}).get("resolution") if env is not None else None
     advanced = opts.advanced.model_copy(update={"linear": lin if opts.is_sum else opts.advanced.linear})
@@ -332,7 +353,8 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
     return Plan(mode=mode, preset=name, parametrization=base, mapper=mapper, texture_size=int(opts.texture_size),
                 sampling=kind, grid_count=grid_count(opts), validation=validation_count(opts),
                 light_resolution=int(res) if res else None, max_lookups=budget if choosing else None,
-                candidates=cands, linear=lin, polish=int(steps or 0), ridge=int(ridge or 0), line_sizes=sizes,
+                candidates=cands, linear=lin, polish=int(steps or 0), polish_trial=int(trial), ridge=int(ridge or 0),
+                line_sizes=sizes,
                 disc_vote=disc, analysis=bool(choosing and target.kind == "lighting"
                                               and (p.analysis if p else True) or opts.advanced.analysis is not None),
                 votes=tuple(votes), options=resolved)
@@ -343,5 +365,5 @@ def dumps(plan: Plan) -> str:
     return json.dumps(plan.to_dict(), indent=2)
 
 
-__all__ = ["constrained", "DEFAULT_MAX_LOOKUPS", "PRESETS", "Plan", "Preset", "RIDGE_NEEDS_POLISH", "Vote", "budget_of",
+__all__ = ["constrained", "DEFAULT_MAX_LOOKUPS", "PRESET_DIRECTIONS", "PRESETS", "Plan", "Preset", "RIDGE_NEEDS_POLISH", "Vote", "budget_of",
            "build_plan", "dumps", "grid_count", "line_sizes", "preset_of", "validation_count"]

@@ -417,6 +417,7 @@ def refit(fac: Result, environment: Environment | None = None, brdf: BRDF | None
         raise HomofacError("refit: the result has no refit state (a factorization of this process has one; "
                            "for one read from disk use hf.fit.prepare_refit(fac))")
     programs.bound_compiled_programs()
+    programs.enable_compilation_cache()
     t_start = time.perf_counter()
     tgt = new_target(fac, environment, brdf, target)
     if solve not in ("auto", "lsmr"):

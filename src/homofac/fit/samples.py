@@ -18,6 +18,7 @@ from jaxtyping import Array, Float
 
 from ..errors import HomofacError
 from ..target import Target, evaluate
+from .sampling import Grouped
 from .shard import grouped_sharded
 
 #: Array names of a sample set, in order (also the keys of samples.npz and of cache entries).
@@ -58,16 +59,68 @@ def evaluate_grouped(target: Target, grouped) -> Float[Array, "M 3"]:
     if grouped.mask.size == 0 or not grouped.mask.any():
         return jnp.zeros((0, 3))
     if hasattr(target.fn, "grouped"):
+        grouped = packed(grouped)
         normals, views = jnp.asarray(grouped.normals), jnp.asarray(grouped.views)
         if getattr(target.fn, "culls_lobes", False):
             return _culled(target.fn, normals, views)[jnp.asarray(grouped.mask)]
         if jax.device_count() > 1:
             out = grouped_sharded(target.fn, normals, views)
         else:
-            out = _eval_groups(target.fn, normals, views)
+            out = _blocks(target.fn, normals, views)
         return out[jnp.asarray(grouped.mask)]
     pairs = grouped.flatten()
     return evaluate(target, pairs.a, pairs.b)
+
+
+#: Rows (normals) per call of the compiled grouped lighting (:func:`_blocks`).
+BLOCK_ROWS = 256
+
+
+def _blocks(fn, normals, views):
+    """``fn.grouped`` over blocks of :data:`BLOCK_ROWS` rows (the last padded with copies of the first
+    row), so that one compiled program of shape (BLOCK_ROWS, W) serves every sample set of row width W
+    (the training grids of both directions, the polish pairs, ...), whatever its number of rows."""
+    g = int(normals.shape[0])
+    pad = (-g) % BLOCK_ROWS
+    if pad:
+        normals = jnp.concatenate([normals, jnp.broadcast_to(normals[:1], (pad, 3))])
+        views = jnp.concatenate([views, jnp.broadcast_to(views[:1], (pad,) + views.shape[1:])])
+    out = [_eval_groups(fn, normals[i:i + BLOCK_ROWS], views[i:i + BLOCK_ROWS])
+           for i in range(0, g + pad, BLOCK_ROWS)]
+    return jnp.concatenate(out)[:g]
+
+
+#: The per-normal work of the grouped lighting (the texel weights of every light, the local frame) in
+#: views' worth of work: what one more row of :func:`packed` costs beside its views.
+ROW_COST = 16
+
+
+def packed(grouped: Grouped) -> Grouped:
+    """The same valid pairs in the same flattened order, regrouped into rows of at most W views (a
+    normal with more views gets several rows), W the power of 2 from 8 that minimises the work
+    ``rows x (W + ROW_COST)``. The grid design's groups hold 1 to about 2.2x the mean count of views, so
+    padding every normal to the largest evaluated the BRDF at 2.2 slots per pair (0.45 of them valid);
+    the values are those of the unpacked groups (each pair is computed alike)."""
+    mask = np.asarray(grouped.mask)
+    counts = mask.sum(axis=1)
+    if counts.size == 0 or counts.max() <= 8:
+        return grouped
+    widths = 8 * 2 ** np.arange(int(np.ceil(np.log2(max(counts.max() / 8, 1)))) + 1)  # 8, 16, ...: few programs
+    rows = -(-counts[None, :] // widths[:, None])  # (widths, G)
+    width = int(widths[np.argmin(rows.sum(axis=1) * (widths + ROW_COST))])
+    if width >= mask.shape[1]:
+        return grouped
+    per = -(-counts // width)
+    first_row = np.concatenate([[0], np.cumsum(per)[:-1]])
+    group = np.repeat(np.arange(len(counts)), counts)  # group of each valid pair, flattened order
+    rank = np.arange(int(counts.sum())) - np.repeat(np.cumsum(counts) - counts, counts)
+    row, col = first_row[group] + rank // width, rank % width
+    normals = np.repeat(np.asarray(grouped.normals), per, axis=0)
+    views = np.broadcast_to(normals[:, None, :], (len(normals), width, 3)).copy()  # padding v = n (valid, unread)
+    views[row, col] = np.asarray(grouped.views)[mask]
+    out = np.zeros((len(normals), width), bool)
+    out[row, col] = True
+    return Grouped(normals, views, out)
 
 
 @eqx.filter_jit
@@ -88,4 +141,4 @@ def _culled(fn, normals, views):
 
 
 
-__all__ = ["FIELDS", "Samples", "check_values", "evaluate", "evaluate_grouped"]
+__all__ = ["FIELDS", "ROW_COST", "Samples", "check_values", "evaluate", "evaluate_grouped", "packed"]

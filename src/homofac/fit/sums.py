@@ -99,7 +99,8 @@ def _fixed_texture(spec: TextureSpec, target: Target) -> np.ndarray:
     if spec.role in ("diffuse", "diffuse_fitted"):
         if not isinstance(target.fn, Lighting) or target.fn.clamp is not None:
             raise HomofacError("diffuse: the irradiance term needs an unclamped lighting target")
-        return irradiance_map(target.fn.env, spec.mapper, spec.size).astype(np.float32)
+        return _memo(target.fn.env, ("E", spec.mapper, spec.size),
+                     lambda: irradiance_map(target.fn.env, spec.mapper, spec.size).astype(np.float32))
     if spec.role in ("prefiltered", "dfg"):
         return _split_sum_textures(target, spec)
     if spec.role == "cos":
@@ -114,12 +115,33 @@ def _split_sum_textures(target: Target, spec: TextureSpec) -> np.ndarray:
     brdf, env = target.fn.brdf, target.fn.env
     if spec.role == "prefiltered":
         d = centres(spec.mapper, spec.size)
-        p = ss.prefilter(MODELS[brdf.model].microfacet.ndf, brdf.params, env, d)
+        p = _memo(target.fn, ("P", spec.mapper, spec.size),
+                  lambda: ss.prefilter(MODELS[brdf.model].microfacet.ndf, brdf.params, env, d))
         return p.reshape(mappers.texture_shape(spec.mapper, spec.size) + (3,)).astype(np.float32)
     x = (np.arange(spec.size) + 0.5) / spec.size
     a, b = ss.dfg(brdf, x)
     ks, f0 = np.asarray(brdf.params["ks"], np.float64), np.asarray(brdf.params["f0"], np.float64)
     return (ks * (f0 * a + b)).reshape(1, spec.size, 3).astype(np.float32)
+
+
+#: Computed textures of the last few lightings (:func:`_memo`): the candidates of a chooser share them.
+_MEMO: dict = {}
+MEMO_ENTRIES = 16
+
+
+def _memo(owner, key: tuple, compute: Callable[[], np.ndarray]) -> np.ndarray:
+    """``compute()`` (a texture computed from ``owner``: the irradiance of an environment, the split sum's
+    prefiltered map of a lighting), once per owner object and ``key`` while it is among the last
+    :data:`MEMO_ENTRIES` computed; the entry holds ``owner`` so that its id is not reused meanwhile."""
+    k = (id(owner),) + key
+    hit = _MEMO.get(k)
+    if hit is not None and hit[0] is owner:
+        return hit[1]
+    value = np.asarray(compute())
+    while len(_MEMO) >= MEMO_ENTRIES:
+        _MEMO.pop(next(iter(_MEMO)))
+    _MEMO[k] = (owner, value)
+    return value
 
 
 def _fixed_correction(target: Target, term: TermSpec) -> np.ndarray:
@@ -175,7 +197,8 @@ def _split_sum_start(target, first: TermSpec, layouts, sigma) -> dict:
         if proj == "nv":
             out[name] = np.stack([np.interp(_directions(lay), x, w_line[:, c]) for c in range(3)], -1)
         elif proj == "r":
-            p = ss.prefilter(micro.ndf, brdf.params, env, _directions(lay).astype(np.float32))
+            p = _memo(target.fn, ("P", lay.mapper, lay.size, lay.n_valid), lambda: ss.prefilter(
+                micro.ndf, brdf.params, env, _directions(lay).astype(np.float32)))
             out[name] = p * (1.0 if has_w else np.mean(w_line, axis=0)) / sigma
         else:
             out[name] = np.ones((lay.n_valid, 3))
