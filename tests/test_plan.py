@@ -269,7 +269,7 @@ def test_the_presets_try_the_candidates_of_their_grid_directions_and_trial_the_p
         assert dirs <= set(p.directions or dirs)
         assert got.polish_trial == (p.polish_trial if got.polish and not got.ridge else 0)
         assert ("trial" in str(got)) == bool(got.polish_trial)
-    assert plan.build_plan(t, "fast", {"linear": {"polish": 4}}).polish_trial == 0  # every candidate polished
+    assert plan.build_plan(t, "fast", {"advanced": {"linear": {"polish": 4}}}).polish_trial == 0  # every candidate polished
     given_r = plan.build_plan(t, "fast", samples_given="r")
     assert {hf.fit.draw.grid_projection("lighting", c.parametrization, grid) for c in given_r.candidates} == {"r"}
 
