@@ -352,3 +352,20 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
     cpu = np.concatenate([np.asarray(b.terms(n, v, rho)), np.asarray(b.evaluate(n, v, c, m, rho))[:, None]], axis=1)
     tol = 1e-4 if f32 else 2e-3
     assert np.abs(gpu - cpu).max() <= tol * np.abs(cpu).max()
+
+
+def test_sharp_layers_share_one_block_and_round_trip(forest_bake):
+    """Layers whose lobe is at most half a texel of the largest block share it (packed once, one offset in
+    bake.json); the offsets read back give the same sharing; a layer may share only an earlier block of its size."""
+    from homofac.bake.atlas import blocks_of, pack
+    from homofac.bake.build import layer_size, sharp
+    b = forest_bake
+    assert b.blocks == tuple(0 if sharp(r, 8) else j for j, r in enumerate(b.roughness)) == (0, 0, 2)
+    a = b.atlas
+    assert a.offsets[0] == a.offsets[1] != a.offsets[2] and a.width * a.height == 2 * 6 * 8 * 8
+    assert blocks_of(a.offsets, a.sizes) == b.blocks
+    assert [layer_size(r, 64) for r in (0.045, 0.25, 0.5, 1.0)] == [64, 64, 16, 8]
+    with pytest.raises(ValueError):
+        pack([16, 8], [0, 0])  # different sizes
+    with pytest.raises(ValueError):
+        pack([8, 8, 8], [0, 2, 2])  # a later block

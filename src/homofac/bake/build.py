@@ -131,10 +131,11 @@ def layer_size(rho: float, max_size: int) -> int:
 
 
 def sharp(rho: float, max_size: int) -> bool:
-    """True when the layer's lobe (width alpha = rho^2) lies within one texel of the largest map: its filtered
-    map is then the environment at that map's detail whatever the kernel, so all such layers share one block
-    (only their weights, the lobes' albedos, differ)."""
-    return (math.pi / 2) / (rho * rho) >= max_size
+    """True when the layer's lobe (width alpha = rho^2) is at most half a texel of the largest map: the bilinear
+    read's own blur (a texel) then dominates its filtered map whatever the kernel, so all such layers share
+    one block (only their weights, the lobes' albedos, differ). (A lobe up to a whole texel measured worse: the
+    three.js test's sphere read 0.075 nrmse against 0.032 with each layer's own map at max_size 32.)"""
+    return math.pi / (rho * rho) >= 4 * max_size
 
 
 def compress(kernels: np.ndarray, tolerance: float = 1e-2) -> tuple[np.ndarray, np.ndarray]:
