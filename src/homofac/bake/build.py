@@ -175,8 +175,9 @@ def layer_fit(kernels: np.ndarray, size: int, env: Environment, rank: int, data_
     else:
         basis, coef = compress(kernels)
         d = min(size, data_size)
-        num, den = prefilter_cube(np.concatenate([basis, ref]), d, env, kn.support(kernels, SUPPORT))
-        yb = normalized(num[:, :-1], den[:, -1], kn.mass(ref)[0])  # (T, J', 3)
+        pad = np.zeros(((-len(basis) - 1) % 8, basis.shape[1]))  # table counts in steps of 8: fewer XLA compilations
+        num, den = prefilter_cube(np.concatenate([basis, pad, ref]), d, env, kn.support(kernels, SUPPORT))
+        yb = normalized(num[:, :len(basis)], den[:, -1], kn.mass(ref)[0])  # (T, J', 3)
         w = mappers.texel_solid_angles("cube", d).reshape(-1)
         mix = np.kron(np.asarray(MATERIALS, np.float64) / np.sqrt(len(MATERIALS)), np.eye(len(kernels) // 2))
         gram = mix @ coef @ np.einsum("t,tic,tjc->ij", w, yb, yb) @ coef.T @ mix.T
