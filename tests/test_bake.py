@@ -116,11 +116,12 @@ def test_bake_is_closer_to_the_integrals_than_split_sum_at_its_layers():
     """At a layer's roughness, the fitted P W is never worse than split-sum (exact prefilter, exact DFG) on I_A
     (Eckart-Young on the azimuth-averaged data; measured on random pairs against the exact integrals)."""
     env = hf.light.load_environment("forest", 8)
-    b = hf.bake(env, preset="fast", layers=3, nv_size=16, samples=256, data_resolution=8, max_size=8, diffuse_size=8)
+    b = hf.bake(env, preset="fast", layers=4, nv_size=16, samples=256, data_resolution=8, max_size=16, diffuse_size=8)
     n, v = pairs(400, seed=7)
     x = np.sum(n * v, 1)
     r = 2 * x[:, None] * n - v
-    rho = b.roughness[1]
+    rho = b.roughness[2]  # 0.356: its own block (the sharp layers share one, read at the block's detail)
+    assert b.blocks[2] == 2
     ref = np.asarray(integrals(env, jnp.asarray(n, jnp.float32), jnp.asarray(v, jnp.float32), rho))
     got = np.asarray(b.terms(n, v, rho))
     q = kn.q_grid()
@@ -141,7 +142,8 @@ def test_save_load_round_trip(forest_bake, tmp_path):
     doc = json.loads((out / "bake.json").read_text())
     assert doc["format"] == "homofac.bake" and doc["lookups"] == 7
     assert sorted(p.name for p in out.iterdir()) == ["E0.exr", "P0.exr", "P1.exr", "W0.exr", "W1.exr", "bake.json",
-                                                     "sh.txt", "sh9.json", "shader.glsl", "shader.hlsl", "shader_es.glsl"]
+                                                     "sh.txt", "sh9.json", "shader.glsl", "shader.hlsl", "shader.metal", "shader.wgsl",
+                                                     "shader_es.glsl"]
     sh = json.loads((out / "sh9.json").read_text())["irradiance"]  # pinned: 9 RGB coefficients
     assert np.shape(sh) == (9, 3) and np.all(np.isfinite(sh)) and sh[0][0] > 0
     assert (out / "shader.glsl").read_text() == shader.source(b, "glsl")
@@ -200,8 +202,8 @@ def test_shader_compiles_with_glslang(forest_bake, language, tmp_path):
         if language == "hlsl" and shutil.which("spirv-val"):
             r = subprocess.run(["spirv-val", str(tmp_path / "bake.spv")], capture_output=True, text=True, timeout=120)
             assert r.returncode == 0, r.stdout + r.stderr
-    with pytest.raises(HomofacError, match="wgsl"):
-        shader.source(forest_bake, "wgsl")
+    with pytest.raises(HomofacError, match="cg"):
+        shader.source(forest_bake, "cg")
 
 
 def test_gpu_equals_cpu(forest_bake):
@@ -257,3 +259,113 @@ def test_a_crafted_bake_json_is_refused_in_one_line(forest_bake, tmp_path, path,
     with pytest.raises(HomofacError) as e:
         hf.load(out)
     assert "\n" not in str(e.value)
+
+
+#: What the bake's MSL uses beyond the factorization's shim (tests/test_shaders.METAL_SHIM), with Metal's signatures.
+BAKE_SHIM = r"""
+namespace metal {
+inline float log(float a) { return std::log(a); }
+inline int min(int a, int b) { return a < b ? a : b; }
+inline float3 normalize(float3 a) { return a / std::sqrt(dot(a, a)); }
+inline float3 mix(float3 a, float3 b, float3 t) { return a + (b - a) * t; }
+inline float2 operator/(float2 a, float2 b) { return float2(a.x / b.x, a.y / b.y); }
+}  // namespace metal
+"""
+
+
+def test_msl_compiles_against_the_metal_shim(forest_bake, tmp_path):
+    """The bake's MSL as C++17 against the factorization tests' <metal_stdlib> stand-in (strict constructors,
+    no doubles) plus the few Metal functions it adds, with a fragment-like caller of both pinned functions."""
+    from test_shaders import CLANG_FLAGS, METAL_SHIM, run, tool
+    exe = tool("clang++")
+    shim = tmp_path / "shim"
+    shim.mkdir()
+    (shim / "metal_stdlib").write_text(METAL_SHIM.replace("}  // namespace metal\n", "}  // namespace metal\n" + BAKE_SHIM, 1))
+    for y_up in (False, True):
+        src = tmp_path / "bake.metal"
+        src.write_text(shader.source(forest_bake, "msl", y_up=y_up) +
+                       "float3 caller(float3 n, float3 v, thread const HomofacBakeTextures& hf) {\n"
+                       "    float3 d, a, s; homofac_ibl_terms(n, v, 0.3f, d, a, s, hf);\n"
+                       "    return homofac_ibl(n, v, float3(0.5f), 0.5f, 0.3f, hf) + d + a + s;\n}\n")
+        run([exe, *CLANG_FLAGS, "-fsyntax-only", "-I", shim, "-x", "c++", src])
+
+
+def test_wgsl_runs_on_wgpu_and_equals_cpu(forest_bake):
+    """naga validates the bake's WGSL, and a compute pass over it on wgpu (lavapipe) equals bake.terms / evaluate."""
+    wgpu = pytest.importorskip("wgpu")
+    import os
+    os.environ.setdefault("XDG_RUNTIME_DIR", "/tmp")
+    try:
+        adapter = wgpu.gpu.request_adapter_sync(power_preference="low-power")
+    except Exception as e:  # noqa: BLE001
+        pytest.skip(f"no WebGPU adapter: {e}")
+    f32 = "float32-filterable" in adapter.features
+    device = adapter.request_device_sync(required_features=["float32-filterable"] if f32 else [])
+    b = forest_bake
+    n, v = pairs(500, seed=10)
+    rho = np.linspace(0.03, 1.0, len(n))
+    rng = np.random.default_rng(11)
+    c, m = rng.uniform(size=(len(n), 3)), rng.uniform(size=len(n))
+    main = """
+@group(1) @binding(0) var<storage, read> hf_in: array<vec4<f32>>;
+@group(1) @binding(1) var<storage, read_write> hf_out: array<vec4<f32>>;
+@compute @workgroup_size(64)
+fn main(@builtin(global_invocation_id) id: vec3<u32>) {
+    let i = id.x;
+    if (i >= arrayLength(&hf_out) / 4u) { return; }
+    let n = hf_in[3u * i].xyz; let v = hf_in[3u * i + 1u].xyz; let c = hf_in[3u * i + 2u].xyz;
+    let rho = hf_in[3u * i].w; let m = hf_in[3u * i + 1u].w;
+    let o = homofac_ibl_terms(n, v, rho);
+    hf_out[4u * i] = vec4<f32>(o.I_d, 0.0); hf_out[4u * i + 1u] = vec4<f32>(o.I_A, 0.0);
+    hf_out[4u * i + 2u] = vec4<f32>(o.I_B, 0.0); hf_out[4u * i + 3u] = vec4<f32>(homofac_ibl(n, v, c, m, rho), 0.0);
+}
+"""
+    module = device.create_shader_module(code=shader.source(b, "wgsl") + main)
+    pipeline = device.create_compute_pipeline(layout="auto", compute={"module": module, "entry_point": "main"})
+    sampler = device.create_sampler(mag_filter="linear", min_filter="linear", address_mode_u="clamp-to-edge",
+                                    address_mode_v="clamp-to-edge")
+    entries = []
+    for k, (_, data) in enumerate(shader.texture_arrays(b)):
+        H, W = data.shape[:2]
+        rgba = np.concatenate([data, np.ones((H, W, 1), np.float32)], -1).astype(np.float32 if f32 else np.float16)
+        tex = device.create_texture(size=(W, H, 1), format="rgba32float" if f32 else "rgba16float",
+                                    usage=wgpu.TextureUsage.TEXTURE_BINDING | wgpu.TextureUsage.COPY_DST)
+        device.queue.write_texture({"texture": tex}, np.ascontiguousarray(rgba).tobytes(),
+                                   {"bytes_per_row": W * rgba.itemsize * 4, "rows_per_image": H}, (W, H, 1))
+        entries += [{"binding": 2 * k, "resource": tex.create_view()}, {"binding": 2 * k + 1, "resource": sampler}]
+    inp = np.zeros((len(n), 3, 4), np.float32)
+    inp[:, 0, :3], inp[:, 1, :3], inp[:, 2, :3], inp[:, 0, 3], inp[:, 1, 3] = n, v, c, rho, m
+    buf_in = device.create_buffer_with_data(data=inp.tobytes(), usage=wgpu.BufferUsage.STORAGE)
+    buf_out = device.create_buffer(size=len(n) * 64, usage=wgpu.BufferUsage.STORAGE | wgpu.BufferUsage.COPY_SRC)
+    groups = [device.create_bind_group(layout=pipeline.get_bind_group_layout(0), entries=entries),
+              device.create_bind_group(layout=pipeline.get_bind_group_layout(1), entries=[
+                  {"binding": 0, "resource": {"buffer": buf_in}}, {"binding": 1, "resource": {"buffer": buf_out}}])]
+    enc = device.create_command_encoder()
+    cp = enc.begin_compute_pass()
+    cp.set_pipeline(pipeline)
+    for i, g in enumerate(groups):
+        cp.set_bind_group(i, g)
+    cp.dispatch_workgroups(-(-len(n) // 64))
+    cp.end()
+    device.queue.submit([enc.finish()])
+    gpu = np.frombuffer(device.queue.read_buffer(buf_out), np.float32).reshape(len(n), 4, 4)[..., :3]
+    cpu = np.concatenate([np.asarray(b.terms(n, v, rho)), np.asarray(b.evaluate(n, v, c, m, rho))[:, None]], axis=1)
+    tol = 1e-4 if f32 else 2e-3
+    assert np.abs(gpu - cpu).max() <= tol * np.abs(cpu).max()
+
+
+def test_sharp_layers_share_one_block_and_round_trip(forest_bake):
+    """Layers whose lobe is at most half a texel of the largest block share it (packed once, one offset in
+    bake.json); the offsets read back give the same sharing; a layer may share only an earlier block of its size."""
+    from homofac.bake.atlas import blocks_of, pack
+    from homofac.bake.build import layer_size, sharp
+    b = forest_bake
+    assert b.blocks == tuple(0 if sharp(r, 8) else j for j, r in enumerate(b.roughness)) == (0, 0, 2)
+    a = b.atlas
+    assert a.offsets[0] == a.offsets[1] != a.offsets[2] and a.width * a.height == 2 * 6 * 8 * 8
+    assert blocks_of(a.offsets, a.sizes) == b.blocks
+    assert [layer_size(r, 64) for r in (0.045, 0.25, 0.5, 1.0)] == [64, 64, 16, 8]
+    with pytest.raises(ValueError):
+        pack([16, 8], [0, 0])  # different sizes
+    with pytest.raises(ValueError):
+        pack([8, 8, 8], [0, 2, 2])  # a later block

@@ -44,7 +44,7 @@ from .factorization import (Factor, Factorization, Quantized, Term, Texture, che
 from .bake import Bake, BakePlan
 from .bake import register_writer as register_bake_writer
 from .bake import shader as bake_shader
-from .bake.atlas import assemble, pack, split
+from .bake.atlas import assemble, blocks_of, pack, split
 from .fit.result import Result, register_writer
 from .io.exr import read_exr, write_exr
 from .io.files import one_line, read_bounded
@@ -75,7 +75,8 @@ BAKE_FORMAT = "homofac.bake"
 BAKE_SCHEMA = 1
 BAKE_JSON = "bake.json"
 #: The shader files of a bake directory (homofac_ibl, homofac_ibl_terms).
-BAKE_SHADERS = {"glsl": "shader.glsl", "glsl_es": "shader_es.glsl", "hlsl": "shader.hlsl"}
+BAKE_SHADERS = {"glsl": "shader.glsl", "glsl_es": "shader_es.glsl", "hlsl": "shader.hlsl", "msl": "shader.metal",
+                "wgsl": "shader.wgsl"}
 
 #: The environment's SH9 irradiance beside every bake: pinned ``sh9.json``, and Filament's ``sh.txt`` form.
 SH9_JSON = "sh9.json"
@@ -964,8 +965,13 @@ def load_bake(d, *, max_bytes: int = 1 << 28) -> Bake:
     pl = BakePlan(**doc.plan.model_dump())
     if len(doc.layers) != pl.layers or doc.lookups != pl.lookups:
         raise HomofacError(f"{f}: the layers or lookups do not match the plan")
-    atlas = pack(layer.size for layer in doc.layers)
-    if [tuple((layer.x, layer.y)) for layer in doc.layers] != list(atlas.offsets):
+    offsets, sizes = [(layer.x, layer.y) for layer in doc.layers], [layer.size for layer in doc.layers]
+    blocks = blocks_of(offsets, sizes)
+    try:
+        atlas = pack(sizes, blocks)
+    except ValueError as e:
+        raise HomofacError(f"{f}: layers: {e}") from None
+    if offsets != list(atlas.offsets):
         raise HomofacError(f"{f}: layer offsets do not match the atlas layout")
     by_kind = {k: [t for t in doc.textures if t.kind == k] for k in ("prefiltered", "diffuse", "weights")}
     sh9 = pl.diffuse_basis == "sh9"
@@ -992,7 +998,7 @@ def load_bake(d, *, max_bytes: int = 1 << 28) -> Bake:
     E = None if sh9 else np.stack([read(t, (s, 6 * s)) for t in by_kind["diffuse"]], axis=2)
     W = np.concatenate([read(t, (pl.layers, doc.nv_size)) for t in by_kind["weights"]], axis=-1)[:, :, :2 * pl.terms + pl.diffuse]
     return Bake(pl, tuple(layer.roughness for layer in doc.layers), tuple(layer.shift for layer in doc.layers), P, E, W,
-                dict(raw.get("info") or {}), None if sh is None else sh.astype(np.float32))
+                dict(raw.get("info") or {}), sh=None if sh is None else sh.astype(np.float32), blocks=blocks)
 
 
 register_bake_writer(save_bake)

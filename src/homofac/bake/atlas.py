@@ -23,18 +23,31 @@ class Atlas(NamedTuple):
     sizes: tuple[int, ...]
 
 
-def pack(sizes) -> Atlas:
-    """Shelf packing of blocks (S_j, 6 S_j), sizes non-increasing."""
+def pack(sizes, blocks=None) -> Atlas:
+    """Shelf packing of blocks (S_j, 6 S_j), sizes non-increasing. ``blocks[j]`` (optional): the layer whose
+    block layer j shares (``blocks[j] <= j``, same size; a layer that shares is not packed again)."""
     sizes = tuple(int(s) for s in sizes)
+    blocks = tuple(range(len(sizes))) if blocks is None else tuple(int(b) for b in blocks)
+    if len(blocks) != len(sizes) or any(not 0 <= b <= j or sizes[b] != sizes[j] or blocks[b] != b for j, b in enumerate(blocks)):
+        raise ValueError("each layer shares the block of an earlier layer of its size that has its own block")
     width = 6 * max(sizes)
     offsets, x, y, shelf = [], 0, 0, 0
-    for s in sizes:
+    for j, s in enumerate(sizes):
+        if blocks[j] != j:
+            offsets.append(offsets[blocks[j]])
+            continue
         if x + 6 * s > width:
             x, y, shelf = 0, y + shelf, 0
         offsets.append((x, y))
         shelf = max(shelf, s)
         x += 6 * s
     return Atlas(width, y + shelf, tuple(offsets), sizes)
+
+
+def blocks_of(offsets, sizes) -> tuple[int, ...]:
+    """The ``blocks`` of :func:`pack` read back from layer offsets: a layer at an earlier layer's offset shares it."""
+    first: dict = {}
+    return tuple(first.setdefault((tuple(o), int(s)), j) for j, (o, s) in enumerate(zip(offsets, sizes)))
 
 
 def assemble(atlas: Atlas, layers, channels: int) -> np.ndarray:
@@ -50,4 +63,4 @@ def split(atlas: Atlas, image: np.ndarray) -> list[np.ndarray]:
     return [np.asarray(image[y0:y0 + s, x0:x0 + 6 * s]) for (x0, y0), s in zip(atlas.offsets, atlas.sizes)]
 
 
-__all__ = ["Atlas", "assemble", "pack", "split"]
+__all__ = ["Atlas", "assemble", "blocks_of", "pack", "split"]

@@ -1,17 +1,21 @@
-"""Computing a bake: per roughness layer, the weights by a truncated SVD of the azimuth-averaged integrals,
-the maps by filtering the environment with the kernels those weights combine.
+"""Computing a bake: per roughness layer, the weights by a truncated SVD of the azimuth-averaged integrals
+at the texels of the layer's own map, the maps by filtering the environment with the kernels those weights
+combine, with the same lights and the same kernels.
 
 For layer j (roughness rho_j) and view cosines x_i (the weight tables' column centres), the data are
-Y[m, (i, lobe)] = the azimuth-averaged I_A, I_B about M axes a_m (a = normalize((1 - s) r + s n), s per
-layer, :func:`shift_candidates`) (:mod:`.kernels`: the isotropic
-filters K^A_x, K^B_x of the environment). The best K-term P_k(r) (a_k(x), b_k(x)) in least squares over
-those data is the truncated SVD Y ~ U S V^T (Eckart-Young): (a_k, b_k) = V_k and P_k = Y V_k, which is the
-filter of the environment by the combined kernel kappa_k = sum_i V[(i, A), k] K^A_xi + V[(i, B), k] K^B_xi,
-evaluated at every texel of layer j's map. Split-sum's P(r) (A(x), B(x)) is one such product, so on these
-data K = 1 is never worse than it. The diffuse part is the same with the axis n (rank D).
+Y[t, (i, lobe)] = the azimuth-averaged I_A, I_B about the axis a = normalize((1 - s) r + s n) at the texel
+centres t of a cube (:mod:`.kernels`: the isotropic filters K^A_x, K^B_x of the environment; s per layer,
+:func:`shift_candidates`). The best K-term P_k(r) (a_k(x), b_k(x)) in least squares over those data (the
+sphere's measure: texels weighted by their solid angle) is the truncated SVD Y ~ U S V^T (Eckart-Young):
+(a_k, b_k) = V_k and P_k = Y V_k, the filter of the environment by the combined kernel
+kappa_k = sum_i V[(i, A), k] K^A_xi + V[(i, B), k] K^B_xi, evaluated at every texel of layer j's map with the
+lights and the kernel smoothing of the data (:func:`layer_fit`): the map is what the weights were fitted to,
+so a later term cannot meet a sharper version of a bright source than the one its weights saw. Split-sum's
+P(r) (A(x), B(x)) is one such product, so on these data K = 1 is never worse than it. The diffuse part is
+the same with the axis n (rank D), on Fibonacci directions.
 Successive layers' V are aligned by an orthogonal Procrustes rotation (the products are unchanged), so
-blending two layers blends like terms. Layer face sizes follow the lobe width alpha = rho^2
-(texel angle <= alpha, at most the source's detail), lights at the same resolution.
+blending two layers blends like terms. Layer face sizes follow the lobe width alpha = rho^2 (:func:`layer_size`);
+the layers whose lobe is at most half a texel of the largest map share one block (:func:`sharp`).
 """
 
 from __future__ import annotations
@@ -46,6 +50,17 @@ SUPPORT = 0.99
 
 #: Smallest P face size.
 MIN_SIZE = 8
+
+#: Largest cube face size at whose texel centres a layer's weights are fitted.
+DATA_SIZE = 32
+
+#: (weight of I_A, weight of I_B) in the specular radiance of the materials whose error the layers' fit
+#: minimizes: a white metal (f0 = 1) and a dielectric (f0 = 0.04). I_B is ~10x smaller than I_A but carries a
+#: dielectric's reflection (measured: no change against fitting (I_A, I_B) as they are, studio 0.3-0.6).
+MATERIALS = ((1.0, 1.0), (0.04, 1.0))
+
+#: Smallest light resolution a layer's data and map are computed from.
+MIN_LIGHTS = 16
 
 
 def fibonacci(count: int) -> np.ndarray:
@@ -108,9 +123,78 @@ def texel_radius(env: Environment) -> float:
 
 
 def layer_size(rho: float, max_size: int) -> int:
-    """P face size of a layer: texel angle (pi/2)/S at most the lobe width alpha = rho^2, power of two."""
-    s = (math.pi / 2) / (rho * rho)
-    return int(min(max_size, max(MIN_SIZE, 2 ** int(math.ceil(math.log2(s))))))
+    """P face size of a layer: the power of two nearest (in log2) to pi / alpha, alpha = rho^2 the lobe width:
+    a texel angle (pi/2)/S of about alpha / 2, the sharpness of an engine's prefiltered mip chain at that
+    roughness (level rho (levels - 1): texel angle 0.35-0.6 alpha from roughness 0.3 up); in [MIN_SIZE, max_size]."""
+    s = math.pi / (rho * rho)
+    return int(min(max_size, max(MIN_SIZE, 2 ** int(round(math.log2(s))))))
+
+
+def sharp(rho: float, max_size: int) -> bool:
+    """True when the layer's lobe (width alpha = rho^2) is at most half a texel of the largest map: the bilinear
+    read's own blur (a texel) then dominates its filtered map whatever the kernel, so all such layers share
+    one block (only their weights, the lobes' albedos, differ). (A lobe up to a whole texel measured worse: the
+    three.js test's sphere read 0.075 nrmse against 0.032 with each layer's own map at max_size 32.)"""
+    return math.pi / (rho * rho) >= 4 * max_size
+
+
+def compress(kernels: np.ndarray, tolerance: float = 1e-2) -> tuple[np.ndarray, np.ndarray]:
+    """``(basis (J', G), coef (J, J'))`` with ``kernels ~ coef @ basis``: the truncated SVD of the kernel tables
+    (rows scaled to unit absolute mass), J' the smallest rank whose every row's absolute error (the sphere's
+    measure, :func:`~homofac.bake.kernels.mass` of |K - K'|) is within ``tolerance`` of its absolute mass.
+    The filter's cost grows with the tables it reads: 2X kernels of one roughness are a handful of shapes."""
+    scale = np.maximum(kn.mass(np.abs(kernels)), 1e-300)
+    kn_ = kernels / scale[:, None]
+    vals, u = np.linalg.eigh(kn_ @ kn_.T)  # the left singular vectors (a J x J problem, not J x G)
+    u = u[:, ::-1][:, vals[::-1] > vals.max() * 1e-14]
+    for rank in range(1, u.shape[1] + 1):
+        coef = u[:, :rank]
+        if np.max(kn.mass(np.abs(coef @ (coef.T @ kn_) - kn_))) <= tolerance:
+            break
+    return coef.T @ kn_, coef * scale[:, None]
+
+
+def layer_fit(kernels: np.ndarray, size: int, env: Environment, rank: int, data_size: int = 32,
+              masses: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """``(V (J, rank), weights (J, rank), P (6 size^2, rank, 3), energy)`` of one layer.
+
+    The data Y[t, j]: the environment ``env`` filtered by kernel j at the texel centres t of a cube of face
+    min(size, data_size), normalized per texel by the positive reference kernel sum_j K_j (Karis' normalized
+    prefilter). The error is measured on the specular radiance of the materials :data:`MATERIALS` (Z = Y R^T,
+    R mixing each n.v's I_A and I_B columns): V is the truncated SVD of Z weighted by the texels' solid angles
+    (Eckart-Young in the sphere's L2 norm; computed on :func:`compress`'s basis kernels, Y = Y_b coef^T), the
+    weights of I_A, I_B are R^-1 V; P: the environment filtered by the combined kernels (R^T V)^T K at every
+    texel of the map, with the same lights and the same kernels as the data, so the map is what the weights
+    were fitted to (a mostly positive term normalized by its own discrete mass, a signed one by the
+    reference's). ``masses`` given: V is their direction (rank 1, no data: the kernels of a layer whose lobe
+    is at most half a texel differ only in mass)."""
+    ref = kernels.sum(0, keepdims=True)
+    if masses is not None:
+        v = weights = (masses / np.linalg.norm(masses))[:, None]
+        coef_v, energy = v, 0.0
+    else:
+        basis, coef = compress(kernels)
+        d = min(size, data_size)
+        pad = np.zeros(((-len(basis) - 1) % 8, basis.shape[1]))  # table counts in steps of 8: fewer XLA compilations
+        num, den = prefilter_cube(np.concatenate([basis, pad, ref]), d, env, kn.support(kernels, SUPPORT))
+        yb = normalized(num[:, :len(basis)], den[:, -1], kn.mass(ref)[0])  # (T, J', 3)
+        w = mappers.texel_solid_angles("cube", d).reshape(-1)
+        mix = np.kron(np.asarray(MATERIALS, np.float64) / np.sqrt(len(MATERIALS)), np.eye(len(kernels) // 2))
+        gram = mix @ coef @ np.einsum("t,tic,tjc->ij", w, yb, yb) @ coef.T @ mix.T
+        vals, vecs = np.linalg.eigh(0.5 * (gram + gram.T))
+        v, energy = vecs[:, ::-1][:, :rank], float(np.sum(vals[::-1][:rank]))
+        weights = np.linalg.solve(mix, v)
+        if np.sum(weights[:, 0]) < 0:
+            v[:, 0], weights[:, 0] = -v[:, 0], -weights[:, 0]
+        coef_v = mix.T @ v
+    kp = np.concatenate([coef_v.T @ kernels, ref])
+    num, den = prefilter_cube(kp, size, env, kn.support(kp, SUPPORT))
+    # a term whose kernel is mostly positive is normalized by its own discrete mass (a constant environment then
+    # reads its mass exactly); a signed one (mass ~ 0) by the reference kernel's
+    mass, absolute = kn.mass(kp), kn.mass(np.abs(kp))
+    own = np.abs(mass[:-1]) > 0.5 * absolute[:-1]
+    den = np.where(own[None], den[:, :-1], den[:, -1:] * (mass[:-1] / mass[-1])[None])
+    return v, weights, normalized(num[:, :-1], den, mass[:-1]), energy
 
 
 def _svd(y: np.ndarray, rank: int) -> tuple[np.ndarray, float]:
@@ -135,11 +219,13 @@ def shift_candidates(rho: float) -> tuple[float, ...]:
 
 
 def _align(v: np.ndarray, previous: np.ndarray | None) -> np.ndarray:
-    """``v`` rotated (orthogonal Procrustes) to be closest to the previous layer's ``previous``."""
+    """The orthogonal rotation R (K, K) that brings ``v`` closest to the previous layer's ``previous``
+    (orthogonal Procrustes); the weights and maps rotated alike leave the products unchanged, and blending two
+    layers then blends like terms."""
     if previous is None or v.shape[1] == 1:
-        return v
+        return np.eye(v.shape[1])
     a, _, bt = np.linalg.svd(v.T @ previous)
-    return v @ (a @ bt)
+    return a @ bt
 
 
 def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Bake:
@@ -173,49 +259,52 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
 
     # specular layers
     roughness = pl.roughnesses()
-    P, W, previous = [], [], None
+    sizes = [layer_size(rho, max_size) for rho in roughness]
+    shared = [sharp(rho, max_size) for rho in roughness]
+    P, W, shifts, previous = [None] * pl.layers, [None] * pl.layers, [0.0] * pl.layers, None
     timings["kernels_s"] = timings["weights_s"] = timings["maps_s"] = 0.0
-    sizes = []
-    shifts = []
-    for rho in roughness:
-        ks, v, shift, captured = None, None, 0.0, -1.0
+    # the sharp layers (lobe at most half a texel of the largest map) share one block, computed at the sharpest
+    # (the environment at the block's detail, as a mip chain's level 0)
+    order = ([0] if shared[0] else []) + [j for j in range(pl.layers) if not shared[j]]
+    for j in order:
+        rho, s = roughness[j], sizes[j]
+        env_j = lights(max(s, MIN_LIGHTS))
         t = time.perf_counter()
         exact = kn.albedos(rho, x)
         timings["kernels_s"] += time.perf_counter() - t
-        for cand in shift_candidates(rho):
+        best = None
+        for cand in (0.0,) if shared[j] else shift_candidates(rho):
             t = time.perf_counter()
             k_c = kn.calibrate(kn.specular_kernels(rho, x, shift=cand), exact).reshape(2 * len(x), -1)  # rows (A, x..), (B, x..)
             timings["kernels_s"] += time.perf_counter() - t
             t = time.perf_counter()
-            k_s = kn.smooth(k_c, texel_radius(data_env))
-            y = normalized(*prefilter(k_s, dirs, data_env), kn.mass(k_s))  # (M, 2X, 3)
-            v_c, energy = _svd(y, pl.terms)
-            timings["weights_s"] += time.perf_counter() - t
-            if energy > captured:
-                ks, v, shift, captured = k_c, v_c, cand, energy
-        v = _align(v, previous)
-        previous = v
-        shifts.append(float(shift))
+            fit = layer_fit(kn.smooth(k_c, texel_radius(env_j)), s, env_j, pl.terms, DATA_SIZE,
+                            np.concatenate([exact[0], exact[1]]) if shared[j] else None)
+            timings["maps_s"] += time.perf_counter() - t
+            if best is None or fit[3] > best[2][3]:
+                best = (cand, k_c, fit)
+        shift, _, (v, wt, p, _) = best
         t = time.perf_counter()
-        s = layer_size(rho, max_size)
-        env_j = lights(s)
-        # the maps' kernels and, last, a positive reference (the A lobe summed over n.v) whose discrete mass
-        # against its exact mass corrects every map's quadrature (a rotated term's kernel may have ~0 mass)
-        # Terms after the first are smoothed as their data were (the data's light texel): the SVD never saw
-        # their finer detail, and a signed kernel's sharp core that the data's texels averaged out would
-        # otherwise come back at full strength on a bright small source (city's sun: P_2 10x P_1).
-        kk = v.T @ ks
-        fine = kn.smooth(np.concatenate([kk[:1], ks[: len(x)].sum(0, keepdims=True)]), texel_radius(env_j))
-        coarse = kn.smooth(kk[1:], max(texel_radius(env_j), texel_radius(data_env)))
-        kp = np.concatenate([fine[:1], coarse, fine[1:]])
-        p, den = prefilter_cube(kp, s, env_j, kn.support(kp, SUPPORT))
-        p = normalized(p[:, :-1], den[:, -1], kn.mass(kp)[-1])
-        P.append(p.reshape(s, 6 * s, pl.terms, 3).astype(np.float32))
-        sizes.append(s)
-        timings["maps_s"] += time.perf_counter() - t
-        # table channels of this layer: a_k = V[x, k] (A rows), b_k = V[X + x, k]
-        a, b = v[: len(x)], v[len(x):]
-        W.append(np.stack([a, b], axis=-1).reshape(len(x), 2 * pl.terms))
+        rot = _align(v, previous)
+        v, wt, p = v @ rot, wt @ rot, np.einsum("tkc,kl->tlc", p, rot)
+        previous = v
+        timings["weights_s"] += time.perf_counter() - t
+        if shared[j]:
+            # P_0 = Y v reads m.v under a constant environment (m the kernels' masses): layer i's weights are its
+            # albedos over m.v, so P_0 w_i reads the albedos of layer i exactly; further terms 0
+            m = np.concatenate([exact[0], exact[1]])
+            scale = float(m @ v[:, 0])
+            block = np.concatenate([p, np.zeros(p.shape[:1] + (pl.terms - 1, 3))], axis=1).reshape(s, 6 * s, pl.terms, 3).astype(np.float32)
+            for i in (i for i in range(pl.layers) if shared[i]):
+                a_i = np.concatenate(kn.albedos(roughness[i], x)) / scale
+                vi = np.zeros((2 * len(x), pl.terms))
+                vi[:, 0] = a_i
+                P[i], W[i], shifts[i] = block, vi, 0.0
+            previous = None
+            continue
+        P[j] = p.reshape(s, 6 * s, pl.terms, 3).astype(np.float32)
+        W[j], shifts[j] = wt, float(shift)
+    W = [np.stack([v[: len(x)], v[len(x):]], axis=-1).reshape(len(x), 2 * pl.terms) for v in W]  # a_k, b_k interleaved
     w = np.stack(W)  # (L, X, 2K)
     wd = np.broadcast_to(vd[None], (pl.layers, len(x), pl.diffuse))
     table = np.concatenate([w, wd], axis=-1).astype(np.float32)
@@ -226,8 +315,9 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
     info = {"sh9": sh.document(), "source": str(getattr(environment, "info", {}).get("source", environment)) if isinstance(environment, Environment)
             else str(_path(environment)), "options": opts.model_dump(), "sizes": sizes,
             "data_resolution": int(data_env.info.get("resolution", 0)), "timings": timings}
+    blocks = tuple(int(np.argmax(shared)) if shared[j] else j for j in range(pl.layers))
     return Bake(pl, roughness, tuple(shifts), tuple(P), E, table, info,
-                diffuse_sh9(E) if pl.diffuse_basis == "sh9" else None)
+                sh=diffuse_sh9(E) if pl.diffuse_basis == "sh9" else None, blocks=blocks)
 
 
-__all__ = ["bake", "fibonacci", "layer_size", "source_size"]
+__all__ = ["bake", "compress", "fibonacci", "layer_fit", "layer_size", "sharp", "source_size"]

@@ -90,7 +90,7 @@ def prefilter_cube(tables: np.ndarray, size: int, env: Environment, support: flo
     tile = min(tile, size)
     radius = tile * (np.pi / 2) / size  # a block's half-diagonal is below this (texels subtend <= (pi/2)/S)
     cone = min(np.pi, support + radius)
-    slots = int(min(count, np.ceil(1.3 * count * (1.0 - np.cos(cone)) / 2.0) + 32))
+    slots = int(min(count, 256 * np.ceil((1.3 * count * (1.0 - np.cos(cone)) / 2.0 + 32) / 256)))  # steps of 256: fewer compilations
     if slots > count // 3:
         return prefilter(tables, dirs.reshape(-1, 3), env)
     blocks = dirs.reshape(size // tile, tile, 6 * size // tile, tile, 3).transpose(0, 2, 1, 3, 4).reshape(-1, tile * tile, 3)

@@ -46,10 +46,11 @@ class Bake:
 
     ``P[j]`` (S_j, 6 S_j, K, 3): layer j of the K prefiltered maps; ``E`` (S_E, 6 S_E, D, 3): the diffuse maps;
     ``W`` (layers, X, 2K + D): the weight tables' channels a_1, b_1, ..., a_K, b_K, w_1, ..., w_D (three
-    per RGB table when saved); ``roughness`` the layers' roughnesses; ``shift`` each layer's axis shift s (P_kj is read at
-    a_j = normalize((1 - s_j) r + s_j n)); ``info`` provenance and timings (JSON-friendly); ``sh`` (D, 9, 3) the
-    SH9 coefficients of the E_d maps when the plan's ``diffuse_basis`` is ``sh9`` (then ``E`` is not read and may
-    be None).
+    per RGB table when saved); ``blocks[j]`` the first layer whose block layer j shares (``P[j]`` is then that
+    layer's array; empty: every layer its own block); ``roughness`` the layers' roughnesses; ``shift`` each layer's
+    axis shift s (P_kj is read at a_j = normalize((1 - s_j) r + s_j n)); ``info`` provenance and timings
+    (JSON-friendly); ``sh`` (D, 9, 3) the SH9 coefficients of the E_d maps when the plan's ``diffuse_basis`` is
+    ``sh9`` (then ``E`` is not read and may be None).
     """
 
     plan: BakePlan
@@ -60,6 +61,7 @@ class Bake:
     W: Any
     info: dict
     sh: Any = None
+    blocks: tuple[int, ...] = ()
 
     # --- structure -------------------------------------------------------------------------------------
     @property
@@ -70,7 +72,7 @@ class Bake:
     @property
     def atlas(self) -> Atlas:
         """The layout of each P_k's layers in its 2D texture (:mod:`.atlas`)."""
-        return pack(int(p.shape[0]) for p in self.P)
+        return pack([int(p.shape[0]) for p in self.P], self.blocks or None)
 
     def texture_bytes(self, bytes_per_channel: int = 2) -> int:
         """GPU memory of the textures in half floats (RGB): P_k atlases, E_d maps, weight tables."""

@@ -21,8 +21,8 @@ class BakeOptions(Options):
     diffuse_size: int = Field(32, ge=8, le=256, description="face size of the diffuse maps E_d")
     layers: Optional[int] = Field(None, ge=3, le=32, description="roughness layers (default: the preset's)")
     terms: Optional[int] = Field(None, ge=1, le=8, description="specular products (default: the preset's)")
-    samples: int = Field(512, ge=64, le=65536, description="directions of the data each layer's weights are fitted on")
-    data_resolution: int = Field(16, ge=4, le=256, description="light resolution of that data")
+    samples: int = Field(512, ge=64, le=65536, description="directions of the data the diffuse weights are fitted on (the specular layers are fitted at their maps' texels)")
+    data_resolution: int = Field(16, ge=4, le=256, description="light resolution of the diffuse data and of the SH9 projection")
     diffuse: Literal["texture", "sh9"] = Field(
         "texture", description="the diffuse maps E_d as cube textures (1 lookup each) or as 9 SH coefficients each, "
                                "evaluated in the shader from constants (0 lookups; docs/format.md)")

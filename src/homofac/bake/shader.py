@@ -25,7 +25,7 @@ from ..shader import languages as L
 from .atlas import assemble
 from .model import Bake
 
-LANGUAGES = ("glsl", "glsl_es", "hlsl")
+LANGUAGES = ("glsl", "glsl_es", "hlsl", "msl", "wgsl")
 
 
 def _f(x: float) -> str:
@@ -33,9 +33,12 @@ def _f(x: float) -> str:
 
 
 def source(bake: Bake, language: str = "glsl", *, y_up: bool = False, flip_v: bool = False) -> str:
-    """The GLSL (330) or GLSL ES (3.00) source of ``bake``'s two pinned functions; no ``#version`` line."""
+    """The source of ``bake``'s two pinned functions in ``language`` (GLSL 330 and GLSL ES 3.00 without a
+    ``#version`` line, HLSL, MSL, WGSL)."""
     if language not in LANGUAGES:
-        raise HomofacError(f"bake shaders are generated for {', '.join(LANGUAGES)}; {language!r} is not supported yet")
+        raise HomofacError(f"bake shaders are generated for {', '.join(LANGUAGES)}, not {language!r}")
+    if language in ("msl", "wgsl"):
+        return _metal_or_wgsl(bake, language, y_up=y_up, flip_v=flip_v)
     lang = L.get("glsl" if language == "hlsl" else language)
     pl = bake.plan
     atlas = bake.atlas
@@ -187,6 +190,152 @@ def _to_hlsl(text: str, bake: Bake) -> str:
             line = line.replace(a, b)
         out.append(line)
     return "\n".join(out)
+
+
+def _names(bake: Bake) -> list[tuple[str, str]]:
+    """``(texture name, comment)`` of every texture, in binding order (P<k>, E<d>, W<t>)."""
+    pl, atlas = bake.plan, bake.atlas
+    return ([(f"hf_P{k}", f"P{k}: {pl.layers} layers in a {atlas.width} x {atlas.height} atlas") for k in range(pl.terms)]
+            + [(f"hf_E{d}", f"E{d}: cube {pl.diffuse_size}") for d in range(pl.diffuse)]
+            + [(f"hf_W{t}", f"W{t}: {pl.layers} x {pl.nv_size} weight table") for t in range(pl.tables)])
+
+
+def _metal_or_wgsl(bake: Bake, language: str, *, y_up: bool, flip_v: bool) -> str:
+    """MSL (the textures in a ``HomofacBakeTextures`` struct passed by reference, out parameters as ``thread
+    float3&``) or WGSL (module-scope ``texture_2d<f32>`` + sampler bindings, the terms returned as a
+    ``HomofacIblTerms`` struct; ``HOMOFAC_Y_UP`` / ``HOMOFAC_FLIP_V`` constants): the same model as the GLSL."""
+    msl = language == "msl"
+    lang = L.get(language)
+    pl, atlas = bake.plan, bake.atlas
+    K, D, layers, X, se = pl.terms, pl.diffuse, pl.layers, pl.nv_size, pl.diffuse_size
+    f = (lambda x: L.float_literal(float(x), "f")) if msl else _f
+    v2, v3, v4 = ("float2", "float3", "float4") if msl else ("vec2<f32>", "vec3<f32>", "vec4<f32>")
+    cube_src, tables = generate.mapper_function(lang, "cube")
+    names = _names(bake)
+    lines = [
+        f"// homofac {__version__}: material-parametric bake ({pl.preset}), {bake.lookups} texture lookups per pixel.",
+        f"// {lang.title}. Generated from the bake's records; the interface is pinned (docs/format.md).",
+        "// Frame: homofac world, +z up; n, v point away from the surface (v towards the viewer).",
+    ]
+    rows = [f"{v4}({f(x)}, {f(y)}, {f(sz)}, {f(sh)})" for (x, y), sz, sh in zip(atlas.offsets, atlas.sizes, bake.shift)]
+    if msl:
+        lines.append(lang.header)
+        lines += ["#define HOMOFAC_Y_UP"] if y_up else []
+        lines += ["#define HOMOFAC_FLIP_V"] if flip_v else []
+        lines += [L.table_source(lang, n, v) for n, v in tables.items()]
+        lines.append("struct HomofacBakeTextures {  // an argument buffer, or fill it from the entry point's arguments")
+        lines += [f"    texture2d<float> {n} [[id({i})]];  // {c}" for i, (n, c) in enumerate(names)]
+        lines += ["};", "constexpr sampler hf_sampler(coord::normalized, filter::linear, mip_filter::none, address::clamp_to_edge);",
+                  f"constant int HF_LAYERS = {layers};", f"constant float HF_RHO0 = {f(bake.roughness[0])};",
+                  f"constant float HF_RHO1 = {f(bake.roughness[-1])};",
+                  f"constant float2 HF_ATLAS = float2({f(atlas.width)}, {f(atlas.height)});",
+                  f"constant float4 HF_LAYER[{layers}] = {{{', '.join(rows)}}};  // x0, y0, face size, axis shift",
+                  "#ifdef HOMOFAC_FLIP_V", "float hf_flip_v(float v) { return 1.0f - v; }", "#else",
+                  "float hf_flip_v(float v) { return v; }", "#endif", cube_src,
+                  "float3 hf_read(texture2d<float> t, float2 uv) { return t.sample(hf_sampler, float2(uv.x, hf_flip_v(uv.y)), level(0.0f)).rgb; }"]
+        tex = "texture2d<float> t, "
+    else:
+        lines += [f"const HOMOFAC_Y_UP: bool = {'true' if y_up else 'false'};  // true: (x, y, z)_engine -> (x, -z, y)",
+                  f"const HOMOFAC_FLIP_V: bool = {'true' if flip_v else 'false'};  // true: textures stored bottom-up"]
+        lines += [L.table_source(lang, n, v) for n, v in tables.items()]
+        for i, (n, c) in enumerate(names):
+            lines.append(f"@group(0) @binding({2 * i}) var {n}: texture_2d<f32>;  // {c}")
+            lines.append(f"@group(0) @binding({2 * i + 1}) var {n}_sampler: sampler;  // linear, clamp to edge, no mipmaps")
+        lines += [f"const HF_LAYERS: i32 = {layers};", f"const HF_RHO0: f32 = {f(bake.roughness[0])};",
+                  f"const HF_RHO1: f32 = {f(bake.roughness[-1])};",
+                  f"const HF_ATLAS: vec2<f32> = vec2<f32>({f(atlas.width)}, {f(atlas.height)});",
+                  f"var<private> HF_LAYER: array<vec4<f32>, {layers}> = array<vec4<f32>, {layers}>({', '.join(rows)});  // x0, y0, face size, axis shift",
+                  "fn hf_flip_v(v: f32) -> f32 { return select(v, 1.0 - v, HOMOFAC_FLIP_V); }", cube_src,
+                  "struct HomofacIblTerms { I_d: vec3<f32>, I_A: vec3<f32>, I_B: vec3<f32> }"]
+    one, half, zero = f(1.0), f(0.5), f(0.0)
+
+    def fn(name, params, ret, body):
+        if msl:
+            head = f"{ret} {name}({', '.join(f'{t} {n}' for n, t in params)})"
+        else:
+            head = f"fn {name}({', '.join(f'{n}: {t}' for n, t in params)}) -> {ret}"
+        return [head + " {", *("    " + b for b in body), "}"]
+
+    def let(name, t, e):
+        return f"{t} {name} = {e};" if msl else f"let {name}: {t} = {e};"
+
+    def read(name, uv):
+        return f"hf_read({name}, {uv})" if msl else f"textureSampleLevel({name}, {name}_sampler, vec2<f32>({uv}.x, hf_flip_v({uv}.y)), 0.0).rgb"
+
+    coords = [let("fuv", v3, "hf_map_cube(d)"),
+              let("cu", "float" if msl else "f32", f"clamp(fuv.y * s - {half}, {zero}, s - {one})"),
+              let("cv", "float" if msl else "f32", f"clamp(fuv.z * s - {half}, {zero}, s - {one})")]
+    ft = "float" if msl else "f32"
+    # layer and cube reads: one helper each (the GLSL's), per texture in WGSL (textures are not function arguments there)
+    def layer_body(tname):
+        return ([let("s", ft, "layer.z")] + coords +
+                [let("uv", v2, f"{v2}(layer.x + floor(fuv.x + {half}) * s + cu + {half}, layer.y + cv + {half}) / HF_ATLAS"),
+                 f"return {read(tname, 'uv')};"])
+
+    def cube_body(tname):
+        return coords + [let("uv", v2, f"{v2}((floor(fuv.x + {half}) * s + cu + {half}) / ({f(6.0)} * s), (cv + {half}) / s)"),
+                         f"return {read(tname, 'uv')};"]
+
+    if msl:
+        lines += fn("hf_layer", [("t", "texture2d<float>"), ("layer", v4), ("d", v3)], v3, layer_body("t"))
+        lines += fn("hf_cube", [("t", "texture2d<float>"), ("s", ft), ("d", v3)], v3, cube_body("t"))
+    else:
+        for k in range(K):
+            lines += fn(f"hf_layer_P{k}", [("layer", v4), ("d", v3)], v3, layer_body(f"hf_P{k}"))
+        for d in range(D):
+            lines += fn(f"hf_cube_E{d}", [("s", ft), ("d", v3)], v3, cube_body(f"hf_E{d}"))
+    nv, vv = ("n", "v") if msl else ("n_in", "v_in")
+    body = []
+    if msl:
+        body += ["#ifdef HOMOFAC_Y_UP", "n = float3(n.x, -n.z, n.y);", "v = float3(v.x, -v.z, v.y);", "#endif",
+                 "I_d = float3(0.0f); I_A = float3(0.0f); I_B = float3(0.0f);"]
+    else:
+        body += ["var n = n_in;", "var v = v_in;",
+                 "if (HOMOFAC_Y_UP) { n = vec3<f32>(n_in.x, -n_in.z, n_in.y); v = vec3<f32>(v_in.x, -v_in.z, v_in.y); }",
+                 "var o = HomofacIblTerms(vec3<f32>(0.0), vec3<f32>(0.0), vec3<f32>(0.0));"]
+    ret = "return;" if msl else "return o;"
+    it = "int" if msl else "i32"
+    bl = (lambda a: f"float3({a})") if msl else (lambda a: a)  # MSL's mix blends by a vector
+    body += [let("x", ft, "dot(n, v)"), f"if (x <= {zero}) {{ {ret} }}", let("r", v3, f"{f(2.0)} * x * n - v"),
+             let("rho", ft, "clamp(roughness, HF_RHO0, HF_RHO1)"),
+             let("u", ft, f"clamp({ft}(HF_LAYERS - 1) * log(rho / HF_RHO0) / log(HF_RHO1 / HF_RHO0), {zero}, {ft}(HF_LAYERS - 1))"),
+             let("j", it, f"min({it}(floor(u)), HF_LAYERS - 2)"), let("t", ft, f"u - {ft}(j)"),
+             let("l0", v4, "HF_LAYER[j]"), let("l1", v4, "HF_LAYER[j + 1]"),
+             let("a0", v3, f"normalize(mix(r, n, {bl('l0.w')}))"), let("a1", v3, f"normalize(mix(r, n, {bl('l1.w')}))"),
+             let("wuv", v2, f"{v2}((clamp(x * {f(X)} - {half}, {zero}, {f(X - 1)}) + {half}) / {f(X)}, (u + {half}) / {f(layers)})")]
+    chans = []
+    for t in range(pl.tables):
+        body.append(let(f"w{t}", v3, read(f"hf.hf_W{t}" if msl else f"hf_W{t}", "wuv")))
+        chans += [f"w{t}.{c}" for c in "xyz"]
+    out = ("I_d", "I_A", "I_B") if msl else ("o.I_d", "o.I_A", "o.I_B")
+    for k in range(K):
+        if msl:
+            body.append(let(f"p{k}", v3, f"mix(hf_layer(hf.hf_P{k}, l0, a0), hf_layer(hf.hf_P{k}, l1, a1), float3(t))"))
+        else:
+            body.append(let(f"p{k}", v3, f"mix(hf_layer_P{k}(l0, a0), hf_layer_P{k}(l1, a1), t)"))
+        body.append(f"{out[1]} = {out[1]} + p{k} * {chans[2 * k]};")
+        body.append(f"{out[2]} = {out[2]} + p{k} * {chans[2 * k + 1]};")
+    for d in range(D):
+        e = f"hf_cube(hf.hf_E{d}, {f(se)}, n)" if msl else f"hf_cube_E{d}({f(se)}, n)"
+        body.append(f"{out[0]} = {out[0]} + {e} * {chans[2 * K + d]};")
+    if not msl:
+        body.append("return o;")
+    if msl:
+        lines += fn("homofac_ibl_terms", [("n", v3), ("v", v3), ("roughness", ft), ("I_d", "thread float3&"),
+                                          ("I_A", "thread float3&"), ("I_B", "thread float3&"),
+                                          ("hf", "thread const HomofacBakeTextures&")], "void", body)
+        lines += fn("homofac_ibl", [("n", v3), ("v", v3), ("base_color", v3), ("metallic", ft), ("roughness", ft),
+                                    ("hf", "thread const HomofacBakeTextures&")], v3, [
+            "float3 I_d, I_A, I_B;", "homofac_ibl_terms(n, v, roughness, I_d, I_A, I_B, hf);",
+            "float3 f0 = mix(float3(0.04f), base_color, float3(metallic));  // (1 - m) 0.04 + m c",
+            "return (1.0f - metallic) * 0.96f * base_color * I_d + f0 * I_A + I_B;"])
+    else:
+        lines += fn("homofac_ibl_terms", [("n_in", v3), ("v_in", v3), ("roughness", ft)], "HomofacIblTerms", body)
+        lines += fn("homofac_ibl", [("n", v3), ("v", v3), ("base_color", v3), ("metallic", ft), ("roughness", ft)], v3, [
+            "let o = homofac_ibl_terms(n, v, roughness);",
+            "let f0 = mix(vec3<f32>(0.04), base_color, metallic);  // (1 - m) 0.04 + m c",
+            "return (1.0 - metallic) * 0.96 * base_color * o.I_d + f0 * o.I_A + o.I_B;"])
+    return "\n".join(x for x in lines if x != "") + "\n"
 
 
 def texture_arrays(bake: Bake) -> list[tuple[str, object]]:
