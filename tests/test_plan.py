@@ -281,3 +281,17 @@ def test_a_polish_trial_that_did_not_lower_the_figure_is_summarised_as_no_polish
             "trial": {"steps": 2, "falls": False, "before": before, "after": after}}
     line = cli.polish_line(note)
     assert "2-step trial" in line and "0.2141 -> 0.2143" in line and "none run" in line
+
+
+def test_split_sum_candidates_only_for_models_with_a_split_sum():
+    """A gltf target has no registered microfacet split sum: no candidate of any budget carries the
+    ``prefiltered`` term (it failed mid-fit at max_lookups 8), while a Cook-Torrance target on the same grid
+    direction is offered it."""
+    env = hf.light.load_environment("forest", 4)
+    gltf = hf.light.lighting_target(hf.brdf.gltf(base_color=(0.8, 0.5, 0.3), metallic=0.5, roughness=0.4), env)
+    ct = hf.light.lighting_target(hf.brdf.cook_torrance(kd=(0.1, 0.1, 0.1), ks=1.0, roughness=0.3,
+                                                         f0=(0.9, 0.7, 0.3)), env)
+    for budget in (4, 8, 16):
+        cands = plan.build_plan(gltf, None, {"max_lookups": budget}, samples_given="r").candidates
+        assert cands and not any(c.prefiltered for c in cands)
+    assert any(c.prefiltered for c in plan.build_plan(ct, None, {"max_lookups": 8}, samples_given="r").candidates)

@@ -322,6 +322,8 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
         pick = structures.ladder if opts.target_error is not None else structures.candidates
         found = constrained(pick(target.kind, budget, parametrization=base, has_diffuse=has_d, highlight=lit,
                                   table=table), opts)
+        # the split sum's term only where the target's model has one (a gltf or measured BRDF has none)
+        found = [c for c in found if not c.prefiltered or sums.split_sum_possible(target, c)]
         grid = opts.sampling.model_copy(update={"kind": "grid"})
         if samples_given is not None:
             found = [c for c in found if grid_projection(target.kind, c.parametrization, grid) == samples_given] or found

@@ -110,7 +110,7 @@ def _fixed_texture(spec: TextureSpec, target: Target) -> np.ndarray:
 
 def _split_sum_textures(target: Target, spec: TextureSpec) -> np.ndarray:
     """The split sum's P (prefiltered environment) or W (ks (F0 A + B)) at the texel centres."""
-    if not _split_sum_possible(target, Structure("NR")):
+    if not split_sum_possible(target, Structure("NR")):
         raise HomofacError("prefiltered: the split sum needs a lighting target of a microfacet model (cook_torrance, ggx)")
     brdf, env = target.fn.brdf, target.fn.env
     if spec.role == "prefiltered":
@@ -234,14 +234,14 @@ def start(target: Target, structure: Structure, terms, layouts, samples, y_fit, 
           size: int, log) -> tuple[dict, str]:
     """Starting texels (valid unknowns, sigma units) of every fitted texture, and the rule used."""
     if rule == "auto":
-        rule = "split_sum" if _split_sum_possible(target, structure) else "product"
+        rule = "split_sum" if split_sum_possible(target, structure) else "product"
     products = [t for t in terms if t.fitted and not _is_diffuse(t) and not _is_reflection(t)]
     if structure.prefiltered:  # the split sum is kept: every product is a correction, started as extra terms
         rule = "split_sum"
         out = {}
         extra = products
     elif rule == "split_sum":
-        if not _split_sum_possible(target, structure):
+        if not split_sum_possible(target, structure):
             raise HomofacError("linear.start: split_sum needs a lighting target of a microfacet model "
                                "(cook_torrance, ggx) and a parametrization with an r factor")
         out = _split_sum_start(target, products[0], layouts, sigma)
@@ -332,7 +332,9 @@ def _is_reflection(term: TermSpec) -> bool:
     return len(term.factors) == 1 and term.factors[0] == ("r", "R")
 
 
-def _split_sum_possible(target, structure) -> bool:
+def split_sum_possible(target, structure) -> bool:
+    """Whether the split sum's P(r) W(n.v) (``prefiltered``, ``linear.start: split_sum``) can be computed for
+    ``target`` on ``structure``'s parametrization: an unclamped lighting target of a registered microfacet model."""
     return (target.kind == "lighting" and isinstance(target.fn, Lighting) and isinstance(target.fn.brdf, BRDF)
             and MODELS[target.fn.brdf.model].microfacet is not None and target.fn.clamp is None
             and structure.parametrization in ("NR", "NRW", "NRV", "R", "NRO", "RO"))
