@@ -74,3 +74,28 @@ def worst(a: dict, b: dict) -> tuple[float, str]:
                 x = a[split][kind][name]
                 out = max(out, (abs(x - y) / max(abs(y), 1e-12), f"{split}.{kind}.{name}: {x} vs {y}"))
     return out
+
+
+def small_fits(setattr, *, resolution: int = 4, texture_size: int = 8, count: int = 20_000,
+               validation: int = 2_000) -> None:
+    """Make ``hf.light.load_environment`` and ``hf.fit.factorize`` default to small sizes, so code written
+    for users (the README's blocks, the quickstart notebook) runs as written in seconds: a light
+    resolution, a texture size and grid / validation pair counts, each only where the call gives none of
+    its own (a preset's other choices, its candidates, votes and polish, run unchanged). ``setattr``:
+    ``monkeypatch.setattr`` in a test, the builtin in a notebook kernel."""
+    import homofac as hf
+
+    load, factorize = hf.light.load_environment, hf.fit.factorize
+
+    def small_environment(*args, **kw):
+        if len(args) < 2 and "resolution" not in kw:
+            kw["resolution"] = resolution
+        return load(*args, **kw)
+
+    def small_factorize(*args, **kw):
+        kw.setdefault("texture_size", texture_size)
+        kw["sampling"] = {"count": count, "validation": validation, **(kw.get("sampling") or {})}
+        return factorize(*args, **kw)
+
+    setattr(hf.light, "load_environment", small_environment)
+    setattr(hf.fit, "factorize", small_factorize)
