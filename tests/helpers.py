@@ -77,11 +77,12 @@ def worst(a: dict, b: dict) -> tuple[float, str]:
 
 
 def small_fits(setattr, *, resolution: int = 4, texture_size: int = 8, count: int = 20_000,
-               validation: int = 2_000) -> None:
+               validation: int = 2_000, polish_size: int = 8) -> None:
     """Make ``hf.light.load_environment`` and ``hf.fit.factorize`` default to small sizes, so code written
     for users (the README's blocks, the quickstart notebook) runs as written in seconds: a light
-    resolution, a texture size and grid / validation pair counts, each only where the call gives none of
-    its own (a preset's other choices, its candidates, votes and polish, run unchanged). ``setattr``:
+    resolution, a texture size, grid / validation pair counts and (for a fitted sum) the polish's texel
+    sampling size, each only where the call gives none of its own (a preset's other choices, its
+    candidates, votes and polish steps, run unchanged). ``setattr``:
     ``monkeypatch.setattr`` in a test, the builtin in a notebook kernel."""
     import homofac as hf
 
@@ -95,6 +96,8 @@ def small_fits(setattr, *, resolution: int = 4, texture_size: int = 8, count: in
     def small_factorize(*args, **kw):
         kw.setdefault("texture_size", texture_size)
         kw["sampling"] = {"count": count, "validation": validation, **(kw.get("sampling") or {})}
+        if any(kw.get(k) is not None for k in ("preset", "max_lookups", "terms", "linear")):
+            kw["linear"] = {"polish_size": polish_size, **(kw.get("linear") or {})}
         return factorize(*args, **kw)
 
     setattr(hf.light, "load_environment", small_environment)

@@ -126,10 +126,11 @@ def test_readme_has_python_blocks():
     assert len(blocks()) >= 1
 
 
+@pytest.mark.slow
 def test_readme_python_blocks_run_as_written(tmp_path, monkeypatch):
     """Every block runs as written, in order, at small sizes: ``load_environment`` and ``factorize``
-    default to a 4-texel light resolution, 8-texel textures and 20 000 / 2 000 grid / validation pairs
-    (helpers.small_fits); the preset's candidates, votes and polish run as they would. The README's
+    default to a 4-texel light resolution, 8-texel textures, 20 000 / 2 000 grid / validation pairs and
+    an 8-texel polish sampling (helpers.small_fits); the preset's candidates, votes and polish run as they would. The README's
     own sizes are the bundled default's, run end to end by tests/test_cli.py's default run."""
     small_fits(monkeypatch.setattr)
     monkeypatch.chdir(tmp_path)
