@@ -147,6 +147,7 @@ def test_ridge_needs_an_environment():
     assert "\n" not in str(e.value)
 
 
+@pytest.mark.slow  # three polish stages and a refit: about 55 s of CPU, most of it compiling
 def test_the_direct_stage_starts_from_the_als_fit_and_a_refit_repeats_the_recorded_path():
     """polish_stages(direct=True): a third stage with the ridge pairs straight from the ALS fit, whose
     record has ``ridge`` and no ``first`` (recorded_direct); polish() returns the stage a record names, and a
