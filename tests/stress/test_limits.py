@@ -68,9 +68,8 @@ print(json.dumps({"est": est["total"], "peak": hwm * 1024}))
 @pytest.mark.slow
 def test_estimate_is_within_a_factor_of_the_measured_peak(tmp_path):
     """The default config (its preset, texture size and environment) with 24^2 sampling grids and 50 000 /
-    5 000 grid / validation pairs (a sixth of the preset's grid, so the test takes a minute, not six; the
-    estimate then holds mostly its fixed runtime share, and the default's own counts are not measured
-    here). Peak RSS of JAX runs is noisy (compilation): the default's grid measured 3.08 GB
+    5 000 grid / validation pairs (a sixth of the preset's grid, to shorten the run; the estimate then
+    holds mostly its fixed runtime share, and the default's own counts are not measured here). Peak RSS of JAX runs is noisy (compilation): the default's grid measured 3.08 GB
     against an estimate of 2.04 GB. Asserted: the estimate within a factor 2 below and 3 above the peak."""
     r = subprocess.run([sys.executable, "-c", MEASURE, str(tmp_path / "out")], capture_output=True, text=True,
                        timeout=600)
