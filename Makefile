@@ -52,6 +52,8 @@ js-packages: system-packages $(JS_STAMP)
 # scheduler can wait forever for work it already did (pytest-xdist issues 784, 1378).
 XDIST = -n 2 --dist loadfile --max-worker-restart 0
 
+# The fast suite's budget: `make test` from a fresh clone in 5 minutes on a 2-core machine, install included;
+# `.ci/run` in 30. Where the time goes and how to measure it: docs/notes/suite.md (PYTEST_ARGS=--durations=20).
 test: $(STAMP) system-packages js-packages
 	$(PY) -m pytest -q $(XDIST) -m "not slow" $(PYTEST_ARGS)
 

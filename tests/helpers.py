@@ -92,3 +92,33 @@ def made_up_bake(preset: str = "fast", seed: int = 0, diffuse_basis: str = "text
     W = rng.uniform(0.2, 1.0, (pl.layers, pl.nv_size, 2 * pl.terms + pl.diffuse)).astype(np.float32)
     return Bake(pl, rough, (0.0,) * pl.layers, P, E, W, {"source": "forest"},
                 diffuse_sh9(E) if diffuse_basis == "sh9" else None)
+
+
+def small_fits(setattr, *, resolution: int = 4, texture_size: int = 8, count: int = 20_000,
+               validation: int = 2_000, polish_size: int = 8) -> None:
+    """Make ``hf.light.load_environment`` and ``hf.fit.factorize`` default to small sizes, so code written
+    for users (the README's blocks, the quickstart notebook) runs as written in seconds: a light
+    resolution, a texture size, grid / validation pair counts and (for a fitted sum) the polish's texel
+    sampling size, each only where the call gives none of its own (a preset's other choices, its
+    candidates, votes and polish steps, run unchanged). ``setattr``:
+    ``monkeypatch.setattr`` in a test, the builtin in a notebook kernel."""
+    import homofac as hf
+
+    load, factorize = hf.light.load_environment, hf.fit.factorize
+
+    def small_environment(*args, **kw):
+        if len(args) < 2 and "resolution" not in kw:
+            kw["resolution"] = resolution
+        return load(*args, **kw)
+
+    def small_factorize(*args, **kw):
+        kw.setdefault("texture_size", texture_size)
+        kw["sampling"] = {"count": count, "validation": validation, **(kw.get("sampling") or {})}
+        if any(kw.get(k) is not None for k in ("preset", "max_lookups", "terms")) or "linear" in (kw.get("advanced") or {}):
+            advanced = dict(kw.get("advanced") or {})
+            advanced["linear"] = {"polish_size": polish_size, **(advanced.get("linear") or {})}
+            kw["advanced"] = advanced
+        return factorize(*args, **kw)
+
+    setattr(hf.light, "load_environment", small_environment)
+    setattr(hf.fit, "factorize", small_factorize)

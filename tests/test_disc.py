@@ -129,6 +129,7 @@ def test_a_fit_with_the_disc_reads_the_measured_radius_and_survives_a_save(tmp_p
     assert back.model.context["radius"] == pytest.approx(ctx["radius"])
 
 
+@pytest.mark.slow  # a chooser run with its disc vote; the fast suite fits the disc once (above)
 def test_the_disc_vote_keeps_the_structure_of_lower_validation_error_and_records_both():
     """The vote of the quality mode on a small fit: the kept structure is fitted again read at its light's
     disc and the lower validation error wins; ``selection.disc`` records the labels, radii and errors."""

@@ -316,17 +316,6 @@ def default_run(tmp_path_factory):
 
 
 @pytest.mark.slow
-def test_default_run_writes_a_preview(tmp_path):
-    out = _run([], tmp_path / "out")  # the bundled default, as `make run` does
-    img = np.asarray(Image.open(out / "preview.png").convert("RGB"))
-    background = (img == picture.BACKGROUND).all(axis=-1)
-    assert 1 - background.mean() > 0.2
-    assert len(np.unique(img[~background], axis=0)) > 100
-    # the preview is no part of the pinned document
-    assert "preview" not in json.loads((out / "factorization.json").read_text())
-
-
-@pytest.mark.slow
 def test_preview_cli_writes_a_png(default_run, tmp_path, capsys):
     from homofac.preview import main
 

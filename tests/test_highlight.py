@@ -229,6 +229,7 @@ def test_the_fresnel_line_in_the_skeleton_label_record_candidates_and_refusals()
     assert all(c.highlights.fresnel for c in on if c.highlights.terms) and any(not c.highlights.terms for c in on)
 
 
+@pytest.mark.slow  # a pair of fits for one line; the fast suite keeps the glossy metal's highlight-term pair
 def test_a_dielectric_under_a_sun_fits_better_with_the_fresnel_line(tmp_path):
     """The property the line is for: a dielectric's highlight rises toward grazing v.h' (F0 0.04 -> 1),
     which d(nh_dom) w(n.v) alone cannot follow; the line is fitted by the same ALS and survives a save."""
@@ -291,6 +292,7 @@ def test_the_cosine_line_in_the_skeleton_label_record_candidates_and_refusals():
                          "RO", texture_size=8, diffuse="fitted", advanced={"highlights": {"cosine": True}})
 
 
+@pytest.mark.slow  # a pair of fits for one line; the fast suite keeps the glossy metal's highlight-term pair
 def test_a_dielectric_under_a_sun_fits_better_with_the_cosine_line(tmp_path):
     """The property the line is for: the highlight of a light fades with its cosine n.i (the shadowing
     G1(n.i), down to 0 at its horizon), which d(nh_dom) [f(v.h')] w(n.v) cannot follow where n.i and n.v

@@ -22,18 +22,20 @@ def _lines(model) -> dict:
     return {t.name: t.size for t in model.textures if t.mapper == "line"}
 
 
-def test_the_line_sizes_rule_given_quality_mode_vote_and_default():
-    """Given, it is the only size; in the quality mode (a chooser budget above 8) the candidates get 32
-    texels and the kept structure is tried again with QUALITY_LINE_RATIO x texture_size (unless that is
-    32 too); otherwise the 32 of every earlier fit."""
-    q = plan.PRESETS["balanced"].lookups
-    r = plan.PRESETS["best"].line_ratio
-    assert plan.line_sizes(FitOptions(max_lookups=q + 1)) == (structures.LINE_SIZE, r * 32) == (32, 128)
-    assert plan.line_sizes(FitOptions(max_lookups=16, texture_size=16)) == (32, r * 16)
-    assert plan.line_sizes(FitOptions(max_lookups=16, texture_size=8)) == (32,)  # 4 x 8 is 32: no vote
-    assert plan.line_sizes(FitOptions(target_error=0.1, terms=2)) == (32, r * 32)  # the chooser's budget 16
-    assert plan.line_sizes(FitOptions(max_lookups=q)) == (structures.LINE_SIZE,)
-    assert plan.line_sizes(FitOptions(terms=3, nv_factor=True)) == (structures.LINE_SIZE,)
+def test_the_line_sizes_rule_given_vote_and_default():
+    """Given, it is the only size; with a budget above balanced's (the ``best`` preset's line vote) the
+    candidates get the 32-texel lines and the kept structure is tried again with a multiple of
+    ``texture_size`` that grows with it (no vote where that multiple is 32 too); otherwise the 32 of every
+    earlier fit."""
+    q = plan.budget_of(FitOptions(preset="balanced"))
+    line = structures.LINE_SIZE
+    vote32, vote16 = plan.line_sizes(FitOptions(max_lookups=q + 1)), plan.line_sizes(FitOptions(max_lookups=16, texture_size=16))
+    assert vote32[0] == vote16[0] == line and len(vote32) == len(vote16) == 2
+    assert vote32[1] == 2 * vote16[1] and vote32[1] % 32 == 0 and vote32[1] > line  # k x texture_size, k fixed
+    assert plan.line_sizes(FitOptions(max_lookups=16, texture_size=line * 16 // vote16[1])) == (line,)  # k x S = 32
+    assert plan.line_sizes(FitOptions(target_error=0.1, terms=2)) == vote32  # the ladder's budget is best's
+    assert plan.line_sizes(FitOptions(max_lookups=q)) == (line,)
+    assert plan.line_sizes(FitOptions(terms=3, nv_factor=True)) == (line,)
     assert plan.line_sizes(FitOptions(max_lookups=16, advanced={"line_size": 48})) == (48,)
     assert plan.line_sizes(FitOptions(terms=2, advanced={"line_size": 48})) == (48,)
 
@@ -52,6 +54,7 @@ def test_line_size_is_refused_for_a_single_log_space_product():
         hf.fit.factorize(target, "NRW", texture_size=8, advanced={"line_size": 64}, sampling=GRID)
 
 
+@pytest.mark.slow  # a polished fit, a save and a refit (about 45 s of compiling); the fast suite checks the rule and refusals
 def test_every_line_of_a_sum_its_polish_save_and_refit_keep_the_line_size(tmp_path):
     """A sum with w(n.v) lines and a highlight term with its Fresnel and cosine lines, at 64 texels:
     every line has 64 (the maps keep texture_size), the split sum's computed W too; the polish, the

@@ -34,11 +34,19 @@ def test_notebook_is_committed_without_outputs_and_matches_its_generator(name):
     assert [c.source for c in mod.build().cells] == [c.source for c in nb.cells]
 
 
-def execute(path: Path, monkeypatch, tmp_path) -> tuple[nbformat.NotebookNode, str]:
-    """Run a notebook in QUICK mode in a kernel of this interpreter; (the executed notebook, its text output)."""
+#: A first cell the test adds: helpers.small_fits in the kernel (see test_quickstart_notebook_executes).
+SMALL_FITS = (f"import builtins, sys\nsys.path.insert(0, {str(Path(__file__).resolve().parent)!r})\n"
+              "import helpers\nhelpers.small_fits(builtins.setattr)")
+
+
+def execute(path: Path, monkeypatch, tmp_path, small: bool = False) -> tuple[nbformat.NotebookNode, str]:
+    """Run a notebook in QUICK mode in a kernel of this interpreter; (the executed notebook, its text output).
+    ``small``: first run :data:`SMALL_FITS` in the kernel (an added cell; the notebook's own cells run as written)."""
     monkeypatch.setenv("HOMOFAC_NOTEBOOK_QUICK", "1")
     monkeypatch.delenv("MPLBACKEND", raising=False)  # ipykernel then picks the inline backend (headless; emits PNGs)
     nb = nbformat.read(path, as_version=4)
+    if small:
+        nb.cells.insert(0, nbformat.v4.new_code_cell(SMALL_FITS))
     # A kernelspec of our own, pinned to this interpreter: an installed "python3" spec (user-level, or
     # another environment's with an absolute path) must not decide which Python runs the notebook.
     from jupyter_client.kernelspec import KernelSpecManager
@@ -69,7 +77,10 @@ def images(nb) -> list:
 
 @pytest.mark.slow
 def test_quickstart_notebook_executes(monkeypatch, tmp_path):
-    nb, text = execute(NOTEBOOK, monkeypatch, tmp_path)
+    """Every cell runs at the notebook's QUICK sizes, and its fits with the grid and validation pair counts
+    of helpers.small_fits (20 000 / 2 000; the preset's candidates, votes and polish unchanged): the
+    preset's own counts run in tests/test_cli.py's default run."""
+    nb, text = execute(NOTEBOOK, monkeypatch, tmp_path, small=True)
     nrmse = float(re.search(r"^validation nrmse ([0-9.]+) \(balanced", text, re.M).group(1))
     split = float(re.search(r"^split-sum validation nrmse ([0-9.]+)", text, re.M).group(1))
     assert 0 < nrmse < split < 1.0, text  # the balanced preset beats split-sum, printed beside it

@@ -12,6 +12,8 @@ from pathlib import Path
 
 import pytest
 
+from helpers import small_fits
+
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
 LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)\)")
@@ -126,6 +128,11 @@ def test_readme_has_python_blocks():
 
 @pytest.mark.slow
 def test_readme_python_blocks_run_as_written(tmp_path, monkeypatch):
+    """Every block runs as written, in order, at small sizes: ``load_environment`` and ``factorize``
+    default to a 4-texel light resolution, 8-texel textures, 20 000 / 2 000 grid / validation pairs and
+    an 8-texel polish sampling (helpers.small_fits); the preset's candidates, votes and polish run as they would. The README's
+    own sizes are the bundled default's, run end to end by tests/test_cli.py's default run."""
+    small_fits(monkeypatch.setattr)
     monkeypatch.chdir(tmp_path)
     ns: dict = {}
     for i, src in enumerate(blocks()):

@@ -100,6 +100,7 @@ def test_the_stratified_nrmse_estimates_the_uniform_one_with_less_spread():
         hf.fit.metrics.metrics(approx, ve)["nrmse"], rel=1e-5)
 
 
+@pytest.mark.slow  # two polished fits and a refit (about 40 s)
 def test_the_polish_adds_the_ridge_pairs_and_records_them_for_a_refit():
     env = hf.light.sun_sky(SUN, sun_radiance=300.0, sun_angle_deg=4.0, sky=(0.3, 0.4, 0.6), resolution=8)
     target = hf.light.lighting_target(hf.brdf.cook_torrance(kd=0.3, ks=1.0, roughness=0.6, f0=0.04), env)
@@ -147,6 +148,7 @@ def test_ridge_needs_an_environment():
     assert "\n" not in str(e.value)
 
 
+@pytest.mark.slow  # three polish stages and a refit: about 55 s of CPU, most of it compiling
 def test_the_direct_stage_starts_from_the_als_fit_and_a_refit_repeats_the_recorded_path():
     """polish_stages(direct=True): a third stage with the ridge pairs straight from the ALS fit, whose
     record has ``ridge`` and no ``first`` (recorded_direct); polish() returns the stage a record names, and a

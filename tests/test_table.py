@@ -68,20 +68,30 @@ def target():
     return hf.light.lighting_target(hf.brdf.ggx(kd=0.3, ks=1.0, roughness=0.4, f0=0.04), env, parametrization="RO")
 
 
+def _fit(target, samples, polish: int, **highlights):
+    return hf.fit.factorize(target, "RO", texture_size=8, samples=samples, diffuse="fitted", nv_factor=True,
+                            advanced={"highlights": {"terms": 1, "fresnel": True, **highlights},
+                                      "linear": {"polish": polish}})
+
+
 @pytest.fixture(scope="module")
-def fits(target):
-    """A dielectric under a sun, lines and tables, each polished twice off the grid on the same pairs."""
-    samples = hf.fit.draw_samples(target, "RO", GRID)
-    kw = dict(texture_size=8, samples=samples, diffuse="fitted", nv_factor=True)
-    lines = hf.fit.factorize(target, "RO", advanced={"highlights": {"terms": 1, "fresnel": True, "cosine": True},
-                                                     "linear": {"polish": 2}}, **kw)
-    tab = hf.fit.factorize(target, "RO", advanced={"highlights": {"terms": 1, "fresnel": True, "table": True},
-                                                   "linear": {"polish": 2}}, **kw)
-    return lines, tab
+def samples(target):
+    return hf.fit.draw_samples(target, "RO", GRID)
 
 
-def test_tabulate_keeps_the_model_and_separate_recovers_the_lines(fits):
-    lines, _ = fits
+@pytest.fixture(scope="module")
+def lines(target, samples):
+    """A dielectric under a sun, fitted with lines (the ALS fit alone: what tabulate and separate read)."""
+    return _fit(target, samples, 0, cosine=True)
+
+
+@pytest.fixture(scope="module")
+def fits(target, samples):
+    """The same, lines and tables, each polished twice off the grid on the same pairs (the slow tests')."""
+    return _fit(target, samples, 2, cosine=True), _fit(target, samples, 2, table=True)
+
+
+def test_tabulate_keeps_the_model_and_separate_recovers_the_lines(lines):
     model = lines.model
     tab = table.tabulate(model, TABLE)
     assert tab.lookups == model.lookups - 1 and "T1" in [t.name for t in tab.textures]
@@ -100,6 +110,7 @@ def test_tabulate_keeps_the_model_and_separate_recovers_the_lines(fits):
         table.tabulate(model, LINES)
 
 
+@pytest.mark.slow  # two polished fits (about 50 s of compiling); the fast suite tabulates the ALS fit above
 def test_a_polished_table_fits_a_dielectric_under_a_sun_better_with_one_lookup_fewer(fits, tmp_path):
     """The property the table is for: the highlight's min(1, n.i / n.v) near the mirror direction is no
     product c(n.i) w(n.v); the ALS fits the lines, the table starts as their product and the polish
