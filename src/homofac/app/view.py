@@ -383,7 +383,7 @@ uniform vec3 u_light;
 uniform vec3 u_light_rgb;
 uniform int u_times_cos;
 uniform float u_terms[HOMOFAC_TERMS];
-vec3 hf_value() {
+vec3 hfb_value() {
     vec3 n = hf_normalize(v_normal);
     vec3 v = hf_normalize(u_eye - v_pos);
     vec3 a = n, b = v;
@@ -406,11 +406,11 @@ vec3 hf_value() {
   const BAKE_VALUE = (data.material_glsl || "") + `
 uniform float u_terms[3];
 in vec2 v_uv;
-vec3 hf_value() {
+vec3 hfb_value() {
     vec3 n = normalize(v_normal);
     vec3 v = normalize(u_eye - v_pos);
     vec3 c; float m; float rho;
-    hf_material(v_uv, c, m, rho);
+    hfb_material(v_uv, c, m, rho);
     vec3 I_d, I_A, I_B;
     homofac_ibl_terms(n, v, rho, I_d, I_A, I_B);
     vec3 f0 = mix(vec3(0.04), c, m);
@@ -440,7 +440,7 @@ vec3 hf_viridis(float x) {
     return mix(HF_VIRIDIS[i], HF_VIRIDIS[i + 1], t - float(i));
 }
 void main() {
-    vec3 value = hf_value();
+    vec3 value = hfb_value();
     if (u_panel == 0) { o_color = vec4(hf_srgb(value * u_exposure), 1.0); return; }
     ivec2 p = ivec2(gl_FragCoord.xy) - u_origin;
     vec4 e = texelFetch(u_exact, ivec2(p.x, ${S - 1} - p.y), 0);   // the exact image's rows run top to bottom

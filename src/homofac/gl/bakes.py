@@ -63,7 +63,7 @@ uniform float u_roughness_factor;
 vec3 hf_srgb_decode(vec3 c) {
     return mix(c / 12.92, pow((c + 0.055) / 1.055, vec3(2.4)), step(vec3(0.04045), c));
 }
-void hf_material(vec2 uv, out vec3 c, out float m, out float rho) {
+void hfb_material(vec2 uv, out vec3 c, out float m, out float rho) {
     c = hf_srgb_decode(texture(u_base_color, uv).rgb) * u_base_factor.rgb;
     vec4 mr = texture(u_metal_rough, uv);
     m = clamp(mr.b * u_metallic_factor, 0.0, 1.0);
@@ -84,7 +84,7 @@ void main() {
     vec3 n = normalize(v_normal);
     vec3 v = normalize(u_eye - v_pos);
     vec3 c; float m; float rho;
-    hf_material(v_uv, c, m, rho);
+    hfb_material(v_uv, c, m, rho);
     o_value = vec4(homofac_ibl(n, v, c, m, rho), 1.0);
     o_n = vec4(n, m);
     o_v = vec4(v, rho);
