@@ -205,7 +205,8 @@ def preview_bake(bake: Bake, environment=None, *, asset: Asset | str = "material
             file or a bundled name (default: the bake's recorded source, ``bake.info["source"]``).
         asset: a glTF file or a bundled asset (:func:`homofac.gl.asset.load_asset`).
         resolution: light resolution (cube face size) of the exact and split-sum panels.
-        exposure, error_scale: as :func:`homofac.gl.preview`.
+        exposure: as :func:`homofac.gl.preview`.
+        error_scale: as :func:`homofac.gl.preview`.
 
     Returns:
         ``uint8 (H, W, 3)`` (and, with ``return_data``, a dict: ``frame``, ``exact``, ``split_sum``,
