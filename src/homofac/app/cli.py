@@ -309,6 +309,16 @@ def _summary(fac, out, seconds: float | None) -> None:
 # python -m homofac.preview
 
 
+def _bake_arguments(p: argparse.ArgumentParser) -> None:
+    """The options of preview and view that show a bake directory on a textured asset."""
+    p.add_argument("--asset", default="material_sphere",
+                   help="a bake's object: a glTF file (.glb/.gltf, one textured primitive) or material_sphere (default)")
+    p.add_argument("--environment", metavar="ENV",
+                   help="a bake's exact and split-sum lighting: an EXR/HDR file or a bundled name (default: the bake's source)")
+    p.add_argument("--resolution", type=int, default=32,
+                   help="a bake's exact and split-sum light resolution, cube face size (default 32)")
+
+
 def preview_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="python -m homofac.preview",
@@ -319,12 +329,7 @@ def preview_parser() -> argparse.ArgumentParser:
                    "directory written by python -m homofac.bake (then shown on a textured glTF asset)")
     p.add_argument("-o", "--output", metavar="FILE.png", help="picture to write (default: OUT_DIR/preview.png)")
     p.add_argument("--mesh", default="sphere", help="sphere (default), torus, or a mesh file (OBJ, PLY, ...)")
-    p.add_argument("--asset", default="material_sphere",
-                   help="a bake's object: a glTF file (.glb/.gltf, one textured primitive) or material_sphere (default)")
-    p.add_argument("--environment", metavar="ENV",
-                   help="a bake's exact and split-sum lighting: an EXR/HDR file or a bundled name (default: the bake's source)")
-    p.add_argument("--resolution", type=int, default=32,
-                   help="a bake's exact and split-sum light resolution, cube face size (default 32)")
+    _bake_arguments(p)
     p.add_argument("--size", type=int, default=256, help="pixels of each panel (default 256)")
     p.add_argument("--azimuth", type=float, default=30.0, help="camera azimuth in degrees (+z up)")
     p.add_argument("--elevation", type=float, default=20.0, help="camera elevation in degrees")
@@ -444,12 +449,7 @@ def view_parser() -> argparse.ArgumentParser:
     p.add_argument("out_dir", metavar="OUT_DIR", help="output directory written by python -m homofac.fit, or a bake "
                    "directory written by python -m homofac.bake (then shown on a textured glTF asset)")
     p.add_argument("--html", metavar="FILE.html", help="page to write (default: OUT_DIR/viewer.html)")
-    p.add_argument("--asset", default="material_sphere",
-                   help="a bake's object: a glTF file (.glb/.gltf, one textured primitive) or material_sphere (default)")
-    p.add_argument("--environment", metavar="ENV",
-                   help="a bake's exact and split-sum lighting: an EXR/HDR file or a bundled name (default: the bake's source)")
-    p.add_argument("--resolution", type=int, default=32,
-                   help="a bake's exact and split-sum light resolution, cube face size (default 32)")
+    _bake_arguments(p)
     p.add_argument("--size", type=int, default=256, help="pixels of each panel (default 256)")
     p.add_argument("--azimuth", type=float, default=30.0, help="reference camera azimuth in degrees (+z up)")
     p.add_argument("--elevation", type=float, default=20.0, help="reference camera elevation in degrees")

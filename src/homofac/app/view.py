@@ -375,6 +375,17 @@ void main() {
 }
 `;
   const viridis = data.viridis.map((c) => `vec3(${c[0].toFixed(6)}, ${c[1].toFixed(6)}, ${c[2].toFixed(6)})`).join(", ");
+  // sRGB output and the viridis heat map, shared by the value and the exact panels' shaders
+  const TONE = `const vec3 HF_VIRIDIS[9] = vec3[9](${viridis});
+vec3 hf_srgb(vec3 x) {
+    x = clamp(x, 0.0, 1.0);
+    return mix(12.92 * x, 1.055 * pow(x, vec3(1.0 / 2.4)) - 0.055, step(vec3(0.0031308), x));
+}
+vec3 hf_viridis(float x) {
+    float t = clamp(x, 0.0, 1.0) * 8.0;
+    int i = min(int(floor(t)), 7);
+    return mix(HF_VIRIDIS[i], HF_VIRIDIS[i + 1], t - float(i));
+}`;
   // The value of a pixel: a factorization (homofac.gl.engine.FRAGMENT_MAIN in GLSL ES, with per-term weights),
   // or a bake on the textured asset (homofac.gl.bakes.FRAGMENT_MAIN, with the three parts of L as toggles).
   const FAC_VALUE = `
@@ -429,16 +440,7 @@ uniform ivec2 u_origin;
 uniform float u_tau;
 uniform float u_error_scale;
 out vec4 o_color;
-const vec3 HF_VIRIDIS[9] = vec3[9](${viridis});
-vec3 hf_srgb(vec3 x) {
-    x = clamp(x, 0.0, 1.0);
-    return mix(12.92 * x, 1.055 * pow(x, vec3(1.0 / 2.4)) - 0.055, step(vec3(0.0031308), x));
-}
-vec3 hf_viridis(float x) {
-    float t = clamp(x, 0.0, 1.0) * 8.0;
-    int i = min(int(floor(t)), 7);
-    return mix(HF_VIRIDIS[i], HF_VIRIDIS[i + 1], t - float(i));
-}
+${TONE}
 void main() {
     vec3 value = hfb_value();
     if (u_panel == 0) { o_color = vec4(hf_srgb(value * u_exposure), 1.0); return; }
@@ -462,16 +464,7 @@ uniform float u_exposure;
 uniform int u_heat;          // 1: the image holds a relative error (in r), shown as the heat map
 uniform float u_error_scale;
 out vec4 o_color;
-const vec3 HF_VIRIDIS[9] = vec3[9](${viridis});
-vec3 hf_srgb(vec3 x) {
-    x = clamp(x, 0.0, 1.0);
-    return mix(12.92 * x, 1.055 * pow(x, vec3(1.0 / 2.4)) - 0.055, step(vec3(0.0031308), x));
-}
-vec3 hf_viridis(float x) {
-    float t = clamp(x, 0.0, 1.0) * 8.0;
-    int i = min(int(floor(t)), 7);
-    return mix(HF_VIRIDIS[i], HF_VIRIDIS[i + 1], t - float(i));
-}
+${TONE}
 void main() {
     ivec2 p = ivec2(gl_FragCoord.xy) - u_origin;
     vec4 e = texelFetch(u_exact, ivec2(p.x, ${S - 1} - p.y), 0);
