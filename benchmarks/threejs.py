@@ -1,15 +1,20 @@
 """three.js PMREM beside homofac's drop-in, in the real three.js (headless Chromium), on the bundled
 environments: nrmse of each render against the exact lighting of the pinned glTF BRDF at the covered pixels
-of the bundled material asset (tests/threejs/scene.py), per roughness band, with texture memory and
-fetches per pixel. Writes benchmarks/threejs.json and docs/benchmarks/threejs.md.
+of the bundled material asset, per roughness band, with texture memory and fetches per pixel. The exact
+lighting is the converged reference (:mod:`homofac.light.reference`: MIS, float64, samples doubled until the
+image moves by < ``--tolerance``; tests/threejs/scene.py ``exact_lighting``). Writes benchmarks/threejs.json
+and docs/benchmarks/threejs.md; ``python benchmarks/pages.py`` also puts the rows into docs/benchmarks/bake.md
+as "three.js PMREM".
 
-    python benchmarks/threejs.py [--envs forest city] [--preset balanced] [--size 128] [--exact 64]
+    PYTHONPATH=src python benchmarks/threejs.py [--envs forest city] [--preset balanced] [--size 128]
+        [--samples 4096] [--tolerance 0.005]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import tempfile
 import time
@@ -35,19 +40,30 @@ def main() -> None:
     ap.add_argument("--envs", nargs="+", default=["forest", "city", "interior", "studio"])
     ap.add_argument("--preset", default="balanced")
     ap.add_argument("--size", type=int, default=128)
-    ap.add_argument("--exact", type=int, default=64, help="light resolution of the exact lighting")
+    ap.add_argument("--samples", type=int, default=4096, help="first sample count per strategy of the reference")
+    ap.add_argument("--tolerance", type=float, default=0.005, help="image nrmse between doublings that ends the reference")
     ap.add_argument("--json", default=str(HERE / "threejs.json"))
     ap.add_argument("--page", default=str(HERE.parent / "docs" / "benchmarks" / "threejs.md"))
+    ap.add_argument("--save", help="also write each environment's pixels (renders, G-buffer, exact) to SAVE/<env>.npz")
     a = ap.parse_args()
     rows = []
+    start = time.time()
+    load = os.getloadavg()
     for env in a.envs:
         t = time.perf_counter()
         bake = hf.bake(env, preset=a.preset)
         bake_s = time.perf_counter() - t
         with tempfile.TemporaryDirectory() as work:
-            out = render(env, bake, Path(work), a.size, a.exact)
+            t = time.perf_counter()
+            out = render(env, bake, Path(work), a.size, a.samples, a.tolerance)
+            render_s = time.perf_counter() - t
+        if a.save:
+            Path(a.save).mkdir(parents=True, exist_ok=True)
+            np.savez(Path(a.save) / f"{env}.npz", **{k: out[k] for k in ("pmrem", "homofac", "mask", "n", "v", "base",
+                                                                          "metallic", "roughness", "bake", "exact")})
         r = out["roughness"]
         row = {"environment": env, "preset": a.preset, "pixels": int(out["mask"].sum()), "bake_s": round(bake_s, 1),
+               "render_and_reference_s": round(render_s, 1), "reference": out["reference"],
                "lookups": {"homofac": bake.lookups, "pmrem": PMREM_FETCHES},
                "texture_bytes": {"homofac": int(bake.texture_bytes()), "pmrem": out["pmrem_bytes"]},
                "nrmse": {k: nrmse(out, k) for k in ("pmrem", "homofac")}, "bands": []}
@@ -58,7 +74,10 @@ def main() -> None:
                                      **{k: nrmse(out, k, sel) for k in ("pmrem", "homofac")}})
         rows.append(row)
         print(json.dumps(row))
-    doc = {"size": a.size, "exact_resolution": a.exact, "preset": a.preset, "rows": rows}
+    doc = {"size": a.size, "reference": "homofac.light.reference (MIS, float64)", "tolerance": a.tolerance,
+           "preset": a.preset, "rows": rows, "command": "python benchmarks/threejs.py " + " ".join(sys.argv[1:]),
+           "machine": {"date_utc": time.strftime("%Y-%m-%d %H:%M", time.gmtime(start)), "wall_s": round(time.time() - start, 1),
+                       "load_average_before": load[0], "load_average_after": os.getloadavg()[0], "cpus": os.cpu_count()}}
     Path(a.json).write_text(json.dumps(doc, indent=1) + "\n")
     Path(a.page).write_text(threejs_page(doc))
 

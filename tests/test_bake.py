@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import shutil
 import subprocess
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -21,6 +22,8 @@ from homofac.io.exr import read_exr
 from homofac.io.ktx2 import read_ktx2
 from homofac.light.integrals import integrals, material_radiance
 from helpers import visible_pairs as pairs
+
+JS = Path(__file__).resolve().parents[1] / "js"
 
 TINY = dict(layers=3, max_size=8, nv_size=8, samples=64, data_resolution=4, diffuse_size=8)
 
@@ -236,6 +239,38 @@ def test_ktx2_textures_hold_the_exr_data(forest_bake, tmp_path):
         np.testing.assert_array_equal(np.asarray(k.levels[0])[..., :3], exr)
         assert json.loads(k.text("homofac"))["texture"] == t["name"]
     assert np.asarray(hf.load(out).W).shape == np.asarray(forest_bake.W).shape
+
+
+def test_ktx2_files_read_by_ktx_parse_name_their_layout(forest_bake, tmp_path):
+    """A bake saved with ``ktx2`` (``--ktx2``, ``ktx2: true``): every texture is a KTX2 file that ktx-parse reads
+    as a 2D RGBA half-float image of bake.json's size, and its ``homofac`` key names the layout without bake.json:
+    the P atlas' layer blocks (roughness, size, x, y), the E maps' cube layout, the W tables' rows and columns."""
+    node = shutil.which("node")
+    if node is None or not (JS / "node_modules" / "ktx-parse").is_dir():
+        pytest.skip("node or js/node_modules/ktx-parse is missing (make js-packages)")
+    out = forest_bake.save(tmp_path / "bake", ktx2=True)
+    doc = json.loads((out / "bake.json").read_text())
+    files = [out / t["ktx2"] for t in doc["textures"]]
+    infos = json.loads(subprocess.run([node, str(JS / "ktx2-info.mjs"), *map(str, files)], check=True,
+                                      capture_output=True, text=True, timeout=60).stdout)
+    assert {t["kind"] for t in doc["textures"]} == {"prefiltered", "diffuse", "weights"}
+    for t, info in zip(doc["textures"], infos):
+        assert (info["vkFormat"], info["pixelWidth"], info["pixelHeight"]) == (97, t["width"], t["height"])
+        assert (info["pixelDepth"], info["layerCount"], info["faceCount"], info["levelCount"]) == (0, 0, 1, 1)
+        assert info["levelBytes"] == [t["width"] * t["height"] * 4 * 2]
+        key = json.loads(info["keyValue"]["homofac"])
+        assert key["texture"] == t["name"] and key["kind"] == t["kind"] and key["channels"] == t["channels"]
+        assert key["ktx2"] == {"kind": "2d", "format": "half", "levels": 1, "mip_filter": None}
+        assert key["frame"] == "homofac world, +z up" and key["rows"].startswith("file order")
+        if t["kind"] == "prefiltered":
+            assert key["mapper"] == "cube" and key["layers"] == doc["layers"]
+            # every block lies inside the image the key describes
+            assert all(b["x"] + 6 * b["size"] <= key["width"] and b["y"] + b["size"] <= key["height"] for b in key["layers"])
+        elif t["kind"] == "diffuse":
+            assert key["mapper"] == "cube" and 6 * key["size"] == key["width"] and key["size"] == key["height"]
+        else:
+            assert key["layers"] == key["height"] == len(doc["layers"]) and key["nv_size"] == key["width"]
+        np.testing.assert_array_equal(read_ktx2(out / t["ktx2"]).levels[0][..., :3], read_exr(out / t["file"]))
 
 
 @pytest.mark.parametrize("path, value", [

@@ -236,3 +236,15 @@ def test_layout_key_and_mips_read_by_ktx_parse(tmp_path, ktx_parse):
     with pytest.raises(HomofacError, match="levels asked"):
         write_ktx2(tmp_path / "x.ktx2", vol, "3d", mips=9)
     assert not (tmp_path / "x.ktx2").exists()
+
+
+
+def test_bake_cli_ktx2_flag_sets_the_option(tmp_path):
+    """``python -m homofac.bake ENV --ktx2`` (and ``ktx2: true`` in its config) turn on the bake's KTX2 output, which
+    ``Bake.save`` reads from the options (tests/test_bake.py reads the files back with ktx-parse)."""
+    from homofac.app import bake_cli
+    assert bake_cli.options(bake_cli.parser().parse_args(["forest", "--out", "o", "--ktx2"])).ktx2 is True
+    assert bake_cli.options(bake_cli.parser().parse_args(["forest", "--out", "o"])).ktx2 is False
+    cfg = tmp_path / "bake.yaml"
+    cfg.write_text("ktx2: true\n")
+    assert bake_cli.options(bake_cli.parser().parse_args(["forest", "--out", "o", "--config", str(cfg)])).ktx2 is True

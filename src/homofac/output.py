@@ -921,6 +921,31 @@ def bake_document(bake: Bake, exr: str = "half") -> dict:
     }
 
 
+def bake_ktx2_layout(doc: dict, entry: dict) -> dict:
+    """The ``homofac`` key of a bake texture's KTX2 file (docs/format.md "The bake directory"): what the texels
+    mean and where each part of the 2D image lies, so that an engine can read the file without bake.json.
+
+    ``P<k>`` is an atlas of cube-layout blocks, one per roughness layer (``layers``: roughness, block size S
+    and the block's first texel x, y; a block is (S, 6 S), faces +X -X +Y -Y +Z -Z left to right); ``E<d>``
+    one cube layout (S, 6 S); ``W<t>`` a table with one row per layer and one column per n.v (texel centres
+    (i + 0.5) / X), its channels named by ``channels``. Rows are in file order (row 0 read at v = 0), the
+    frame is homofac's +z up, the values linear; alpha is 1.
+    """
+    faces = "faces +X -X +Y -Y +Z -Z left to right (docs/conventions.md cube mapper)"
+    common = {"format": "homofac.bake.texture", "texture": entry["name"], "kind": entry["kind"],
+              "width": entry["width"], "height": entry["height"], "channels": entry["channels"],
+              "rows": "file order: row 0 is read at v = 0", "frame": "homofac world, +z up", "values": "linear, alpha 1"}
+    if entry["kind"] == "prefiltered":
+        return {**common, "mapper": "cube", "layout": f"atlas: layer j is an (S, 6 S) cube-layout block at texel (x, y), {faces}",
+                "layer_coordinate": doc["layer_coordinate"],
+                "layers": [{k: layer[k] for k in ("roughness", "shift", "size", "x", "y")} for layer in doc["layers"]]}
+    if entry["kind"] == "diffuse":
+        return {**common, "mapper": "cube", "size": doc["diffuse_size"], "layout": f"one (S, 6 S) cube layout, {faces}"}
+    return {**common, "mapper": "line x line", "layout": "rows: roughness layers u = 0 .. L - 1 (layer_coordinate); "
+            "columns: n.v, texel centres (i + 0.5) / X", "layer_coordinate": doc["layer_coordinate"],
+            "layers": len(doc["layers"]), "nv_size": doc["nv_size"]}
+
+
 def save_bake(bake: Bake, out_dir, *, exr: str | None = None, ktx2: bool | None = None) -> Path:
     """Write a bake directory atomically: bake.json, ``P<k>.exr`` (layer atlases), ``E<d>.exr`` (cube
     layout), ``W<t>.exr`` (weight tables, rows = layers, columns = n.v), the shaders (:data:`BAKE_SHADERS`),
@@ -939,10 +964,8 @@ def save_bake(bake: Bake, out_dir, *, exr: str | None = None, ktx2: bool | None 
             write_exr(tmp / entry["file"], array, half=half)
             if ktx2:
                 entry["ktx2"] = f"{entry['name']}.ktx2"
-                keys = {"homofac": json.dumps({"texture": entry["name"], "kind": entry["kind"], "channels": entry["channels"],
-                                               "layout": "the EXR's 2D layout, rows in file order (docs/format.md)",
-                                               "frame": "homofac world, +z up"})}
-                write_ktx2(tmp / entry["ktx2"], array, kind="2d", format="half" if half else "float", keys=keys)
+                write_ktx2(tmp / entry["ktx2"], array, kind="2d", format="half" if half else "float",
+                           layout=bake_ktx2_layout(doc, entry))
         sh = (bake.info or {}).get("sh9")
         if sh:
             sh9 = SH9(np.asarray(sh["irradiance"], np.float64), dict(sh.get("error") or {}))

@@ -2,6 +2,12 @@
 homofac's drop-in, the G-buffer, and Python's evaluation of the bake and of the exact lighting at every
 covered pixel. Used by tests/test_threejs.py and benchmarks/threejs.py.
 
+The exact lighting is :func:`homofac.light.reference.reference_integrals` (the pinned glTF BRDF integrated
+against the source lat-long map read bilinearly, multiple importance sampling, float64): three's equirect
+DataTexture is that same map with linear filtering, so both renders are scored against the environment they
+were given, converged at every roughness (:func:`exact_lighting` doubles the samples until the image moves
+by less than ``tolerance``).
+
 three's world is y-up: its direction (x, y, z) is homofac's (x, -z, y) (``HOMOFAC_Y_UP``), and the equirect
 three is given is homofac's lat-long permuted to match (:func:`three_equirect`).
 """
@@ -13,12 +19,15 @@ import shutil
 import time
 from pathlib import Path
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 import OpenEXR
 
 import homofac as hf
 from browser import chromium, serve
-from homofac.light.integrals import integrals, material_radiance
+from homofac.light.integrals import material_radiance
+from homofac.light.reference import reference_integrals, source_map
 from homofac.light.sources import bundled
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -39,13 +48,38 @@ def y_up(d: np.ndarray) -> np.ndarray:
     return np.stack([d[..., 0], -d[..., 2], d[..., 1]], -1)
 
 
-def render(env_name: str, bake, work: Path, size: int, exact_resolution: int) -> dict:
+def exact_lighting(latlong: np.ndarray, name: str, n, v, base, metallic, roughness, *, samples: int = 4096,
+                   tolerance: float = 0.005, cap: int = 65536) -> tuple[np.ndarray, dict]:
+    """The converged outgoing radiance (N, 3) float64 of the glTF BRDF at pairs (n, v) with their materials,
+    and how it converged: ``samples`` points per strategy of :func:`reference_integrals`, doubled until one
+    doubling moves the image by less than ``tolerance`` (nrmse) or ``cap`` is reached. The finer estimate is
+    returned; ``info`` = {samples, last_change, converged}."""
+    src = source_map(latlong, name)
+
+    def radiance(s: int) -> np.ndarray:
+        parts = reference_integrals(src, n, v, roughness, samples=s)
+        with jax.enable_x64(True):  # the float64 reference stays float64
+            return np.asarray(material_radiance(jnp.asarray(parts), np.asarray(base, np.float64),
+                                                np.asarray(metallic, np.float64)), np.float64)
+
+    old, s = radiance(samples), samples
+    while True:
+        new, s = radiance(2 * s), 2 * s
+        change = float(np.linalg.norm(new - old) / np.linalg.norm(new))
+        if change < tolerance or s >= cap:
+            return new, {"samples": s, "last_change": change, "converged": change < tolerance}
+        old = new
+
+
+def render(env_name: str, bake, work: Path, size: int, reference_samples: int = 4096,
+           tolerance: float = 0.005) -> dict:
     """Render ``bake`` (saved into ``work``) and three's PMREM of the bundled environment ``env_name``.
 
     Returns the float radiance of both renders (``pmrem``, ``homofac``: (size, size, 4)), the coverage
     ``mask``, the G-buffer inputs at the covered pixels (``n``, ``v`` in homofac's frame, ``base``,
     ``metallic``, ``roughness``), the bake's own evaluation there (``bake``), the exact lighting
-    (``exact``, light resolution ``exact_resolution``), the 8-bit canvas of homofac's render at ``exposure``,
+    (``exact``, :func:`exact_lighting` from ``reference_samples`` up; ``reference`` says how it converged),
+    the 8-bit canvas of homofac's render at ``exposure``,
     the browser console ``log`` and the render time."""
     bake.save(work / "bake", ktx2=True)
     latlong = OpenEXR.File(str(bundled(env_name))).channels()["RGB"].pixels.astype(np.float32)
@@ -84,9 +118,8 @@ def render(env_name: str, bake, work: Path, size: int, exact_resolution: int) ->
         canvas = browser.execute_script(f"return window.hfTest.canvas('homofac', {out['exposure']})")
         out["canvas"] = np.frombuffer(base64.b64decode(canvas), np.uint8).reshape(size, size, 4)[::-1]
         out["log"] = browser.get_log("browser")
-    env = hf.light.load_environment(env_name, resolution=exact_resolution)
-    parts = integrals(env, out["n"], out["v"], out["roughness"])
-    out["exact"] = np.asarray(material_radiance(parts, out["base"], out["metallic"]), np.float64)
+    out["exact"], out["reference"] = exact_lighting(latlong, env_name, out["n"], out["v"], out["base"], out["metallic"],
+                                                    out["roughness"], samples=reference_samples, tolerance=tolerance)
     return out
 
 
