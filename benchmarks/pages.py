@@ -202,9 +202,17 @@ def threejs_rows(doc: dict) -> list[str]:
             b = bands.get((lo, min(hi, 1.0)))
             cells.append(f"{b['homofac']:.3f} / {b['pmrem']:.3f}" if b else "-")
         tb = r["texture_bytes"]
+        mine = f"{tb['homofac'] / 1e6:.2f}" + (f" ({tb['homofac_rgba'] / 1e6:.2f} RGBA)" if "homofac_rgba" in tb else "")
         lines.append(f"| {r['environment']} | {r['nrmse']['homofac']:.3f} / {r['nrmse']['pmrem']:.3f} | "
                      + " | ".join(cells)
-                     + f" | {r['lookups']['homofac']} / {r['lookups']['pmrem']} | {tb['homofac'] / 1e6:.2f} / {tb['pmrem'] / 1e6:.2f} |")
+                     + f" | {r['lookups']['homofac']} / {r['lookups']['pmrem']} | {mine} / {tb['pmrem'] / 1e6:.2f} |")
+    if doc["rows"] and "pmrem_cube" in doc["rows"][0]:
+        c = doc["rows"][0]["pmrem_cube"]
+        lines += ["", f"Fetches count a `textureLod` as one (as `bake.lookups` does): PMREM (three r187) reads its cube "
+                  f"twice (radiance at the roughness' mip, irradiance at the roughest) and its 16 x 16 DFG table once. "
+                  f"Texture memory: the bake's textures in half floats, RGB (in parentheses RGBA, as its KTX2 files "
+                  f"load in three.js), against PMREM's cube render target ({c['size']}^2 x 6, {c['levels']} mip levels, "
+                  "RGBA half floats) and DFG table."]
     return lines
 
 

@@ -29,9 +29,11 @@ import homofac as hf  # noqa: E402
 from pages import BANDS, threejs_page  # noqa: E402
 from scene import nrmse, render  # noqa: E402
 
-#: Texture fetches of three's MeshStandardMaterial under PMREM (r187): getIBLRadiance reads two mips of the
-#: cube-UV atlas, getIBLIrradiance two, and the DFG table one.
-PMREM_FETCHES = 5
+#: Texture fetches of three's MeshStandardMaterial under PMREM (r187, counted as bake.lookups counts them: a
+#: textureLod counts 1): getIBLRadiance one trilinear textureLod of the PMREM cube, getIBLIrradiance one (its
+#: roughest level), EnvironmentBRDF one of the 16 x 16 DFG table (envmap_physical_pars_fragment,
+#: lights_physical_pars_fragment). r187's PMREM is a cube render target with mips, not the older cube-UV atlas.
+PMREM_FETCHES = 3
 
 
 
@@ -65,7 +67,9 @@ def main() -> None:
         row = {"environment": env, "preset": a.preset, "pixels": int(out["mask"].sum()), "bake_s": round(bake_s, 1),
                "render_and_reference_s": round(render_s, 1), "reference": out["reference"],
                "lookups": {"homofac": bake.lookups, "pmrem": PMREM_FETCHES},
-               "texture_bytes": {"homofac": int(bake.texture_bytes()), "pmrem": out["pmrem_bytes"]},
+               "texture_bytes": {"homofac": int(bake.texture_bytes()), "homofac_rgba": int(bake.texture_bytes()) * 4 // 3,
+                                 "pmrem": out["pmrem_bytes"]},
+               "pmrem_cube": {"size": out["pmrem_size"], "levels": out["pmrem_levels"]},
                "nrmse": {k: nrmse(out, k) for k in ("pmrem", "homofac")}, "bands": []}
         for lo, hi in BANDS:
             sel = (r >= lo) & (r < hi)

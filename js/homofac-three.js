@@ -72,10 +72,21 @@ function ktx2Texture(buffer, url) {
   return finish(new DataTexture(data, c.pixelWidth, c.pixelHeight, RGBAFormat, type));
 }
 
-async function loadTexture(base, entry) {
+// A 2D KTX2 file read by three's own KTX2Loader (the engine's loader, as for any other KTX2 asset).
+async function ktx2LoaderTexture(loader, url) {
+  const tex = await loader.loadAsync(url);
+  if (!tex.isDataTexture || tex.isData3DTexture || tex.format !== RGBAFormat || !(tex.type === HalfFloatType || tex.type === FloatType)) {
+    throw new Error(`homofac: ${url}: KTX2Loader did not give a 2D RGBA half or float texture`);
+  }
+  tex.mipmaps = [];
+  return finish(tex);
+}
+
+async function loadTexture(base, entry, ktx2Loader) {
   if (entry.ktx2) {
     const url = joinUrl(base, entry.ktx2);
-    return ktx2Texture(await fetchOk(url, 'buffer'), url);
+    if (ktx2Loader) return [await ktx2LoaderTexture(ktx2Loader, url), 'KTX2Loader'];
+    return [ktx2Texture(await fetchOk(url, 'buffer'), url), 'ktx-parse'];
   }
   const url = joinUrl(base, entry.file);
   const tex = await new EXRLoader().setDataType(HalfFloatType).loadAsync(url);
@@ -85,16 +96,19 @@ async function loadTexture(base, entry) {
   const rows = new data.constructor(data.length);
   for (let y = 0; y < h; y++) rows.set(data.subarray((h - 1 - y) * w * c, (h - y) * w * c), y * w * c);
   tex.image.data = rows;
-  return finish(tex);
+  return [finish(tex), 'EXRLoader'];
 }
 
 /**
  * Loads a bake directory (served over HTTP or from a file URL): its bake.json, its GLSL ES source and its
- * textures (KTX2 where the bake lists them, else EXR).
+ * textures (KTX2 where the bake lists them, else EXR). KTX2 files are read by `ktx2Loader` when one is given
+ * (three's KTX2Loader after `detectSupport(renderer)`, as an engine loads its other KTX2 assets), else parsed
+ * here with the ktx-parse copy three ships. `sources` says which reader read each texture.
  * @param {string} url - the directory's URL
- * @returns {Promise<{url: string, document: object, glsl: string, textures: Object<string, DataTexture>, lookups: number}>}
+ * @param {{ktx2Loader?: import('three/addons/loaders/KTX2Loader.js').KTX2Loader}} [options]
+ * @returns {Promise<{url: string, document: object, glsl: string, textures: Object<string, DataTexture>, sources: Object<string, string>, lookups: number}>}
  */
-export async function loadBake(url) {
+export async function loadBake(url, { ktx2Loader } = {}) {
   const base = url.endsWith('/') ? url : `${url}/`;
   const doc = await fetchOk(joinUrl(base, 'bake.json'), 'json');
   if (doc.format !== FORMAT) throw new Error(`homofac: ${base}bake.json is not a homofac bake`);
@@ -104,8 +118,9 @@ export async function loadBake(url) {
     throw new Error(`homofac: ${base}bake.json: texture names and files must be P<k>, E<d>, W<t> (.exr, .ktx2)`);
   }
   const glsl = await fetchOk(joinUrl(base, SHADER_FILE), 'text');
-  const entries = await Promise.all(doc.textures.map(async (t) => [`hf_${t.name}`, await loadTexture(base, t)]));
-  return { url: base, document: doc, glsl, textures: Object.fromEntries(entries), lookups: doc.lookups };
+  const entries = await Promise.all(doc.textures.map(async (t) => [`hf_${t.name}`, await loadTexture(base, t, ktx2Loader)]));
+  return { url: base, document: doc, glsl, textures: Object.fromEntries(entries.map(([k, [tex]]) => [k, tex])),
+    sources: Object.fromEntries(entries.map(([k, [, source]]) => [k, source])), lookups: doc.lookups };
 }
 
 // Added after three's lights_fragment_end: the bake's integrals at the shading normal and the view, in world

@@ -140,3 +140,22 @@ def test_unity_bake_recipe_compiles_and_runs_through_spirv(saved, tmp_path):
     assert np.abs(px[:, :3] - want).max() <= 1e-4 * np.abs(want).max()
     terms = np.asarray(bake.terms(n, v, 0.4)).sum(axis=(1, 2))
     assert np.abs(px[:, 3] - terms).max() <= 1e-4 * np.abs(terms).max()
+
+
+def test_threejs_dropin_replaces_pmrem_in_under_ten_lines():
+    """Issue 43's goal line: docs/recipes/threejs.md's PMREM page and its homofac page (both run in the real three.js
+    by tests/test_threejs.py) differ in fewer than ten lines, those lines use the pinned loadBake / applyBake, and
+    both blocks parse as ES modules (node --check)."""
+    import difflib
+    pmrem, dropin = recipe("threejs.md", "threejs-pmrem"), recipe("threejs.md", "threejs-dropin")
+    changed = [line for line in difflib.unified_diff(pmrem.splitlines(), dropin.splitlines(), lineterm="", n=0)
+               if line[:1] in "+-" and not line.startswith(("+++", "---"))]
+    added = [line[1:] for line in changed if line.startswith("+")]
+    assert len(changed) < 10, changed
+    assert any("loadBake(" in line for line in added) and any("applyBake(" in line for line in added), added
+    assert any("PMREMGenerator" in line for line in changed if line.startswith("-"))
+    assert "PMREM" not in dropin
+    node = tool("node")
+    for code in (pmrem, dropin):
+        r = subprocess.run([node, "--check", "--input-type=module"], input=code, capture_output=True, text=True, timeout=60)
+        assert r.returncode == 0, r.stderr

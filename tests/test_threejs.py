@@ -8,8 +8,11 @@ roughness three shades with) is read back, so Python evaluates at every covered 
 (``tests/threejs/scene.py``):
 
 * the bake itself (``hf.load(dir).evaluate``): homofac's 8-bit render equals it within 2/255;
-* the exact lighting of the pinned glTF BRDF (``homofac.light.integrals``): PMREM's and homofac's nrmse
-  against it, homofac's lower.
+* the exact lighting of the pinned glTF BRDF (``homofac.light.reference``, converged MIS, float64): PMREM's
+  and homofac's nrmse against it, homofac's lower.
+
+The bake is written with KTX2 files and the page reads them with three's own KTX2Loader. The recipe's two
+pages (PMREM and the drop-in) and js/examples/side-by-side.html run as written.
 """
 
 from __future__ import annotations
@@ -26,14 +29,15 @@ import pytest
 
 import homofac as hf
 from browser import chromium, console_problems, missing, serve
+from homofac.light.sources import bundled
 
 sys.path.insert(0, str(Path(__file__).resolve().parent / "threejs"))
 from scene import ROOT, nrmse, render  # noqa: E402  (tests/threejs is not a package)
 
 SIZE = 64
 ENV = "forest"
-#: Light resolution of the exact lighting (cube face size).
-EXACT_RESOLUTION = 48
+#: First sample count per strategy of the converged reference (doubled until the image moves < 0.5 %).
+REFERENCE_SAMPLES = 4096
 
 pytestmark = pytest.mark.slow
 
@@ -43,9 +47,17 @@ def rendered(tmp_path_factory):
     if not (ROOT / "js" / "node_modules" / "three").is_dir():
         missing("js/node_modules/three is missing (make js-packages)")
     bake = hf.bake(ENV, preset="fast", max_size=32, diffuse_size=16, data_resolution=8, samples=256)
-    out = render(ENV, bake, tmp_path_factory.mktemp("three"), SIZE, EXACT_RESOLUTION)
-    assert out["setup"] is True and out["lookups"] == bake.lookups, (out["setup"], out["lookups"])
+    out = render(ENV, bake, tmp_path_factory.mktemp("three"), SIZE, REFERENCE_SAMPLES)
+    assert out["setup"] is True and out["lookups"][0] == bake.lookups, (out["setup"], out["lookups"])
     return out
+
+
+def test_the_bake_textures_are_read_by_threes_ktx2loader(rendered):
+    """Every texture of the bake comes from its .ktx2 file through three's KTX2Loader (the render checks below
+    then hold for what an engine loads from our KTX2 files)."""
+    doc = json.loads((rendered["work"] / "bake" / "bake.json").read_text())
+    assert all(t.get("ktx2") for t in doc["textures"])
+    assert rendered["lookups"][1] == {f"hf_{t['name']}": "KTX2Loader" for t in doc["textures"]}, rendered["lookups"][1]
 
 
 def test_the_page_renders_without_console_errors(rendered):
@@ -64,6 +76,15 @@ def test_homofac_in_three_equals_bake_evaluate(rendered):
     assert np.percentile(diff, 99.9) <= 2.0, np.percentile(diff, [50, 99, 99.9, 100])
     flo = rendered["homofac"][rendered["mask"]][:, :3]
     np.testing.assert_allclose(flo, rendered["bake"], rtol=2e-2, atol=2e-3 * float(rendered["bake"].mean()))
+
+
+def test_physical_material_base_layer_takes_the_bake(rendered):
+    """applyBake on MeshPhysicalMaterial (the asset's materials as physical ones, clearcoat, sheen and transmission
+    0): its base layer renders what the standard material does with the bake."""
+    phys = rendered["physical"][rendered["mask"]][:, :3]
+    std = rendered["homofac"][rendered["mask"]][:, :3]
+    assert float(np.abs(phys).max()) > 0
+    np.testing.assert_allclose(phys, std, rtol=1e-3, atol=1e-4 * float(std.mean()))
 
 
 def test_homofac_beats_three_pmrem_against_the_exact_lighting(rendered):
@@ -86,13 +107,15 @@ window.recipe = {lit};
 </script></body></html>"""
 
 
-def test_the_threejs_recipe_runs_as_written(rendered, tmp_path):
-    """docs/recipes/threejs.md's drop-in block, run as written next to a bake and the asset: the sphere is lit
-    and the console is clean."""
+@pytest.mark.parametrize("block", ["threejs-pmrem", "threejs-dropin"])
+def test_the_threejs_recipe_runs_as_written(rendered, tmp_path, block):
+    """docs/recipes/threejs.md's PMREM page and its drop-in page, run as written next to a bake, the environment
+    and the asset: the sphere is lit and the console is clean."""
     text = (ROOT / "docs" / "recipes" / "threejs.md").read_text()
-    code = re.search(r"<!-- recipe: threejs-dropin -->\s*```js\n(.*?)\n```", text, re.S).group(1)
+    code = re.search(rf"<!-- recipe: {block} -->\s*```js\n(.*?)\n```", text, re.S).group(1)
     shutil.copytree(rendered["work"] / "bake", tmp_path / "bake")
     shutil.copy(rendered["work"] / "asset.glb", tmp_path / "asset.glb")
+    shutil.copy(bundled(ENV), tmp_path / "forest.exr")
     (tmp_path / "recipe.html").write_text(RECIPE_PAGE % code)
     with serve({"/data": tmp_path, "/": ROOT}) as url, chromium() as browser:
         browser.get(f"{url}/data/recipe.html")
@@ -106,4 +129,26 @@ def test_the_threejs_recipe_runs_as_written(rendered, tmp_path):
         log += browser.get_log("browser")
     assert state, console_problems(log)
     assert state["lit"] > 0.2 * 512 * 512, state  # the sphere covers a good part of the view, lit
+    assert not console_problems(log), console_problems(log)
+
+
+def test_the_side_by_side_page_renders_both_ways(rendered, tmp_path):
+    """js/examples/side-by-side.html (one glTF scene, three's PMREM left, homofac's bake right) on the test's bake:
+    both views are lit, the right one reports the bake's lookups, and the console is clean."""
+    shutil.copytree(rendered["work"] / "bake", tmp_path / "bake")
+    query = "?bake=/data/bake/&env=/src/homofac/data/hdri/forest.exr&asset=/src/homofac/data/assets/material_sphere.glb"
+    with serve({"/data": tmp_path, "/": ROOT}) as url, chromium() as browser:
+        browser.get(f"{url}/js/examples/side-by-side.html{query}")
+        log: list = []
+        for _ in range(600):
+            state = browser.execute_script("return window.sideBySide || null")
+            log += browser.get_log("browser")
+            if state or console_problems(log):
+                break
+            time.sleep(0.1)
+        log += browser.get_log("browser")
+    assert state, console_problems(log)
+    px = state["size"] ** 2
+    assert state["lit"][0] > 0.2 * px and state["lit"][1] > 0.2 * px, state
+    assert state["label"] == f"homofac bake ({rendered['lookups'][0]} lookups per pixel)", state
     assert not console_problems(log), console_problems(log)

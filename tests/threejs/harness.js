@@ -1,6 +1,7 @@
 // window.hfTest: set up a scene (asset + equirect environment), then read passes back as base64 float32.
 import * as THREE from 'three';
 import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
+import { KTX2Loader } from 'three/addons/loaders/KTX2Loader.js';
 import { loadBake, applyBake } from '/js/homofac-three.js';
 
 const state = {};
@@ -94,8 +95,14 @@ window.hfTest = {
     return b64(readTarget(target));
   },
 
-  // The PMREM render target: [width, height, bytes per texel (RGBA half floats)].
-  pmremInfo() { return [state.envRT.width, state.envRT.height, 8]; },
+  // What three's PMREM holds on the GPU: its cube render target (6 faces, RGBA half floats, every prefiltered mip
+  // level it allocates) and the 16 x 16 RG half-float DFG table; [face size, mip levels, bytes].
+  pmremInfo() {
+    const { envRT } = state;
+    const levels = envRT.texture.mipmaps.length ? envRT.texture.mipmaps : [{ width: envRT.width, height: envRT.height }];
+    const cube = 6 * 8 * levels.reduce((sum, l) => sum + l.width * l.height, 0);
+    return [envRT.width, levels.length, cube + 16 * 16 * 4];
+  },
 
   gbuffer(name) { return this._render((m) => passMaterial(m, PASSES[name])); },
 
@@ -107,10 +114,27 @@ window.hfTest = {
   // The material with homofac's drop-in (js/homofac-three.js) reading the bake loaded by loadBake.
   _homofac(exposure) { return (m) => applyBake(m.clone(), state.bake, { intensity: exposure }); },
 
-  async loadBake(url) { state.bake = await loadBake(url); return state.bake.lookups; },
+  // The bake's KTX2 files go through three's KTX2Loader, as an engine reads them; [lookups, reader per texture].
+  async loadBake(url) {
+    state.bake = await loadBake(url, { ktx2Loader: new KTX2Loader().detectSupport(state.renderer) });
+    return [state.bake.lookups, state.bake.sources];
+  },
 
-  // Float radiance (base64 float32 RGBA) of 'pmrem' or 'homofac'.
-  radiance(kind) { return this._render(kind === 'pmrem' ? this._pmrem(1) : this._homofac(1)); },
+  // The drop-in on each material made a MeshPhysicalMaterial (its standard properties; clearcoat, sheen and
+  // transmission 0): the physical material's base layer.
+  _physical(exposure) {
+    return (m) => {
+      const p = new THREE.MeshPhysicalMaterial();
+      THREE.MeshStandardMaterial.prototype.copy.call(p, m);
+      p.defines = { STANDARD: '', PHYSICAL: '' };
+      return applyBake(p, state.bake, { intensity: exposure });
+    };
+  },
+
+  // Float radiance (base64 float32 RGBA) of 'pmrem', 'homofac' or 'physical'.
+  radiance(kind) {
+    return this._render(kind === 'pmrem' ? this._pmrem(1) : kind === 'physical' ? this._physical(1) : this._homofac(1));
+  },
 
   // The 8-bit canvas (linear output, no tone mapping) of 'pmrem' or 'homofac' at `exposure`: base64 RGBA bytes.
   canvas(kind, exposure) {

@@ -75,7 +75,9 @@ def render(env_name: str, bake, work: Path, size: int, reference_samples: int = 
            tolerance: float = 0.005) -> dict:
     """Render ``bake`` (saved into ``work``) and three's PMREM of the bundled environment ``env_name``.
 
-    Returns the float radiance of both renders (``pmrem``, ``homofac``: (size, size, 4)), the coverage
+    Returns the float radiance of both renders (``pmrem``, ``homofac``: (size, size, 4); ``physical``: homofac's
+    drop-in on the materials made MeshPhysicalMaterial), the reader of each bake texture (``lookups``:
+    [lookups, {uniform: reader}]), the coverage
     ``mask``, the G-buffer inputs at the covered pixels (``n``, ``v`` in homofac's frame, ``base``,
     ``metallic``, ``roughness``), the bake's own evaluation there (``bake``), the exact lighting
     (``exact``, :func:`exact_lighting` from ``reference_samples`` up; ``reference`` says how it converged),
@@ -102,13 +104,13 @@ def render(env_name: str, bake, work: Path, size: int, reference_samples: int = 
                  "envHeight": latlong.shape[0], "size": size, "cameraPosition": CAMERA}
         out["setup"] = browser.execute_async_script(run, {"fn": "setup", "args": [setup]})
         out["lookups"] = browser.execute_async_script(run, {"fn": "loadBake", "args": ["/data/bake/"]})
-        w, h, texel = browser.execute_script("return window.hfTest.pmremInfo()")
-        out["pmrem_bytes"] = int(w * h * texel)
+        out["pmrem_size"], out["pmrem_levels"], out["pmrem_bytes"] = browser.execute_script("return window.hfTest.pmremInfo()")
         g = {k: floats(browser.execute_script(f"return window.hfTest.gbuffer('{k}')")) for k in ("normal", "view", "base")}
         t = time.perf_counter()
         out["pmrem"] = floats(browser.execute_script("return window.hfTest.radiance('pmrem')"))
         out["homofac"] = floats(browser.execute_script("return window.hfTest.radiance('homofac')"))
         out["render_s"] = time.perf_counter() - t
+        out["physical"] = floats(browser.execute_script("return window.hfTest.radiance('physical')"))
         mask = g["base"][..., 3] > 0.5
         out.update(mask=mask, n=y_up(g["normal"][mask][:, :3]), v=y_up(g["view"][mask][:, :3]),
                    metallic=g["normal"][mask][:, 3], roughness=g["view"][mask][:, 3], base=g["base"][mask][:, :3])
