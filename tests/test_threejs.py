@@ -66,6 +66,8 @@ def test_the_page_renders_without_console_errors(rendered):
     # every roughness band and both metallic extremes are on screen
     r, m = rendered["roughness"], rendered["metallic"]
     assert r.min() < 0.15 and r.max() > 0.6 and m.min() < 0.01 and m.max() > 0.99
+    # PMREM's memory counts its whole cube: six faces of RGBA half floats and the mips below them
+    assert rendered["pmrem_levels"] > 1 and rendered["pmrem_bytes"] > 6 * 8 * rendered["pmrem_size"] ** 2, rendered["pmrem_bytes"]
 
 
 def test_homofac_in_three_equals_bake_evaluate(rendered):
