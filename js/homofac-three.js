@@ -5,6 +5,9 @@
 //   const bake = await loadBake('bake/');               // a directory written by `python -m homofac.bake`
 //   gltf.scene.traverse((o) => { if (o.isMesh) applyBake(o.material, bake); });
 //
+// A bake written with --ktx2 can be read by three's own KTX2Loader:
+//   loadBake('bake/', { ktx2Loader: new KTX2Loader().detectSupport(renderer) })
+//
 // The bake holds three integrals of the environment, I_d(n, v), I_A(n, v, rho), I_B(n, v, rho) (docs/format.md,
 // "The bake directory"); with the material's own base colour c, metallic m and roughness rho the outgoing
 // radiance is (1 - m) 0.96 c I_d + f0 I_A + I_B with f0 = mix(0.04, c, m): the glTF 2.0 BRDF, exact in c and m.
