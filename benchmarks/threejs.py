@@ -4,7 +4,7 @@ of the bundled material asset, per roughness band, with texture memory and fetch
 lighting is the converged reference (:mod:`homofac.light.reference`: MIS, float64, samples doubled until the
 image moves by < ``--tolerance``; tests/threejs/scene.py ``exact_lighting``). Writes benchmarks/threejs.json
 and docs/benchmarks/threejs.md; ``python benchmarks/pages.py`` also puts the rows into docs/benchmarks/bake.md
-as "three.js PMREM".
+as "three.js PMREM". ``--preset fast --json benchmarks/threejs_fast.json`` adds the fast bake's table to both pages.
 
     PYTHONPATH=src python benchmarks/threejs.py [--envs forest city] [--preset balanced] [--size 128]
         [--samples 4096] [--tolerance 0.005]
@@ -26,7 +26,7 @@ HERE = Path(__file__).resolve().parent
 sys.path[:0] = [str(HERE), str(HERE.parent / "tests"), str(HERE.parent / "tests" / "threejs")]
 
 import homofac as hf  # noqa: E402
-from pages import BANDS, threejs_page  # noqa: E402
+from pages import BANDS, threejs_page, threejs_runs  # noqa: E402
 from scene import nrmse, render  # noqa: E402
 
 #: Texture fetches of three's MeshStandardMaterial under PMREM (r187, counted as bake.lookups counts them: a
@@ -83,7 +83,8 @@ def main() -> None:
            "machine": {"date_utc": time.strftime("%Y-%m-%d %H:%M", time.gmtime(start)), "wall_s": round(time.time() - start, 1),
                        "load_average_before": load[0], "load_average_after": os.getloadavg()[0], "cpus": os.cpu_count()}}
     Path(a.json).write_text(json.dumps(doc, indent=1) + "\n")
-    Path(a.page).write_text(threejs_page(doc))
+    # the default run's page also shows the other presets' runs (benchmarks/threejs_<preset>.json)
+    Path(a.page).write_text(threejs_page(*threejs_runs()) if Path(a.json) == HERE / "threejs.json" else threejs_page(doc))
 
 
 if __name__ == "__main__":
