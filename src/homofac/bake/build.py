@@ -152,8 +152,8 @@ def compress(kernels: np.ndarray, tolerance: float = 1e-2) -> tuple[np.ndarray, 
 
 def filtered(kp: np.ndarray, size: int, env: Environment, coarse: Environment | None, own: np.ndarray) -> np.ndarray:
     """``(T, J - 1, 3)``: the kernels ``kp[:-1]`` applied at the texels of a cube of face ``size``
-    (:func:`homofac.bake.filter.two_scale`: near part with ``env``'s lights, far part with ``coarse``'s, half
-    their resolution in the bake),
+    (:func:`homofac.bake.filter.two_scale`: near part with ``env``'s lights, far part with ``coarse``'s,
+    :data:`MIN_LIGHTS` in the bake),
     each part normalized by a discrete mass (Karis' normalized prefilter): kernel j by its own where ``own[j]``
     and the part is mostly positive, else by the reference kernel ``kp[-1]``'s (scaled by mass ratio); a
     constant environment reads every kernel's mass."""
@@ -289,7 +289,7 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
             timings["kernels_s"] += time.perf_counter() - t
             t = time.perf_counter()
             fit = layer_fit(kn.smooth(k_c, texel_radius(env_j)), s, env_j, pl.terms, DATA_SIZE,
-                            np.concatenate([exact[0], exact[1]]) if shared[j] else None, coarse=lights(max(MIN_LIGHTS, max(s, MIN_LIGHTS) // 2)))
+                            np.concatenate([exact[0], exact[1]]) if shared[j] else None, coarse=lights(MIN_LIGHTS))
             timings["maps_s"] += time.perf_counter() - t
             if best is None or fit[3] > best[2][3]:
                 best = (cand, k_c, fit)

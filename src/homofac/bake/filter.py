@@ -21,6 +21,11 @@ from . import kernels as kn
 CHUNK = 128
 
 
+def _read(tables, i0, f, power):
+    """``sum_l ((1 - f) K_j[i0] + f K_j[i0 + 1])[b, l] power[l]`` for every table j: (B, J, 4)."""
+    return jnp.stack([((1.0 - f) * t[i0] + f * t[i0 + 1]) @ power for t in tables], axis=1)
+
+
 @eqx.filter_jit
 def _filter(tables, dirs, light_dirs, power, chunk: int):
     j_count, g = tables.shape
@@ -33,7 +38,7 @@ def _filter(tables, dirs, light_dirs, power, chunk: int):
         pos = jnp.sqrt(jnp.sqrt(jnp.clip((1.0 - c) * 0.5, 0.0, 1.0))) * (g - 1)
         i0 = jnp.minimum(jnp.floor(pos).astype(jnp.int32), g - 2)
         f = pos - i0
-        return jnp.stack([((1.0 - f) * t[i0] + f * t[i0 + 1]) @ power for t in tables], axis=1)  # (B, J, 4)
+        return _read(tables, i0, f, power)  # (B, J, 4)
 
     out = jax.lax.map(one, d.reshape(-1, chunk, 3))
     return out.reshape(-1, j_count, power.shape[1])[:count]
@@ -75,7 +80,7 @@ def _filter_tiles(tables, tiles, light_dirs, power, slots: int, cos_cone):
         pos = jnp.sqrt(jnp.sqrt(jnp.clip((1.0 - c) * 0.5, 0.0, 1.0))) * (g - 1)
         i0 = jnp.minimum(jnp.floor(pos).astype(jnp.int32), g - 2)
         f = pos - i0
-        return jnp.stack([((1.0 - f) * t[i0] + f * t[i0 + 1]) @ pw for t in tables], axis=1)
+        return _read(tables, i0, f, pw)
 
     return jax.lax.map(one, tiles)
 
@@ -113,7 +118,7 @@ def taper(nodes: int, near: float) -> np.ndarray:
 
 
 #: The near part's radius in coarse light texels (:func:`two_scale`).
-NEAR_TEXELS = 3.0
+NEAR_TEXELS = 2.0
 
 
 def two_scale(tables: np.ndarray, size: int, fine: Environment, coarse: Environment | None, tile: int = 8,
@@ -121,7 +126,8 @@ def two_scale(tables: np.ndarray, size: int, fine: Environment, coarse: Environm
     """The kernels ``tables`` (J, G) applied at every texel centre of a cube of face ``size`` in two parts,
     ``[(values (T, J, 3), discrete masses (T, J), part tables (J, G)), ...]``: the near part w K (:func:`taper`,
     ``near`` = :data:`NEAR_TEXELS` coarse light texels) with the ``fine`` lights inside its cone
-    (:func:`prefilter_cube`), the far part (1 - w) K with the ``coarse`` lights. Summed they are the filter by
+    (:func:`prefilter_cube`), the far part (1 - w) K with the ``coarse`` lights at the texels of a cube of their
+    face size, read bilinearly at the ``size`` texels. Summed they are the filter by
     K: beyond ``near`` a lobe is smooth at the coarse texels' scale, so the fine lights are read only where
     the kernel is sharp, and the cost falls by about the cone's share of the sphere (docs/notes/bake.md,
     "Bake time"). The far part is not smoothed further (a box of a coarse texel bends a GGX tail near the
@@ -137,7 +143,15 @@ def two_scale(tables: np.ndarray, size: int, fine: Environment, coarse: Environm
     t_near = tables * w
     t_far = tables * (1.0 - w)
     num_n, den_n = prefilter_cube(t_near, size, fine, 2.0 * near, tile=tile)
-    num_f, den_f = prefilter(t_far, np.asarray(mappers.texel_directions("cube", size), np.float64).reshape(-1, 3), coarse)
+    # the far part is smooth at the coarse texels' scale: filtered at a cube of the coarse lights' face size and
+    # read bilinearly at the texels (the cube mapper's lookup)
+    low = min(size, coarse_res)
+    num_f, den_f = prefilter(t_far, np.asarray(mappers.texel_directions("cube", low), np.float64).reshape(-1, 3), coarse)
+    if low < size:
+        d = jnp.asarray(mappers.texel_directions("cube", size), jnp.float32).reshape(-1, 3)
+        up = np.concatenate([num_f, den_f[..., None]], -1).reshape(low, 6 * low, -1)
+        up = np.asarray(mappers.lookup("cube", jnp.asarray(up, jnp.float32), d), np.float64).reshape(len(d), len(tables), 4)
+        num_f, den_f = up[..., :3], up[..., 3]
     return [(num_n, den_n, t_near), (num_f, den_f, t_far)]
 
 
