@@ -11,7 +11,8 @@ vector of term t in L = (1 - m) 0.96 c I_d + f0_eff I_A + I_B:
   terms and texels reads (the azimuth variance about the axis remains);
 * ``layers``: the same azimuth means blended between the two layers around the pair's roughness with the bake's
   hat weights (the error of interpolating along roughness alone);
-* ``ideal``: idealized split-sum (the benchmark's).
+* ``ideal``: idealized split-sum (the benchmark's);
+* ``--snap``: the bake at the drawn roughness, at the nearest layer's and midway between two layers (in u).
 
     PYTHONPATH=src python benchmarks/bake_breakdown.py forest [--preset balanced] [--pairs 150] [--bands 1 2]
 """
@@ -76,6 +77,8 @@ def main(argv=None):
     ap.add_argument("--options", default="{}", help="JSON bake options")
     ap.add_argument("--shifts", nargs="+", type=float, default=[0.0], help="axis shifts of the floor (in units of alpha)")
     ap.add_argument("--no-bake", action="store_true", help="only the floor and idealized split-sum (the bake's I_d: the reference's)")
+    ap.add_argument("--snap", action="store_true", help="only the bake at the drawn roughness, snapped to the nearest layer and "
+                                                        "midway between layers (reference recomputed at each)")
     args = ap.parse_args(argv)
     name = args.env
     src = source_map(read_exr(hf.light.bundled(name)), name)
@@ -94,6 +97,16 @@ def main(argv=None):
         band = ba.BANDS[bi]
         (n, v), (c, m, rho) = draws[bi]
         ref = reference_integrals(src, n, v, rho, samples=args.samples)
+        if args.snap and b is not None:
+            rl = np.asarray(b.roughness)
+            hi = np.clip(np.searchsorted(rl, rho), 1, len(rl) - 1)
+            row = {"env": name, "band": band}
+            for label, r in (("drawn", rho), ("snapped", rl[np.argmin(np.abs(np.log(rho[:, None] / rl[None])), axis=1)]),
+                             ("midway", np.sqrt(rl[hi - 1] * rl[hi]))):
+                ref_r = reference_integrals(src, n, v, r, samples=args.samples)
+                row[label] = round(parts_nrmse(np.asarray(b.terms(n, v, r), np.float64), ref_r, c, m)[0], 4)
+            print(json.dumps(row), flush=True)
+            continue
         parts = ref.copy() if b is None else np.asarray(b.terms(n, v, rho), np.float64)
         x = np.sum(n * v, 1)
         r = 2 * x[:, None] * n - v
