@@ -30,7 +30,8 @@ third, 1 for a third, uniform for the rest); the nrmse of L = (1 - m) 0.96 c I_d
 
 writes benchmarks/bake_accuracy.json and .md (``--out`` another stem); ``python benchmarks/pages.py`` turns the JSON
 into docs/benchmarks/bake.md. The default run took 22 minutes on this shared 2-core machine (load 10-14; the eight
-per-material fits about 5 of them: ``--fits 0`` leaves them out; ``--envs forest --bands 0`` is a 3-minute look).
+per-material fits about 5 of them: ``--fits 0`` leaves them out, 18 minutes at load 11-12; ``--envs forest --bands 0``
+is a 3-minute look). ``benchmarks/bake_breakdown.py`` splits a band's error by term and cause.
 """
 
 from __future__ import annotations

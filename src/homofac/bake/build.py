@@ -35,7 +35,7 @@ from ..light.sources import BUNDLED, bundled
 from ..options import validate
 from ..param import mappers
 from . import kernels as kn
-from .filter import normalized, prefilter, prefilter_cube
+from .filter import normalized, prefilter, two_scale
 from .model import Bake, diffuse_sh9
 from .options import BakeOptions
 from .plan import BakePlan, plan as make_plan
@@ -43,10 +43,6 @@ from .plan import BakePlan, plan as make_plan
 #: Roughness from which layers try axis shifts (below it the choice was measured unreliable: forest, fast,
 #: rho 0.156 picked s = 2 alpha and read 0.57 nrmse on I_A where s = 0 reads 0.20; at 0.538 s = alpha: 0.33 -> 0.21).
 SHIFT_FROM = 0.4
-
-#: Fraction of a map kernel's absolute mass within the cone of lights its texels read (the rest, far tails
-#: of grazing views, is skipped; the normalization keeps a constant environment exact).
-SUPPORT = 0.99
 
 #: Smallest P face size.
 MIN_SIZE = 8
@@ -59,7 +55,7 @@ DATA_SIZE = 32
 #: dielectric's reflection (measured: no change against fitting (I_A, I_B) as they are, studio 0.3-0.6).
 MATERIALS = ((1.0, 1.0), (0.04, 1.0))
 
-#: Smallest light resolution a layer's data and map are computed from.
+#: Smallest light resolution a layer's data and map are computed from (and of the far parts' lights).
 MIN_LIGHTS = 16
 
 
@@ -154,8 +150,26 @@ def compress(kernels: np.ndarray, tolerance: float = 1e-2) -> tuple[np.ndarray, 
     return coef.T @ kn_, coef * scale[:, None]
 
 
+def filtered(kp: np.ndarray, size: int, env: Environment, coarse: Environment | None, own: np.ndarray) -> np.ndarray:
+    """``(T, J - 1, 3)``: the kernels ``kp[:-1]`` applied at the texels of a cube of face ``size``
+    (:func:`homofac.bake.filter.two_scale`: near part with ``env``'s lights, far part with ``coarse``'s,
+    :data:`MIN_LIGHTS` in the bake),
+    each part normalized by a discrete mass (Karis' normalized prefilter): kernel j by its own where ``own[j]``
+    and the part is mostly positive, else by the reference kernel ``kp[-1]``'s (scaled by mass ratio); a
+    constant environment reads every kernel's mass."""
+    out = 0.0
+    for num, den, t in two_scale(kp, size, env, coarse):
+        mass, absolute = kn.mass(t), kn.mass(np.abs(t))
+        mine = own & (np.abs(mass[:-1]) > 0.5 * absolute[:-1])
+        ref = np.where(np.abs(den[:, -1:]) > 1e-30, mass[-1] / np.where(np.abs(den[:, -1:]) > 1e-30, den[:, -1:], 1.0), 0.0)
+        self_ = np.where(np.abs(den[:, :-1]) > 1e-30, mass[:-1] / np.where(np.abs(den[:, :-1]) > 1e-30, den[:, :-1], 1.0), 0.0)
+        out = out + num[:, :-1] * np.where(mine[None], self_, ref)[..., None]
+    return out
+
+
 def layer_fit(kernels: np.ndarray, size: int, env: Environment, rank: int, data_size: int = 32,
-              masses: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+              masses: np.ndarray | None = None, coarse: Environment | None = None
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """``(V (J, rank), weights (J, rank), P (6 size^2, rank, 3), energy)`` of one layer.
 
     The data Y[t, j]: the environment ``env`` filtered by kernel j at the texel centres t of a cube of face
@@ -176,8 +190,8 @@ def layer_fit(kernels: np.ndarray, size: int, env: Environment, rank: int, data_
         basis, coef = compress(kernels)
         d = min(size, data_size)
         pad = np.zeros(((-len(basis) - 1) % 8, basis.shape[1]))  # table counts in steps of 8: fewer XLA compilations
-        num, den = prefilter_cube(np.concatenate([basis, pad, ref]), d, env, kn.support(kernels, SUPPORT))
-        yb = normalized(num[:, :len(basis)], den[:, -1], kn.mass(ref)[0])  # (T, J', 3)
+        tables = np.concatenate([basis, pad, ref])
+        yb = filtered(tables, d, env, coarse, np.zeros(len(tables) - 1, bool))[:, :len(basis)]  # (T, J', 3)
         w = mappers.texel_solid_angles("cube", d).reshape(-1)
         mix = np.kron(np.asarray(MATERIALS, np.float64) / np.sqrt(len(MATERIALS)), np.eye(len(kernels) // 2))
         gram = mix @ coef @ np.einsum("t,tic,tjc->ij", w, yb, yb) @ coef.T @ mix.T
@@ -188,13 +202,9 @@ def layer_fit(kernels: np.ndarray, size: int, env: Environment, rank: int, data_
             v[:, 0], weights[:, 0] = -v[:, 0], -weights[:, 0]
         coef_v = mix.T @ v
     kp = np.concatenate([coef_v.T @ kernels, ref])
-    num, den = prefilter_cube(kp, size, env, kn.support(kp, SUPPORT))
     # a term whose kernel is mostly positive is normalized by its own discrete mass (a constant environment then
     # reads its mass exactly); a signed one (mass ~ 0) by the reference kernel's
-    mass, absolute = kn.mass(kp), kn.mass(np.abs(kp))
-    own = np.abs(mass[:-1]) > 0.5 * absolute[:-1]
-    den = np.where(own[None], den[:, :-1], den[:, -1:] * (mass[:-1] / mass[-1])[None])
-    return v, weights, normalized(num[:, :-1], den, mass[:-1]), energy
+    return v, weights, filtered(kp, size, env, coarse, np.ones(len(kp) - 1, bool)), energy
 
 
 def _svd(y: np.ndarray, rank: int) -> tuple[np.ndarray, float]:
@@ -279,7 +289,7 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
             timings["kernels_s"] += time.perf_counter() - t
             t = time.perf_counter()
             fit = layer_fit(kn.smooth(k_c, texel_radius(env_j)), s, env_j, pl.terms, DATA_SIZE,
-                            np.concatenate([exact[0], exact[1]]) if shared[j] else None)
+                            np.concatenate([exact[0], exact[1]]) if shared[j] else None, coarse=lights(MIN_LIGHTS))
             timings["maps_s"] += time.perf_counter() - t
             if best is None or fit[3] > best[2][3]:
                 best = (cand, k_c, fit)
