@@ -38,7 +38,7 @@ from ..errors import HomofacError
 from ..light import Lighting
 from ..light.refine import at_resolution, bright_texels, mixture, route
 from ..target import Target
-from . import sampling
+from . import cache, sampling
 from .draw import VALIDATION_VIEWS
 from .metrics import metrics
 from .samples import evaluate_blocked
@@ -137,14 +137,31 @@ def decision_pairs(count: int, seed: int) -> sampling.Grouped:
     return sampling.Grouped(g.normals[:k], g.views[:k], g.mask[:k])
 
 
+#: Decisions of this process by the hash of the target's arrays, the pair count and the seed (a plan
+#: built again for the same target, as ``--plan`` then the fit, or a test module, decides once).
+_DECIDED: dict[str, ValidationLight] = {}
+
+
 def decide(target: Target, count: int, seed: int, log=None) -> ValidationLight | None:
     """The validation light resolution of ``target`` (module docstring): doubling from the fit's own
     until one more doubling changes the values on :func:`decision_pairs` by less than :data:`TOLERANCE`,
-    at most :data:`MAX_RESOLUTION` and :data:`MAX_DOUBLINGS` doublings. None for a target without cube texels (nothing to refine)."""
+    at most :data:`MAX_RESOLUTION` and :data:`MAX_DOUBLINGS` doublings. None for a target without cube
+    texels (nothing to refine)."""
     log = log or (lambda msg: None)
     env = environment(target)
     if env is None or count <= 0:
         return None
+    k = cache.key(target, {"validation_light": [int(count), int(seed), TOLERANCE,
+                                                SHARE, MAX_RESOLUTION, MAX_DOUBLINGS, route(env)]}, "")
+    if k is not None and k in _DECIDED:
+        return _DECIDED[k]
+    found = _decide(target, env, count, seed, log)
+    if k is not None:
+        _DECIDED[k] = found
+    return found
+
+
+def _decide(target: Target, env, count: int, seed: int, log) -> ValidationLight:
     start = int(env.info["resolution"])
     how = route(env)
     pairs = decision_pairs(count, seed)
