@@ -49,7 +49,8 @@ def test_the_lighting_summed_over_light_blocks_is_the_lighting():
     np.testing.assert_allclose(evaluate_blocked(t, g), np.asarray(evaluate_grouped(t, g)), rtol=2e-4, atol=1e-6)
 
 
-def test_a_sharp_environment_needs_a_finer_validation_lighting_than_a_smooth_one():
+def test_a_sharp_environment_needs_a_finer_validation_lighting_than_a_smooth_one(monkeypatch):
+    monkeypatch.setattr(validation, "MAX_DOUBLINGS", 2)  # 4 -> 16 at most: the sun stops there, the sky before
     sharp = validation.decide(_target(hf.light.sun_sky(resolution=4, sun_radiance=3000.0, sun_angle_deg=1.0)), 800, 1)
     smooth = validation.decide(_target(hf.light.gradient_sky(1.0, 0.5, 4)), 800, 1)
     assert sharp.resolution > smooth.resolution >= 4
@@ -59,7 +60,7 @@ def test_a_sharp_environment_needs_a_finer_validation_lighting_than_a_smooth_one
         assert all(c >= validation.TOLERANCE for _, c in v.changes[:-1])
         assert v.converged == (v.changes[-1][1] < validation.TOLERANCE)
         assert v.resolution == (v.changes[-1][0] if v.converged else 2 * v.changes[-1][0])
-    assert smooth.converged and smooth.resolution < 4 << validation.MAX_DOUBLINGS
+    assert smooth.converged and smooth.resolution < 16 and sharp.changes[-1][1] > smooth.changes[-1][1]
 
 
 def test_the_plan_prints_the_validation_lighting_and_refuses_a_size_it_cannot_refine_to():
@@ -73,6 +74,7 @@ def test_the_plan_prints_the_validation_lighting_and_refuses_a_size_it_cannot_re
         plan.build_plan(t, "fast", {"advanced": {"validation_light": 12}})
 
 
+@pytest.mark.slow
 def test_a_saved_record_keeps_the_validation_lighting_its_votes_read(tmp_path):
     t = _target(hf.light.sun_sky(resolution=4, sun_angle_deg=3.0))
     fac = hf.fit.factorize(t, "NR", target_error=0.9, texture_size=8,

@@ -122,12 +122,14 @@ LIGHT_BLOCK = 4096
 BLOCK_INFO = {"source": "light block", "kind": "block"}
 
 
-def blocks(env: Environment, size: int = LIGHT_BLOCK) -> list[Environment]:
-    """``env``'s lights in blocks of ``size`` (the last padded with dark delta lights), each an
-    Environment of the same shapes and ``info``. The pinned light sum is a sum over lights, so the
-    lighting of ``env`` is the sum of its blocks' lighting (a clamp applies to that sum); evaluated block
-    by block, environments of any light count share one compiled program."""
+def blocks(env: Environment, size: int | None = None) -> list[Environment]:
+    """``env``'s lights in blocks of ``size`` (default :data:`LIGHT_BLOCK`, or the power of 2 from 256 that
+    holds fewer lights), the last padded with dark delta lights, each an Environment of the same shapes and
+    ``info``. The pinned light sum is a sum over lights, so the lighting of ``env`` is the sum of its
+    blocks' lighting (a clamp applies to that sum); evaluated block by block, environments of any light
+    count share a few compiled programs (one per block size)."""
     n = env.num_lights
+    size = int(size or (LIGHT_BLOCK if n >= LIGHT_BLOCK else max(256, 1 << int(np.ceil(np.log2(max(n, 1)))))))
     pad = (-n) % size
     up = np.tile(np.array([[0.0, 0.0, 1.0]]), (pad, 1))
     pm, ps = moments_of(up, np.ones(pad), np.zeros((pad, 4, 3)))
