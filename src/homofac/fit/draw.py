@@ -17,7 +17,7 @@ from ..param import projections as pj
 from ..target import Target
 from . import cache, sampling, scene
 from .options import DEFAULT_VALIDATION, SamplingOptions
-from .samples import Samples, evaluate, evaluate_grouped
+from .samples import Samples, evaluate, evaluate_blocked, evaluate_grouped
 
 #: Views per normal of the lighting validation pairs (``count / VALIDATION_VIEWS`` random normals). Under a
 #: sun the squared error sits on the few pairs whose view grazes and reflects it, so the figure depends on
@@ -33,17 +33,22 @@ def default_mapper(kind: str) -> str:
 
 
 def draw_samples(target: Target, parametrization: str, options: SamplingOptions | dict | None = None,
-                 log: Callable[[str], None] | None = None) -> Samples:
+                 log: Callable[[str], None] | None = None, *, validation_target: Target | None = None,
+                 validation_light: int | None = None) -> Samples:
     """Sample the target on training pairs (thesis §4.2 / §5.6) and on a seeded validation set.
 
     ``options``: :class:`~homofac.fit.options.SamplingOptions` or a dict of them. With ``cache`` (the
     default) the samples are read from, or written to, the on-disk cache, keyed by a hash of the target
     and the sampling settings (and, for BRDF targets, the parametrization, whose texel iterator decides
-    the pairs).
+    the pairs). ``validation_target``: the target the validation values are read from (the lighting at
+    the plan's validation resolution ``validation_light``, :func:`homofac.fit.validation.lighting_at`;
+    default ``target``).
     """
     log = log or (lambda msg: None)
     s = counted(validate(SamplingOptions, options, "sampling"))
     settings = cache_settings(s, target.kind, parametrization, target.context)
+    if validation_target is not None and validation_target is not target:
+        settings["validation_light"] = int(validation_light or 0)
     if s.kind == "scene":  # the mesh file's content and the cameras (a bundled scene's own), not only names
         settings["mesh_sha256"] = scene.fingerprint(s)
         settings["cameras"] = [c.model_dump() for c in scene.resolve_cameras(s)]
@@ -53,7 +58,7 @@ def draw_samples(target: Target, parametrization: str, options: SamplingOptions 
         if hit is not None:
             log(f"samples from cache {k[:12]} ({len(hit.a)} training pairs)")
             return hit
-    samples = _draw(target, parametrization, s, log)
+    samples = _draw(target, parametrization, s, log, validation_target or target)
     samples = Samples(*(np.ascontiguousarray(x, np.float32) for x in samples))
     if k is not None:
         cache.store(k, samples)
@@ -113,7 +118,7 @@ def draw_pairs(kind: str, parametrization: str, s: SamplingOptions, context: dic
     return pairs, sampling.random_pairs(kind, s.validation, s.seed + 1), None, None
 
 
-def _draw(target: Target, parametrization: str, s: SamplingOptions, log: Callable) -> Samples:
+def _draw(target: Target, parametrization: str, s: SamplingOptions, log: Callable, vtarget: Target) -> Samples:
     if s.kind == "scene" and target.kind == "lighting":
         # the exact lighting at every covered pixel, evaluated once (the scene metrics reuse it), then
         # gathered at the drawn pixels: the pairs of draw_pairs, in its order
@@ -122,18 +127,23 @@ def _draw(target: Target, parametrization: str, s: SamplingOptions, log: Callabl
         val = sc.draw(s.validation, s.seed + 1) if s.validation else np.zeros(0, np.int64)
         log(f"sampling the scene's {len(sc)} covered pixels ({len(train)} training pairs)")
         y = sc.exact(target)
-        return Samples(sc.normals[train], sc.views[train], y[train], sc.normals[val], sc.views[val], y[val])
+        val_y = y[val] if vtarget is target or not len(val) else np.asarray(
+            evaluate(vtarget, sc.normals[val], sc.views[val]))
+        return Samples(sc.normals[train], sc.views[train], y[train], sc.normals[val], sc.views[val], val_y)
     pairs, val, groups, vgroups = draw_pairs(target.kind, parametrization, s, target.context)
     if len(pairs) == 0:
         raise HomofacError("sampling produced no valid direction pairs; increase sampling.size")
     if groups is not None:
         log(f"sampling {len(pairs)} training pairs ({len(groups.normals)} normals)")
         y = np.asarray(evaluate_grouped(target, groups))
-        val_y = np.asarray(evaluate_grouped(target, vgroups)) if len(val) else np.zeros((0, 3), np.float32)
+        if len(val) and vtarget is not target:
+            log(f"validation values of {len(val)} pairs on {vtarget.fn.env.num_lights} lights")
+        val_y = (np.zeros((0, 3), np.float32) if not len(val) else np.asarray(evaluate_grouped(target, vgroups))
+                 if vtarget is target else evaluate_blocked(vtarget, vgroups))
         return Samples(pairs.a, pairs.b, y, val.a, val.b, val_y)
     log(f"sampling {len(pairs)} training pairs")
     y = np.asarray(evaluate(target, pairs.a, pairs.b))
-    val_y = np.asarray(evaluate(target, val.a, val.b)) if len(val) else np.zeros((0, 3), np.float32)
+    val_y = np.asarray(evaluate(vtarget, val.a, val.b)) if len(val) else np.zeros((0, 3), np.float32)
     return Samples(pairs.a, pairs.b, y, val.a, val.b, val_y)
 
 

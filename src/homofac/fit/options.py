@@ -242,7 +242,10 @@ class AdvancedOptions(Options):
     :func:`homofac.fit.plan.line_sizes`); a single log-space product's scalar factor has ``texture_size``
     texels. ``linear``: the linear-space fit of sums (:class:`LinearOptions`). ``baseline``: options of a
     baseline ``parametrization`` (validated by the baseline's option model). ``analysis``: record
-    Mahajan's in-out analysis of the target (:class:`AnalysisOptions`)."""
+    Mahajan's in-out analysis of the target (:class:`AnalysisOptions`). ``validation_light``: the light
+    resolution the validation pairs of a choosing fit read (default: decided from the environment by
+    doubling until converged, :mod:`homofac.fit.validation`; the fit's own resolution reads the votes
+    against the fit's lighting)."""
 
     reflection: bool = False
     prefiltered: bool = False
@@ -252,6 +255,7 @@ class AdvancedOptions(Options):
     linear: Optional[LinearOptions] = None
     baseline: Optional[dict] = None  # validated by the chosen baseline's option model (homofac.baselines)
     analysis: Optional[AnalysisOptions] = None
+    validation_light: Optional[int] = Field(None, ge=1, le=1024)
 
 
 #: Keys of earlier configs (and keywords of ``factorize``) that live under ``advanced`` now: key -> its

@@ -32,6 +32,7 @@ from .samples import Samples, check_values
 from .sampling import GRID_COUNT
 from .state import from_fit
 from .structures import Structure
+from .validation import lighting_at
 
 
 #: Why ``advanced.line_size`` is refused for a single log-space product.
@@ -167,9 +168,11 @@ def execute(the_plan: Plan, target: Target, *, samples: Samples | None = None, c
             and resolved.kind != "grid":
         raise HomofacError(f"{sums.POLISH_NEEDS_GRID}, not sampling.kind: {resolved.kind}")
     first = opts.parametrization if samples is not None else drawn_for(the_plan)  # the samples' direction
+    vl = the_plan.validation_light  # the validation pairs read the plan's validation lighting (its votes' figure)
+    vtarget = lighting_at(target, vl.resolution) if vl is not None and samples is None else target
     if samples is None:  # on the grid direction of the first candidate (every candidate's, for texel pairs)
         samples = draw_samples(with_context(target, first) if target.kind == "lighting" else target, first,
-                               resolved, log)
+                               resolved, log, validation_target=vtarget, validation_light=vl and vl.resolution)
     sample_s = time.perf_counter() - t0
     check_values(np.asarray(samples.y), "training")
     record = {"config": config or {}, "target_info": target_info or {}, "samples": samples if keep_samples else None}
@@ -187,7 +190,7 @@ def execute(the_plan: Plan, target: Target, *, samples: Samples | None = None, c
         )
 
     if opts.is_sum:
-        result, target, samples = _sums(target, the_plan, samples, record, sample_s, log, resolved, first)
+        result, target, samples = _sums(target, the_plan, samples, record, sample_s, log, resolved, first, vtarget)
     elif opts.target_error is not None:
         result = auto.choose(target, opts.target_error, fit, samples, mapper=mapper, max_size=opts.texture_size,
                              log=log)
@@ -196,6 +199,8 @@ def execute(the_plan: Plan, target: Target, *, samples: Samples | None = None, c
         result = result.replace(timings={"sample_s": sample_s, **result.timings})
     else:
         result = fit(target, opts.parametrization, opts.texture_size)
+    if vl is not None and result.selection is not None:
+        result = result.replace(selection={**result.selection, "validation_light": vl.record()})
     if the_plan.analysis and result.analysis is None:
         a = opts.advanced.analysis or AnalysisOptions()
         log(f"in-out analysis ({a.pair}) on {a.mapper} {a.size}")
@@ -236,7 +241,7 @@ def resolve_sampling(opts: FitOptions, kind: str, mapper: str) -> SamplingOption
 
 
 def _sums(target: Target, the_plan: Plan, samples: Samples, record: dict, sample_s: float,
-          log, resolved: SamplingOptions, drawn: str) -> tuple[Result, Target, Samples]:
+          log, resolved: SamplingOptions, drawn: str, vtarget: Target | None = None) -> tuple[Result, Target, Samples]:
     """A linear-space sum of products: the structure of the options, or the one chosen within a budget;
     with the target (its projection context) and the samples the kept structure was fitted on.
 
@@ -244,7 +249,8 @@ def _sums(target: Target, the_plan: Plan, samples: Samples, record: dict, sample
     ``r_off`` for NRO and RO): candidates on another direction than the options' parametrization get
     grid samples of their own, drawn once per direction (the validation pairs are the same for all),
     unless the samples were given (then the plan holds only the candidates on their direction).
-    ``drawn``: the parametrization whose grid direction ``samples`` lie on."""
+    ``drawn``: the parametrization whose grid direction ``samples`` lie on; ``vtarget``: the lighting the
+    validation values (and the ridge stratum) read (:func:`homofac.fit.validation.lighting_at`)."""
     opts, mapper, lin = the_plan.options, the_plan.mapper, the_plan.linear
     choosing = the_plan.mode == "choose"
     eps = float(opts.solver.epsilon)
@@ -259,7 +265,8 @@ def _sums(target: Target, the_plan: Plan, samples: Samples, record: dict, sample
         proj = grid_projection(target.kind, structure.parametrization, resolved)
         if proj not in pools:
             t0 = time.perf_counter()
-            smp = draw_samples(tgt, structure.parametrization, resolved, log)
+            smp = draw_samples(tgt, structure.parametrization, resolved.model_copy(update={"validation": 0}), log)
+            smp = smp._replace(val_a=samples.val_a, val_b=samples.val_b, val_y=samples.val_y)  # one validation set
             check_values(np.asarray(smp.y), "training")
             pools[proj] = (tgt, smp, time.perf_counter() - t0)
         _, smp, s_s = pools[proj]
@@ -324,7 +331,7 @@ def _sums(target: Target, the_plan: Plan, samples: Samples, record: dict, sample
     ridge = the_plan.ridge
     rv = None
     if ridge > 0:  # every vote below reads the validation estimate with the ridge stratum (polish.ridge_nrmse)
-        rv = polish.ridge_validation(target, samples, ridge, opts.sampling.seed + 1)
+        rv = polish.ridge_validation(vtarget or target, samples, ridge, opts.sampling.seed + 1)
         log(f"validation: {len(rv.pairs.a)} ridge pairs stand in for the {int(rv.inside.sum())} validation pairs on "
             f"the ridges of the {len(rv.lights)} brightest lights")
     score = None if rv is None else (lambda res: polish.ridge_nrmse(res, samples, rv))

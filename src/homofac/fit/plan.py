@@ -24,12 +24,13 @@ from ..errors import HomofacError
 from ..options import validate
 from ..param import parametrizations as pz
 from ..target import Target
-from . import structures, sums
+from . import structures, sums, validation
 from .draw import default_mapper, grid_projection
 from .options import DEFAULT_VALIDATION, FitOptions, LinearOptions
 from .polish import RIDGE_NEEDS_ENVIRONMENT
 from .sampling import GRID_COUNT
 from .structures import HIGHLIGHT_LINES, Structure
+from .validation import ValidationLight
 
 
 class Preset(NamedTuple):
@@ -118,6 +119,7 @@ class Plan:
     grid_count: int
     validation: int
     light_resolution: int | None
+    validation_light: ValidationLight | None  # the lighting the validation pairs read (None: the fit's)
     max_lookups: int | None
     candidates: tuple[Structure, ...]
     linear: LinearOptions | None
@@ -135,7 +137,9 @@ class Plan:
         return {"mode": self.mode, "preset": self.preset, "parametrization": self.parametrization,
                 "mapper": self.mapper, "texture_size": self.texture_size,
                 "sampling": {"kind": self.sampling, "grid_count": self.grid_count, "validation": self.validation},
-                "light_resolution": self.light_resolution, "max_lookups": self.max_lookups,
+                "light_resolution": self.light_resolution,
+                "validation_light": None if self.validation_light is None else self.validation_light.record(),
+                "max_lookups": self.max_lookups,
                 "candidates": [{"label": c.label(), "structure": c.record()} for c in self.candidates],
                 "linear": None if self.linear is None else self.linear.model_dump(),
                 "polish": self.polish, "polish_trial": self.polish_trial, "ridge": self.ridge,
@@ -151,6 +155,8 @@ class Plan:
                  f"  samples: {s['kind']}" + (f", {s['grid_count']} grid pairs" if s["kind"] == "grid" else "")
                  + f", {s['validation']} validation pairs"
                  + (f", lights at resolution {self.light_resolution}" if self.light_resolution else "")]
+        if self.validation_light is not None:
+            lines.append(f"  validation lighting: {self.validation_light.describe()}")
         if self.max_lookups is not None:
             lines.append(f"  budget: {self.max_lookups} lookups per pixel")
         if self.mode == "sum":
@@ -349,17 +355,29 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
                               + (f" (it runs where {trial} steps lower it)" if trial else "")))
     env = getattr(target.fn, "env", None)
     res = (getattr(env, "info", None) or {}).get("resolution") if env is not None else None
+    vlight = validation_light(target, opts, mode, validation_count(opts))
     advanced = opts.advanced.model_copy(update={"linear": lin if opts.is_sum else opts.advanced.linear})
     resolved = opts.model_copy(update={"parametrization": base, "max_lookups": budget if choosing else opts.max_lookups,
                                        "advanced": advanced})
     return Plan(mode=mode, preset=name, parametrization=base, mapper=mapper, texture_size=int(opts.texture_size),
                 sampling=kind, grid_count=grid_count(opts), validation=validation_count(opts),
-                light_resolution=int(res) if res else None, max_lookups=budget if choosing else None,
+                light_resolution=int(res) if res else None, validation_light=vlight, max_lookups=budget if choosing else None,
                 candidates=cands, linear=lin, polish=int(steps or 0), polish_trial=int(trial), ridge=int(ridge or 0),
                 line_sizes=sizes,
                 disc_vote=disc, analysis=bool(choosing and target.kind == "lighting"
                                               and (p.analysis if p else True) or opts.advanced.analysis is not None),
                 votes=tuple(votes), options=resolved)
+
+
+def validation_light(target: Target, opts: FitOptions, mode: str, count: int) -> ValidationLight | None:
+    """The lighting the validation pairs read where a vote reads them (``choose``, ``auto``) on a lighting
+    target with light texels: ``advanced.validation_light`` where given, else decided by doubling
+    (:func:`homofac.fit.validation.decide`); None elsewhere (the fit's own lighting)."""
+    if mode not in ("choose", "auto") or count <= 0 or validation.environment(target) is None:
+        return None
+    if opts.advanced.validation_light is not None:
+        return validation.given(target, int(opts.advanced.validation_light))
+    return validation.decide(target, count, int(opts.sampling.seed) + 1)
 
 
 def dumps(plan: Plan) -> str:
@@ -368,4 +386,4 @@ def dumps(plan: Plan) -> str:
 
 
 __all__ = ["constrained", "DEFAULT_MAX_LOOKUPS", "PRESET_DIRECTIONS", "PRESETS", "Plan", "Preset", "RIDGE_NEEDS_POLISH", "Vote", "budget_of",
-           "build_plan", "dumps", "grid_count", "line_sizes", "preset_of", "validation_count"]
+           "build_plan", "dumps", "grid_count", "line_sizes", "preset_of", "validation_count", "validation_light"]

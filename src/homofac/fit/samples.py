@@ -8,6 +8,7 @@ there are several (:mod:`homofac.fit.shard`).
 
 from __future__ import annotations
 
+import dataclasses
 from typing import NamedTuple
 
 import equinox as eqx
@@ -17,6 +18,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ..errors import HomofacError
+from ..light.refine import blocks
 from ..target import Target, evaluate
 from .sampling import Grouped
 from .shard import grouped_sharded
@@ -70,6 +72,20 @@ def evaluate_grouped(target: Target, grouped) -> Float[Array, "M 3"]:
         return out[jnp.asarray(grouped.mask)]
     pairs = grouped.flatten()
     return evaluate(target, pairs.a, pairs.b)
+
+
+def evaluate_blocked(target: Target, grouped) -> np.ndarray:
+    """:func:`evaluate_grouped` of a lighting target as the sum over its lights in blocks
+    (:func:`homofac.light.refine.blocks`; its clamp applied to the sum), float64: one compiled program
+    for every environment, whatever its light count (the validation lighting's levels,
+    :mod:`homofac.fit.validation`)."""
+    fn = target.fn
+    out = None
+    for env in blocks(fn.env):
+        part = np.asarray(evaluate_grouped(Target(target.kind, dataclasses.replace(fn, env=env, clamp=None),
+                                                  target.quantity, target.context), grouped), np.float64)
+        out = part if out is None else out + part
+    return out if fn.clamp is None else np.minimum(out, fn.clamp)
 
 
 #: Rows (normals) per call of the compiled grouped lighting (:func:`_blocks`).
@@ -141,4 +157,4 @@ def _culled(fn, normals, views):
 
 
 
-__all__ = ["FIELDS", "ROW_COST", "Samples", "check_values", "evaluate", "evaluate_grouped", "packed"]
+__all__ = ["FIELDS", "ROW_COST", "Samples", "check_values", "evaluate", "evaluate_blocked", "evaluate_grouped", "packed"]

@@ -96,9 +96,12 @@ def _specular_sum(brdf, spec, wi, wo, weights, rad):
 
 def max_visible(env: Environment) -> int:
     """Static bound on the number of lights with w_k(n) > 0 for any n: half the cube texels plus the
-    ones straddling the horizon (at most 3 r measured; 6 r allowed), plus every delta light."""
+    ones straddling the horizon (at most 3 r measured; 6 r allowed), plus every delta light; an
+    environment of mixed texel sizes states its own (``info["max_visible"]``, :func:`.refine.mixture`)."""
     r = int(env.info.get("resolution", 0))
     L = int(env.directions.shape[0])
+    if "max_visible" in env.info:
+        return min(L, int(env.info["max_visible"]))
     n_tex = 6 * r * r if r > 0 and 6 * r * r <= L else 0
     if n_tex == 0:
         return L

@@ -171,7 +171,8 @@ def preetham_sky(sun_direction=(0.3, 0.2, 0.9), *, turbidity: float = 3.0, resol
     if np.any(sun_rgb > 0):
         _add_disc(rad, r, s, alpha, sun_rgb / (2.0 * math.pi * (1.0 - math.cos(alpha))))
     info = {"source": "preetham_sky", "kind": "synthetic", "sun_direction": s.tolist(), "sun_zenith_deg": zen,
-            "turbidity": t, "ground_albedo": float(ground_albedo), "sun": bool(sun), "sun_rgb": sun_rgb.tolist(),
+            "turbidity": t, "ground_albedo": float(ground_albedo), "sun": bool(sun), "night": float(night),
+            "sun_rgb": sun_rgb.tolist(),
             "clamped_negative": 0, "nonfinite": 0, "boost": None, "supersample": 4}
     return finish(rad, r, info, lights, None)
 

@@ -1,0 +1,186 @@
+"""The lighting the validation pairs read: converged, so that the votes rank fits, not light texels.
+
+Every vote of a fit (structure, lines, disc, polish; ``target_error``'s "the first that meets it") reads
+the validation nrmse. Against the lighting at the fit's own light resolution r that figure carries the
+lighting's own discretisation error: under small lamps (the bundled interior and studio) the values at
+r = 32 are 9-10 % from converged, as large as the candidates' differences (docs/notes/validation.md).
+
+:func:`decide` picks the validation light resolution R from the environment and the BRDF by doubling:
+the validation lighting is evaluated at r, 2r, 4r, ... on the first :data:`DECISION_NORMALS` normals of
+the validation pairs, and R is the first resolution whose next doubling changes the values by an nrmse
+(pinned definition) below :data:`TOLERANCE`. A lighting error d moves a fit's nrmse e to
+sqrt(e^2 + d^2) when the two are uncorrelated, so d < :data:`TOLERANCE` moves a fit of nrmse
+:data:`FIT_NRMSE` by less than :data:`MOVE` (1 %). The doubling stops at
+:data:`MAX_RESOLUTION`, and :data:`MAX_DOUBLINGS` above the fit's (the cost); the decision then says it
+did not converge, and by how much.
+
+The lighting at R (:func:`lighting_at`) refines only where the light is: the fit's light texels that
+hold :data:`SHARE` of the power are replaced by the texels of the map at R inside them
+(:func:`homofac.light.refine.mixture`), the dim rest stays at r. Measured on 4000 validation pairs
+against the full map at 128: 0.0018 nrmse (metal / interior; 0.0514 at r = 32), 0.0022 (mirror /
+studio; 0.174), 0.0009 (metal / forest; 0.029), 0.0006 (plastic / city; 0.004), with 9 % to 47 % of
+the lights. How the finer map is made (its file reloaded, an analytic sky rebuilt, else its texels
+split): :mod:`homofac.light.refine`.
+
+The decision is a plan value (:class:`ValidationLight`, :func:`homofac.fit.plan.build_plan`): printed by
+``--plan`` and recorded in factorization.json (``selection.validation_light``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import numpy as np
+
+from ..errors import HomofacError
+from ..light import Lighting
+from ..light.refine import at_resolution, bright_texels, mixture, route
+from ..target import Target
+from . import cache, sampling
+from .draw import VALIDATION_VIEWS
+from .metrics import metrics
+from .samples import evaluate_blocked
+
+#: The relative move of a fit's validation nrmse that one more doubling of the lights may cause (issue 41).
+MOVE = 0.01
+#: The fit nrmse :data:`MOVE` is stated for: the presets' fits reach 0.05-0.25 on the accuracy
+#: benchmark (a fit of 0.05 moves by under 4 %).
+FIT_NRMSE = 0.1
+#: The largest change (nrmse) of the validation values per doubling: sqrt(e^2 + d^2) <= (1 + MOVE) e.
+TOLERANCE = FIT_NRMSE * math.sqrt((1.0 + MOVE) ** 2 - 1.0)
+#: The share of the power whose light texels are refined (the rest stays at the fit's resolution).
+SHARE = 0.9
+#: The finest validation light resolution (the accuracy benchmark's ground truth converges by 256).
+MAX_RESOLUTION = 256
+#: The most doublings above the fit's light resolution (64 x its lights at most: the cost of the
+#: validation values grows with the lights; the fit's own 32 reaches :data:`MAX_RESOLUTION`).
+MAX_DOUBLINGS = 3
+#: Normals of the validation pairs the doubling is measured on (:data:`~homofac.fit.draw.VALIDATION_VIEWS`
+#: views each).
+DECISION_NORMALS = 256
+
+
+@dataclasses.dataclass(frozen=True)
+class ValidationLight:
+    """The validation lighting a plan decided: ``resolution`` R (the fit's ``start`` where nothing finer
+    exists or is needed), ``route`` (how the finer map is made, :data:`homofac.light.refine.ROUTES`),
+    ``changes`` ((r, nrmse of the values at r against 2r) per doubling measured), ``converged`` (the last
+    change is below ``tolerance``), ``lights`` (the lights of the validation lighting)."""
+
+    resolution: int
+    start: int
+    route: str
+    changes: tuple[tuple[int, float], ...]
+    converged: bool
+    tolerance: float
+    lights: int
+
+    def record(self) -> dict[str, Any]:
+        """Plain data (the plan's JSON and factorization.json's ``selection.validation_light``)."""
+        return {"resolution": self.resolution, "start": self.start, "route": self.route,
+                "changes": [{"resolution": r, "nrmse_to_double": c} for r, c in self.changes],
+                "converged": self.converged, "tolerance": self.tolerance, "share": SHARE, "lights": self.lights}
+
+    def describe(self) -> str:
+        """One line of the printed plan."""
+        last = f"{self.changes[-1][1]:.4f}" if self.changes else "0"
+        where = (f"the lights holding {SHARE:.0%} of the power at resolution {self.resolution}, the rest at "
+                 f"{self.start}" if self.resolution != self.start else f"lights at resolution {self.start}")
+        if not self.changes:
+            why = "advanced.validation_light" if self.route == "given" else f"at the limit, {MAX_RESOLUTION}"
+            return f"{where} ({self.lights} lights; {why}, no doubling measured)"
+        verdict = (f"one more doubling moves the values by {last} nrmse < {self.tolerance:.4f} (a fit of nrmse "
+                   f"{FIT_NRMSE:g} by < {MOVE:.0%})" if self.converged else
+                   f"not converged: one more doubling moves the values by {last} nrmse (the limit: {MAX_DOUBLINGS} "
+                   f"doublings, resolution {MAX_RESOLUTION})")
+        return f"{where} ({self.lights} lights, {self.route}); {verdict}"
+
+
+def environment(target: Target):
+    """The environment of a lighting target with cube texels to refine, else None."""
+    env = getattr(target.fn, "env", None) if target.kind == "lighting" else None
+    if env is None or not isinstance(target.fn, Lighting) or not env.info.get("resolution"):
+        return None
+    return env if env.num_lights >= 6 * int(env.info["resolution"]) ** 2 else None
+
+
+def lighting_at(target: Target, resolution: int) -> Target:
+    """``target`` with its lights refined to ``resolution`` where :data:`SHARE` of the power is (module
+    docstring); ``target`` itself at its own resolution or without an environment to refine."""
+    env = environment(target)
+    if env is None or int(resolution) == int(env.info["resolution"]):
+        return target
+    fine = mixture(env, at_resolution(env, int(resolution)), bright_texels(env, SHARE))
+    return Target(target.kind, dataclasses.replace(target.fn, env=fine), target.quantity, dict(target.context))
+
+
+def given(target: Target, resolution: int) -> ValidationLight:
+    """The validation lighting at ``resolution`` as given (``advanced.validation_light``): a multiple of the
+    fit's light resolution by a power of 2 (refused in one line otherwise); nothing measured."""
+    env = environment(target)
+    start = int(env.info["resolution"])
+    f = int(resolution) // start
+    if int(resolution) % start or f & (f - 1):
+        raise HomofacError(f"advanced.validation_light must be the light resolution {start} times a power of 2 "
+                           f"(the validation refines the fit's light texels), got {resolution}")
+    return ValidationLight(resolution=int(resolution), start=start, route="given", changes=(), converged=False,
+                           tolerance=TOLERANCE, lights=int(lighting_at(target, int(resolution)).fn.env.num_lights))
+
+
+def decision_pairs(count: int, seed: int) -> sampling.Grouped:
+    """The validation pairs the doubling is measured on: the first :data:`DECISION_NORMALS` normals of the
+    ``count`` validation pairs of ``seed`` (:func:`homofac.fit.draw.draw_pairs` draws them the same way)."""
+    g = sampling.grouped_random(count, seed, views=VALIDATION_VIEWS)
+    k = min(DECISION_NORMALS, len(g.normals))
+    return sampling.Grouped(g.normals[:k], g.views[:k], g.mask[:k])
+
+
+#: Decisions of this process by the hash of the target's arrays, the pair count and the seed (a plan
+#: built again for the same target, as ``--plan`` then the fit, or a test module, decides once).
+_DECIDED: dict[str, ValidationLight] = {}
+
+
+def decide(target: Target, count: int, seed: int, log=None) -> ValidationLight | None:
+    """The validation light resolution of ``target`` (module docstring): doubling from the fit's own
+    until one more doubling changes the values on :func:`decision_pairs` by less than :data:`TOLERANCE`,
+    at most :data:`MAX_RESOLUTION` and :data:`MAX_DOUBLINGS` doublings. None for a target without cube
+    texels (nothing to refine)."""
+    log = log or (lambda msg: None)
+    env = environment(target)
+    if env is None or count <= 0:
+        return None
+    k = cache.key(target, {"validation_light": [int(count), int(seed), TOLERANCE,
+                                                SHARE, MAX_RESOLUTION, MAX_DOUBLINGS, route(env)]}, "")
+    if k is not None and k in _DECIDED:
+        return _DECIDED[k]
+    found = _decide(target, env, count, seed, log)
+    if k is not None:
+        _DECIDED[k] = found
+    return found
+
+
+def _decide(target: Target, env, count: int, seed: int, log) -> ValidationLight:
+    start = int(env.info["resolution"])
+    how = route(env)
+    pairs = decision_pairs(count, seed)
+    r, changes = start, []
+    y = evaluate_blocked(target, pairs)
+    limit = min(MAX_RESOLUTION, start << MAX_DOUBLINGS)
+    while 2 * r <= limit:
+        y2 = evaluate_blocked(lighting_at(target, 2 * r), pairs)
+        change = float(metrics(y, y2)["nrmse"])
+        changes.append((r, change))
+        log(f"validation lighting: resolution {r} -> {2 * r} changes the values by {change:.4f} nrmse")
+        if change < TOLERANCE:
+            break
+        r, y = 2 * r, y2
+    converged = bool(changes) and changes[-1][1] < TOLERANCE
+    lights = int(lighting_at(target, r).fn.env.num_lights)
+    return ValidationLight(resolution=r, start=start, route=how, changes=tuple(changes), converged=converged,
+                           tolerance=TOLERANCE, lights=lights)
+
+
+__all__ = ["DECISION_NORMALS", "FIT_NRMSE", "MAX_DOUBLINGS", "MAX_RESOLUTION", "MOVE", "SHARE", "TOLERANCE", "ValidationLight",
+           "decide", "decision_pairs", "environment", "given", "lighting_at"]
