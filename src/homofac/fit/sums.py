@@ -347,7 +347,7 @@ def split_sum_possible(target, structure) -> bool:
 def fit_sum(target: Target, structure: Structure, mapper: str, size: int, samples: Samples,
             options: LinearOptions | None = None, log: Callable[[str], None] | None = None,
             previous: Factorization | None = None, line_size: int = LINE_SIZE,
-            sample_weights: np.ndarray | None = None) -> SumFit:
+            sample_weights: np.ndarray | None = None, chunk: int = 0) -> SumFit:
     """Fit ``structure`` to the training samples in linear space (see the module docstring).
 
     ``sample_weights``: a weight per training sample (the polish's ridge pairs, :mod:`homofac.fit.ridge`),
@@ -358,6 +358,8 @@ def fit_sum(target: Target, structure: Structure, mapper: str, size: int, sample
 
     ``previous``: a model of the same structure (a refit, :mod:`homofac.fit.refit`): the fitted textures
     start from its texels (:func:`warm_start`) instead of step 2's start.
+
+    ``chunk``: Levenberg-Marquardt steps per compiled call (:func:`homofac.fit.refine.solve`; 0: one call).
     """
     log = log or (lambda msg: None)
     opts = (options or LinearOptions()).resolved()
@@ -415,7 +417,7 @@ def fit_sum(target: Target, structure: Structure, mapper: str, size: int, sample
         backend = "homofac"
     else:
         X, steps, converged, hist = _fit_lm(target, fitted_specs, fitted_terms, layouts, x0, a, b, y_fit / sigma, opts,
-                                            method, weights)
+                                            method, weights, chunk)
         backend = opts.backend
     solve_s = time.perf_counter() - t1
     bad = [n for n, x in X.items() if not np.all(np.isfinite(x))]
@@ -631,7 +633,8 @@ def _highlight_first(P, Q, W, D, C, data, flags, opts: LinearOptions, log=None):
     return P, Q, W, D, C
 
 
-def _fit_lm(target, fitted_specs, fitted_terms, layouts, x0, a, b, y, opts: LinearOptions, method: str, weights):
+def _fit_lm(target, fitted_specs, fitted_terms, layouts, x0, a, b, y, opts: LinearOptions, method: str, weights,
+            chunk: int = 0):
     names = [s.name for s in fitted_specs]
     index = {n: k for k, n in enumerate(names)}
     lookups, which, terms = [], [], []
@@ -662,7 +665,7 @@ def _fit_lm(target, fitted_specs, fitted_terms, layouts, x0, a, b, y, opts: Line
     X0 = tuple(jnp.asarray(x0[n], jnp.float32) for n in names)
     start_obj = float(refine.objective(X0, prob, tuple(terms)))
     X, steps, ok = refine.solve(X0, prob, tuple(terms), method=method, backend=opts.backend,
-                                iterations=int(opts.iterations), inner=int(opts.inner_iterations))
+                                iterations=int(opts.iterations), inner=int(opts.inner_iterations), chunk=chunk)
     end_obj = float(refine.objective(X, prob, tuple(terms)))
     return {n: np.asarray(x) for n, x in zip(names, X)}, steps, ok, np.array([start_obj, end_obj])
 
