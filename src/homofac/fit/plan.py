@@ -76,8 +76,11 @@ class Preset(NamedTuple):
 PRESET_DIRECTIONS = ("r_off",)
 
 
-#: The presets' screen (:class:`Preset`): every candidate fitted with a few ALS sweeps on the training
-#: pairs, the lowest and those within the margin of it (at most ``screen_keep``) then fitted in full.
+#: The screen of ``balanced`` and ``best`` (:class:`Preset`): every candidate fitted with 10 ALS sweeps on
+#: every 4th grid pair, the lowest and those within 3 % of it (at most 2) then fitted in full. Gold / forest
+#: at 8 lookups: 192 s CPU against 348-374 s for the 9 full fits, the kept structure 0.4 % above the full
+#: fits' lowest on the validation pairs (docs/notes/speed.md). ``fast`` has no screen: of its 3 candidates
+#: the screen kept 2, and its own programs (another pair count) cost more than the one full fit it saved.
 SCREEN = {"screen": 10, "screen_keep": 2, "screen_margin": 0.03, "screen_stride": 4}
 
 #: The presets (names pinned). ``fast`` and ``balanced`` are the 4- and 8-lookup settings measured on
@@ -88,7 +91,7 @@ SCREEN = {"screen": 10, "screen_keep": 2, "screen_margin": 0.03, "screen_stride"
 PRESETS: dict[str, Preset] = {
     "fast": Preset(lookups=4, grid_count=GRID_COUNT, validation=DEFAULT_VALIDATION, line_ratio=0, table=False,
                    disc_vote=False, nv_balance=1.0, polish=8, ridge=0, analysis=False, directions=PRESET_DIRECTIONS,
-                   polish_trial=2, **SCREEN),
+                   polish_trial=2),
     "balanced": Preset(lookups=8, grid_count=GRID_COUNT, validation=DEFAULT_VALIDATION, line_ratio=0, table=False,
                        disc_vote=False, nv_balance=1.0, polish=8, ridge=0, analysis=False,
                        directions=PRESET_DIRECTIONS, polish_trial=2, **SCREEN),

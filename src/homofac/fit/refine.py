@@ -82,11 +82,13 @@ def residuals(Z: tuple, prob: Problem, terms) -> tuple:
     return (data,) + smooth
 
 
+@functools.partial(jax.jit, static_argnames=("terms",))
 def objective(X: tuple, prob: Problem, terms) -> Float[Array, ""]:
     Z = tuple(x / s[:, None] for x, s in zip(X, prob.scales))
     return sum(jnp.sum(r * r) for r in residuals(Z, prob, terms))
 
 
+@functools.partial(jax.jit, static_argnames=("which", "sizes"))
 def column_scales(lookups, which: tuple[int, ...], sizes: tuple[int, ...]) -> tuple:
     """Per texture ``1 / sqrt(max(sum of squared footprint weights, 1))`` (``which[j]``: texture of factor j)."""
     acc = [jnp.zeros((n,)) for n in sizes]
