@@ -39,6 +39,12 @@ import homofac as hf  # noqa: E402
 PRESETS = ("fast", "balanced", "best")
 
 
+def _polish_note(selection: dict | None) -> dict | None:
+    """The polish vote's figures and whether it was kept (``selection.polish`` without its stages)."""
+    pol = (selection or {}).get("polish")
+    return None if pol is None else {k: v for k, v in pol.items() if k not in ("stages", "trial")}
+
+
 def one(material: str, env: str, method: str, resolution: int, truth_limit: int = 512) -> dict:
     """One row: fit ``method`` (a preset name or ``split_sum``) and measure it."""
     t0, c0 = time.perf_counter(), time.process_time()
@@ -57,6 +63,7 @@ def one(material: str, env: str, method: str, resolution: int, truth_limit: int 
     return {"material": material, "environment": env, "method": method, "wall_s": wall, "cpu_s": cpu,
             "lookups": int(fac.model.lookups), "structure": fac.parametrization,
             "tried": len((fac.selection or {}).get("tried", [])),
+            "screen": (fac.selection or {}).get("screen"), "polish": _polish_note(fac.selection),
             "nrmse": err["nrmse"], "nrmse_grazing": err["nrmse_grazing"], "nrmse_frontal": err["nrmse_frontal"],
             "fit_validation": float(fac.metrics["validation"]["float"]["nrmse"]),
             "ground_truth_resolution": r_gt, "ground_truth_change": change, "light_resolution": resolution,

@@ -39,7 +39,7 @@ def test_each_preset_is_a_named_lookup_budget_whose_candidates_fit_it(envs):
         budgets.append(p.max_lookups)
         assert p.mode == "choose" and p.preset == name and p.candidates
         assert all(hf.fit.structures.lookups(c, "lighting") <= p.max_lookups for c in p.candidates)
-        assert [v.name for v in p.votes][0] == "structure"
+        assert [v.name for v in p.votes if v.name != "screen"][0] == "structure"
         assert str(p).startswith(f"plan: choose (preset {name})") and name in plan.dumps(p)
     assert budgets == [4, 8, 16]
 
@@ -53,7 +53,7 @@ def test_an_override_replaces_the_presets_value_and_nothing_else(envs):
                                                     "highlights": {"disc": False}}})
     assert (less.grid_count, less.validation, less.line_sizes, less.ridge) == (1000, 500, (48,), 0)
     assert less.linear.nv_balance == 0.5 and not less.disc_vote
-    assert [v.name for v in less.votes] == ["structure", "polish"]  # no line vote (one size), no disc vote
+    assert [v.name for v in less.votes if v.name != "screen"] == ["structure", "polish"]  # no line vote, no disc vote
     assert less.candidates == best.candidates  # the candidates were not overridden
     assert plan.build_plan(t, "best", {"max_lookups": 6}).max_lookups == 6
     fewer = plan.build_plan(t, "balanced", {"advanced": {"highlights": {"terms": 0}}})
@@ -295,3 +295,38 @@ def test_split_sum_candidates_only_for_models_with_a_split_sum():
         cands = plan.build_plan(gltf, None, {"max_lookups": budget}, samples_given="r").candidates
         assert cands and not any(c.prefiltered for c in cands)
     assert any(c.prefiltered for c in plan.build_plan(ct, None, {"max_lookups": 8}, samples_given="r").candidates)
+
+
+def test_the_screen_is_planned_where_the_preset_chooses_by_the_lowest_figure(envs):
+    """A preset that screens fits every candidate short and only its lowest in full; a ``target_error``
+    (the first candidate that meets it) or a linear fit too short to screen plans no screen."""
+    t = _gold(envs["interior"])
+    for name, p in plan.PRESETS.items():
+        got = plan.build_plan(t, name)
+        assert got.screen == (p.screen if len(got.candidates) > p.screen_keep else 0)
+        assert ("screen" in [v.name for v in got.votes]) == bool(got.screen) == ("screen:" in str(got))
+        if got.screen:
+            assert 0 < got.screen < got.linear.iterations and 1 <= got.screen_keep < len(got.candidates)
+    screened = next(name for name, p in plan.PRESETS.items() if p.screen)
+    assert plan.build_plan(t, screened, {"target_error": 0.1}).screen == 0
+    assert plan.build_plan(t, screened, {"advanced": {"linear": {"iterations": 2}}}).screen == 0
+
+
+@pytest.mark.slow
+def test_the_screen_fits_in_full_only_the_candidates_it_keeps():
+    """On a tiny fit (a screening preset held to 4 lookups: 3 candidates): every candidate's short-fit
+    figure is recorded, the lowest is among those fitted in full, and the structure vote reads only those."""
+    env = hf.light.load_environment("forest", 4)
+    t = _gold(env)
+    name = next(n for n, p in plan.PRESETS.items() if p.screen)
+    kw = {"texture_size": 8, "max_lookups": 4, "sampling": {"count": 6000, "validation": 600},
+          "advanced": {"linear": {"polish": 0}}}
+    p = plan.build_plan(t, name, kw)
+    assert p.screen
+    fac = hf.fit.factorize(t, preset=name, **kw)
+    scr = fac.selection["screen"]
+    assert scr["labels"] == [c.label() for c in p.candidates] and scr["sweeps"] == p.screen
+    lowest = scr["labels"][min(range(len(scr["labels"])), key=lambda i: scr["validation_nrmse"][i])]
+    assert lowest in scr["kept"] and 1 <= len(scr["kept"]) <= p.screen_keep
+    assert [r["label"] for r in fac.selection["tried"]] == scr["kept"]
+    assert fac.parametrization in scr["kept"]

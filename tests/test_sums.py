@@ -252,7 +252,7 @@ def test_factorize_keys_validate_and_record(plastic, tmp_path):
 def test_max_lookups_picks_within_the_budget(plastic):
     target, s = plastic
     fac = hf.fit.factorize(target, "NR", texture_size=S, max_lookups=8, samples=s,
-                           advanced={"linear": {"iterations": 5}})
+                           advanced={"linear": {"iterations": 5}, "analysis": {"pair": "nr"}})
     sel = fac.selection
     assert fac.model.lookups <= 8 and sel["max_lookups"] == 8
     assert fac.analysis is not None and fac.analysis["pair"] == "nr"  # Mahajan analysis beside the choice

@@ -67,16 +67,21 @@ class Flags(NamedTuple):
     c: tuple[tuple[bool, ...], ...] = ()  # per extra line beside d (at its own scalar): which terms carry it
 
 
+@functools.partial(jax.jit, static_argnames=("size",))
 def line_footprint(x, size: int) -> tuple[Int[Array, "N 2"], Float[Array, "N 2"]]:
     """The two texels and weights of the pinned ``line`` lookup at scalars ``x`` (from the one bilinear)."""
     idx, w = mappers.bilinear("line", x, size)
     return idx[..., :2], w[..., :2] + w[..., 2:]
 
 
+#: :func:`homofac.param.mappers.bilinear` as one compiled program per mapper, size and shape.
+bilinear = jax.jit(mappers.bilinear, static_argnums=(0, 2))
+
+
 def single_texel(mapper: str, size: int, d, unknown_of_texel: np.ndarray, tol: float = 1e-3) -> np.ndarray | None:
     """The unknown index of the one texel each direction's bilinear lookup reads, or None when some
     lookup spreads over several texels (the samples are not grid-aligned)."""
-    idx, w = mappers.bilinear(mapper, jnp.asarray(d, jnp.float32), size)
+    idx, w = bilinear(mapper, jnp.asarray(d, jnp.float32), size)
     idx, w = np.asarray(idx), np.asarray(w)
     k = np.argmax(w, axis=-1)
     if np.min(np.take_along_axis(w, k[:, None], -1)) < 1.0 - tol:

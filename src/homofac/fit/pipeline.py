@@ -335,8 +335,24 @@ def _sums(target: Target, the_plan: Plan, samples: Samples, record: dict, sample
         log(f"validation: {len(rv.pairs.a)} ridge pairs stand in for the {int(rv.inside.sum())} validation pairs on "
             f"the ridges of the {len(rv.lights)} brightest lights")
     score = None if rv is None else (lambda res: polish.ridge_nrmse(res, samples, rv))
-    result = sums.choose(fit, list(the_plan.candidates), target_error=opts.target_error,
+    cands, screened = list(the_plan.candidates), None
+    if the_plan.screen:  # a short fit of every candidate; the plan's lowest fitted in full
+
+        def short(structure: Structure) -> Result:
+            tgt, smp, _ = pool(structure)
+            k = the_plan.screen_stride
+            smp = smp._replace(a=smp.a[::k], b=smp.b[::k], y=smp.y[::k])
+            slin = lin.model_copy(update={"iterations": the_plan.screen})
+            return as_result(structure, sums.fit_sum(tgt, structure, mapper, opts.texture_size, smp, slin, log,
+                                                     line_size=sizes[0]))
+
+        cands, screened = _screen(cands, short, the_plan.screen, the_plan.screen_keep, the_plan.screen_margin,
+                                  score, log)
+        screened["stride"] = the_plan.screen_stride
+    result = sums.choose(fit, cands, target_error=opts.target_error,
                          max_lookups=the_plan.max_lookups, log=log, score=score)
+    if screened is not None:
+        result = result.replace(selection={**result.selection, "screen": screened})
     structure = Structure.of(result.solver["structure"])
     line = sizes[0]  # the kept fit's line size (fits[structure, line] is its SumFit)
     if len(sizes) > 1 and any(t.mapper == "line" for t in result.model.textures):
@@ -363,6 +379,25 @@ def _sums(target: Target, the_plan: Plan, samples: Samples, record: dict, sample
         else:
             result = result.replace(selection={**result.selection, "polish": _unpolished(trial, steps)})
     return kept(result if analysis is None else result.replace(analysis=analysis))
+
+
+def _screen(candidates: list[Structure], short: Callable[[Structure], Result], sweeps: int, keep: int,
+            margin: float, score: Callable | None, log) -> tuple[list[Structure], dict]:
+    """The plan's screen: each of ``candidates`` fitted by ``short`` (``sweeps`` ALS sweeps) and ranked on
+    the figure the votes read (``score``'s where given); the lowest and the next ones whose figure is within
+    ``margin`` (relative) of it, at most ``keep``, in the candidates' order (cheapest first), with the
+    record ``selection.screen`` (the sweeps, each candidate's figure, the kept labels)."""
+    tried = [short(c) for c in candidates]
+    plain, errs, what = _vote_errors(tried, score)
+    order = np.argsort(errs, kind="stable")
+    best = errs[order[0]]
+    chosen = {int(k) for k in order[:max(1, keep)] if errs[k] <= best * (1.0 + margin)}
+    kept = [c for i, c in enumerate(candidates) if i in chosen]
+    log(f"screen ({sweeps} ALS sweeps): {what} " + ", ".join(f"{c.label()} {e:.4g}" for c, e in zip(candidates, errs))
+        + "; fitted in full: " + ", ".join(c.label() for c in kept))
+    note = {"sweeps": int(sweeps), "labels": [c.label() for c in candidates], "validation_nrmse": plain,
+            **({} if score is None else {sums.RIDGE_METRIC: errs}), "kept": [c.label() for c in kept]}
+    return kept, note
 
 
 def _figures(res: Result, score: Callable | None) -> dict:

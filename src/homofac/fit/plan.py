@@ -47,7 +47,10 @@ class Preset(NamedTuple):
     analysis (``advanced.analysis``); ``directions``: the grid directions
     (:func:`~homofac.fit.draw.grid_projection`) whose candidates a lighting fit tries (empty: all);
     ``polish_trial``: steps of a short polish (no ridge pairs) run first, the polish running only where it
-    lowers the validation figure (0: no trial)."""
+    lowers the validation figure (0: no trial); ``screen``: ALS sweeps of a short fit of every candidate
+    that ranks them on the validation figure, only the lowest ones then fitted in full (0: every candidate
+    fitted in full); ``screen_keep``: at most that many fitted in full, the lowest and those within
+    ``screen_margin`` (relative) of it; ``screen_stride``: the screen fits every k-th training pair."""
 
     lookups: int
     grid_count: int
@@ -61,6 +64,10 @@ class Preset(NamedTuple):
     analysis: bool
     directions: tuple[str, ...] = ()
     polish_trial: int = 0
+    screen: int = 0
+    screen_keep: int = 1
+    screen_margin: float = 0.0
+    screen_stride: int = 1
 
 
 #: The grid directions of the presets' candidates: the off-specular reflection ``r_off`` only. On the
@@ -69,6 +76,13 @@ class Preset(NamedTuple):
 #: of training pairs (the lighting integral at every pair, the largest stage of a fit: docs/notes/speed.md).
 PRESET_DIRECTIONS = ("r_off",)
 
+
+#: The screen of ``balanced`` and ``best`` (:class:`Preset`): every candidate fitted with 10 ALS sweeps on
+#: every 4th grid pair, the lowest and those within 3 % of it (at most 2) then fitted in full. Gold / forest
+#: at 8 lookups: 192 s CPU against 348-374 s for the 9 full fits, the kept structure 0.4 % above the full
+#: fits' lowest on the validation pairs (docs/notes/speed.md). ``fast`` has no screen: of its 3 candidates
+#: the screen kept 2, and its own programs (another pair count) cost more than the one full fit it saved.
+SCREEN = {"screen": 10, "screen_keep": 2, "screen_margin": 0.03, "screen_stride": 4}
 
 #: The presets (names pinned). ``fast`` and ``balanced`` are the 4- and 8-lookup settings measured on
 #: the accuracy benchmark (docs/notes/sums-research.md); ``best`` the 16-lookup ones ("the quality mode" of the notes):
@@ -80,10 +94,11 @@ PRESETS: dict[str, Preset] = {
                    disc_vote=False, nv_balance=1.0, polish=8, ridge=0, analysis=False, directions=PRESET_DIRECTIONS,
                    polish_trial=2),
     "balanced": Preset(lookups=8, grid_count=GRID_COUNT, validation=DEFAULT_VALIDATION, line_ratio=0, table=False,
-                       disc_vote=False, nv_balance=1.0, polish=8, ridge=0, analysis=True,
-                       directions=PRESET_DIRECTIONS, polish_trial=2),
+                       disc_vote=False, nv_balance=1.0, polish=8, ridge=0, analysis=False,
+                       directions=PRESET_DIRECTIONS, polish_trial=2, **SCREEN),
     "best": Preset(lookups=16, grid_count=600_000, validation=80_000, line_ratio=4, table=True, disc_vote=True,
-                   nv_balance=0.0, polish=8, ridge=20_000, analysis=True, directions=PRESET_DIRECTIONS),
+                   nv_balance=0.0, polish=8, ridge=20_000, analysis=False, directions=PRESET_DIRECTIONS,
+                   **SCREEN),
 }
 
 #: The lookup budget of ``target_error`` with sum keys but no ``max_lookups``.
@@ -125,6 +140,10 @@ class Plan:
     linear: LinearOptions | None
     polish: int  # steps of the kept structure's polish (0: none, or every candidate polished by linear.polish)
     polish_trial: int  # steps of the short polish that decides whether the polish runs (0: it runs)
+    screen: int  # ALS sweeps of the screening fit of every candidate (0: no screen, each fitted in full)
+    screen_keep: int  # at most this many screened candidates fitted in full
+    screen_margin: float  # ... the lowest and those within this relative margin of its figure
+    screen_stride: int  # the screen fits every k-th training pair
     ridge: int
     line_sizes: tuple[int, ...]
     disc_vote: bool
@@ -143,6 +162,8 @@ class Plan:
                 "candidates": [{"label": c.label(), "structure": c.record()} for c in self.candidates],
                 "linear": None if self.linear is None else self.linear.model_dump(),
                 "polish": self.polish, "polish_trial": self.polish_trial, "ridge": self.ridge,
+                "screen": {"sweeps": self.screen, "keep": self.screen_keep, "margin": self.screen_margin,
+                           "stride": self.screen_stride},
                 "line_sizes": list(self.line_sizes),
                 "disc_vote": self.disc_vote, "analysis": self.analysis,
                 "votes": [dataclasses.asdict(v) for v in self.votes]}
@@ -165,6 +186,12 @@ class Plan:
         elif self.candidates:
             lines.append(f"  candidates ({len(self.candidates)}):")
             lines += [f"    {c.label()} ({c.describe()})" for c in self.candidates]
+        if self.screen:
+            lines.append(f"  screen: every candidate {self.screen} ALS sweeps"
+                         + (f" on every {self.screen_stride}th training pair" if self.screen_stride > 1 else "")
+                         + "; fitted in full: the lowest validation "
+                         f"figure" + (f" and those within {100 * self.screen_margin:g} % of it (at most "
+                                      f"{self.screen_keep})" if self.screen_keep > 1 else ""))
         if self.linear is not None:
             lin = self.linear
             lines.append(f"  linear fit: {lin.method}, {lin.iterations} iterations, laplacian {lin.laplacian:g}, "
@@ -179,7 +206,8 @@ class Plan:
         if self.analysis:
             lines.append("  records Mahajan's in-out analysis")
         for v in self.votes:
-            choices = "the candidates" if v.name == "structure" else " | ".join(v.choices)
+            choices = ("the candidates" + (" the screen keeps" if v.name == "structure" and self.screen else "")
+                       if v.name in ("structure", "screen") else " | ".join(v.choices))
             lines.append(f"  vote {v.name}: {choices}; reads {v.reads}")
         return "\n".join(lines)
 
@@ -336,6 +364,9 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
         elif p is not None and p.directions and target.kind == "lighting":
             found = [c for c in found if grid_projection(target.kind, c.parametrization, grid) in p.directions] or found
         cands = tuple(found)
+    # the screen: a short ALS fit of every candidate ranks them; only the lowest are fitted in full
+    screen = (p.screen if choosing and p is not None and opts.target_error is None and als_fit and not lin.polish
+              and 0 < p.screen < lin.iterations and len(cands) > p.screen_keep else 0)
     sizes = line_sizes(opts) if opts.is_sum else ()
     disc = bool(choosing and p is not None and p.disc_vote and hl.disc is None
                 and any(c.highlights.terms for c in cands))
@@ -343,6 +374,11 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
         figure = _vote_figure(ridge)
         rule = (f"the first whose figure meets target_error {opts.target_error:g}" if opts.target_error is not None
                 else "the lowest")
+        if screen:
+            votes.append(Vote("screen", tuple(c.label() for c in cands),
+                              f"{figure} after {screen} ALS sweeps (the lowest"
+                              + (f" and those within {100 * p.screen_margin:g} %, at most {p.screen_keep}"
+                                 if p.screen_keep > 1 else "") + ", fitted in full)"))
         votes.append(Vote("structure", tuple(c.label() for c in cands), f"{figure} ({rule})"))
         if len(sizes) > 1:
             votes.append(Vote("lines", tuple(f"{n} texels" for n in sizes), figure + " of the kept structure"))
@@ -363,6 +399,9 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
                 sampling=kind, grid_count=grid_count(opts), validation=validation_count(opts),
                 light_resolution=int(res) if res else None, validation_light=vlight, max_lookups=budget if choosing else None,
                 candidates=cands, linear=lin, polish=int(steps or 0), polish_trial=int(trial), ridge=int(ridge or 0),
+                screen=int(screen), screen_keep=int(p.screen_keep) if screen else 0,
+                screen_margin=float(p.screen_margin) if screen else 0.0,
+                screen_stride=int(p.screen_stride) if screen else 1,
                 line_sizes=sizes,
                 disc_vote=disc, analysis=bool(choosing and target.kind == "lighting"
                                               and (p.analysis if p else True) or opts.advanced.analysis is not None),

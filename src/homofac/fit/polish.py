@@ -157,11 +157,17 @@ def polish_stages(target: Target, structure: Structure, mapper: str, size: int, 
     return [first, second, polish_stage(target, structure, mapper, size, fit, samples, pairs, lin, log, seed)]
 
 
+#: Levenberg-Marquardt steps per compiled call of a polish stage (:func:`homofac.fit.refine.solve`'s
+#: ``chunk``): the plan's 2-step trial and the 8-step polish on the same pairs share one program.
+POLISH_CHUNK = 2
+
+
 def polish_stage(target: Target, structure: Structure, mapper: str, size: int, fit: SumFit, samples: Samples,
                  pairs: Samples, lin: LinearOptions, log: Callable[[str], None], seed: int = 0) -> SumFit:
     """One stage of :func:`polish_stages`: ``lin.polish`` Levenberg-Marquardt steps from ``fit`` on the
-    grid ``samples`` and the off-grid ``pairs``, with ``lin.ridge`` ridge pairs (seeded by ``seed``)
-    where it is above 0. ``fit``'s own polish record, if any, becomes the new one's ``first``."""
+    grid ``samples`` and the off-grid ``pairs`` (in calls of :data:`POLISH_CHUNK` steps), with ``lin.ridge``
+    ridge pairs (seeded by ``seed``) where it is above 0. ``fit``'s own polish record, if any, becomes the
+    new one's ``first``."""
     lin = lin.resolved()
     t0 = time.perf_counter()
     a, b, y = (np.concatenate([np.asarray(u), np.asarray(v)]) for u, v in
@@ -182,7 +188,7 @@ def polish_stage(target: Target, structure: Structure, mapper: str, size: int, f
     lm = lin.model_copy(update={"method": "levenberg_marquardt", "iterations": int(lin.polish), "polish": 0})
     log(f"polishing {structure.label()} off the grid: {lin.polish} Levenberg-Marquardt steps on {len(a)} pairs")
     out = fit_sum(target, structure, mapper, size, union, lm, log, previous=fit.model, line_size=line_size_of(fit.model),
-                  sample_weights=weights)
+                  sample_weights=weights, chunk=POLISH_CHUNK)
     record = {**fit.solver, "polish": {"steps": int(lin.polish), "method": out.solver["method"],
                                        "backend": out.solver["backend"],
                                        "iterations": out.solver["iterations"], "converged": out.solver["converged"],
@@ -224,6 +230,6 @@ def recorded_linear(lin: LinearOptions, solver: dict | None) -> LinearOptions:
     return lin.model_copy(update=update)
 
 
-__all__ = ["RIDGE_NEEDS_ENVIRONMENT", "RidgeValidation", "STAGE_STARTS", "VALIDATION_RIDGE_LIGHTS", "polish",
+__all__ = ["POLISH_CHUNK", "RIDGE_NEEDS_ENVIRONMENT", "RidgeValidation", "STAGE_STARTS", "VALIDATION_RIDGE_LIGHTS", "polish",
            "polish_pairs", "polish_stage", "polish_stages", "recorded_direct", "recorded_linear", "ridge_lights",
            "ridge_nrmse", "ridge_validation"]

@@ -82,11 +82,13 @@ def residuals(Z: tuple, prob: Problem, terms) -> tuple:
     return (data,) + smooth
 
 
+@functools.partial(jax.jit, static_argnames=("terms",))
 def objective(X: tuple, prob: Problem, terms) -> Float[Array, ""]:
     Z = tuple(x / s[:, None] for x, s in zip(X, prob.scales))
     return sum(jnp.sum(r * r) for r in residuals(Z, prob, terms))
 
 
+@functools.partial(jax.jit, static_argnames=("which", "sizes"))
 def column_scales(lookups, which: tuple[int, ...], sizes: tuple[int, ...]) -> tuple:
     """Per texture ``1 / sqrt(max(sum of squared footprint weights, 1))`` (``which[j]``: texture of factor j)."""
     acc = [jnp.zeros((n,)) for n in sizes]
@@ -146,15 +148,27 @@ def _jaxopt(X0, prob: Problem, *, terms, method: str, iterations: int, inner: in
 
 
 def solve(X0: tuple, prob: Problem, terms, *, method: str = "levenberg_marquardt", backend: str = "optimistix",
-          iterations: int = 30, inner: int = 100, rtol: float = 1e-4):
-    """Minimise F from X0; returns (X, steps, converged)."""
+          iterations: int = 30, inner: int = 100, rtol: float = 1e-4, chunk: int = 0):
+    """Minimise F from X0; returns (X, steps, converged).
+
+    ``chunk`` > 0 (optimistix): the steps run as calls of ``chunk`` steps each, every call a fresh solve
+    from where the last stopped, until ``iterations`` steps or a call that converges. The number of steps
+    is a static argument of the compiled solve, so fits of different step counts on one problem shape
+    (the polish's trial and the polish) share one program; the damping restarts at each call."""
     if backend == "jaxopt":
         X, steps, ok = _jaxopt(X0, prob, terms=terms, method=method, iterations=iterations, inner=inner)
-    else:
-        X, steps, ok = _optimistix(X0, prob, terms=terms, method=method, iterations=iterations, inner=inner,
-                                   rtol=rtol)
+        return jax.block_until_ready(X), int(steps), bool(ok)
+    size = int(chunk) if 0 < chunk < iterations else int(iterations)
+    X, done, ok = X0, 0, False
+    while done < iterations:
+        n = min(size, iterations - done)
+        X, steps, ok = _optimistix(X, prob, terms=terms, method=method, iterations=n, inner=inner, rtol=rtol)
+        steps, ok = int(steps), bool(ok)
+        done += steps
+        if ok or steps < n:
+            break
     X = jax.block_until_ready(X)
-    return X, int(steps), bool(ok)
+    return X, int(done), bool(ok)
 
 
 def edges_of(neighbours: np.ndarray) -> np.ndarray:

@@ -25,9 +25,11 @@ and keeps the best on the validation pairs.
 
 from __future__ import annotations
 
+import functools
 import time
 from typing import Callable, NamedTuple
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -347,7 +349,7 @@ def split_sum_possible(target, structure) -> bool:
 def fit_sum(target: Target, structure: Structure, mapper: str, size: int, samples: Samples,
             options: LinearOptions | None = None, log: Callable[[str], None] | None = None,
             previous: Factorization | None = None, line_size: int = LINE_SIZE,
-            sample_weights: np.ndarray | None = None) -> SumFit:
+            sample_weights: np.ndarray | None = None, chunk: int = 0) -> SumFit:
     """Fit ``structure`` to the training samples in linear space (see the module docstring).
 
     ``sample_weights``: a weight per training sample (the polish's ridge pairs, :mod:`homofac.fit.ridge`),
@@ -358,6 +360,8 @@ def fit_sum(target: Target, structure: Structure, mapper: str, size: int, sample
 
     ``previous``: a model of the same structure (a refit, :mod:`homofac.fit.refit`): the fitted textures
     start from its texels (:func:`warm_start`) instead of step 2's start.
+
+    ``chunk``: Levenberg-Marquardt steps per compiled call (:func:`homofac.fit.refine.solve`; 0: one call).
     """
     log = log or (lambda msg: None)
     opts = (options or LinearOptions()).resolved()
@@ -415,7 +419,7 @@ def fit_sum(target: Target, structure: Structure, mapper: str, size: int, sample
         backend = "homofac"
     else:
         X, steps, converged, hist = _fit_lm(target, fitted_specs, fitted_terms, layouts, x0, a, b, y_fit / sigma, opts,
-                                            method, weights)
+                                            method, weights, chunk)
         backend = opts.backend
     solve_s = time.perf_counter() - t1
     bad = [n for n, x in X.items() if not np.all(np.isfinite(x))]
@@ -597,11 +601,34 @@ def _scalar_footprints(projs, a, b, context, size: int):
     if all(p is None for p in projs):
         return None, None
     idx, wts = np.zeros((len(a), len(projs), 2), np.int32), np.zeros((len(a), len(projs), 2), np.float32)
+    aj, bj = jnp.asarray(a, jnp.float32), jnp.asarray(b, jnp.float32)
     for t, proj in enumerate(projs):  # one projection per term (at most three lights)
         if proj is not None:
-            i_t, w_t = als.line_footprint(jnp.asarray(project(proj, a, b, context), jnp.float32), size)
+            i_t, w_t = _scalar_footprint(aj, bj, _needed(proj, context), proj=proj, size=size)
             idx[:, t], wts[:, t] = np.asarray(i_t), np.asarray(w_t)
     return jnp.asarray(idx), jnp.asarray(wts)
+
+
+def _needed(proj: str, context: dict | None) -> dict:
+    """The projection context as float32 arrays (jit arguments), checked for the keys ``proj`` reads."""
+    missing = [k for k in pj.get(proj).context if k not in (context or {})]
+    if missing:
+        project(proj, np.zeros((1, 3), np.float32), np.zeros((1, 3), np.float32), context)  # its one-line error
+    return {k: jnp.asarray(v, jnp.float32) for k, v in (context or {}).items()}
+
+
+@functools.partial(jax.jit, static_argnames=("proj", "size"))
+def _scalar_footprint(a, b, context: dict, *, proj: str, size: int):
+    """The line footprint (:func:`homofac.fit.als.line_footprint`) of the scalar projection ``proj``."""
+    return als.line_footprint(jnp.asarray(project(proj, a, b, context), jnp.float32), size)
+
+
+@functools.partial(jax.jit, static_argnames=("proj", "mapper", "size"))
+def _lm_lookup(a, b, context: dict, unknown_of_texel, *, proj: str, mapper: str, size: int) -> refine.Lookup:
+    """The bilinear footprint of projection ``proj`` on a texture's valid unknowns (missing texels weight 0)."""
+    idx, w = mappers.bilinear(mapper, project(proj, a, b, context), size)
+    unk = unknown_of_texel[idx]
+    return refine.Lookup(jnp.where(unk >= 0, unk, 0).astype(jnp.int32), jnp.where(unk >= 0, w, 0.0))
 
 
 def _highlight_first(P, Q, W, D, C, data, flags, opts: LinearOptions, log=None):
@@ -616,8 +643,11 @@ def _highlight_first(P, Q, W, D, C, data, flags, opts: LinearOptions, log=None):
 
     sub = als.Flags(pick(flags.p), pick(flags.q), pick(flags.w), pick(flags.h), tuple(pick(c) for c in flags.c))
     has_c = bool(flags.c)
-    data = data._replace(hi=data.hi[:, idx], hw=data.hw[:, idx], ci=tuple(c[:, idx] for c in data.ci),
-                         cw=tuple(c[:, idx] for c in data.cw))
+    def cols(x):  # the kept terms' columns, picked on the host (no program per shape)
+        return jnp.asarray(np.asarray(x)[:, idx])
+
+    data = data._replace(hi=cols(data.hi), hw=cols(data.hw), ci=tuple(cols(c) for c in data.ci),
+                         cw=tuple(cols(c) for c in data.cw))
     out, *_ = als_sweeps(*(jnp.asarray(x[idx], jnp.float32) for x in (P, Q, W)), data, jnp.float32(opts.laplacian),
                          sub, max(1, int(opts.iterations) // 2), float(opts.tolerance), log,
                          D=jnp.asarray(D[idx], jnp.float32),
@@ -631,7 +661,8 @@ def _highlight_first(P, Q, W, D, C, data, flags, opts: LinearOptions, log=None):
     return P, Q, W, D, C
 
 
-def _fit_lm(target, fitted_specs, fitted_terms, layouts, x0, a, b, y, opts: LinearOptions, method: str, weights):
+def _fit_lm(target, fitted_specs, fitted_terms, layouts, x0, a, b, y, opts: LinearOptions, method: str, weights,
+            chunk: int = 0):
     names = [s.name for s in fitted_specs]
     index = {n: k for k, n in enumerate(names)}
     lookups, which, terms = [], [], []
@@ -640,10 +671,8 @@ def _fit_lm(target, fitted_specs, fitted_terms, layouts, x0, a, b, y, opts: Line
         ks = []
         for proj, tex in term.factors:
             lay = layouts[tex]
-            d = project(proj, aj, bj, target.context)
-            idx, w = mappers.bilinear(lay.mapper, d, lay.size)
-            unk = jnp.asarray(lay.unknown_of_texel)[idx]
-            lookups.append(refine.Lookup(jnp.where(unk >= 0, unk, 0).astype(jnp.int32), jnp.where(unk >= 0, w, 0.0)))
+            lookups.append(_lm_lookup(aj, bj, _needed(proj, target.context), jnp.asarray(lay.unknown_of_texel),
+                                      proj=proj, mapper=lay.mapper, size=lay.size))
             which.append(index[tex])
             ks.append(index[tex])
         terms.append(tuple(ks))
@@ -662,7 +691,7 @@ def _fit_lm(target, fitted_specs, fitted_terms, layouts, x0, a, b, y, opts: Line
     X0 = tuple(jnp.asarray(x0[n], jnp.float32) for n in names)
     start_obj = float(refine.objective(X0, prob, tuple(terms)))
     X, steps, ok = refine.solve(X0, prob, tuple(terms), method=method, backend=opts.backend,
-                                iterations=int(opts.iterations), inner=int(opts.inner_iterations))
+                                iterations=int(opts.iterations), inner=int(opts.inner_iterations), chunk=chunk)
     end_obj = float(refine.objective(X, prob, tuple(terms)))
     return {n: np.asarray(x) for n, x in zip(names, X)}, steps, ok, np.array([start_obj, end_obj])
 
