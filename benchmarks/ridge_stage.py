@@ -1,7 +1,8 @@
-"""A third polish stage on a saved quality-mode fit: N more Levenberg-Marquardt steps with the ridge pairs
-(the run's own grid, texel and ridge pairs, rebuilt from its seeds), and the dense nrmse before and after.
+"""A third polish stage on a saved fit of a preset (default ``best``, "the quality mode"): N more
+Levenberg-Marquardt steps with the ridge pairs (the run's own grid, texel and ridge pairs, rebuilt from its
+seeds; the grid and ridge counts are the preset's plan's), and the dense nrmse before and after.
 
-    python benchmarks/ridge_stage.py plastic city DIR/plastic_city_max_lookups_16 8
+    python benchmarks/ridge_stage.py plastic city DIR/plastic_city_max_lookups_16 8 [best]
 
 DIR: the ``--fits`` directory of ``benchmarks/accuracy.py``; the ground truth comes from its cache.
 docs/notes/sums-research.md, "Tables of (n.i, n.v) in the fit": plastic / city 0.052 -> 0.049 with 8 steps.
@@ -13,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 import homofac as hf
-from homofac.fit import pipeline, polish, sums
+from homofac.fit import plan, polish, sums
 from homofac.fit.options import LinearOptions
 from homofac.fit.structures import Structure
 
@@ -21,15 +22,18 @@ sys.path.insert(0, str(Path(__file__).parent))
 import accuracy as A  # noqa: E402  (the benchmark's materials, dense pairs and ground-truth cache)
 
 mat, env, d, steps = sys.argv[1], sys.argv[2], sys.argv[3], int(sys.argv[4])
+preset = sys.argv[5] if len(sys.argv) > 5 else "best"
 fac = hf.load(d)
 st = Structure.of(fac.solver["structure"])
 tgt = hf.light.lighting_target(A.MATERIALS[mat](), hf.light.load_environment(env, 64), parametrization=st.parametrization)
 tgt = sums.with_highlight_context(tgt, st)
 tgt = hf.target.Target(tgt.kind, tgt.fn, tgt.quantity, {**tgt.context, **fac.model.context})
-cfg = {"kind": "grid", "size": 32, "mapper": "dual_paraboloid", "count": pipeline.QUALITY_GRID_COUNT, "validation": 0, "seed": 0, "cache": True}
+the_plan = plan.build_plan(tgt, preset)  # the counts the preset's fit ran with
+print(f"preset {preset}: {the_plan.grid_count} grid pairs, {the_plan.ridge} ridge pairs")
+cfg = {"kind": "grid", "size": 32, "mapper": "dual_paraboloid", "count": the_plan.grid_count, "validation": 0, "seed": 0, "cache": True}
 t0 = time.time()
 smp = hf.fit.draw_samples(tgt, st.parametrization, cfg)
-lin = LinearOptions(polish=steps, ridge=pipeline.QUALITY_RIDGE)
+lin = LinearOptions(polish=steps, ridge=the_plan.ridge)
 pairs = polish.polish_pairs(tgt, st.parametrization, lin, 0, True, print)
 print("sampled", time.time() - t0)
 sf = sums.SumFit(fac.model, dict(fac.solver), 0.0, 0.0, (), 0)

@@ -15,6 +15,14 @@ thousand programs (the slow suite does) crashes in its next compile, with a segf
 ``backend_compile_and_load`` when the mapping fails. So after any test that leaves the worker above
 half that, JAX's caches are cleared (:func:`homofac.fit.programs.bound_compiled_programs`, which the
 fitting entry points also call).
+
+Most of the suite's CPU is XLA compiling small programs that then run for milliseconds, so the tests (and
+the CLIs they start, through the environment) compile with XLA's cheaper settings: the CPU backend's classic
+emitters instead of its MLIR fusion emitters (``--xla_cpu_use_fusion_emitters=false``, every test), and
+most optimizations off (``jax_disable_most_optimizations``: LLVM at -O0, no expensive passes) for the fast
+tests but those marked ``xla_optimized`` (their programs run long enough that -O0 costs more than it saves)
+and the slow ones (the true default config and the other long runs). Measured in docs/notes/suite.md; the
+programs compute the same values to float32 rounding. ``HOMOFAC_TEST_XLA_OPT=1`` keeps XLA's defaults.
 """
 
 from __future__ import annotations
@@ -39,6 +47,23 @@ if _JAX_CACHE:
     Path(_JAX_CACHE).mkdir(parents=True, exist_ok=True)
     jax.config.update("jax_compilation_cache_dir", _JAX_CACHE)
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+# Cheap compiles (see the docstring). XLA reads XLA_FLAGS when the backend starts, after this file.
+_CHEAP = os.environ.get("HOMOFAC_TEST_XLA_OPT", "0") != "1"
+if _CHEAP:
+    os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} --xla_cpu_use_fusion_emitters=false".strip()
+
+
+def pytest_configure(config):
+    config.addinivalue_line("markers", "xla_optimized: compile with XLA's optimizations on (tests/conftest.py)")
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_setup(item):
+    """Before a test's fixtures: its programs (and those of the CLIs it starts) compile with most XLA
+    optimizations off, unless it is slow or marked ``xla_optimized`` (see the module docstring)."""
+    cheap = _CHEAP and item.get_closest_marker("slow") is None and item.get_closest_marker("xla_optimized") is None
+    jax.config.update("jax_disable_most_optimizations", cheap)
+    os.environ["JAX_DISABLE_MOST_OPTIMIZATIONS"] = "1" if cheap else "0"
 
 
 def _float64():

@@ -119,9 +119,11 @@ def test_schema_1_directories_still_load(name):
     ref = np.load(d / "expected.npz")
     fac = hf.load(d)
     assert len(fac.model.terms) == 1 and fac.parametrization in ("NR", "PQP")
-    np.testing.assert_allclose(np.asarray(fac.evaluate(ref["a"], ref["b"])), ref["float"], rtol=2e-6, atol=1e-7)
+    # float32 rounding: the reference was computed by XLA's optimized build, the suite compiles with its cheap
+    # settings (tests/conftest.py), which round some float32 operations differently (seen: 3e-6 relative)
+    np.testing.assert_allclose(np.asarray(fac.evaluate(ref["a"], ref["b"])), ref["float"], rtol=1e-5, atol=1e-7)
     np.testing.assert_allclose(np.asarray(fac.evaluate(ref["a"], ref["b"], quantized=True)), ref["quantized"],
-                               rtol=2e-6, atol=1e-7)
+                               rtol=1e-5, atol=1e-7)
 
 
 def test_one_term_results_also_write_schema_1_keys(tmp_path):

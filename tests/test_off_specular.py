@@ -207,6 +207,7 @@ def test_sampling_cache_keys_the_grid_projection_and_its_shift():
     assert a["grid_projection"] == {"projection": "r_off", "shift": pytest.approx(0.3)} and a != b
 
 
+@pytest.mark.xla_optimized  # its fits run long enough that XLA at -O0 more than doubles its CPU (142 s against 72 s)
 def test_max_lookups_draws_grid_pairs_per_direction_and_keeps_the_chosen_structures_own():
     """With NR the preset's candidates lie on its grid directions (r_off: NRO, RO) and get grid pairs of
     their own, drawn once, not NR's; the kept result carries the pairs it was fitted on (its refit state)

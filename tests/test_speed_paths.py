@@ -165,7 +165,8 @@ def test_sharded_sampling_equals_unsharded(tmp_path):
 
     out = {}
     for n in (1, 2):
-        env = {**os.environ, "XLA_FLAGS": f"--xla_force_host_platform_device_count={n}"}
+        flags = f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count={n}".strip()
+        env = {**os.environ, "XLA_FLAGS": flags}
         r = subprocess.run([sys.executable, "-c", SHARD_SCRIPT, str(tmp_path / f"{n}.npz")], env=env,
                            capture_output=True, text=True, timeout=300)
         assert r.returncode == 0, r.stderr[-2000:]

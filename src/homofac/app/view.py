@@ -34,8 +34,8 @@ from .._version import __version__
 from ..bake import shader as bake_shader
 from ..errors import HomofacError
 from ..gl.asset import Asset, load_asset
-from ..gl.bakes import CONVERGED_FROM, MATERIAL, material_textures, material_uniforms, preview_bake
-from ..gl.engine import Camera, Light, load_mesh
+from ..gl.bakes import CONVERGED_FROM, MATERIAL, VERTEX, material_textures, material_uniforms, preview_bake
+from ..gl.engine import GLSL_VERSION, Camera, Light, load_mesh
 from ..gl.picture import BACKGROUND, _VIRIDIS, check_finite, preview, relative_error
 from ..io.files import write_atomically
 
@@ -358,22 +358,7 @@ SCRIPT = r"""
     if (!gl.getProgramParameter(p, gl.LINK_STATUS)) throw new Error("program does not link: " + gl.getProgramInfoLog(p));
     return p;
   }
-  const VERTEX = `#version 300 es
-precision highp float;
-uniform mat4 u_mvp;
-in vec3 in_position;
-in vec3 in_normal;
-in vec2 in_uv;
-out vec3 v_pos;
-out vec3 v_normal;
-out vec2 v_uv;
-void main() {
-    v_pos = in_position;
-    v_normal = in_normal;
-    v_uv = in_uv;
-    gl_Position = u_mvp * vec4(in_position, 1.0);
-}
-`;
+  const VERTEX = `__HF_VERTEX__`;
   const viridis = data.viridis.map((c) => `vec3(${c[0].toFixed(6)}, ${c[1].toFixed(6)}, ${c[2].toFixed(6)})`).join(", ");
   // sRGB output and the viridis heat map, shared by the value and the exact panels' shaders
   const TONE = `const vec3 HF_VIRIDIS[9] = vec3[9](${viridis});
@@ -742,6 +727,11 @@ void main() {
   hf.ready = hf.error === null;
 })();
 """
+
+#: The vertex shader of every viewer program: the GL preview's (:data:`homofac.gl.bakes.VERTEX`) with its
+#: version line swapped for GLSL ES 3.00's (and the precision ES needs), so the two draw the same geometry.
+WEBGL_VERTEX = VERTEX.replace(GLSL_VERSION, "#version 300 es\nprecision highp float;", 1)
+SCRIPT = SCRIPT.replace("__HF_VERTEX__", WEBGL_VERTEX)
 
 __all__ = ["BAKE_TERMS", "MESHES", "bake_viewer_data", "page", "script_json", "viewer_data", "viewer_html", "write_bake_viewer",
            "write_viewer"]
