@@ -45,7 +45,7 @@ from ..options import validate
 from ..param import mappers
 from ..param import parametrizations as pz
 from ..target import Target, evaluate
-from . import footprints, precision, programs, solvers, sums, transport
+from . import footprints, precision, programs, solvers, sums, transport, validation
 from .draw import default_mapper
 from .options import FitOptions, LinearOptions, recorded_fit_options
 from .pipeline import quality_warnings, resolve_sampling
@@ -161,19 +161,37 @@ def _flat_index(state: RefitState, g) -> np.ndarray:
 
 
 def values(state: RefitState, target: Target, *, previous: Target | None = None, use_transport: bool | None = None,
-           log: Callable[[str], None] | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """The target's values at the state's training and validation directions (see the module doc, 1.)."""
+           log: Callable[[str], None] | None = None, validation: Target | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The target's values at the state's training and validation directions (see the module doc, 1.);
+    the validation values of ``validation`` where given (the full run's validation lighting,
+    :func:`validation_target`)."""
     log = log or (lambda msg: None)
+    vt = target if validation is None else validation
+    none = np.zeros((0, 3))
     if _use_transport(state, target, previous, use_transport):
-        return _transported(state, target.fn, log)
+        y, val = _transported(state, target.fn, log)
+        if vt is not target and len(state.validation):
+            val = np.asarray(evaluate_grouped(vt, state.val_groups))
+        return y, val
     if state.groups is not None:
         y = np.asarray(evaluate_grouped(target, state.groups))
-        val = np.asarray(evaluate_grouped(target, state.val_groups)) if len(state.validation) else np.zeros((0, 3))
+        val = np.asarray(evaluate_grouped(vt, state.val_groups)) if len(state.validation) else none
         return y, val
     y = np.asarray(evaluate(target, state.train.a, state.train.b))
-    val = (np.asarray(evaluate(target, state.validation.a, state.validation.b)) if len(state.validation)
-           else np.zeros((0, 3)))
+    val = np.asarray(evaluate(vt, state.validation.a, state.validation.b)) if len(state.validation) else none
     return y, val
+
+
+def validation_target(fac: Result, target: Target) -> Target:
+    """The lighting a refit's validation values read: the full run's validation lighting
+    (``selection.validation_light``, :func:`homofac.fit.validation.lighting_at`) where it refined lights at
+    the resolution ``target``'s environment has, so the refit's figures are the full run's on the same
+    target; ``target`` itself otherwise (no recorded refinement, or an environment of another resolution)."""
+    light = (fac.selection or {}).get("validation_light") or {}
+    env = validation.environment(target)
+    if not light or env is None or int(light["start"]) != int(env.info["resolution"]):
+        return target
+    return validation.lighting_at(target, int(light["resolution"]))
 
 
 # ------------------------------------------------------------------------------------------------
@@ -427,7 +445,8 @@ def refit(fac: Result, environment: Environment | None = None, brdf: BRDF | None
     opts = state.options
     t0 = time.perf_counter()
     if samples is None:
-        y, val_y = values(state, tgt, previous=fac.target, use_transport=transport, log=log)
+        y, val_y = values(state, tgt, previous=fac.target, use_transport=transport, log=log,
+                          validation=validation_target(fac, tgt))
         samples = state.samples(y, val_y)
     elif len(samples.a) != len(state.train) or len(samples.val_a) != len(state.validation):
         raise HomofacError("refit: samples= must hold values at the state's training and validation directions")
