@@ -10,6 +10,7 @@ import shutil
 import socketserver
 import tempfile
 import threading
+import time
 from pathlib import Path
 
 import pytest
@@ -90,3 +91,18 @@ def console_problems(log) -> list[str]:
     nor the favicon a page without one is asked for)."""
     return [e["message"] for e in log if (e["level"] == "SEVERE" and "favicon.ico" not in e["message"])
             or "GL_INVALID" in e["message"] or "WebGL:" in e["message"]]
+
+
+def wait_for(browser, name: str, tries: int = 600) -> tuple[object, list]:
+    """Poll the page's ``window[name]`` every 0.1 s until it is set or the console reports a problem; the
+    value (None when it never came) and the console log."""
+    log: list = []
+    state = None
+    for _ in range(tries):
+        state = browser.execute_script(f"return window.{name} || null")
+        log += browser.get_log("browser")
+        if state or console_problems(log):
+            break
+        time.sleep(0.1)
+    return state, log + browser.get_log("browser")
+

@@ -21,14 +21,13 @@ import json
 import re
 import shutil
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 import homofac as hf
-from browser import chromium, console_problems, missing, serve
+from browser import chromium, console_problems, missing, serve, wait_for
 from homofac.light.sources import bundled
 
 sys.path.insert(0, str(Path(__file__).resolve().parent / "threejs"))
@@ -121,14 +120,7 @@ def test_the_threejs_recipe_runs_as_written(rendered, tmp_path, block):
     (tmp_path / "recipe.html").write_text(RECIPE_PAGE % code)
     with serve({"/data": tmp_path, "/": ROOT}) as url, chromium() as browser:
         browser.get(f"{url}/data/recipe.html")
-        log: list = []
-        for _ in range(600):
-            state = browser.execute_script("return window.recipe || null")
-            log += browser.get_log("browser")
-            if state or console_problems(log):
-                break
-            time.sleep(0.1)
-        log += browser.get_log("browser")
+        state, log = wait_for(browser, "recipe")
     assert state, console_problems(log)
     assert state["lit"] > 0.2 * 512 * 512, state  # the sphere covers a good part of the view, lit
     assert not console_problems(log), console_problems(log)
@@ -141,14 +133,7 @@ def test_the_side_by_side_page_renders_both_ways(rendered, tmp_path):
     query = "?bake=/data/bake/&env=/src/homofac/data/hdri/forest.exr&asset=/src/homofac/data/assets/material_sphere.glb"
     with serve({"/data": tmp_path, "/": ROOT}) as url, chromium() as browser:
         browser.get(f"{url}/js/examples/side-by-side.html{query}")
-        log: list = []
-        for _ in range(600):
-            state = browser.execute_script("return window.sideBySide || null")
-            log += browser.get_log("browser")
-            if state or console_problems(log):
-                break
-            time.sleep(0.1)
-        log += browser.get_log("browser")
+        state, log = wait_for(browser, "sideBySide")
     assert state, console_problems(log)
     px = state["size"] ** 2
     assert state["lit"][0] > 0.2 * px and state["lit"][1] > 0.2 * px, state
