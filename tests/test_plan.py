@@ -1,4 +1,11 @@
-"""The plan (issue 41): presets set values, overrides replace them, the plan says what will run."""
+"""The plan (issue 41): presets set values, overrides replace them, the plan says what will run.
+
+The plans of lighting targets here are built with ``advanced.validation_light`` given at the
+environment's own resolution (:func:`_plan`): a chooser's plan otherwise decides it by doubling the light
+resolution (fit/validation.py), which evaluates the target at up to 8 times its light resolution, 5 to 30 s
+of CPU a target; no property checked here reads it, and the decision has its own tests
+(tests/test_validation_light.py). The CLI's ``--plan`` below and test_validation_light.py's plan tests
+build plans that decide it."""
 
 from __future__ import annotations
 
@@ -13,7 +20,7 @@ import homofac as hf
 from homofac.app import cli
 from homofac.app.config import parse, parse_record
 from homofac.errors import HomofacError
-from homofac.fit import plan
+from homofac.fit import plan, validation
 from homofac.fit.options import DEFAULT_PRESET, FitOptions, recorded_fit_options
 from homofac.fit.structures import Structure
 
@@ -27,6 +34,15 @@ def envs():
             "interior": hf.light.load_environment("interior", 8)}
 
 
+def _plan(target, preset=None, overrides=None, **kw):
+    """``plan.build_plan`` with the validation light given at the environment's resolution (module docstring)."""
+    over = dict(overrides or {})
+    env = validation.environment(target)
+    if env is not None:
+        over["advanced"] = {"validation_light": int(env.info["resolution"]), **over.get("advanced", {})}
+    return plan.build_plan(target, preset, over, **kw)
+
+
 def _gold(env):
     return hf.light.lighting_target(hf.brdf.cook_torrance(**{k: v for k, v in GOLD.items() if k != "model"}), env)
 
@@ -35,7 +51,7 @@ def test_each_preset_is_a_named_lookup_budget_whose_candidates_fit_it(envs):
     t = _gold(envs["sun"])
     budgets = []
     for name in ("fast", "balanced", "best"):
-        p = plan.build_plan(t, name)
+        p = _plan(t, name)
         budgets.append(p.max_lookups)
         assert p.mode == "choose" and p.preset == name and p.candidates
         assert all(hf.fit.structures.lookups(c, "lighting") <= p.max_lookups for c in p.candidates)
@@ -46,27 +62,27 @@ def test_each_preset_is_a_named_lookup_budget_whose_candidates_fit_it(envs):
 
 def test_an_override_replaces_the_presets_value_and_nothing_else(envs):
     t = _gold(envs["sun"])
-    best = plan.build_plan(t, "best")
+    best = _plan(t, "best")
     assert best.ridge > 0 and best.disc_vote and len(best.line_sizes) == 2 and best.linear.nv_balance == 0
-    less = plan.build_plan(t, "best", {"sampling": {"count": 1000, "validation": 500},
+    less = _plan(t, "best", {"sampling": {"count": 1000, "validation": 500},
                                        "advanced": {"line_size": 48, "linear": {"ridge": 0, "nv_balance": 0.5},
                                                     "highlights": {"disc": False}}})
     assert (less.grid_count, less.validation, less.line_sizes, less.ridge) == (1000, 500, (48,), 0)
     assert less.linear.nv_balance == 0.5 and not less.disc_vote
     assert [v.name for v in less.votes if v.name != "screen"] == ["structure", "polish"]  # no line vote, no disc vote
     assert less.candidates == best.candidates  # the candidates were not overridden
-    assert plan.build_plan(t, "best", {"max_lookups": 6}).max_lookups == 6
-    fewer = plan.build_plan(t, "balanced", {"advanced": {"highlights": {"terms": 0}}})
+    assert _plan(t, "best", {"max_lookups": 6}).max_lookups == 6
+    fewer = _plan(t, "balanced", {"advanced": {"highlights": {"terms": 0}}})
     assert fewer.candidates and not any(c.highlights.terms for c in fewer.candidates)
 
 
 def test_polish_given_runs_on_every_candidate_and_the_kept_structure_gets_no_second_polish(envs):
     t = _gold(envs["interior"])
-    p = plan.build_plan(t, "fast", {"advanced": {"linear": {"polish": 3}}})
+    p = _plan(t, "fast", {"advanced": {"linear": {"polish": 3}}})
     assert p.linear.polish == 3 and p.polish == 0 and "polish" not in [v.name for v in p.votes]
-    off = plan.build_plan(t, "fast", {"advanced": {"linear": {"polish": 0}}})
+    off = _plan(t, "fast", {"advanced": {"linear": {"polish": 0}}})
     assert off.linear.polish == 0 and off.polish == 0
-    lm = plan.build_plan(t, "fast", {"advanced": {"linear": {"method": "levenberg_marquardt"}}})
+    lm = _plan(t, "fast", {"advanced": {"linear": {"method": "levenberg_marquardt"}}})
     assert lm.polish == 0  # the polish follows an ALS fit
 
 
@@ -75,24 +91,24 @@ def test_the_candidates_balance_the_nv_bins_only_where_the_brdf_has_a_diffuse_pa
     plastic = hf.light.lighting_target(hf.brdf.cook_torrance(kd=0.3, ks=1.0, roughness=0.6, f0=0.04), env)
     mirror = hf.light.lighting_target(hf.brdf.ggx(kd=0.0, ks=1.0, roughness=0.1, f0=0.9), env)
     brdf = hf.fit.brdf_target(hf.brdf.cook_torrance(kd=0.3, ks=1.0, roughness=0.6, f0=0.04))
-    assert plan.build_plan(plastic, "balanced").linear.nv_balance == plan.PRESETS["balanced"].nv_balance > 0
-    assert plan.build_plan(mirror, "balanced").linear.nv_balance == 0
-    bp = plan.build_plan(brdf, "balanced")
+    assert _plan(plastic, "balanced").linear.nv_balance == plan.PRESETS["balanced"].nv_balance > 0
+    assert _plan(mirror, "balanced").linear.nv_balance == 0
+    bp = _plan(brdf, "balanced")
     assert bp.parametrization == "PQP" and bp.linear.nv_balance == 0 and bp.polish == 0 and bp.ridge == 0
-    assert plan.build_plan(plastic, "balanced", {"advanced": {"linear": {"nv_balance": 0.0}}}).linear.nv_balance == 0.0
+    assert _plan(plastic, "balanced", {"advanced": {"linear": {"nv_balance": 0.0}}}).linear.nv_balance == 0.0
     with pytest.raises(HomofacError, match="nv_balance"):
-        plan.build_plan(brdf, "balanced", {"advanced": {"linear": {"nv_balance": 0.5}}})
+        _plan(brdf, "balanced", {"advanced": {"linear": {"nv_balance": 0.5}}})
 
 
 def test_no_preset_and_no_naming_key_is_the_default_preset_and_a_named_parametrization_a_single_product(envs):
     t = _gold(envs["sun"])
     assert FitOptions().preset == DEFAULT_PRESET == "balanced"
-    assert plan.build_plan(t).preset == "balanced"
-    assert plan.build_plan(t, None, {"parametrization": "NR"}).mode == "product"
-    assert plan.build_plan(t, None, {"terms": 2, "nv_factor": True}).mode == "sum"
-    assert plan.build_plan(t, None, {"parametrization": "split_sum"}).mode == "baseline"
+    assert _plan(t).preset == "balanced"
+    assert _plan(t, None, {"parametrization": "NR"}).mode == "product"
+    assert _plan(t, None, {"terms": 2, "nv_factor": True}).mode == "sum"
+    assert _plan(t, None, {"parametrization": "split_sum"}).mode == "baseline"
     # max_lookups alone keeps the settings its budget always had: the smallest preset that holds it
-    assert [plan.build_plan(t, None, {"max_lookups": n}).preset for n in (3, 4, 6, 8, 12, 16, 40)] == \
+    assert [_plan(t, None, {"max_lookups": n}).preset for n in (3, 4, 6, 8, 12, 16, 40)] == \
         ["fast", "fast", "balanced", "balanced", "best", "best", "best"]
 
 
@@ -108,7 +124,7 @@ def test_a_config_naming_only_a_brdf_an_environment_and_a_preset_is_complete(tmp
     with pytest.raises(HomofacError, match="preset"):
         parse({"target": {"brdf": GOLD}, "preset": "fastest"})
     path = tmp_path / "c.yaml"
-    path.write_text("target:\n  brdf: {model: ggx, roughness: 0.3}\n  environment: {file: interior, resolution: 8}\n"
+    path.write_text("target:\n  brdf: {model: ggx, roughness: 0.3}\n  environment: {file: interior, resolution: 4}\n"
                     "preset: best\n")
     assert cli.fit_main([str(path), "--plan"]) == 0
     out = capsys.readouterr().out
@@ -123,7 +139,7 @@ def test_the_plan_refuses_in_one_line_before_any_compute(envs):
                          "advanced": {"linear": {"ridge": 10, "polish": 0}}}, "ridge"),
                        ({"parametrization": "PQP", "max_lookups": 4}, "PQP")):
         with pytest.raises(HomofacError, match=words) as e:
-            plan.build_plan(t, None, bad)
+            _plan(t, None, bad)
         assert "\n" not in str(e.value)
 
 
@@ -183,13 +199,13 @@ def test_a_structure_gives_the_keywords_that_fit_it(envs):
     s = Structure.parse("E'+NROW x2+R+HSFT x1")
     kw = s.keywords()
     assert set(kw) == {"parametrization", "terms", "diffuse", "nv_factor", "advanced"}
-    p = plan.build_plan(_gold(envs["sun"]), None, kw)
+    p = _plan(_gold(envs["sun"]), None, kw)
     assert p.mode == "sum" and p.candidates == (s,)
     d = p.to_dict()["candidates"][0]
     assert d["label"] == s.label() and Structure.of(d["structure"]) == s and d["structure"]["highlights"]["disc"]
     assert f"structure: {s.label()} (NRO products x2" in str(p)
     assert "highlights {terms 1, fresnel, table, disc}" in str(p)
-    fast = plan.build_plan(_gold(envs["sun"]), "fast")
+    fast = _plan(_gold(envs["sun"]), "fast")
     chosen = fast.to_dict()["candidates"]
     assert all(Structure.of(c["structure"]).label() == c["label"] for c in chosen)
     assert all(f"    {c.label()} ({c.describe()})" in str(fast).splitlines() for c in fast.candidates)
@@ -264,13 +280,13 @@ def test_the_presets_try_the_candidates_of_their_grid_directions_and_trial_the_p
     t = _gold(envs["interior"])
     grid = FitOptions().sampling.model_copy(update={"kind": "grid"})
     for name, p in plan.PRESETS.items():
-        got = plan.build_plan(t, name)
+        got = _plan(t, name)
         dirs = {hf.fit.draw.grid_projection("lighting", c.parametrization, grid) for c in got.candidates}
         assert dirs <= set(p.directions or dirs)
         assert got.polish_trial == (p.polish_trial if got.polish and not got.ridge else 0)
         assert ("trial" in str(got)) == bool(got.polish_trial)
-    assert plan.build_plan(t, "fast", {"advanced": {"linear": {"polish": 4}}}).polish_trial == 0  # every candidate polished
-    given_r = plan.build_plan(t, "fast", samples_given="r")
+    assert _plan(t, "fast", {"advanced": {"linear": {"polish": 4}}}).polish_trial == 0  # every candidate polished
+    given_r = _plan(t, "fast", samples_given="r")
     assert {hf.fit.draw.grid_projection("lighting", c.parametrization, grid) for c in given_r.candidates} == {"r"}
 
 
@@ -292,9 +308,9 @@ def test_split_sum_candidates_only_for_models_with_a_split_sum():
     ct = hf.light.lighting_target(hf.brdf.cook_torrance(kd=(0.1, 0.1, 0.1), ks=1.0, roughness=0.3,
                                                          f0=(0.9, 0.7, 0.3)), env)
     for budget in (4, 8, 16):
-        cands = plan.build_plan(gltf, None, {"max_lookups": budget}, samples_given="r").candidates
+        cands = _plan(gltf, None, {"max_lookups": budget}, samples_given="r").candidates
         assert cands and not any(c.prefiltered for c in cands)
-    assert any(c.prefiltered for c in plan.build_plan(ct, None, {"max_lookups": 8}, samples_given="r").candidates)
+    assert any(c.prefiltered for c in _plan(ct, None, {"max_lookups": 8}, samples_given="r").candidates)
 
 
 def test_the_screen_is_planned_where_the_preset_chooses_by_the_lowest_figure(envs):
@@ -302,14 +318,14 @@ def test_the_screen_is_planned_where_the_preset_chooses_by_the_lowest_figure(env
     (the first candidate that meets it) or a linear fit too short to screen plans no screen."""
     t = _gold(envs["interior"])
     for name, p in plan.PRESETS.items():
-        got = plan.build_plan(t, name)
+        got = _plan(t, name)
         assert got.screen == (p.screen if len(got.candidates) > p.screen_keep else 0)
         assert ("screen" in [v.name for v in got.votes]) == bool(got.screen) == ("screen:" in str(got))
         if got.screen:
             assert 0 < got.screen < got.linear.iterations and 1 <= got.screen_keep < len(got.candidates)
     screened = next(name for name, p in plan.PRESETS.items() if p.screen)
-    assert plan.build_plan(t, screened, {"target_error": 0.1}).screen == 0
-    assert plan.build_plan(t, screened, {"advanced": {"linear": {"iterations": 2}}}).screen == 0
+    assert _plan(t, screened, {"target_error": 0.1}).screen == 0
+    assert _plan(t, screened, {"advanced": {"linear": {"iterations": 2}}}).screen == 0
 
 
 @pytest.mark.slow
@@ -321,7 +337,7 @@ def test_the_screen_fits_in_full_only_the_candidates_it_keeps():
     name = next(n for n, p in plan.PRESETS.items() if p.screen)
     kw = {"texture_size": 8, "max_lookups": 4, "sampling": {"count": 6000, "validation": 600},
           "advanced": {"linear": {"polish": 0}}}
-    p = plan.build_plan(t, name, kw)
+    p = _plan(t, name, kw)
     assert p.screen
     fac = hf.fit.factorize(t, preset=name, **kw)
     scr = fac.selection["screen"]
