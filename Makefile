@@ -17,10 +17,12 @@ PYTEST_ARGS ?=
 
 .PHONY: run test test-slow test-all docs install system-packages js-packages benchmark clean
 
+# --no-compile: pip does not byte-compile every installed module (about 20 s of CPU for jax, scipy, matplotlib,
+# mkdocs ...); Python compiles the modules a run imports when it first imports them.
 $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e ".[dev,gl,jaxopt,bench]"
+	$(PY) -m pip install --quiet --no-compile -e ".[dev,gl,jaxopt,bench]"
 	@touch $(STAMP)
 
 install: $(STAMP)
