@@ -7,7 +7,8 @@ BRDF-only ones must be refused), every sampling kind but ``scene`` (which needs 
 tests/test_scene.py), and every structure key of a sum. Two tests share the draw:
 
 - the plan of 300 drawn configs (no compute: building a plan reads the options and the target only), each
-  built or refused in one line. It covers every value of every key and every plan mode (about 3 s).
+  built or refused in one line. It covers every value of every key and every plan mode (about 11 s of CPU,
+  of which about 7 s the one validation-light decision its chooser plans share: fit/validation.py).
 - the execution of 8 drawn configs (slow: each compiles its fits, 10-60 s), each of which must run once
   its plan is built: a valid config refused after compute, or crashing, fails it. It draws the keys a
   user sets and the presets ``fast`` and ``balanced`` (see RUN_KEYS): ``best`` and the research keys
