@@ -6,7 +6,7 @@ kind is drawn too: every preset, every lighting parametrization and baseline, ev
 BRDF-only ones must be refused), every sampling kind but ``scene`` (which needs a mesh and cameras;
 tests/test_scene.py), and every structure key of a sum. Two tests share the draw:
 
-- the plan of 300 drawn configs (no compute: building a plan reads the options and the target only), each
+- the plan of 300 drawn configs (no fit: building a plan reads the options and the target), each
   built or refused in one line. It covers every value of every key and every plan mode (about 11 s of CPU,
   of which about 7 s the one validation-light decision its chooser plans share: fit/validation.py).
 - the execution of 8 drawn configs (slow: each compiles its fits, 10-60 s), each of which must run once
