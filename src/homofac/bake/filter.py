@@ -22,8 +22,15 @@ CHUNK = 128
 
 
 def _read(tables, i0, f, power):
-    """``sum_l ((1 - f) K_j[i0] + f K_j[i0 + 1])[b, l] power[l]`` for every table j: (B, J, 4)."""
-    return jnp.stack([((1.0 - f) * t[i0] + f * t[i0 + 1]) @ power for t in tables], axis=1)
+    """``sum_l ((1 - f) K_j[i0] + f K_j[i0 + 1])[b, l] power[l]`` for every table j: (B, J, 4). A ``lax.scan``
+    over the tables: the program's size (and XLA's compile time) does not grow with J, and one (B, L) gather
+    at a time is live (measured against the tables unrolled, J = 25, 6144 lights and texels: compile + run
+    3.1 s against 6.5 s, run 2.7 s against 3.5 s)."""
+    def one(carry, t):
+        return carry, ((1.0 - f) * t[i0] + f * t[i0 + 1]) @ power
+
+    _, out = jax.lax.scan(one, None, tables)
+    return jnp.moveaxis(out, 0, 1)
 
 
 @eqx.filter_jit
@@ -44,13 +51,18 @@ def _filter(tables, dirs, light_dirs, power, chunk: int):
     return out.reshape(-1, j_count, power.shape[1])[:count]
 
 
+def _power(env: Environment) -> np.ndarray:
+    """``(L, 4)`` float32: the lights' power L_k dw_k (RGB) and solid angle dw_k (computed in numpy: eager JAX
+    operations each compile a program on a process's first bake)."""
+    sa = np.asarray(env.solid_angle, np.float32)
+    return np.concatenate([np.asarray(env.radiance, np.float32) * sa[:, None], sa[:, None]], axis=1)
+
+
 def prefilter(tables: np.ndarray, dirs: np.ndarray, env: Environment, chunk: int = CHUNK) -> tuple[np.ndarray, np.ndarray]:
     """The J kernels ``tables`` (J, G) applied to ``env`` at directions ``dirs`` (N, 3): ``(N, J, 3)``, and the
     discrete masses ``sum_k dw_k kappa_j`` (N, J) of the same sums (the quadrature check of :func:`normalized`)."""
-    sa = env.solid_angle.astype(jnp.float32)
-    power = jnp.concatenate([env.radiance.astype(jnp.float32) * sa[:, None], sa[:, None]], axis=1)
-    out = np.asarray(_filter(jnp.asarray(tables, jnp.float32), jnp.asarray(dirs, jnp.float32),
-                             env.directions.astype(jnp.float32), power, int(min(chunk, max(1, len(dirs))))), np.float64)
+    out = np.asarray(_filter(np.asarray(tables, np.float32), np.asarray(dirs, np.float32),
+                             np.asarray(env.directions, np.float32), _power(env), int(min(chunk, max(1, len(dirs))))), np.float64)
     return out[..., :3], out[..., 3]
 
 
@@ -100,10 +112,8 @@ def prefilter_cube(tables: np.ndarray, size: int, env: Environment, support: flo
     if slots > count // 3:
         return prefilter(tables, dirs.reshape(-1, 3), env)
     blocks = dirs.reshape(size // tile, tile, 6 * size // tile, tile, 3).transpose(0, 2, 1, 3, 4).reshape(-1, tile * tile, 3)
-    sa = env.solid_angle.astype(jnp.float32)
-    power = jnp.concatenate([env.radiance.astype(jnp.float32) * sa[:, None], sa[:, None]], axis=1)
-    out = np.asarray(_filter_tiles(jnp.asarray(tables, jnp.float32), jnp.asarray(blocks, jnp.float32),
-                                   env.directions.astype(jnp.float32), power, slots, float(np.cos(cone))), np.float64)
+    out = np.asarray(_filter_tiles(np.asarray(tables, np.float32), np.asarray(blocks, np.float32),
+                                   np.asarray(env.directions, np.float32), _power(env), slots, float(np.cos(cone))), np.float64)
     j = tables.shape[0]
     out = out.reshape(size // tile, 6 * size // tile, tile, tile, j, 4).transpose(0, 2, 1, 3, 4, 5).reshape(-1, j, 4)
     return out[..., :3], out[..., 3]
@@ -148,9 +158,9 @@ def two_scale(tables: np.ndarray, size: int, fine: Environment, coarse: Environm
     low = min(size, coarse_res)
     num_f, den_f = prefilter(t_far, np.asarray(mappers.texel_directions("cube", low), np.float64).reshape(-1, 3), coarse)
     if low < size:
-        d = jnp.asarray(mappers.texel_directions("cube", size), jnp.float32).reshape(-1, 3)
+        d = np.asarray(mappers.texel_directions("cube", size), np.float64).reshape(-1, 3)
         up = np.concatenate([num_f, den_f[..., None]], -1).reshape(low, 6 * low, -1)
-        up = np.asarray(mappers.lookup("cube", jnp.asarray(up, jnp.float32), d), np.float64).reshape(len(d), len(tables), 4)
+        up = np.asarray(mappers.lookup("cube", up, d), np.float64).reshape(len(d), len(tables), 4)  # numpy: no compilation
         num_f, den_f = up[..., :3], up[..., 3]
     return [(num_n, den_n, t_near), (num_f, den_f, t_far)]
 
