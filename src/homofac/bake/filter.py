@@ -79,7 +79,7 @@ def normalized(values: np.ndarray, discrete: np.ndarray, exact) -> np.ndarray:
 
 
 @eqx.filter_jit
-def _filter_tiles(tables, tiles, light_dirs, power, slots: int, cos_cone):
+def _filter_tiles(tables, tiles, light_dirs, power, slots: int):
     """:func:`_filter` over tiles of nearby directions (T, B, 3), each with the ``slots`` lights nearest its axis."""
     j_count, g = tables.shape
 
@@ -113,7 +113,7 @@ def prefilter_cube(tables: np.ndarray, size: int, env: Environment, support: flo
         return prefilter(tables, dirs.reshape(-1, 3), env)
     blocks = dirs.reshape(size // tile, tile, 6 * size // tile, tile, 3).transpose(0, 2, 1, 3, 4).reshape(-1, tile * tile, 3)
     out = np.asarray(_filter_tiles(np.asarray(tables, np.float32), np.asarray(blocks, np.float32),
-                                   np.asarray(env.directions, np.float32), _power(env), slots, float(np.cos(cone))), np.float64)
+                                   np.asarray(env.directions, np.float32), _power(env), slots), np.float64)
     j = tables.shape[0]
     out = out.reshape(size // tile, 6 * size // tile, tile, tile, j, 4).transpose(0, 2, 1, 3, 4, 5).reshape(-1, j, 4)
     return out[..., :3], out[..., 3]
