@@ -145,8 +145,8 @@ def engines_split_sum(name, n, v, rho, dfg32, source):
 
 #: The per-material fit's settings (beside ``max_lookups``): small, so that a fit takes 30-90 s here.
 #: ``prefiltered: false``: the chooser's split-sum candidates need a ggx / cook_torrance target, not gltf.
-FIT_SETTINGS = dict(texture_size=32, sampling={"count": 8192, "validation": 4096}, prefiltered=False,
-                    linear={"polish": 0, "iterations": 15})
+FIT_SETTINGS = dict(texture_size=32, sampling={"count": 8192, "validation": 4096},
+                    advanced={"prefiltered": False, "linear": {"polish": 0, "iterations": 15}})
 #: Light resolution of the fitted target's lighting.
 FIT_RESOLUTION = 32
 #: Samples per strategy of the constant-radiance reference (the directional albedos A, B, d).
@@ -334,7 +334,13 @@ def main(argv=None):
             if args.fits and name in args.fit_envs:
                 fits += fit_rows(name, band, n, v, fit_rng, args.fits, args.fit_lookups, src, samples, bakes,
                                  args.presets, uniform)
+        save(args, argv, rows, fits, runs, why, load_before, t_run)
     shutil.rmtree(tmp, ignore_errors=True)
+    print(save(args, argv, rows, fits, runs, why, load_before, t_run))
+
+
+def save(args, argv, rows, fits, runs, why, load_before, t_run) -> str:
+    """Write the run so far (.json and .md; called after every environment, so a stopped run keeps its rows)."""
     doc = {"machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "date_utc": time.strftime("%Y-%m-%d %H:%M", time.gmtime()),
                        "load_average_before": load_before, "load_average_after": os.getloadavg(),
                        "wall_s": time.perf_counter() - t_run},
@@ -346,7 +352,7 @@ def main(argv=None):
     out.with_suffix(".json").write_text(json.dumps(doc, indent=1))
     text = markdown(doc)
     out.with_suffix(".md").write_text(text)
-    print(text)
+    return text
 
 
 def _band(row) -> str:
@@ -378,7 +384,7 @@ def markdown(doc: dict) -> str:
         fs = doc["fit_settings"]
         lines += ["", f"Per-material homofac fits (`hf.fit.factorize(lighting_target(gltf(...), env at {fs['light_resolution']}), "
                   f"max_lookups={fs['max_lookups']}, texture_size={fs['texture_size']}, sampling={fs['sampling']}, "
-                  f"prefiltered=False, linear={fs['linear']})`), nrmse on the band's pairs with that one material:", "",
+                  f"advanced={fs['advanced']})`), nrmse on the band's pairs with that one material:", "",
                   "| environment | band | material (c; m; rho) | fit fetches | fit time (s) | fit | split-sum ideal | "
                   + " | ".join(f"bake {p}" for p in presets) + " |",
                   "|---|---|---|---:|---:|---:|---:|" + "---:|" * len(presets)]

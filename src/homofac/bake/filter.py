@@ -21,23 +21,36 @@ from . import kernels as kn
 CHUNK = 128
 
 
-def _read(tables, i0, f, power):
-    """``sum_l ((1 - f) K_j[i0] + f K_j[i0 + 1])[b, l] power[l]`` for every table j: (B, J, 4). A ``lax.scan``
-    over the tables: the program's size (and XLA's compile time) does not grow with J, and one (B, L) gather
-    at a time is live (measured against the tables unrolled, J = 25, 6144 lights and texels: compile + run
-    3.1 s against 6.5 s, run 2.7 s against 3.5 s)."""
-    def one(carry, t):
-        return carry, ((1.0 - f) * t[i0] + f * t[i0 + 1]) @ power
+#: The kernel tables of one filter call are padded to a multiple of this (zero tables, never read): calls with
+#: 2 to 40 tables run one compiled program per direction and light count.
+TABLES = 40
 
-    _, out = jax.lax.scan(one, None, tables)
-    return jnp.moveaxis(out, 0, 1)
+
+def _read(tables, count, i0, f, power):
+    """``sum_l ((1 - f) K_j[i0] + f K_j[i0 + 1])[b, l] power[l]`` for the first ``count`` tables j (a traced
+    count; the rest 0): (B, J, 4). A loop over the tables: the program's size (and XLA's compile time) does not
+    grow with J, one (B, L) gather at a time is live, and a call with fewer tables runs the same program
+    (measured against the tables unrolled, J = 25, 6144 lights and texels: compile + run 3.1 s against 6.5 s,
+    run 2.7 s against 3.5 s)."""
+    def one(j, out):
+        t = jax.lax.dynamic_index_in_dim(tables, j, keepdims=False)
+        return out.at[:, j].set(((1.0 - f) * t[i0] + f * t[i0 + 1]) @ power)
+
+    return jax.lax.fori_loop(0, count, one, jnp.zeros((i0.shape[0], tables.shape[0], power.shape[1]), power.dtype))
+
+
+def _padded(tables: np.ndarray) -> tuple[np.ndarray, np.int32]:
+    """The tables (J, G) padded with zero rows to a multiple of :data:`TABLES`, and J."""
+    j = tables.shape[0]
+    pad = (-j) % TABLES
+    return np.concatenate([np.asarray(tables, np.float32), np.zeros((pad, tables.shape[1]), np.float32)]), np.int32(j)
 
 
 @eqx.filter_jit
-def _filter(tables, dirs, light_dirs, power, chunk: int):
+def _filter(tables, count, dirs, light_dirs, power, chunk: int):
     j_count, g = tables.shape
-    count = dirs.shape[0]
-    pad = (-count) % chunk
+    n = dirs.shape[0]
+    pad = (-n) % chunk
     d = jnp.concatenate([dirs, jnp.broadcast_to(dirs[:1], (pad, 3))]) if pad else dirs
 
     def one(block):
@@ -45,10 +58,10 @@ def _filter(tables, dirs, light_dirs, power, chunk: int):
         pos = jnp.sqrt(jnp.sqrt(jnp.clip((1.0 - c) * 0.5, 0.0, 1.0))) * (g - 1)
         i0 = jnp.minimum(jnp.floor(pos).astype(jnp.int32), g - 2)
         f = pos - i0
-        return _read(tables, i0, f, power)  # (B, J, 4)
+        return _read(tables, count, i0, f, power)  # (B, J, 4)
 
     out = jax.lax.map(one, d.reshape(-1, chunk, 3))
-    return out.reshape(-1, j_count, power.shape[1])[:count]
+    return out.reshape(-1, j_count, power.shape[1])[:n]
 
 
 def _power(env: Environment) -> np.ndarray:
@@ -61,8 +74,8 @@ def _power(env: Environment) -> np.ndarray:
 def prefilter(tables: np.ndarray, dirs: np.ndarray, env: Environment, chunk: int = CHUNK) -> tuple[np.ndarray, np.ndarray]:
     """The J kernels ``tables`` (J, G) applied to ``env`` at directions ``dirs`` (N, 3): ``(N, J, 3)``, and the
     discrete masses ``sum_k dw_k kappa_j`` (N, J) of the same sums (the quadrature check of :func:`normalized`)."""
-    out = np.asarray(_filter(np.asarray(tables, np.float32), np.asarray(dirs, np.float32),
-                             np.asarray(env.directions, np.float32), _power(env), int(min(chunk, max(1, len(dirs))))), np.float64)
+    out = np.asarray(_filter(*_padded(tables), np.asarray(dirs, np.float32), np.asarray(env.directions, np.float32),
+                             _power(env), int(min(chunk, max(1, len(dirs))))), np.float64)[:, :len(tables)]
     return out[..., :3], out[..., 3]
 
 
@@ -79,7 +92,7 @@ def normalized(values: np.ndarray, discrete: np.ndarray, exact) -> np.ndarray:
 
 
 @eqx.filter_jit
-def _filter_tiles(tables, tiles, light_dirs, power, slots: int):
+def _filter_tiles(tables, count, tiles, light_dirs, power, slots: int):
     """:func:`_filter` over tiles of nearby directions (T, B, 3), each with the ``slots`` lights nearest its axis."""
     j_count, g = tables.shape
 
@@ -92,7 +105,7 @@ def _filter_tiles(tables, tiles, light_dirs, power, slots: int):
         pos = jnp.sqrt(jnp.sqrt(jnp.clip((1.0 - c) * 0.5, 0.0, 1.0))) * (g - 1)
         i0 = jnp.minimum(jnp.floor(pos).astype(jnp.int32), g - 2)
         f = pos - i0
-        return _read(tables, i0, f, pw)
+        return _read(tables, count, i0, f, pw)
 
     return jax.lax.map(one, tiles)
 
@@ -112,10 +125,11 @@ def prefilter_cube(tables: np.ndarray, size: int, env: Environment, support: flo
     if slots > count // 3:
         return prefilter(tables, dirs.reshape(-1, 3), env)
     blocks = dirs.reshape(size // tile, tile, 6 * size // tile, tile, 3).transpose(0, 2, 1, 3, 4).reshape(-1, tile * tile, 3)
-    out = np.asarray(_filter_tiles(np.asarray(tables, np.float32), np.asarray(blocks, np.float32),
-                                   np.asarray(env.directions, np.float32), _power(env), slots), np.float64)
-    j = tables.shape[0]
-    out = out.reshape(size // tile, 6 * size // tile, tile, tile, j, 4).transpose(0, 2, 1, 3, 4, 5).reshape(-1, j, 4)
+    padded, j = _padded(tables)
+    out = np.asarray(_filter_tiles(padded, j, np.asarray(blocks, np.float32), np.asarray(env.directions, np.float32),
+                                   _power(env), slots), np.float64)
+    out = out.reshape(size // tile, 6 * size // tile, tile, tile, len(padded), 4).transpose(0, 2, 1, 3, 4, 5)
+    out = out.reshape(-1, len(padded), 4)[:, :len(tables)]
     return out[..., :3], out[..., 3]
 
 
