@@ -33,9 +33,9 @@ third, 1 for a third, uniform for the rest); the nrmse of L = (1 - m) 0.96 c I_d
         [--fits 1] [--fit-envs forest studio] [--fit-lookups 4] [--cap 65536] [--bands 0 1 2 3] [--no-sampler]
 
 writes benchmarks/bake_accuracy.json and .md (``--out`` another stem); ``python benchmarks/pages.py`` turns the JSON
-into docs/benchmarks/bake.md. The default run took 22 minutes on this shared 2-core machine (load 10-14; the eight
-per-material fits about 5 of them: ``--fits 0`` leaves them out, 18 minutes at load 11-12; ``--envs forest --bands 0``
-is a 3-minute look). ``benchmarks/bake_breakdown.py`` splits a band's error by term and cause.
+into docs/benchmarks/bake.md; both are written after every environment. ``--presets fast balanced best --fits 1
+--fit-envs forest`` took 28 minutes on this shared 2-core machine (load 8-11; the four per-material fits 8 of them:
+``--fits 0`` leaves them out; ``--envs forest --bands 0`` is a 3-minute look). ``benchmarks/bake_breakdown.py`` splits a band's error by term and cause.
 """
 
 from __future__ import annotations
