@@ -30,8 +30,7 @@ def _read(tables, count, i0, f, power):
     """``sum_l ((1 - f) K_j[i0] + f K_j[i0 + 1])[b, l] power[l]`` for the first ``count`` tables j (a traced
     count; the rest 0): (B, J, 4). A loop over the tables: the program's size (and XLA's compile time) does not
     grow with J, one (B, L) gather at a time is live, and a call with fewer tables runs the same program
-    (measured against the tables unrolled, J = 25, 6144 lights and texels: compile + run 3.1 s against 6.5 s,
-    run 2.7 s against 3.5 s)."""
+    (docs/notes/bake.md, "The first bake of a process")."""
     def one(j, out):
         t = jax.lax.dynamic_index_in_dim(tables, j, keepdims=False)
         return out.at[:, j].set(((1.0 - f) * t[i0] + f * t[i0 + 1]) @ power)
