@@ -7,8 +7,12 @@ third, 1 for a third, uniform for the rest); the nrmse of L = (1 - m) 0.96 c I_d
 * the reference: :func:`homofac.light.reference.reference_integrals` (the glTF BRDF integrated against the
   source lat-long map read bilinearly, multiple importance sampling, float64) with 4096, 8192, ... samples per
   strategy, doubled until one more doubling moves the band's L by < 1 % nrmse (or the cap, reported);
-* the bake (``hf.bake``, per preset): its wall time (the first bake of the process includes XLA's
-  compilation), fetches and texture memory (half floats, RGB);
+* the bake (per preset), each in a fresh process (``python -m homofac.bake`` with ``HOMOFAC_JAX_CACHE=0``: every
+  program compiles, as on a new user's first run; textures written as float32 and read back with ``hf.load``):
+  its wall and CPU time beside the sampler's in the same run, fetches, texture memory (half floats, RGB) and the
+  memory of split-sum at the same sharpness: the smallest engines' chain (below) that reads, at every layer's
+  roughness, a face at least as fine as the bake's layer (:func:`same_sharpness_face`), plus a 32^2 x 6
+  irradiance cube and a 32 x 32 DFG table;
 * glTF-IBL-Sampler's default bake (:mod:`homofac.baselines.ibl_sampler`: GGX cube 256 x 256 x 6, 8 mips, half
   floats, 1024 samples, its 256 x 256 LUT, and a Lambertian cube 64), run in the same process just before the
   bake, read the engines' way: the glTF Sample Viewer's ``ibl.glsl`` (``sampler``) and the plain split sum
@@ -29,9 +33,9 @@ third, 1 for a third, uniform for the rest); the nrmse of L = (1 - m) 0.96 c I_d
         [--fits 1] [--fit-envs forest studio] [--fit-lookups 4] [--cap 65536] [--bands 0 1 2 3] [--no-sampler]
 
 writes benchmarks/bake_accuracy.json and .md (``--out`` another stem); ``python benchmarks/pages.py`` turns the JSON
-into docs/benchmarks/bake.md. The default run took 22 minutes on this shared 2-core machine (load 10-14; the eight
-per-material fits about 5 of them: ``--fits 0`` leaves them out, 18 minutes at load 11-12; ``--envs forest --bands 0``
-is a 3-minute look). ``benchmarks/bake_breakdown.py`` splits a band's error by term and cause.
+into docs/benchmarks/bake.md; both are written after every environment. ``--presets fast balanced best --fits 1
+--fit-envs forest`` took 28 minutes on this shared 2-core machine (load 8-11; the four per-material fits 8 of them:
+``--fits 0`` leaves them out; ``--envs forest --bands 0`` is a 3-minute look). ``benchmarks/bake_breakdown.py`` splits a band's error by term and cause.
 """
 
 from __future__ import annotations
@@ -43,7 +47,11 @@ from pathlib import Path
 
 import os
 import platform
+import resource
+import shutil
+import subprocess
 import sys
+import tempfile
 
 import jax.numpy as jnp
 import numpy as np
@@ -51,6 +59,7 @@ import numpy as np
 import homofac as hf
 from homofac.bake import kernels as kn
 from homofac.bake.build import source_size
+from homofac.bake.plan import plan as bake_plan
 from homofac.bake.filter import prefilter
 from homofac.baselines import ibl_sampler as ibl
 from homofac.baselines.base import irradiance_map
@@ -136,8 +145,8 @@ def engines_split_sum(name, n, v, rho, dfg32, source):
 
 #: The per-material fit's settings (beside ``max_lookups``): small, so that a fit takes 30-90 s here.
 #: ``prefiltered: false``: the chooser's split-sum candidates need a ggx / cook_torrance target, not gltf.
-FIT_SETTINGS = dict(texture_size=32, sampling={"count": 8192, "validation": 4096}, prefiltered=False,
-                    linear={"polish": 0, "iterations": 15})
+FIT_SETTINGS = dict(texture_size=32, sampling={"count": 8192, "validation": 4096},
+                    advanced={"prefiltered": False, "linear": {"polish": 0, "iterations": 15}})
 #: Light resolution of the fitted target's lighting.
 FIT_RESOLUTION = 32
 #: Samples per strategy of the constant-radiance reference (the directional albedos A, B, d).
@@ -169,6 +178,52 @@ def ideal_split_sum(src, uniform, name, n, v, rho, samples):
     p = (lobe[:, 1] + lobe[:, 2]) / (norm[:, 1] + norm[:, 2])[:, None]
     e = np.asarray(hf.light.irradiance(hf.light.load_environment(name, 64), jnp.asarray(n, jnp.float32)), np.float64)
     return np.stack([e / np.pi * alb[:, :1], p * alb[:, 1:2], p * alb[:, 2:3]], 1)
+
+
+def fresh_bake(name, preset, tmp):
+    """``python -m homofac.bake NAME --preset PRESET`` in a fresh process with JAX's persistent compilation
+    cache off (``HOMOFAC_JAX_CACHE=0``: every program compiles, as on a new user's first run), the textures
+    written as float32 (what the in-memory bake reads); (the bake read back, wall s, CPU s of the process)."""
+    out = Path(tmp) / f"{name}-{preset}"
+    env = {**os.environ, "HOMOFAC_JAX_CACHE": "0"}
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t = time.perf_counter()
+    subprocess.run([sys.executable, "-m", "homofac.bake", name, "--preset", preset, "--out", str(out), "--exr", "float32"],
+                   check=True, env=env, stdout=subprocess.DEVNULL)
+    wall = time.perf_counter() - t
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    return hf.load(out), wall, cpu
+
+
+def chain_face(rho: float, size: int) -> int:
+    """The face an engines' prefiltered chain with level 0 of face ``size`` (levels down to 4,
+    ``lod = rho (levels - 1)``, as :func:`engines_split_sum`) reads at roughness ``rho``: ``size 2^-lod`` as the
+    nearest power of two (in log2)."""
+    levels = int(np.log2(size)) - 1
+    return int(2 ** round(np.log2(size) - rho * (levels - 1)))
+
+
+def same_sharpness_face(roughness, sizes) -> int:
+    """Level 0 of split-sum at the same sharpness as a bake: the smallest power-of-two face whose chain reads,
+    at every layer's roughness, a face at least as fine as the bake's layer there (docs/notes/bake.md, "Memory
+    at the same sharpness"). Layers at the bake's smallest face (8) are left out: the chain's last levels are 4
+    whatever its level 0, and 8 is the bake's floor, not a resolution its lobes ask for."""
+    size = max(sizes)
+    while any(chain_face(r, size) < s for r, s in zip(roughness, sizes) if s > min(sizes)):
+        size *= 2
+    return size
+
+
+def chain_bytes(size: int) -> int:
+    """Half RGB bytes of the engines' prefiltered cube mip chain with level 0 of face ``size``, down to 4 (the
+    emulated split-sum's chain, :func:`engines_split_sum`)."""
+    levels = int(np.log2(size)) - 1
+    return sum(6 * (size >> j) ** 2 * 3 * 2 for j in range(levels))
+
+
+#: Half bytes of the emulated split-sum's irradiance cube (32^2 x 6, RGB) and DFG table (32 x 32, RGB).
+SPLIT_SUM_EXTRA = 32 * 32 * 6 * 3 * 2 + 32 * 32 * 3 * 2
 
 
 def sampler_bytes(b) -> int:
@@ -225,10 +280,11 @@ def main(argv=None):
     why = why or ibl.available()
     t_run = time.perf_counter()
     load_before = os.getloadavg()
+    tmp = tempfile.mkdtemp(prefix="bake_accuracy-")
     for name in args.envs:
         source = source_size(name)
         src = source_map(read_exr(hf.light.bundled(name)), name)
-        sb = None
+        sb = sampler_wall = None
         if why is None:
             t = time.perf_counter()
             sb = ibl.bake(name)
@@ -239,27 +295,33 @@ def main(argv=None):
                          "cpu_s": sb.runs["ggx"]["cpu_s"] + sb.runs["lambertian"]["cpu_s"],
                          "peak_rss_mb": max(sb.runs["ggx"]["peak_rss_mb"], sb.runs["lambertian"]["peak_rss_mb"]),
                          "bytes": sampler_bytes(sb), "files_bytes": sb.files, "mips": sb.mips})
+            sampler_wall = wall
             print(f"{name} sampler: {wall:.1f} s", flush=True)
         for preset in args.presets:
-            t = time.perf_counter()
-            b = hf.bake(name, preset=preset)
-            wall = time.perf_counter() - t
+            load = os.getloadavg()[0]
+            b, wall, cpu = fresh_bake(name, preset, tmp)
             bakes[(name, preset)] = b
+            finest = max(int(p.shape[0]) for p in b.P)
+            same = same_sharpness_face(b.roughness, [int(p.shape[0]) for p in b.P])
             runs.append({"environment": name, "method": f"homofac bake {preset}", "lookups": b.lookups, "wall_s": wall,
-                         "timings": b.info["timings"], "bytes": b.texture_bytes()})
-            print(f"{name} {preset}: {wall:.1f} s; {b.describe()}", flush=True)
+                         "cpu_s": cpu, "load_average": load, "fresh_process": True,
+                         "timings": b.info["timings"], "bytes": b.texture_bytes(), "finest_face": finest,
+                         "split_sum_same_sharpness_face": same,
+                         "split_sum_same_sharpness_bytes": chain_bytes(same) + SPLIT_SUM_EXTRA,
+                         "sampler_wall_s": sampler_wall})
+            print(f"{name} {preset}: {wall:.1f} s wall, {cpu:.1f} s CPU (fresh process); {b.describe()}", flush=True)
         for band in [BANDS[i] for i in args.bands]:
             n, v = pairs(args.pairs, rng)
             c, m, rho = materials(args.pairs, band, rng)
             parts, samples, conv, change = reference(src, n, v, rho, c, m, cap=args.cap)
             L = np.asarray(material_radiance(jnp.asarray(parts), c, m))
             ideal = ideal_split_sum(src, uniform, name, n, v, rho, samples)
-            eng, eng_bytes = engines_split_sum(name, n, v, rho, dfg32, source)
+            eng, _ = engines_split_sum(name, n, v, rho, dfg32, source)
             row = {"environment": name, "band": list(band), "pairs": args.pairs, "reference_samples": samples,
                    "reference_converged": conv, "reference_last_change": change,
                    "split_sum_ideal": nrmse(material_radiance(jnp.asarray(ideal), c, m), L),
                    "split_sum_engines": nrmse(material_radiance(jnp.asarray(eng), c, m), L),
-                   "split_sum_engines_bytes": eng_bytes + 32 * 32 * 6 * 3 * 2 + 32 * 32 * 3 * 2}
+                   "split_sum_engines_bytes": chain_bytes(source) + SPLIT_SUM_EXTRA}
             if sb is not None:
                 row["sampler"] = nrmse(sb.evaluate(n, v, c, m, rho), L)
                 row["sampler_split_sum"] = nrmse(sb.evaluate(n, v, c, m, rho, formula="split_sum"), L)
@@ -272,6 +334,13 @@ def main(argv=None):
             if args.fits and name in args.fit_envs:
                 fits += fit_rows(name, band, n, v, fit_rng, args.fits, args.fit_lookups, src, samples, bakes,
                                  args.presets, uniform)
+        save(args, argv, rows, fits, runs, why, load_before, t_run)
+    shutil.rmtree(tmp, ignore_errors=True)
+    print(save(args, argv, rows, fits, runs, why, load_before, t_run))
+
+
+def save(args, argv, rows, fits, runs, why, load_before, t_run) -> str:
+    """Write the run so far (.json and .md; called after every environment, so a stopped run keeps its rows)."""
     doc = {"machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "date_utc": time.strftime("%Y-%m-%d %H:%M", time.gmtime()),
                        "load_average_before": load_before, "load_average_after": os.getloadavg(),
                        "wall_s": time.perf_counter() - t_run},
@@ -283,7 +352,7 @@ def main(argv=None):
     out.with_suffix(".json").write_text(json.dumps(doc, indent=1))
     text = markdown(doc)
     out.with_suffix(".md").write_text(text)
-    print(text)
+    return text
 
 
 def _band(row) -> str:
@@ -315,7 +384,7 @@ def markdown(doc: dict) -> str:
         fs = doc["fit_settings"]
         lines += ["", f"Per-material homofac fits (`hf.fit.factorize(lighting_target(gltf(...), env at {fs['light_resolution']}), "
                   f"max_lookups={fs['max_lookups']}, texture_size={fs['texture_size']}, sampling={fs['sampling']}, "
-                  f"prefiltered=False, linear={fs['linear']})`), nrmse on the band's pairs with that one material:", "",
+                  f"advanced={fs['advanced']})`), nrmse on the band's pairs with that one material:", "",
                   "| environment | band | material (c; m; rho) | fit fetches | fit time (s) | fit | split-sum ideal | "
                   + " | ".join(f"bake {p}" for p in presets) + " |",
                   "|---|---|---|---:|---:|---:|---:|" + "---:|" * len(presets)]
@@ -323,17 +392,35 @@ def markdown(doc: dict) -> str:
             mat = f"({', '.join(f'{a:.2f}' for a in f['base_color'])}); {f['metallic']:.2f}; {f['roughness']:.3f}"
             lines.append(f"| {f['environment']} | {_band(f)} | {mat} | {f['fit_lookups']} | {f['fit_s']:.0f} | {f['fit']:.4f} | "
                          f"{f['split_sum_ideal']:.4f} | " + " | ".join(f"{f[f'bake_{p}']:.4f}" for p in presets) + " |")
-    lines += ["", "| environment | method | fetches | wall time (s) | texture MB (half) |", "|---|---|---:|---:|---:|"]
+    lines += ["", "| environment | method | fetches | wall time (s) | CPU (s) | load | / sampler | texture MB (half) | "
+              "finest face | split-sum same sharpness: level 0, MB | / split-sum |", "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     eng = {r["environment"]: r["split_sum_engines_bytes"] for r in rows}
     for run in doc["runs"]:
         t = run.get("timings")
         detail = (f" (maps {t['maps_s']:.1f}, weights {t['weights_s']:.1f}, kernels {t['kernels_s']:.1f}, "
-                  f"diffuse {t['diffuse_s']:.1f})" if t else
-                  f" (GGX {run['ggx_wall_s']:.1f}, Lambertian {run['lambertian_wall_s']:.1f}; CPU {run['cpu_s']:.1f})")
-        lines.append(f"| {run['environment']} | {run['method']} | {run['lookups']} | {run['wall_s']:.1f}{detail} | "
-                     f"{run['bytes'] / 1e6:.2f} |")
+                  f"diffuse {t['diffuse_s']:.1f}{', fresh process' if run.get('fresh_process') else ''})" if t else
+                  f" (GGX {run['ggx_wall_s']:.1f}, Lambertian {run['lambertian_wall_s']:.1f})")
+        cpu = f"{run['cpu_s']:.1f}" if run.get("cpu_s") is not None else "-"
+        load = f"{run['load_average']:.1f}" if run.get("load_average") is not None else "-"
+        ratio = f"{run['wall_s'] / run['sampler_wall_s']:.2f}" if run.get("sampler_wall_s") else "-"
+        same = run.get("split_sum_same_sharpness_bytes")
+        lines.append(f"| {run['environment']} | {run['method']} | {run['lookups']} | {run['wall_s']:.1f}{detail} | {cpu} | {load} | "
+                     f"{ratio} | {run['bytes'] / 1e6:.2f} | {run.get('finest_face', '-')} | "
+                     f"{run.get('split_sum_same_sharpness_face')}, {same / 1e6:.2f} | {run['bytes'] / same:.2f} |" if same else
+                     f"| {run['environment']} | {run['method']} | {run['lookups']} | {run['wall_s']:.1f}{detail} | {cpu} | {load} | "
+                     f"{ratio} | {run['bytes'] / 1e6:.2f} | - | - | - |")
     for name, b in eng.items():
-        lines.append(f"| {name} | split-sum engines (emulated, source detail) | 3 | - | {b / 1e6:.2f} |")
+        lines.append(f"| {name} | split-sum engines (emulated, source detail) | 3 | - | - | - | - | {b / 1e6:.2f} | - | - | - |")
+    bakes = [r for r in doc["runs"] if r.get("timings")]
+    if bakes:
+        worst = max(bakes, key=lambda r: r["wall_s"])
+        lines += ["", f"Slowest bake: {worst['environment']} {worst['method']} {worst['wall_s']:.1f} s wall "
+                  f"({worst.get('cpu_s') or 0:.1f} s CPU; cap 60 s)."]
+        timed = [r for r in bakes if r.get("sampler_wall_s")]
+        if timed:
+            w = max(timed, key=lambda r: r["wall_s"] / r["sampler_wall_s"])
+            lines.append(f"Largest ratio to the sampler's default bake in the same run: {w['environment']} {w['method']} "
+                         f"{w['wall_s'] / w['sampler_wall_s']:.2f}x (goal <= 2x).")
     m = doc["machine"]
     lines += ["", f"Run {m['date_utc']} UTC, {m['wall_s'] / 60:.1f} min wall, load average {m['load_average_before'][0]:.1f} "
               f"before and {m['load_average_after'][0]:.1f} after ({m['cpus']} cores): `{doc['command']}`."]

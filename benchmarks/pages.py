@@ -277,7 +277,10 @@ def bake_page(doc: dict, threejs: dict | None = None, threejs_others: list[dict]
         "(levels - 1)) and 32 x 32 tables; *sampler*: the Khronos glTF-IBL-Sampler's default bake (GGX cube "
         "256, 8 mips, half floats; its LUT; Lambertian cube 64) read as the glTF Sample Viewer does (with its "
         "multiple-scattering term; *sampler split-sum*: without it). Fetches per pixel and texture memory "
-        "(half floats) are in the last table; times are wall clock on a shared 2-core machine.", "",
+        "(half floats) are in the last table; each bake runs in a fresh process with JAX's compilation cache off "
+        "(every program compiles), its wall and CPU time beside the sampler's in the same run on a shared 2-core "
+        "machine (load average at the bake's start); *split-sum same sharpness*: the smallest engines' chain that "
+        "reads, at every layer's roughness, a face at least as fine as the bake's (docs/notes/bake.md).", "",
         bake_accuracy.markdown(doc)] + ([threejs_section(threejs, threejs_others)] if threejs else []))
 
 

@@ -7,7 +7,7 @@ import numpy as np
 import homofac as hf
 from homofac.bake import kernels as kn
 from homofac.bake.build import filtered, texel_radius
-from homofac.bake.filter import prefilter, taper, two_scale
+from homofac.bake.filter import prefilter, prefilter_cube, taper, two_scale
 from homofac.param import mappers
 
 
@@ -45,3 +45,20 @@ def test_two_scale_reads_a_constant_environment_exactly():
     kp = _kernels(fine)
     got = filtered(kp, 8, fine, coarse, np.ones(len(kp) - 1, bool))
     np.testing.assert_allclose(got[..., 0], np.broadcast_to(kn.mass(kp)[:-1], got.shape[:2]), rtol=1e-4)
+
+
+def test_a_call_reads_each_table_alone():
+    """The filter reads each kernel table independently of the others in the call (the tables are padded to a
+    fixed count so that calls share compiled programs): a subset gives the same values, in the all-lights and
+    the culled (per-block) filter, and more tables than one padding step still work."""
+    env = hf.light.load_environment("city", 8)
+    dirs = mappers.texel_directions("cube", 8).reshape(-1, 3)
+    tables = np.random.default_rng(0).random((45, kn.TABLE_NODES))
+    num, den = prefilter(tables, dirs, env)
+    sub, sub_den = prefilter(tables[[3, 44]], dirs, env)
+    assert num.shape == (len(dirs), 45, 3) and sub.shape == (len(dirs), 2, 3)
+    assert np.allclose(sub, num[:, [3, 44]], rtol=1e-5, atol=0) and np.allclose(sub_den, den[:, [3, 44]], rtol=1e-5, atol=0)
+    fine = hf.light.load_environment("city", 32)
+    near, _ = prefilter_cube(tables[:5], 8, fine, 0.05, tile=2)
+    one, _ = prefilter_cube(tables[2:3], 8, fine, 0.05, tile=2)
+    assert near.shape == (len(dirs), 5, 3) and np.allclose(one[:, 0], near[:, 2], rtol=1e-5, atol=0)

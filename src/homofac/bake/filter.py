@@ -21,16 +21,35 @@ from . import kernels as kn
 CHUNK = 128
 
 
-def _read(tables, i0, f, power):
-    """``sum_l ((1 - f) K_j[i0] + f K_j[i0 + 1])[b, l] power[l]`` for every table j: (B, J, 4)."""
-    return jnp.stack([((1.0 - f) * t[i0] + f * t[i0 + 1]) @ power for t in tables], axis=1)
+#: The kernel tables of one filter call are padded to a multiple of this (zero tables, never read): calls with
+#: 2 to 40 tables run one compiled program per direction and light count.
+TABLES = 40
+
+
+def _read(tables, count, i0, f, power):
+    """``sum_l ((1 - f) K_j[i0] + f K_j[i0 + 1])[b, l] power[l]`` for the first ``count`` tables j (a traced
+    count; the rest 0): (B, J, 4). A loop over the tables: the program's size (and XLA's compile time) does not
+    grow with J, one (B, L) gather at a time is live, and a call with fewer tables runs the same program
+    (docs/notes/bake.md, "The first bake of a process")."""
+    def one(j, out):
+        t = jax.lax.dynamic_index_in_dim(tables, j, keepdims=False)
+        return out.at[:, j].set(((1.0 - f) * t[i0] + f * t[i0 + 1]) @ power)
+
+    return jax.lax.fori_loop(0, count, one, jnp.zeros((i0.shape[0], tables.shape[0], power.shape[1]), power.dtype))
+
+
+def _padded(tables: np.ndarray) -> tuple[np.ndarray, np.int32]:
+    """The tables (J, G) padded with zero rows to a multiple of :data:`TABLES`, and J."""
+    j = tables.shape[0]
+    pad = (-j) % TABLES
+    return np.concatenate([np.asarray(tables, np.float32), np.zeros((pad, tables.shape[1]), np.float32)]), np.int32(j)
 
 
 @eqx.filter_jit
-def _filter(tables, dirs, light_dirs, power, chunk: int):
+def _filter(tables, count, dirs, light_dirs, power, chunk: int):
     j_count, g = tables.shape
-    count = dirs.shape[0]
-    pad = (-count) % chunk
+    n = dirs.shape[0]
+    pad = (-n) % chunk
     d = jnp.concatenate([dirs, jnp.broadcast_to(dirs[:1], (pad, 3))]) if pad else dirs
 
     def one(block):
@@ -38,19 +57,24 @@ def _filter(tables, dirs, light_dirs, power, chunk: int):
         pos = jnp.sqrt(jnp.sqrt(jnp.clip((1.0 - c) * 0.5, 0.0, 1.0))) * (g - 1)
         i0 = jnp.minimum(jnp.floor(pos).astype(jnp.int32), g - 2)
         f = pos - i0
-        return _read(tables, i0, f, power)  # (B, J, 4)
+        return _read(tables, count, i0, f, power)  # (B, J, 4)
 
     out = jax.lax.map(one, d.reshape(-1, chunk, 3))
-    return out.reshape(-1, j_count, power.shape[1])[:count]
+    return out.reshape(-1, j_count, power.shape[1])[:n]
+
+
+def _power(env: Environment) -> np.ndarray:
+    """``(L, 4)`` float32: the lights' power L_k dw_k (RGB) and solid angle dw_k (computed in numpy: eager JAX
+    operations each compile a program on a process's first bake)."""
+    sa = np.asarray(env.solid_angle, np.float32)
+    return np.concatenate([np.asarray(env.radiance, np.float32) * sa[:, None], sa[:, None]], axis=1)
 
 
 def prefilter(tables: np.ndarray, dirs: np.ndarray, env: Environment, chunk: int = CHUNK) -> tuple[np.ndarray, np.ndarray]:
     """The J kernels ``tables`` (J, G) applied to ``env`` at directions ``dirs`` (N, 3): ``(N, J, 3)``, and the
     discrete masses ``sum_k dw_k kappa_j`` (N, J) of the same sums (the quadrature check of :func:`normalized`)."""
-    sa = env.solid_angle.astype(jnp.float32)
-    power = jnp.concatenate([env.radiance.astype(jnp.float32) * sa[:, None], sa[:, None]], axis=1)
-    out = np.asarray(_filter(jnp.asarray(tables, jnp.float32), jnp.asarray(dirs, jnp.float32),
-                             env.directions.astype(jnp.float32), power, int(min(chunk, max(1, len(dirs))))), np.float64)
+    out = np.asarray(_filter(*_padded(tables), np.asarray(dirs, np.float32), np.asarray(env.directions, np.float32),
+                             _power(env), int(min(chunk, max(1, len(dirs))))), np.float64)[:, :len(tables)]
     return out[..., :3], out[..., 3]
 
 
@@ -67,7 +91,7 @@ def normalized(values: np.ndarray, discrete: np.ndarray, exact) -> np.ndarray:
 
 
 @eqx.filter_jit
-def _filter_tiles(tables, tiles, light_dirs, power, slots: int, cos_cone):
+def _filter_tiles(tables, count, tiles, light_dirs, power, slots: int):
     """:func:`_filter` over tiles of nearby directions (T, B, 3), each with the ``slots`` lights nearest its axis."""
     j_count, g = tables.shape
 
@@ -80,7 +104,7 @@ def _filter_tiles(tables, tiles, light_dirs, power, slots: int, cos_cone):
         pos = jnp.sqrt(jnp.sqrt(jnp.clip((1.0 - c) * 0.5, 0.0, 1.0))) * (g - 1)
         i0 = jnp.minimum(jnp.floor(pos).astype(jnp.int32), g - 2)
         f = pos - i0
-        return _read(tables, i0, f, pw)
+        return _read(tables, count, i0, f, pw)
 
     return jax.lax.map(one, tiles)
 
@@ -100,12 +124,11 @@ def prefilter_cube(tables: np.ndarray, size: int, env: Environment, support: flo
     if slots > count // 3:
         return prefilter(tables, dirs.reshape(-1, 3), env)
     blocks = dirs.reshape(size // tile, tile, 6 * size // tile, tile, 3).transpose(0, 2, 1, 3, 4).reshape(-1, tile * tile, 3)
-    sa = env.solid_angle.astype(jnp.float32)
-    power = jnp.concatenate([env.radiance.astype(jnp.float32) * sa[:, None], sa[:, None]], axis=1)
-    out = np.asarray(_filter_tiles(jnp.asarray(tables, jnp.float32), jnp.asarray(blocks, jnp.float32),
-                                   env.directions.astype(jnp.float32), power, slots, float(np.cos(cone))), np.float64)
-    j = tables.shape[0]
-    out = out.reshape(size // tile, 6 * size // tile, tile, tile, j, 4).transpose(0, 2, 1, 3, 4, 5).reshape(-1, j, 4)
+    padded, j = _padded(tables)
+    out = np.asarray(_filter_tiles(padded, j, np.asarray(blocks, np.float32), np.asarray(env.directions, np.float32),
+                                   _power(env), slots), np.float64)
+    out = out.reshape(size // tile, 6 * size // tile, tile, tile, len(padded), 4).transpose(0, 2, 1, 3, 4, 5)
+    out = out.reshape(-1, len(padded), 4)[:, :len(tables)]
     return out[..., :3], out[..., 3]
 
 
@@ -148,9 +171,9 @@ def two_scale(tables: np.ndarray, size: int, fine: Environment, coarse: Environm
     low = min(size, coarse_res)
     num_f, den_f = prefilter(t_far, np.asarray(mappers.texel_directions("cube", low), np.float64).reshape(-1, 3), coarse)
     if low < size:
-        d = jnp.asarray(mappers.texel_directions("cube", size), jnp.float32).reshape(-1, 3)
+        d = np.asarray(mappers.texel_directions("cube", size), np.float64).reshape(-1, 3)
         up = np.concatenate([num_f, den_f[..., None]], -1).reshape(low, 6 * low, -1)
-        up = np.asarray(mappers.lookup("cube", jnp.asarray(up, jnp.float32), d), np.float64).reshape(len(d), len(tables), 4)
+        up = np.asarray(mappers.lookup("cube", up, d), np.float64).reshape(len(d), len(tables), 4)  # numpy: no compilation
         num_f, den_f = up[..., :3], up[..., 3]
     return [(num_n, den_n, t_near), (num_f, den_f, t_far)]
 
