@@ -80,7 +80,7 @@ def preset_summary(accuracy_rows: list[dict], preset_rows: list[dict]) -> list[d
                   if r.get("method") == "split_sum" and "material" in r})
     out = []
     for name, lookups in PRESETS.items():
-        measured = [r for r in preset_rows if preset_of(r) == name]
+        measured = [r for r in preset_rows if preset_of(r) == name and not r.get("warm")]  # first runs only
         budget = [r for r in accuracy_rows if r["method"] == f"max_lookups {lookups}"]
         # a preset row's time: fit_s, or wall_s of a run on a quiet machine (run != "loaded")
         timed = [{**r, "fit_s": r.get("fit_s", r.get("wall_s"))} for r in measured
