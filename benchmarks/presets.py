@@ -3,6 +3,8 @@
     python benchmarks/presets.py                               # every preset -> benchmarks/presets.json
     python benchmarks/presets.py --presets fast --json /tmp/p.json   # a subset (the committed file untouched)
     python benchmarks/presets.py --cases metal/forest,plastic/city   # other cases of benchmarks/accuracy.py
+    python benchmarks/presets.py --presets fast --warm               # also a row with a warm compilation cache
+    python benchmarks/presets.py --presets fast --no-split-sum --overrides '{"sampling": {"count": 150000}}'
 
 Each preset is fitted as a user would fit it: ``hf.fit.factorize(target, preset=NAME)`` on the
 environment at its default light resolution (32) with the default texture size (32), in a fresh
@@ -11,6 +13,11 @@ own JAX compilation and lighting integrals, as a user's first run does). ``wall_
 ``cpu_s`` its CPU time (both cores). Errors are on the accuracy
 benchmark's 20000 validation pairs against its converged ground truth (:func:`accuracy.ground_truth`):
 ``nrmse`` beside split-sum's (``ratio``), and the fit's own validation nrmse (``fit_validation``).
+
+``--warm`` adds, per preset, the second run of a user who changed the material: a first fit of copper
+(same environment, preset and overrides) fills a fresh compilation cache, then the row's material is fitted
+with it (``warm: true``; the sample cache is empty for both). ``--overrides`` replaces preset values with
+factorize keywords (a variant under study, recorded as ``overrides``).
 
 The machine is shared: wall times move by tens of percent with the load (``load`` records the 1-minute
 load average before and after each row).
