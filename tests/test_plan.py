@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -284,7 +285,9 @@ def test_the_presets_try_the_candidates_of_their_grid_directions_and_trial_the_p
         dirs = {hf.fit.draw.grid_projection("lighting", c.parametrization, grid) for c in got.candidates}
         assert dirs <= set(p.directions or dirs)
         assert got.polish_trial == (p.polish_trial if got.polish and not got.ridge else 0)
+        assert got.polish_trial_stride == (p.trial_stride if got.polish_trial else 1)
         assert ("trial" in str(got)) == bool(got.polish_trial)
+        assert (f"every {got.polish_trial_stride}th pair" in str(got)) == (got.polish_trial_stride > 1)
     assert _plan(t, "fast", {"advanced": {"linear": {"polish": 4}}}).polish_trial == 0  # every candidate polished
     given_r = _plan(t, "fast", samples_given="r")
     assert {hf.fit.draw.grid_projection("lighting", c.parametrization, grid) for c in given_r.candidates} == {"r"}
@@ -346,3 +349,16 @@ def test_the_screen_fits_in_full_only_the_candidates_it_keeps():
     assert lowest in scr["kept"] and 1 <= len(scr["kept"]) <= p.screen_keep
     assert [r["label"] for r in fac.selection["tried"]] == scr["kept"]
     assert fac.parametrization in scr["kept"]
+
+
+def test_the_polish_trial_pairs_are_every_kth_view_of_the_polish_pairs_with_the_same_values(envs):
+    """The trial's off-grid pairs (``polish_pairs(stride=k)``) are a subset of the polish's own, about 1/k of
+    them, each with the value the polish's draw gives it (only the subset is evaluated)."""
+    t = hf.light.with_context(_gold(envs["sun"]), "NRO")
+    lin = hf.fit.options.LinearOptions(polish_size=6)
+    full = hf.fit.polish.polish_pairs(t, "NRO", lin, 0, False, lambda m: None)
+    part = hf.fit.polish.polish_pairs(t, "NRO", lin, 0, False, lambda m: None, stride=4)
+    assert 0.15 < len(part.a) / len(full.a) < 0.35 and len(part.val_a) == 0
+    key = {tuple(np.round(np.concatenate([a, b]), 5)): y for a, b, y in zip(full.a, full.b, full.y)}
+    got = np.array([key[tuple(np.round(np.concatenate([a, b]), 5))] for a, b in zip(part.a, part.b)])
+    np.testing.assert_allclose(part.y, got, rtol=1e-4, atol=1e-6)  # float32 sums in another row packing

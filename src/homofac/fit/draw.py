@@ -42,7 +42,8 @@ def draw_samples(target: Target, parametrization: str, options: SamplingOptions 
     and the sampling settings (and, for BRDF targets, the parametrization, whose texel iterator decides
     the pairs). ``validation_target``: the target the validation values are read from (the lighting at
     the plan's validation resolution ``validation_light``, :func:`homofac.fit.validation.lighting_at`;
-    default ``target``).
+    default ``target``). With ``validation_light`` the validation values are summed over blocks of lights
+    (:func:`~homofac.fit.samples.evaluate_blocked`), the program the plan's decision compiled.
     """
     log = log or (lambda msg: None)
     s = counted(validate(SamplingOptions, options, "sampling"))
@@ -58,7 +59,7 @@ def draw_samples(target: Target, parametrization: str, options: SamplingOptions 
         if hit is not None:
             log(f"samples from cache {k[:12]} ({len(hit.a)} training pairs)")
             return hit
-    samples = _draw(target, parametrization, s, log, validation_target or target)
+    samples = _draw(target, parametrization, s, log, validation_target or target, bool(validation_light))
     samples = Samples(*(np.ascontiguousarray(x, np.float32) for x in samples))
     if k is not None:
         cache.store(k, samples)
@@ -118,7 +119,8 @@ def draw_pairs(kind: str, parametrization: str, s: SamplingOptions, context: dic
     return pairs, sampling.random_pairs(kind, s.validation, s.seed + 1), None, None
 
 
-def _draw(target: Target, parametrization: str, s: SamplingOptions, log: Callable, vtarget: Target) -> Samples:
+def _draw(target: Target, parametrization: str, s: SamplingOptions, log: Callable, vtarget: Target,
+          blocked: bool = False) -> Samples:
     if s.kind == "scene" and target.kind == "lighting":
         # the exact lighting at every covered pixel, evaluated once (the scene metrics reuse it), then
         # gathered at the drawn pixels: the pairs of draw_pairs, in its order
@@ -138,8 +140,9 @@ def _draw(target: Target, parametrization: str, s: SamplingOptions, log: Callabl
         y = np.asarray(evaluate_grouped(target, groups))
         if len(val) and vtarget is not target:
             log(f"validation values of {len(val)} pairs on {vtarget.fn.env.num_lights} lights")
-        val_y = (np.zeros((0, 3), np.float32) if not len(val) else np.asarray(evaluate_grouped(target, vgroups))
-                 if vtarget is target else evaluate_blocked(vtarget, vgroups))
+        # at a plan's validation lighting (``blocked``), in light blocks: the program its decision compiled
+        val_y = (np.zeros((0, 3), np.float32) if not len(val) else evaluate_blocked(vtarget, vgroups)
+                 if blocked or vtarget is not target else np.asarray(evaluate_grouped(target, vgroups)))
         return Samples(pairs.a, pairs.b, y, val.a, val.b, val_y)
     log(f"sampling {len(pairs)} training pairs")
     y = np.asarray(evaluate(target, pairs.a, pairs.b))

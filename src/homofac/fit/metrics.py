@@ -68,7 +68,24 @@ def metrics(approx, exact, eps: float = 1e-5) -> dict[str, float]:
         return {k: float(np.mean(v)) for k, v in _channel(np, a, e, float(eps)).items()}
 
 
-def measure(result, target, samples, eps: float = 1e-5, chunk: int = 65536,
+#: Pairs per call of the model's evaluation in :func:`measure`: every call (the last padded) has this
+#: shape, so one compiled evaluation per structure serves the candidates' validation figure and the kept
+#: structure's training and validation metrics, whatever the pair counts.
+CHUNK = 32768
+
+
+def _chunks(fn, a, b, chunk: int):
+    """``fn(a, b)`` over calls of exactly ``chunk`` pairs (the last padded with copies of the first pair,
+    its padding cut off): one program shape for every pair count."""
+    n = int(a.shape[0])
+    pad = (-n) % chunk
+    if pad:
+        a = jnp.concatenate([a, jnp.broadcast_to(a[:1], (pad, a.shape[1]))])
+        b = jnp.concatenate([b, jnp.broadcast_to(b[:1], (pad, b.shape[1]))])
+    return jnp.concatenate([fn(a[i:i + chunk], b[i:i + chunk]) for i in range(0, n + pad, chunk)], axis=0)[:n]
+
+
+def measure(result, target, samples, eps: float = 1e-5, chunk: int = CHUNK,
             splits: tuple[str, ...] = ("train", "validation"), kinds: tuple[str, ...] = ("float", "quantized")) -> dict:
     """Pinned metrics of a :class:`~homofac.fit.result.Result` on training and validation samples, for the
     float and the 8-bit textures: ``{train, validation} x {float, quantized} -> metric dict``.
@@ -76,7 +93,8 @@ def measure(result, target, samples, eps: float = 1e-5, chunk: int = 65536,
     ``quantized`` is the thesis' RMS II (§4.3, §6.1.8 step 10): the 8-bit RGBA textures of
     ``result.encoded()`` with their decode rule. Values are compared as the target shows them
     (:meth:`homofac.target.Target.shown`: f cos theta_i for BRDFs). ``splits``, ``kinds``: a subset
-    (a chooser's candidates need only the validation float figure their vote reads).
+    (a chooser's candidates need only the validation float figure their vote reads). The model is
+    evaluated in calls of ``chunk`` pairs (:data:`CHUNK`, the last padded).
     """
     if result.quantized is None and "quantized" in kinds:
         result = result.replace(quantized=result.encoded())  # encode once, not per chunk
@@ -91,7 +109,6 @@ def measure(result, target, samples, eps: float = 1e-5, chunk: int = 65536,
         exact = target.shown(aj, jnp.asarray(y))
         out[split] = {}
         for name, quant in ((k, k == "quantized") for k in kinds):
-            parts = [result.evaluate(aj[i : i + chunk], bj[i : i + chunk], quantized=quant)
-                     for i in range(0, aj.shape[0], chunk)]
-            out[split][name] = metrics(target.shown(aj, jnp.concatenate(parts, axis=0)), exact, eps)
+            values = _chunks(lambda x, z, q=quant: result.evaluate(x, z, quantized=q), aj, bj, int(chunk))
+            out[split][name] = metrics(target.shown(aj, values), exact, eps)
     return out

@@ -272,13 +272,13 @@ def _sums(target: Target, the_plan: Plan, samples: Samples, record: dict, sample
         _, smp, s_s = pools[proj]
         return tgt, smp, s_s
 
-    def pairs() -> Samples:  # the polish's off-grid pairs, drawn once for every candidate structure
-        if "pairs" not in polished:
+    def pairs(stride: int = 1) -> Samples:  # the polish's off-grid pairs (every stride-th: its trial's), drawn once
+        if ("pairs", stride) not in polished:
             t0 = time.perf_counter()
-            polished["pairs"] = polish.polish_pairs(target, opts.parametrization, lin, opts.sampling.seed,
-                                                    opts.sampling.cache, log)
-            polished["sample_s"] = time.perf_counter() - t0
-        return polished["pairs"]
+            polished["pairs", stride] = polish.polish_pairs(target, opts.parametrization, lin, opts.sampling.seed,
+                                                            opts.sampling.cache, log, stride=stride)
+            polished["sample_s"] = polished.get("sample_s", 0.0) + time.perf_counter() - t0
+        return polished["pairs", stride]
 
     fits: dict = {}  # (structure, line size) -> its SumFit (the chooser polishes the one it keeps)
 
@@ -366,10 +366,12 @@ def _sums(target: Target, the_plan: Plan, samples: Samples, record: dict, sample
         trial = None
         if the_plan.polish_trial:  # a short polish first: where it does not lower the figure, none runs
             tlin = lin.model_copy(update={"polish": the_plan.polish_trial, "ridge": 0})
+            k = the_plan.polish_trial_stride  # on every k-th grid and off-grid pair
             short = as_result(structure, polish.polish_stage(tgt, structure, mapper, opts.texture_size,
-                                                             fits[structure, line], smp, pairs(), tlin, log,
-                                                             seed=opts.sampling.seed))
-            trial = _trial(result, short, score, the_plan.polish_trial, structure.label(), log)
+                                                             fits[structure, line],
+                                                             smp._replace(a=smp.a[::k], b=smp.b[::k], y=smp.y[::k]),
+                                                             pairs(k), tlin, log, seed=opts.sampling.seed))
+            trial = {**_trial(result, short, score, the_plan.polish_trial, structure.label(), log), "stride": k}
         if trial is None or trial["falls"]:
             plin = lin.model_copy(update={"polish": steps, "ridge": ridge})
             stages = [as_result(structure, sf) for sf in polish.polish_stages(

@@ -47,7 +47,8 @@ class Preset(NamedTuple):
     analysis (``advanced.analysis``); ``directions``: the grid directions
     (:func:`~homofac.fit.draw.grid_projection`) whose candidates a lighting fit tries (empty: all);
     ``polish_trial``: steps of a short polish (no ridge pairs) run first, the polish running only where it
-    lowers the validation figure (0: no trial); ``screen``: ALS sweeps of a short fit of every candidate
+    lowers the validation figure (0: no trial); ``trial_stride``: the trial fits every k-th grid pair and
+    every k-th view of the polish's off-grid pairs (only those evaluated); ``screen``: ALS sweeps of a short fit of every candidate
     that ranks them on the validation figure, only the lowest ones then fitted in full (0: every candidate
     fitted in full); ``screen_keep``: at most that many fitted in full, the lowest and those within
     ``screen_margin`` (relative) of it; ``screen_stride``: the screen fits every k-th training pair."""
@@ -64,6 +65,7 @@ class Preset(NamedTuple):
     analysis: bool
     directions: tuple[str, ...] = ()
     polish_trial: int = 0
+    trial_stride: int = 1
     screen: int = 0
     screen_keep: int = 1
     screen_margin: float = 0.0
@@ -84,6 +86,12 @@ PRESET_DIRECTIONS = ("r_off",)
 #: the screen kept 2, and its own programs (another pair count) cost more than the one full fit it saved.
 SCREEN = {"screen": 10, "screen_keep": 2, "screen_margin": 0.03, "screen_stride": 4}
 
+#: ``fast`` has no polish: on the accuracy benchmark's four speed cases its 2-step trial lowered the figure on
+#: one (mirror / studio, 0.3514 unpolished against 0.3454 polished on the converged truth, +1.7 %), and the
+#: polish's off-grid pairs and Levenberg-Marquardt program were a third of the preset's time
+#: (docs/notes/speed.md, "The third speed work"). ``balanced``'s trial fits every 4th pair (TRIAL_STRIDE).
+TRIAL_STRIDE = 4
+
 #: The presets (names pinned). ``fast`` and ``balanced`` are the 4- and 8-lookup settings measured on
 #: the accuracy benchmark (docs/notes/sums-research.md); ``best`` the 16-lookup ones ("the quality mode" of the notes):
 #: 600 000 grid pairs (300 000 left gold / forest at 0.106 against 0.101 nrmse on the converged ground
@@ -91,11 +99,10 @@ SCREEN = {"screen": 10, "screen_keep": 2, "screen_margin": 0.03, "screen_stride"
 #: 32 / 4 x texture_size, tables, the disc vote, the plain objective and 20 000 ridge pairs.
 PRESETS: dict[str, Preset] = {
     "fast": Preset(lookups=4, grid_count=GRID_COUNT, validation=DEFAULT_VALIDATION, line_ratio=0, table=False,
-                   disc_vote=False, nv_balance=1.0, polish=8, ridge=0, analysis=False, directions=PRESET_DIRECTIONS,
-                   polish_trial=2),
+                   disc_vote=False, nv_balance=1.0, polish=0, ridge=0, analysis=False, directions=PRESET_DIRECTIONS),
     "balanced": Preset(lookups=8, grid_count=GRID_COUNT, validation=DEFAULT_VALIDATION, line_ratio=0, table=False,
                        disc_vote=False, nv_balance=1.0, polish=8, ridge=0, analysis=False,
-                       directions=PRESET_DIRECTIONS, polish_trial=2, **SCREEN),
+                       directions=PRESET_DIRECTIONS, polish_trial=2, trial_stride=TRIAL_STRIDE, **SCREEN),
     "best": Preset(lookups=16, grid_count=600_000, validation=80_000, line_ratio=4, table=True, disc_vote=True,
                    nv_balance=0.0, polish=8, ridge=20_000, analysis=False, directions=PRESET_DIRECTIONS,
                    **SCREEN),
@@ -140,6 +147,7 @@ class Plan:
     linear: LinearOptions | None
     polish: int  # steps of the kept structure's polish (0: none, or every candidate polished by linear.polish)
     polish_trial: int  # steps of the short polish that decides whether the polish runs (0: it runs)
+    polish_trial_stride: int  # ... fitted on every k-th grid pair and polish pair
     screen: int  # ALS sweeps of the screening fit of every candidate (0: no screen, each fitted in full)
     screen_keep: int  # at most this many screened candidates fitted in full
     screen_margin: float  # ... the lowest and those within this relative margin of its figure
@@ -161,7 +169,8 @@ class Plan:
                 "max_lookups": self.max_lookups,
                 "candidates": [{"label": c.label(), "structure": c.record()} for c in self.candidates],
                 "linear": None if self.linear is None else self.linear.model_dump(),
-                "polish": self.polish, "polish_trial": self.polish_trial, "ridge": self.ridge,
+                "polish": self.polish, "polish_trial": self.polish_trial,
+                "polish_trial_stride": self.polish_trial_stride, "ridge": self.ridge,
                 "screen": {"sweeps": self.screen, "keep": self.screen_keep, "margin": self.screen_margin,
                            "stride": self.screen_stride},
                 "line_sizes": list(self.line_sizes),
@@ -199,8 +208,9 @@ class Plan:
             if self.polish:
                 lines.append(f"  polish: {self.polish} Levenberg-Marquardt steps"
                              + (f", {self.ridge} ridge pairs" if self.ridge else "")
-                             + (f"; runs where a {self.polish_trial}-step trial lowers the validation figure"
-                                if self.polish_trial else ""))
+                             + (f"; runs where a {self.polish_trial}-step trial"
+                                + (f" on every {self.polish_trial_stride}th pair" if self.polish_trial_stride > 1 else "")
+                                + " lowers the validation figure" if self.polish_trial else ""))
         if len(self.line_sizes) > 1 or self.mode in ("sum", "choose"):
             lines.append("  line textures: " + " or ".join(str(n) for n in self.line_sizes) + " texels")
         if self.analysis:
@@ -398,7 +408,8 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
     return Plan(mode=mode, preset=name, parametrization=base, mapper=mapper, texture_size=int(opts.texture_size),
                 sampling=kind, grid_count=grid_count(opts), validation=validation_count(opts),
                 light_resolution=int(res) if res else None, validation_light=vlight, max_lookups=budget if choosing else None,
-                candidates=cands, linear=lin, polish=int(steps or 0), polish_trial=int(trial), ridge=int(ridge or 0),
+                candidates=cands, linear=lin, polish=int(steps or 0), polish_trial=int(trial),
+                polish_trial_stride=int(p.trial_stride) if trial else 1, ridge=int(ridge or 0),
                 screen=int(screen), screen_keep=int(p.screen_keep) if screen else 0,
                 screen_margin=float(p.screen_margin) if screen else 0.0,
                 screen_stride=int(p.screen_stride) if screen else 1,

@@ -40,19 +40,33 @@ from ..errors import HomofacError
 from ..light import brightest_directions
 from ..param import projections as pj
 from ..target import Target
-from .draw import draw_samples
-from .options import LinearOptions
+from ..options import validate
+from .draw import draw_pairs, draw_samples
+from .options import LinearOptions, SamplingOptions
 from .ridge import RidgePairs, in_any_ridge, ridge_pairs, stratified_nrmse
-from .samples import Samples, evaluate
+from .samples import Samples, evaluate, evaluate_grouped
+from .sampling import Grouped
 from .structures import Structure
 from .sums import SumFit, fit_sum, line_size_of, with_highlight_context
 
 
 def polish_pairs(target: Target, parametrization: str, lin: LinearOptions, seed: int, cache: bool,
-                 log: Callable[[str], None]) -> Samples:
-    """The off-grid training pairs of the polish (texel sampling at ``lin.polish_size``, no validation)."""
-    return draw_samples(target, parametrization, {"kind": "texels", "size": int(lin.polish_size), "validation": 0,
-                                                  "seed": int(seed), "cache": bool(cache)}, log)
+                 log: Callable[[str], None], stride: int = 1) -> Samples:
+    """The off-grid training pairs of the polish (texel sampling at ``lin.polish_size``, no validation);
+    with ``stride`` k > 1 every k-th view of each normal of them (about 1/k of the pairs, the polish
+    trial's: :func:`homofac.fit.plan.build_plan`), only those evaluated."""
+    settings = {"kind": "texels", "size": int(lin.polish_size), "validation": 0, "seed": int(seed),
+                "cache": bool(cache)}
+    if stride <= 1 or target.kind != "lighting":
+        return draw_samples(target, parametrization, settings, log)
+    _, _, groups, _ = draw_pairs(target.kind, parametrization, validate(SamplingOptions, settings, "sampling"),
+                                 target.context)
+    part = Grouped(groups.normals, groups.views[:, ::stride], groups.mask[:, ::stride])
+    pairs = part.flatten()
+    log(f"sampling {len(pairs.a)} training pairs (every {stride}th of the polish's {int(groups.mask.sum())})")
+    y = np.asarray(evaluate_grouped(target, part), np.float32)
+    none = np.zeros((0, 3), np.float32)
+    return Samples(pairs.a, pairs.b, y, none, none, none)
 
 
 #: Why ``linear.ridge`` is refused for a target without an environment (its lights are the ridge's).
