@@ -321,7 +321,7 @@ def main(argv=None):
         per = [pair_forms(float(rho[i]), n[i], v[i], dirs, power, forms, suns) for i in range(len(rho))]
         L = np.asarray(material_radiance(jnp.asarray(ref), c, m))
         f0 = (1 - m)[:, None] * 0.04 + m[:, None] * c
-        row = {"env": name, "band": ba.BANDS[bi], "lights": args.lights,
+        row = {"env": name, "band": ba.BANDS[bi], "lights": args.lights, "suns": len(suns[0]),
                "ideal_vs_reference": round(float(np.linalg.norm(np.asarray(material_radiance(jnp.asarray(ideal), c, m)) - L)
                                                  / np.linalg.norm(L)), 4)}
         x = np.sum(n * v, 1)
