@@ -363,8 +363,10 @@ def fit_sum(target: Target, structure: Structure, mapper: str, size: int, sample
 
     ``chunk``: Levenberg-Marquardt steps per compiled call (:func:`homofac.fit.refine.solve`; 0: one call).
 
-    ``slots``: the ALS term slots (:func:`als_slots` of every structure a run fits on these samples): the
-    fits share one compiled sweep; the same fit as without, to float rounding (default: the structure's own).
+    ``slots``: the ALS term slots to pad the structure's terms into (a group with fewer slots than the
+    structure has terms: its own count; :func:`als_slots` of every structure a run fits on these samples):
+    fits in the same slots share one compiled sweep; the same fit as without, to float rounding (default:
+    the structure's own).
     """
     log = log or (lambda msg: None)
     opts = (options or LinearOptions()).resolved()
@@ -562,17 +564,19 @@ def _term_flags(structure, fitted_terms, kinds: tuple[int, ...] | None = None):
 
 
 def als_slots(target: Target, structures, mapper: str, size: int, line_size: int = LINE_SIZE) -> als.Slots:
-    """The ALS slots (:class:`homofac.fit.als.Slots`) that hold the fitted terms of every structure of
-    ``structures``: passed to :func:`fit_sum` (``slots=``), their fits on one set of samples share one
-    compiled sweep program (the highlight terms' start too) instead of compiling one per structure."""
+    """The ALS slots (:class:`homofac.fit.als.Slots`) a run's fits on one set of samples share
+    (:func:`fit_sum` ``slots=``): the largest count of terms without a line and every kind of extra
+    line where some structure has one. Those two groups cost next to nothing padded (an empty plain slot
+    adds a term to the texel systems only; an extra line no term reads is skipped at run time), while an
+    empty slot carrying a line enlarges every line system; so the structures with the same numbers of
+    lined and highlight terms share one compiled sweep (and their highlight terms' start with it)."""
     quantity = _quantity(target)
     out = als.Slots()
     for structure in structures:
         s = lined(structure) if structure.highlights.table else structure
         _, terms = skeleton(s, target.kind, quantity, mapper, size, line_size)
-        flags = _term_flags(s, [t for t in terms if t.fitted])[0]
-        own = als.slots_of(flags)
-        out = out.union(own._replace(extra=len(EXTRA_LINE_PROJECTIONS) if own.extra else 0))
+        own = als.slots_of(_term_flags(s, [t for t in terms if t.fitted])[0])
+        out = out.union(als.Slots(plain=own.plain, extra=len(EXTRA_LINE_PROJECTIONS) if own.extra else 0))
     return out
 
 
@@ -585,7 +589,7 @@ def _fit_als(structure, specs, fitted_terms, layouts, x0, grid, a, b, y, opts: L
     flags, names, hprojs, cprojs, cnames, kinds = _term_flags(
         structure, fitted_terms, tuple(range(len(EXTRA_LINE_PROJECTIONS))) if every else None)
     if slots is not None:
-        slots = slots.union(als.slots_of(flags))  # a structure outside the slots given still fits (alone)
+        slots = slots.union(als.slots_of(flags))  # the structure's own terms where the slots given have fewer
     K = len(fitted_terms)
     line = next((s.size for s in specs if s.mapper == "line"), LINE_SIZE)  # every line of a sum has one size
     P = np.ones((K, n, 3))
