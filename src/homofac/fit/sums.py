@@ -676,10 +676,10 @@ def _highlight_first(p: als.Padded, flags: als.Flags, lam, opts: LinearOptions, 
     m = p.masks
     sub = als.Masks(*(np.asarray(x) * on for x in m[:5]), np.asarray(m.c) * on[None])
     out, *_ = als_sweeps(p._replace(masks=sub), lam, max(1, int(opts.iterations) // 2), float(opts.tolerance), log)
-    keep_slot = jnp.asarray(on > 0)
+    keep_slot = on > 0
 
-    def merged(new, old):
-        return jnp.where(keep_slot.reshape((-1,) + (1,) * (new.ndim - 1)), new, old)
+    def merged(new, old):  # on the host: no program per array shape
+        return jnp.asarray(np.where(keep_slot.reshape((-1,) + (1,) * (new.ndim - 1)), np.asarray(new), np.asarray(old)))
 
     P, Q, W, D, C = out.state
     P0, Q0, W0, D0, C0 = p.state

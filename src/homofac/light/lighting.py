@@ -334,8 +334,10 @@ class Lighting(eqx.Module):
         return out if self.clamp is None else jnp.minimum(out, self.clamp)
 
 
+@eqx.filter_jit
 def irradiance(env: Environment, n: Float[Array, "N 3"]) -> Float[Array, "N 3"]:
-    """E(n) = sum_k L_i(l_k) w_k(n): the lighting of a white Lambertian surface times pi."""
+    """E(n) = sum_k L_i(l_k) w_k(n): the lighting of a white Lambertian surface times pi (one compiled
+    program per environment and shape, not one per operation)."""
     n = jnp.asarray(n)
     return Lighting(None, env)._weights(n) @ env.radiance.astype(n.dtype)
 
