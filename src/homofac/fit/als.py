@@ -25,6 +25,12 @@ fixed q and w the least-squares problem in p splits into one K x K system per te
 One sweep costs O(N K^2) scatter-adds and a batch of K x K solves: 5-50x faster than matrix-free
 Levenberg-Marquardt on the same data, to the same optimum (issue 13's prototype study). All channels
 at once, jitted, float32; the data are jit arguments.
+
+The terms sit in slots (:class:`Slots`: terms without a line, with w(n.v), with d(x); extra lines), and
+which factors each slot's term has are masks, jit arguments (:class:`Masks`): a structure padded into
+larger slots is the same fit (an empty slot adds 0 and is a separate block of every system), and all
+the structures a run fits in the same slots, on the same samples, share one compiled sweep
+(:func:`sweep`; :func:`homofac.fit.sums.als_slots` chooses the slots).
 """
 
 from __future__ import annotations
