@@ -573,6 +573,8 @@ def als_slots(target: Target, structures, mapper: str, size: int, line_size: int
     quantity = _quantity(target)
     out = als.Slots()
     for structure in structures:
+        if target.kind != "lighting" or structure.parametrization not in GRID_PARAMETRIZATIONS:
+            continue  # not an ALS fit: nothing to share
         s = lined(structure) if structure.highlights.table else structure
         _, terms = skeleton(s, target.kind, quantity, mapper, size, line_size)
         own = als.slots_of(_term_flags(s, [t for t in terms if t.fitted])[0])
