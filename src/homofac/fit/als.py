@@ -25,6 +25,12 @@ fixed q and w the least-squares problem in p splits into one K x K system per te
 One sweep costs O(N K^2) scatter-adds and a batch of K x K solves: 5-50x faster than matrix-free
 Levenberg-Marquardt on the same data, to the same optimum (issue 13's prototype study). All channels
 at once, jitted, float32; the data are jit arguments.
+
+The terms sit in slots (:class:`Slots`: terms without a line, with w(n.v), with d(x); extra lines), and
+which factors each slot's term has are masks, jit arguments (:class:`Masks`): a structure padded into
+larger slots is the same fit (an empty slot adds 0 and is a separate block of every system), and all
+the structures a run fits in the same slots, on the same samples, share one compiled sweep
+(:func:`sweep`; :func:`homofac.fit.sums.als_slots` chooses the slots).
 """
 
 from __future__ import annotations
@@ -90,8 +96,122 @@ def single_texel(mapper: str, size: int, d, unknown_of_texel: np.ndarray, tol: f
     return None if np.any(unk < 0) else unk.astype(np.int32)
 
 
+class Slots(NamedTuple):
+    """The padded shape of a sum's terms (static; :func:`sweep`'s program is compiled once per Slots, grid
+    size and sample count): ``plain`` slots for terms without a line factor, ``lined`` for terms with
+    w(n.v) and no d, ``high`` for the terms with d(x) (the highlight terms), and ``extra`` extra lines of
+    the highlight terms (Fresnel, cosine). The terms of any structure that fits in the slots run in the
+    same program; an empty slot is masked out (its term adds 0 and none of its factors is solved for)."""
+
+    plain: int = 0
+    lined: int = 0
+    high: int = 0
+    extra: int = 0
+
+    @property
+    def terms(self) -> int:
+        return self.plain + self.lined + self.high
+
+    def union(self, other: Slots) -> Slots:
+        """The slots that hold both (the larger count of every group)."""
+        return Slots(*(max(a, b) for a, b in zip(self, other)))
+
+
+class Masks(NamedTuple):
+    """Which factors each slot's term has, 1 or 0 (jit arguments: one program for every structure)."""
+
+    t: Float[Array, "K"]  # the slot holds a term
+    p: Float[Array, "K"]
+    q: Float[Array, "K"]
+    w: Float[Array, "K"]
+    h: Float[Array, "K"]
+    c: Float[Array, "E K"]  # per extra line
+
+
+def _group(w: bool, h: bool) -> int:
+    return 2 if h else 1 if w else 0
+
+
+def slots_of(flags: Flags) -> Slots:
+    """The slots the terms of ``flags`` fill exactly."""
+    h = flags.h or (False,) * len(flags.p)
+    g = [_group(w, x) for w, x in zip(flags.w, h)]
+    return Slots(g.count(0), g.count(1), g.count(2), len(flags.c))
+
+
+def layout(flags: Flags, slots: Slots | None = None) -> tuple[np.ndarray, Masks]:
+    """The term in each slot (``order[slot]``, -1 for an empty one; terms in their order within each
+    group of :class:`Slots`) and the slots' masks, for the terms of ``flags`` placed in ``slots``
+    (default: their own, :func:`slots_of`). ``flags.c`` has no entry (no extra line) or one per extra slot."""
+    own = slots_of(flags)
+    slots = own if slots is None else slots
+    if any(a > b for a, b in zip(own, slots)) or own.extra not in (0, slots.extra):
+        raise ValueError(f"terms {own} do not fit in the slots {slots}")
+    K = len(flags.p)
+    h = flags.h or (False,) * K
+    if any(c and not x for fc in flags.c for c, x in zip(fc, h)):
+        raise ValueError("an extra line belongs to a highlight term (a term with d)")
+    base = (0, slots.plain, slots.plain + slots.lined)
+    order = -np.ones(slots.terms, np.int64)
+    used = [0, 0, 0]
+    for t, (w, x) in enumerate(zip(flags.w, h)):
+        g = _group(w, x)
+        order[base[g] + used[g]] = t
+        used[g] += 1
+
+    def mask(f) -> np.ndarray:
+        f = np.asarray(f, np.float32)
+        return np.where(order >= 0, f[np.maximum(order, 0)], 0.0).astype(np.float32)
+
+    c = np.stack([mask(fc) for fc in flags.c]) if flags.c else np.zeros((slots.extra, slots.terms), np.float32)
+    return order, Masks(mask([True] * K), mask(flags.p), mask(flags.q), mask(flags.w), mask(h), c)
+
+
+def _masks(flags: Flags | Masks) -> Masks:
+    """``flags`` as masks in the terms' own order (every term present)."""
+    if isinstance(flags, Masks):
+        return flags
+    K = len(flags.p)
+    h = flags.h or (False,) * K
+    c = np.asarray(flags.c, np.float32).reshape(len(flags.c), K)
+    return Masks(np.ones(K, np.float32), *(np.asarray(f, np.float32) for f in (flags.p, flags.q, flags.w, h)), c)
+
+
+def pad(X, order: np.ndarray, fill: float = 1.0) -> np.ndarray:
+    """Per-term array X (K, ...) in the slots of ``order`` (:func:`layout`); ``fill`` in the empty ones."""
+    X = np.asarray(X)
+    out = np.full((len(order),) + X.shape[1:], fill, X.dtype)
+    out[order >= 0] = X[order[order >= 0]]
+    return out
+
+
+def unpad(X, order: np.ndarray) -> np.ndarray:
+    """The inverse of :func:`pad`: the terms' rows (K, ...) of slot array X."""
+    slot = np.empty(int(np.sum(order >= 0)), np.int64)
+    slot[order[order >= 0]] = np.flatnonzero(order >= 0)
+    return np.asarray(X)[slot]
+
+
+def pad_data(d: GridData, order: np.ndarray, slots: Slots) -> GridData:
+    """Grid data with the per-term line footprints (``hi``, ``hw``, ``ci``, ``cw``) in the slots of ``order``
+    (texel 0, weight 0 in the empty ones; zeros for extra lines the terms lack)."""
+    N, K = d.y.shape[0], slots.terms
+
+    def cols(x, dtype):
+        return np.zeros((N, K, 2), dtype) if x is None else np.moveaxis(pad(np.moveaxis(np.asarray(x), 1, 0), order, 0), 0, 1)
+
+    if slots.high == 0:
+        return d._replace(hi=None, hw=None, ci=(), cw=())
+    ci = tuple(d.ci) + (None,) * (slots.extra - len(d.ci))
+    cw = tuple(d.cw) + (None,) * (slots.extra - len(d.cw))
+    return d._replace(hi=jnp.asarray(cols(d.hi, np.int32)), hw=jnp.asarray(cols(d.hw, np.float32)),
+                      ci=tuple(jnp.asarray(cols(x, np.int32)) for x in ci),
+                      cw=tuple(jnp.asarray(cols(x, np.float32)) for x in cw))
+
+
 def _line(W, vi, vw, use):
-    """Line factors at the samples (K, N, 3): ``vi, vw`` (N, 2) shared by every term, or (N, K, 2) per term."""
+    """Line factors at the samples (K, N, 3): ``vi, vw`` (N, 2) shared by every term, or (N, K, 2) per term;
+    1 for the terms ``use`` (K,) leaves out."""
     # two texels each: multiply and add, not einsum (XLA lowers a contraction of 2 batched over N x K to
     # a tiny-matmul fusion that took 1.5 s per call here, against milliseconds)
     if vi.ndim == 2:
@@ -105,13 +225,9 @@ def _line(W, vi, vw, use):
     return w * u + (1 - u)
 
 
-def _wv(W, d: GridData, flags: Flags):
-    return _line(W, d.vi, d.vw, flags.w)
-
-
-def _cv(C, d: GridData, flags: Flags) -> list:
+def _cv(C, d: GridData, m: Masks) -> list:
     """The extra lines' factors at the samples (K, N, 3), one per extra line (none without C)."""
-    return [] if C is None else [_line(Ce, ci, cw, fc) for Ce, ci, cw, fc in zip(C, d.ci, d.cw, flags.c)]
+    return [] if C is None else [_line(Ce, ci, cw, fc) for Ce, ci, cw, fc in zip(C, d.ci, d.cw, m.c)]
 
 
 def _product(xs, start=1.0):
@@ -122,11 +238,11 @@ def _product(xs, start=1.0):
     return out
 
 
-def _hv(D, d: GridData, flags: Flags, C=None):
-    """The d factors (times the extra lines' factors, with C) at the samples (ones when no term has one)."""
-    if not any(flags.h):
-        return jnp.ones((len(flags.p), d.y.shape[0], 1), d.y.dtype)
-    return _product(_cv(C, d, flags), _line(D, d.hi, d.hw, flags.h))
+def _hv(D, d: GridData, m: Masks, C=None):
+    """The d factors (times the extra lines' factors, with C) at the samples (ones without D)."""
+    if D is None or d.hi is None:
+        return jnp.ones((len(m.p), d.y.shape[0], 1), d.y.dtype)
+    return _product(_cv(C, d, m), _line(D, d.hi, d.hw, m.h))
 
 
 def _factor(X, idx, use):
@@ -134,21 +250,22 @@ def _factor(X, idx, use):
     return X[:, idx] * u + (1 - u)
 
 
-def _sum_terms(x, which: tuple[bool, ...]):
-    """``sum_t x[t]`` over the terms ``which`` marks (static), added one by one: a masked ``jnp.sum`` over
-    the term axis of (K, N, 3) became an XLA CPU reduce fusion that took 1.5 s a call here (against
-    milliseconds), three times per sweep."""
-    out = None
-    for t, use in enumerate(which):
-        if use:
-            out = x[t] if out is None else out + x[t]
-    return jnp.zeros(x.shape[1:], x.dtype) if out is None else out
+def _sum_terms(x, which):
+    """``sum_t which_t x[t]`` over the term axis (``which`` (K,) 1 or 0), added one by one: a masked
+    ``jnp.sum`` over the term axis of (K, N, 3) became an XLA CPU reduce fusion that took 1.5 s a call
+    here (against milliseconds), three times per sweep."""
+    which = jnp.asarray(which, x.dtype)
+    out = x[0] * which[0]
+    for t in range(1, x.shape[0]):
+        out = out + x[t] * which[t]
+    return out
 
 
-def predict(P, Q, W, d: GridData, flags: Flags, D=None, C=None) -> Float[Array, "N 3"]:
+def predict(P, Q, W, d: GridData, flags: Flags | Masks, D=None, C=None) -> Float[Array, "N 3"]:
     """``sum_t p_t(n_i) q_t(r_i) w_t(n.v_i) d_t(x_i) prod_e c_et(z_ei)`` at the grid samples."""
-    out = _factor(P, d.a, flags.p) * _factor(Q, d.b, flags.q) * _wv(W, d, flags)
-    return _sum_terms(out * _hv(D, d, flags, C) if D is not None else out, (True,) * len(flags.p))
+    m = _masks(flags)
+    out = _factor(P, d.a, m.p) * _factor(Q, d.b, m.q) * _line(W, d.vi, d.vw, m.w)
+    return _sum_terms(out * _hv(D, d, m, C) if D is not None else out, m.t)
 
 
 #: Bytes of the per-sample outer products one chunk of a block may hold (bounded memory at any K).
@@ -161,8 +278,8 @@ def _chunked(fn, args: tuple, n: int, per_sample: int):
     chunk = int(max(1024, min(n, CHUNK_BYTES // (4 * max(per_sample, 1)))))
     if chunk >= n:
         return fn(*args)
-    pad = (-n) % chunk
-    padded = tuple(jnp.concatenate([a, jnp.zeros((pad,) + a.shape[1:], a.dtype)]) for a in args)
+    pad_rows = (-n) % chunk
+    padded = tuple(jnp.concatenate([a, jnp.zeros((pad_rows,) + a.shape[1:], a.dtype)]) for a in args)
     shaped = tuple(a.reshape((-1, chunk) + a.shape[1:]) for a in padded)
     first = jax.eval_shape(fn, *(a[0] for a in shaped))
     init = jax.tree_util.tree_map(lambda x: jnp.zeros(x.shape, x.dtype), first)
@@ -186,8 +303,11 @@ def spd_solve(A, b):
     return M[..., :, K]
 
 
-def _texel_block(X, c, idx, y, d: GridData, mu, jacobi: int, ridge: float = 1e-6):
-    """Solve for X (K, n, 3) given coefficients c (K, N, 3) of the samples falling in texel ``idx``."""
+def _texel_block(X, c, idx, y, d: GridData, mu, jacobi: int, terms, ridge: float = 1e-6):
+    """Solve for X (K, n, 3) given coefficients c (K, N, 3) of the samples falling in texel ``idx``; the
+    ridge ``ridge`` times the mean diagonal over the ``terms`` (a count) present. A term whose coefficients
+    are 0 (empty slot, or no such factor) is a separate block of the K x K systems, so it leaves the
+    others' solution as it is."""
     K, n = X.shape[0], X.shape[1]
 
     def normal(c, idx, y):  # c (N, K, 3) sample-major for chunking
@@ -197,7 +317,7 @@ def _texel_block(X, c, idx, y, d: GridData, mu, jacobi: int, ridge: float = 1e-6
 
     G, h = _chunked(normal, (jnp.moveaxis(c, 0, 1), idx, y), y.shape[0], 3 * K * K)
     deg = jnp.sum(d.nbm, axis=1)
-    tr = jnp.trace(G, axis1=-2, axis2=-1)[..., None, None] / K
+    tr = jnp.trace(G, axis1=-2, axis2=-1)[..., None, None] / terms
     A = G + (mu * deg[:, None, None, None] + ridge * tr + 1e-9) * jnp.eye(K, dtype=X.dtype)
     Xc = jnp.moveaxis(X, 0, -1)  # (n, 3, K)
 
@@ -209,22 +329,20 @@ def _texel_block(X, c, idx, y, d: GridData, mu, jacobi: int, ridge: float = 1e-6
     return jnp.moveaxis(Xc, -1, 0)
 
 
-def _w_block(pq, W, d: GridData, flags: Flags, y, mu_w, ridge: float = 1e-6, vi=None, vw=None, use=None):
-    """Dense normal equations of the line unknowns (S_w per term and channel) of the terms that carry the
-    line, given the other factors ``pq`` at the samples; the lines read at n.v (``d.vi``, ``d.vw``,
-    ``flags.w``) unless ``vi, vw, use`` say others. Only the terms with the line are unknowns (``use`` is
-    static): a highlight line of one term is a 32 x 32 system, not one of every term's size."""
-    vi = d.vi if vi is None else vi
-    vw = d.vw if vw is None else vw
-    on = tuple(int(t) for t in np.flatnonzero(np.asarray(flags.w if use is None else use, bool)))
-    if not on:
+def _w_block(pq, W, y, mu_w, vi, vw, use, lo: int, ridge: float = 1e-6):
+    """Dense normal equations of the line unknowns (S_w per term and channel) of the slots from ``lo``
+    (static) that carry the line (``use`` (K,), 1 or 0), given the other factors ``pq`` at the samples and
+    the lines' footprints ``vi, vw`` ((N, 2) shared, or (N, K, 2) per term), with first-difference
+    smoothing ``mu_w`` and a ridge ``ridge`` times the mean diagonal of the terms' unknowns. A slot that
+    does not carry the line is an identity block of the system (solution 0, the line kept as it was)."""
+    Ws, u = W[lo:], use[lo:]
+    K, Sw = Ws.shape[0], W.shape[1]
+    if K == 0:
         return W
-    K, Sw = len(on), W.shape[1]
     M = K * Sw
-    sel = np.asarray(on)
-    pq = pq[sel]
+    pq = pq[lo:] * u[:, None, None]
     if vi.ndim == 3:
-        vi, vw = vi[:, sel], vw[:, sel]
+        vi, vw = vi[:, lo:], vw[:, lo:]
 
     def normal(pq, vi, vw, y):  # pq (N, K, 3) sample-major for chunking; vi, vw (N, 2) or (N, K, 2)
         N = y.shape[0]
@@ -240,105 +358,166 @@ def _w_block(pq, W, d: GridData, flags: Flags, y, mu_w, ridge: float = 1e-6, vi=
     G, h = _chunked(normal, (jnp.moveaxis(pq, 0, 1), vi, vw, y), y.shape[0], 12 * K * K + 6 * K)
     G = jnp.moveaxis(G.reshape(M, M, 3), -1, 0)
     diff = np.diff(np.eye(Sw), axis=0)
-    lap = jnp.asarray(np.kron(np.eye(K), diff.T @ diff), W.dtype)
-    G = G + mu_w * lap[None]
-    tr = jnp.trace(G, axis1=-2, axis2=-1)[:, None, None] / M
-    G = G + (ridge * tr + 1e-9) * jnp.eye(M, dtype=W.dtype)[None]
+    lap1 = diff.T @ diff
+    on = jnp.sum(u)
+    tr = (jnp.trace(G, axis1=-2, axis2=-1) + mu_w * float(np.trace(lap1)) * on)[:, None, None] / jnp.maximum(on * Sw, 1)
+    act = jnp.repeat(u, Sw)  # (M,) 1 for the unknowns solved for
+    G = G + mu_w * jnp.asarray(np.kron(np.eye(K), lap1), W.dtype)[None]
+    G = G + (ridge * tr + 1e-9) * jnp.diag(act)[None] + jnp.diag(1 - act)[None]
     sol = jnp.linalg.solve(G, jnp.moveaxis(h, -1, 0)[..., None])[..., 0]  # (3, M)
-    return W.at[sel].set(jnp.moveaxis(sol.reshape(3, K, Sw), 0, -1))
+    new = jnp.where(u[:, None, None] > 0, jnp.moveaxis(sol.reshape(3, K, Sw), 0, -1), Ws)
+    return jnp.concatenate([W[:lo], new]) if lo else new
 
 
-def _balance(P, Q, W, flags: Flags, D=None, C=None):
+def _balance(P, Q, W, m: Masks, D=None, C=None):
     """Rescale full terms so mean |p_t| = mean |w_t| = 1 per channel (the scale goes into q_t, or into
     d_t for a term without q; a term's extra lines also to mean |c_et| = 1, their scale into d_t). Returns
     ``(P, Q, W, D, C)``, D and C None where they were not given (C: a tuple, one array per extra line)."""
-    h = flags.h or (False,) * len(flags.p)
-    full = jnp.asarray([p and q for p, q in zip(flags.p, flags.q)], P.dtype)[:, None, None]
-    fw = jnp.asarray([w and q for w, q in zip(flags.w, flags.q)], P.dtype)[:, None, None]
+    col = lambda x: jnp.asarray(x, P.dtype)[:, None, None]  # noqa: E731
+    p, q, w, h = (col(x) for x in (m.p, m.q, m.w, m.h))
+    full, fw = p * q, w * q
     sp = jnp.maximum(jnp.mean(jnp.abs(P), axis=1, keepdims=True), 1e-12) * full + (1 - full)
     sw = jnp.maximum(jnp.mean(jnp.abs(W), axis=1, keepdims=True), 1e-12) * fw + (1 - fw)
     P, Q, W = P / sp, Q * sp * sw, W / sw
     if D is None:
         return P, Q, W, None, None
-    hp = jnp.asarray([p and x and not q for p, q, x in zip(flags.p, flags.q, h)], P.dtype)[:, None, None]
-    hw = jnp.asarray([w and x and not q for w, q, x in zip(flags.w, flags.q, h)], P.dtype)[:, None, None]
+    hp, hw = p * h * (1 - q), w * h * (1 - q)
     sp = jnp.maximum(jnp.mean(jnp.abs(P), axis=1, keepdims=True), 1e-12) * hp + (1 - hp)
     sw = jnp.maximum(jnp.mean(jnp.abs(W), axis=1, keepdims=True), 1e-12) * hw + (1 - hw)
     P, W, D = P / sp, W / sw, D * sp * sw
     if C is None:
         return P, Q, W, D, None
     out = []
-    for Ce, fc in zip(C, flags.c):
-        hc = jnp.asarray([x and c for x, c in zip(h, fc)], P.dtype)[:, None, None]
+    for e, Ce in enumerate(C):
+        hc = h * col(m.c[e])
         sc = jnp.maximum(jnp.mean(jnp.abs(Ce), axis=1, keepdims=True), 1e-12) * hc + (1 - hc)
         D, Ce = D * sc, Ce / sc
         out.append(Ce)
     return P, Q, W, D, tuple(out)
 
 
-@functools.partial(jax.jit, static_argnames=("flags", "sweeps", "jacobi"))
-def run(P, Q, W, d: GridData, lam, *, flags: Flags, sweeps: int, jacobi: int = 3, D=None, C=None):
-    """``sweeps`` ALS sweeps from (P, Q, W) (K, n, 3), (K, n, 3), (K, S_w, 3) and, when some term has a
-    d factor (``flags.h``), D (K, S_w, 3) and, when highlight terms also carry extra lines (``flags.c``,
-    one entry per line: the Fresnel line, the cosine line), C, a tuple of (K, S_w, 3), one per extra line;
-    returns them and the data objective ``sum_i s_i^2 ||yhat_i - y_i||^2`` (``d.s``: the square roots of
-    the sample weights) after each sweep: ``(P, Q, W, hist)``, ``(P, Q, W, D, hist)`` with D,
-    ``(P, Q, W, D, C, hist)`` with C."""
+def _unless_empty(use, solve, X):
+    """``solve()`` where some term carries the factor (``use`` (K,)), else X: the block is skipped at run time."""
+    return jax.lax.cond(jnp.any(use > 0), solve, lambda: X)
+
+
+@functools.partial(jax.jit, static_argnames=("slots", "sweeps", "jacobi"))
+def sweep(P, Q, W, D, C, d: GridData, lam, masks: Masks, *, slots: Slots, sweeps: int = 1, jacobi: int = 3):
+    """``sweeps`` ALS sweeps of the terms in ``slots`` (static) whose factors ``masks`` says (jit
+    arguments: one compiled program for every structure that fits in the slots, :func:`layout`), from
+    P, Q (K, n, 3), W, D (K, S_w, 3) and C (a tuple of ``slots.extra`` (K, S_w, 3)); D and C are
+    ignored where ``slots`` has no highlight slot (no extra line). Returns ``(P, Q, W, D, C, hist)``,
+    hist the data objective ``sum_i s_i^2 ||yhat_i - y_i||^2`` (``d.s``: the square roots of the sample
+    weights) after each sweep."""
     N, n, Sw = d.y.shape[0], P.shape[1], W.shape[1]
     mu = lam * N / n
     mu_w = lam * N / Sw
-    uq = jnp.asarray(flags.q, Q.dtype)[:, None, None]
-    up = jnp.asarray(flags.p, P.dtype)[:, None, None]
+    col = lambda x: jnp.asarray(x, P.dtype)[:, None, None]  # noqa: E731
+    tm, up, uq = col(masks.t), col(masks.p), col(masks.q)
+    terms = jnp.maximum(jnp.sum(masks.t), 1.0)
     Q = Q * uq + (1 - uq)
     P = P * up + (1 - up)
     s1 = d.s[:, None]
     s3 = d.s[None, :, None]
-    has_d = D is not None and any(flags.h)
-    has_c = has_d and C is not None and len(flags.c) > 0
+    has_d = slots.high > 0 and d.hi is not None
+    has_c = has_d and slots.extra > 0
+    lo_w, lo_h = slots.plain, slots.plain + slots.lined
     zero = jnp.zeros((), P.dtype)
 
-    def sweep(carry, _):
+    def sweep_once(carry, _):
         P, Q, W, D, C = carry
         D, C = (D if has_d else None), (C if has_c else None)  # None: no such factor (the carry holds 0)
-        wv = _wv(W, d, flags)
+        wv = _line(W, d.vi, d.vw, masks.w)
         # the barrier keeps XLA from fusing the line gathers into every consumer
-        hv = jax.lax.optimization_barrier(_hv(D, d, flags, C)) if has_d else 1.0
+        hv = jax.lax.optimization_barrier(_hv(D, d, masks, C)) if has_d else 1.0
         # weighted least squares as row scaling: coefficients and targets times sqrt(weight)
-        if any(flags.q):
-            c = _factor(P, d.a, flags.p) * wv * hv
-            fixed = _sum_terms(c, tuple(not q for q in flags.q))
-            Q = _texel_block(Q, c * uq * s3, d.b, (d.y - fixed) * s1, d, mu, jacobi) * uq + (1 - uq)
-        if any(flags.p):
-            c = _factor(Q, d.b, flags.q) * wv * hv
-            fixed = _sum_terms(c, tuple(not p for p in flags.p))
-            P = _texel_block(P, c * up * s3, d.a, (d.y - fixed) * s1, d, mu, jacobi) * up + (1 - up)
+        c = _factor(P, d.a, masks.p) * wv * hv
+        fixed = _sum_terms(c, masks.t * (1 - masks.q))
+        Q = _unless_empty(masks.q, lambda: _texel_block(Q, c * uq * s3, d.b, (d.y - fixed) * s1, d, mu, jacobi, terms)
+                          * uq + (1 - uq), Q)
+        c = _factor(Q, d.b, masks.q) * wv * hv
+        fixed = _sum_terms(c, masks.t * (1 - masks.p))
+        P = _unless_empty(masks.p, lambda: _texel_block(P, c * up * s3, d.a, (d.y - fixed) * s1, d, mu, jacobi, terms)
+                          * up + (1 - up), P)
         if has_d:  # the highlight lines, given p q w (and the extra lines)
-            pqw = _factor(P, d.a, flags.p) * _factor(Q, d.b, flags.q) * wv
-            fixed = _sum_terms(pqw, tuple(not h for h in flags.h))
-            cv = _cv(C, d, flags)
-            D = _w_block(pqw * _product(cv) * s3, D, d, flags, (d.y - fixed) * s1, mu_w, vi=d.hi, vw=d.hw,
-                         use=flags.h)
-            dv = _line(D, d.hi, d.hw, flags.h)
+            pqw = _factor(P, d.a, masks.p) * _factor(Q, d.b, masks.q) * wv
+            fixed = _sum_terms(pqw, masks.t * (1 - masks.h))
+            y = (d.y - fixed) * s1
+            cv = _cv(C, d, masks)
+            D = _unless_empty(masks.h, lambda: _w_block(pqw * _product(cv) * s3, D, y, mu_w, d.hi, d.hw, masks.h,
+                                                        lo_h), D)
+            dv = _line(D, d.hi, d.hw, masks.h)
             if has_c:  # each extra line, given p q w d and the others
                 C = list(C)
                 for e in range(len(C)):
                     rest = _product(cv[:e] + cv[e + 1:], dv)
-                    C[e] = _w_block(pqw * rest * s3, C[e], d, flags, (d.y - fixed) * s1, mu_w, vi=d.ci[e],
-                                    vw=d.cw[e], use=flags.c[e])
-                    cv[e] = _line(C[e], d.ci[e], d.cw[e], flags.c[e])
+                    C[e] = _unless_empty(masks.c[e], lambda e=e, rest=rest: _w_block(
+                        pqw * rest * s3, C[e], y, mu_w, d.ci[e], d.cw[e], masks.c[e], lo_h), C[e])
+                    cv[e] = _line(C[e], d.ci[e], d.cw[e], masks.c[e])
                 C = tuple(C)
             hv = jax.lax.optimization_barrier(_product(cv, dv))
-        if any(flags.w):
-            pq = _factor(P, d.a, flags.p) * _factor(Q, d.b, flags.q) * hv
-            fixed = _sum_terms(pq, tuple(not w for w in flags.w))
-            W = _w_block(pq * s3, W, d, flags, (d.y - fixed) * s1, mu_w)
-        P, Q, W, D, C = _balance(P, Q, W, flags, D, C)
-        r = (predict(P, Q, W, d, flags, D, C) - d.y) * s1
+        pq = _factor(P, d.a, masks.p) * _factor(Q, d.b, masks.q) * hv
+        fixed = _sum_terms(pq, masks.t * (1 - masks.w))
+        W = _unless_empty(masks.w, lambda: _w_block(pq * s3, W, (d.y - fixed) * s1, mu_w, d.vi, d.vw, masks.w, lo_w), W)
+        P, Q, W, D, C = _balance(P, Q, W, masks, D, C)
+        r = (predict(P, Q, W, d, masks, D, C) - d.y) * s1
         return (P, Q, W, zero if D is None else D, zero if C is None else C), jnp.sum(r * r)
 
-    init = (P, Q, W, D if has_d else zero, C if has_c else zero)
-    (P, Q, W, D, C), hist = jax.lax.scan(sweep, init, None, length=sweeps)
-    return (P, Q, W) + ((D,) if has_d else ()) + ((C,) if has_c else ()) + (hist,)
+    init = (P, Q, W, D if has_d else zero, tuple(C) if has_c else zero)
+    (P, Q, W, Dn, Cn), hist = jax.lax.scan(sweep_once, init, None, length=sweeps)
+    return P, Q, W, (Dn if has_d else D), (Cn if has_c else C), hist
 
 
-__all__ = ["Flags", "GridData", "line_footprint", "predict", "run", "single_texel", "spd_solve"]
+class Padded(NamedTuple):
+    """A sum's ALS state in slots (:func:`padded`): the arrays :func:`sweep` reads and how to read back."""
+
+    state: tuple  # (P, Q, W, D, C)
+    data: GridData
+    masks: Masks
+    slots: Slots
+    order: np.ndarray
+
+
+def padded(P, Q, W, d: GridData, flags: Flags, D=None, C=None, slots: Slots | None = None) -> Padded:
+    """The terms of ``flags`` (arrays P, Q, W, D, C per term, D and C None where no term has one) in
+    ``slots`` (default: their own, :func:`slots_of`): empty slots hold ones, masked out."""
+    slots = slots_of(flags) if slots is None else slots
+    order, masks = layout(flags, slots)
+    K, Sw = slots.terms, np.asarray(W).shape[1]
+    ones = np.ones((len(np.asarray(P)), Sw, 3), np.float32)
+    Dp = pad(np.asarray(D if D is not None else ones, np.float32), order)
+    Cs = [np.asarray(c, np.float32) for c in (C or ())] + [ones] * (slots.extra - len(C or ()))
+    state = (jnp.asarray(pad(np.asarray(P, np.float32), order)), jnp.asarray(pad(np.asarray(Q, np.float32), order)),
+             jnp.asarray(pad(np.asarray(W, np.float32), order)), jnp.asarray(Dp),
+             tuple(jnp.asarray(pad(c, order)) for c in Cs))
+    assert state[0].shape[0] == K
+    return Padded(state, pad_data(d, order, slots), masks, slots, order)
+
+
+def unpadded(p: Padded, flags: Flags) -> tuple:
+    """The per-term arrays of a padded state, as :func:`run` returns them (without hist): ``(P, Q, W)``
+    and D where some term has d, C (a tuple) where some term has an extra line."""
+    P, Q, W, D, C = p.state
+    out = tuple(unpad(x, p.order) for x in (P, Q, W))
+    if any(flags.h):
+        out += (unpad(D, p.order),)
+        if flags.c:
+            out += (tuple(unpad(c, p.order) for c in C[:len(flags.c)]),)
+    return out
+
+
+def run(P, Q, W, d: GridData, lam, *, flags: Flags, sweeps: int, jacobi: int = 3, D=None, C=None,
+        slots: Slots | None = None):
+    """``sweeps`` ALS sweeps (:func:`sweep`) of the terms of ``flags`` (static here: which factors each
+    term has, p(n), q(r), w(n.v), d(x), extra lines) from (P, Q, W) (K, n, 3), (K, n, 3), (K, S_w, 3) and,
+    when some term has a d factor, D (K, S_w, 3) and, when highlight terms also carry extra lines
+    (``flags.c``, one entry per line: the Fresnel line, the cosine line), C, a tuple of (K, S_w, 3), one per
+    extra line; in ``slots`` (default: the terms' own). Returns them and the data objective after each
+    sweep: ``(P, Q, W, hist)``, ``(P, Q, W, D, hist)`` with D, ``(P, Q, W, D, C, hist)`` with C."""
+    p = padded(P, Q, W, d, flags, D if any(flags.h) else None, C if flags.c else None, slots)
+    *state, hist = sweep(*p.state, p.data, lam, p.masks, slots=p.slots, sweeps=sweeps, jacobi=jacobi)
+    return unpadded(p._replace(state=tuple(state)), flags) + (hist,)
+
+
+__all__ = ["Flags", "GridData", "Masks", "Padded", "Slots", "layout", "line_footprint", "pad", "padded", "predict",
+           "run", "single_texel", "slots_of", "spd_solve", "sweep", "unpad", "unpadded"]

@@ -281,10 +281,12 @@ def _sums(target: Target, the_plan: Plan, samples: Samples, record: dict, sample
         return polished["pairs", stride]
 
     fits: dict = {}  # (structure, line size) -> its SumFit (the chooser polishes the one it keeps)
+    # every candidate's ALS in one set of term slots: one compiled sweep per sample count, not per structure
+    slots = sums.als_slots(target, the_plan.candidates, mapper, opts.texture_size, sizes[0])
 
     def fit(structure: Structure, line: int = sizes[0]) -> Result:
         tgt, smp, _ = pool(structure)
-        sf = sums.fit_sum(tgt, structure, mapper, opts.texture_size, smp, lin, log, line_size=line)
+        sf = sums.fit_sum(tgt, structure, mapper, opts.texture_size, smp, lin, log, line_size=line, slots=slots)
         if lin.polish > 0:
             sf = polish.polish(tgt, structure, mapper, opts.texture_size, sf, smp, pairs(), lin, log,
                                seed=opts.sampling.seed)
@@ -344,7 +346,7 @@ def _sums(target: Target, the_plan: Plan, samples: Samples, record: dict, sample
             smp = smp._replace(a=smp.a[::k], b=smp.b[::k], y=smp.y[::k])
             slin = lin.model_copy(update={"iterations": the_plan.screen})
             return as_result(structure, sums.fit_sum(tgt, structure, mapper, opts.texture_size, smp, slin, log,
-                                                     line_size=sizes[0]))
+                                                     line_size=sizes[0], slots=slots))
 
         cands, screened = _screen(cands, short, the_plan.screen, the_plan.screen_keep, the_plan.screen_margin,
                                   score, log)

@@ -349,7 +349,7 @@ def split_sum_possible(target, structure) -> bool:
 def fit_sum(target: Target, structure: Structure, mapper: str, size: int, samples: Samples,
             options: LinearOptions | None = None, log: Callable[[str], None] | None = None,
             previous: Factorization | None = None, line_size: int = LINE_SIZE,
-            sample_weights: np.ndarray | None = None, chunk: int = 0) -> SumFit:
+            sample_weights: np.ndarray | None = None, chunk: int = 0, slots: als.Slots | None = None) -> SumFit:
     """Fit ``structure`` to the training samples in linear space (see the module docstring).
 
     ``sample_weights``: a weight per training sample (the polish's ridge pairs, :mod:`homofac.fit.ridge`),
@@ -362,6 +362,11 @@ def fit_sum(target: Target, structure: Structure, mapper: str, size: int, sample
     start from its texels (:func:`warm_start`) instead of step 2's start.
 
     ``chunk``: Levenberg-Marquardt steps per compiled call (:func:`homofac.fit.refine.solve`; 0: one call).
+
+    ``slots``: the ALS term slots to pad the structure's terms into (a group with fewer slots than the
+    structure has terms: its own count; :func:`als_slots` of every structure a run fits on these samples):
+    fits in the same slots share one compiled sweep; the same fit as without, to float rounding (default:
+    the structure's own).
     """
     log = log or (lambda msg: None)
     opts = (options or LinearOptions()).resolved()
@@ -388,7 +393,7 @@ def fit_sum(target: Target, structure: Structure, mapper: str, size: int, sample
     if method == "als" and structure.highlights.table:  # the ALS fits the lines; the table is their product
         prev = None if previous is None else table.separate(previous, line_size)
         sf = fit_sum(target, lined(structure), mapper, size, samples, opts, log, previous=prev, line_size=line_size,
-                     sample_weights=sample_weights)
+                     sample_weights=sample_weights, slots=slots)
         return tabulated(sf, structure, sum(lay.n_valid for lay in layouts.values()))
     fixed_specs = [s for s in specs if s.role in FIXED_ROLES]
     fixed_data = {s.name: _fixed_texture(s, target) for s in fixed_specs}
@@ -415,7 +420,7 @@ def fit_sum(target: Target, structure: Structure, mapper: str, size: int, sample
         weights = (weights / np.mean(weights)).astype(np.float32)
     if method == "als":
         X, steps, converged, hist = _fit_als(structure, specs, fitted_terms, layouts, x0, grid, a, b, y_fit / sigma, opts,
-                                             weights, target.context, log)
+                                             weights, target.context, log, slots)
         backend = "homofac"
     else:
         X, steps, converged, hist = _fit_lm(target, fitted_specs, fitted_terms, layouts, x0, a, b, y_fit / sigma, opts,
@@ -508,20 +513,19 @@ def nv_weights(a, b, y, bins: int, beta: float) -> np.ndarray:
 PROGRESS_S = 3.0
 
 
-def als_sweeps(P, Q, W, data, lam, flags, sweeps: int, tolerance: float, log=None, D=None, C=None):
-    """At most ``sweeps`` ALS sweeps (:func:`homofac.fit.als.run`, one compiled sweep called per sweep),
-    stopping when a sweep lowers the objective f by less than ``tolerance * f`` (relative decrease
-    ``(f_prev - f) / f_prev``; 0: never). Logs ``ALS sweep i / sweeps: objective f`` at most every
-    :data:`PROGRESS_S` seconds. Returns ``(out, sweeps run, converged, hist)`` with ``out`` as
-    :func:`als.run` returns it (its ``hist`` replaced by the whole history)."""
+def als_sweeps(p: als.Padded, lam, sweeps: int, tolerance: float, log=None) -> tuple[als.Padded, int, bool, np.ndarray]:
+    """At most ``sweeps`` ALS sweeps (:func:`homofac.fit.als.sweep`, one compiled sweep per slots, called
+    per sweep) of the padded state ``p``, stopping when a sweep lowers the objective f by less than
+    ``tolerance * f`` (relative decrease ``(f_prev - f) / f_prev``; 0: never). Logs ``ALS sweep i /
+    sweeps: objective f`` at most every :data:`PROGRESS_S` seconds. Returns ``(p after, sweeps run,
+    converged, hist)``."""
     hist: list[float] = []
     converged = False
     shown = time.perf_counter()
-    out = (P, Q, W) + ((D,) if D is not None else ()) + ((C,) if C is not None else ()) + (None,)
+    state = p.state
     for i in range(1, int(sweeps) + 1):
-        out = als.run(*out[:3], data, lam, flags=flags, sweeps=1, D=out[3] if D is not None else None,
-                      C=out[3 + (D is not None)] if C is not None else None)
-        hist.append(float(np.asarray(out[-1])[-1]))
+        *state, h = als.sweep(*state, p.data, lam, p.masks, slots=p.slots)
+        hist.append(float(np.asarray(h)[-1]))
         if len(hist) > 1 and tolerance > 0 and hist[-2] - hist[-1] <= tolerance * abs(hist[-2]):
             converged = True
         if log is not None and (time.perf_counter() - shown >= PROGRESS_S or converged) and i < sweeps:
@@ -529,13 +533,13 @@ def als_sweeps(P, Q, W, data, lam, flags, sweeps: int, tolerance: float, log=Non
             shown = time.perf_counter()
         if converged:
             break
-    return out[:-1] + (np.asarray(hist, np.float32),), len(hist), converged, np.asarray(hist, np.float32)
+    return p._replace(state=tuple(state)), len(hist), converged, np.asarray(hist, np.float32)
 
 
-def _fit_als(structure, specs, fitted_terms, layouts, x0, grid, a, b, y, opts: LinearOptions, weights, context=None,
-             log=None):
-    ia, ib, lay = grid
-    n = lay.n_valid
+def _term_flags(structure, fitted_terms, kinds: tuple[int, ...] | None = None):
+    """The ALS flags of the fitted terms (:class:`homofac.fit.als.Flags`), the projections and texture
+    names of their factors: ``(flags, names, hprojs, cprojs, cnames, kinds)``; ``kinds``: the extra lines
+    (indices into :data:`EXTRA_LINE_PROJECTIONS`) the flags hold (default: those some term reads)."""
     flags_p, flags_q, flags_w, names = [], [], [], []
     rproj = pz.reflection_projection(structure.parametrization)  # r, or r_off for NRO and RO
     flags_h, hprojs, cprojs, cnames = [], [], [], []
@@ -551,7 +555,43 @@ def _fit_als(structure, specs, fitted_terms, layouts, x0, grid, a, b, y, opts: L
         cprojs.append([next((c for c in kind if c in roles), None) for kind in EXTRA_LINE_PROJECTIONS])
         cnames.append([roles.get(c) for c in cprojs[-1]])
         names.append((roles.get("n"), roles.get(rproj), roles.get("nv"), roles.get(hproj)))
-    kinds = [e for e in range(len(EXTRA_LINE_PROJECTIONS)) if any(c[e] for c in cprojs)]  # the extra lines present
+    if kinds is None:
+        kinds = tuple(e for e in range(len(EXTRA_LINE_PROJECTIONS)) if any(c[e] for c in cprojs))
+    has_h = any(flags_h)
+    flags = als.Flags(tuple(flags_p), tuple(flags_q), tuple(flags_w), tuple(flags_h) if has_h else (),
+                      tuple(tuple(c[e] is not None for c in cprojs) for e in kinds) if has_h else ())
+    return flags, names, hprojs, cprojs, cnames, kinds if has_h else ()
+
+
+def als_slots(target: Target, structures, mapper: str, size: int, line_size: int = LINE_SIZE) -> als.Slots:
+    """The ALS slots (:class:`homofac.fit.als.Slots`) a run's fits on one set of samples share
+    (:func:`fit_sum` ``slots=``): the largest count of terms without a line and every kind of extra
+    line where some structure has one. Those two groups cost next to nothing padded (an empty plain slot
+    adds a term to the texel systems only; an extra line no term reads is skipped at run time), while an
+    empty slot carrying a line enlarges every line system; so the structures with the same numbers of
+    lined and highlight terms share one compiled sweep (and their highlight terms' start with it)."""
+    quantity = _quantity(target)
+    out = als.Slots()
+    for structure in structures:
+        if target.kind != "lighting" or structure.parametrization not in GRID_PARAMETRIZATIONS:
+            continue  # not an ALS fit: nothing to share
+        s = lined(structure) if structure.highlights.table else structure
+        _, terms = skeleton(s, target.kind, quantity, mapper, size, line_size)
+        own = als.slots_of(_term_flags(s, [t for t in terms if t.fitted])[0])
+        out = out.union(als.Slots(plain=own.plain, extra=len(EXTRA_LINE_PROJECTIONS) if own.extra else 0))
+    return out
+
+
+def _fit_als(structure, specs, fitted_terms, layouts, x0, grid, a, b, y, opts: LinearOptions, weights, context=None,
+             log=None, slots: als.Slots | None = None):
+    ia, ib, lay = grid
+    n = lay.n_valid
+    # padded to slots with extra lines, every kind of extra line has its place (the masks say which are read)
+    every = slots is not None and slots.extra > 0
+    flags, names, hprojs, cprojs, cnames, kinds = _term_flags(
+        structure, fitted_terms, tuple(range(len(EXTRA_LINE_PROJECTIONS))) if every else None)
+    if slots is not None:
+        slots = slots.union(als.slots_of(flags))  # the structure's own terms where the slots given have fewer
     K = len(fitted_terms)
     line = next((s.size for s in specs if s.mapper == "line"), LINE_SIZE)  # every line of a sum has one size
     P = np.ones((K, n, 3))
@@ -574,19 +614,16 @@ def _fit_als(structure, specs, fitted_terms, layouts, x0, grid, a, b, y, opts: L
                         jnp.asarray(y, jnp.float32), jnp.asarray(np.maximum(nb_unk, 0), jnp.int32),
                         jnp.asarray(nb_unk >= 0, jnp.float32), jnp.asarray(np.sqrt(weights), jnp.float32), hi, hw,
                         tuple(i for i, _ in extra), tuple(w for _, w in extra))
-    has_h, has_c = any(flags_h), bool(kinds)
-    flags = als.Flags(tuple(flags_p), tuple(flags_q), tuple(flags_w), tuple(flags_h) if has_h else (),
-                      tuple(tuple(c[e] is not None for c in cprojs) for e in kinds))
+    has_h = bool(flags.h)
+    p = als.padded(P, Q, W, data, flags, D if has_h else None, tuple(C) if flags.c else None, slots)
+    lam = jnp.float32(opts.laplacian)
     if has_h:
-        P, Q, W, D, C = _highlight_first(P, Q, W, D, C, data, flags, opts, log)
-    out, steps, converged, _ = als_sweeps(
-        jnp.asarray(P, jnp.float32), jnp.asarray(Q, jnp.float32), jnp.asarray(W, jnp.float32), data,
-        jnp.float32(opts.laplacian), flags, int(opts.iterations), float(opts.tolerance), log,
-        D=jnp.asarray(D, jnp.float32) if has_h else None,
-        C=tuple(jnp.asarray(c, jnp.float32) for c in C) if has_c else None)
-    P, Q, W, hist = (np.asarray(v) for v in (out[:3] + out[-1:]))
-    D = np.asarray(out[3]) if has_h else None
-    C = [np.asarray(c) for c in out[4]] if has_c else []
+        p = _highlight_first(p, flags, lam, opts, log)
+    p, steps, converged, hist = als_sweeps(p, lam, int(opts.iterations), float(opts.tolerance), log)
+    out = als.unpadded(p, flags)
+    P, Q, W = out[:3]
+    D = out[3] if has_h else None
+    C = list(out[4]) if flags.c else []
     X = {}
     for t, names_t in enumerate(names):
         for name, arr in zip(names_t + tuple(cnames[t][e] for e in kinds), (P, Q, W, D, *C)):
@@ -631,34 +668,25 @@ def _lm_lookup(a, b, context: dict, unknown_of_texel, *, proj: str, mapper: str,
     return refine.Lookup(jnp.where(unk >= 0, unk, 0).astype(jnp.int32), jnp.where(unk >= 0, w, 0.0))
 
 
-def _highlight_first(P, Q, W, D, C, data, flags, opts: LinearOptions, log=None):
+def _highlight_first(p: als.Padded, flags: als.Flags, lam, opts: LinearOptions, log=None) -> als.Padded:
     """Start the highlight terms (and an n-only diffuse texture) on the data alone, the products absent:
     started together, the products' maps of r take the sun's highlight first and the joint ALS stays
-    there (near-mirror / city: 0.50 nrmse against 0.2 from this start). Returns the full start."""
-    keep = [h or (p and not q and not w) for p, q, w, h in zip(flags.p, flags.q, flags.w, flags.h)]
-    idx = np.flatnonzero(keep)
+    there (near-mirror / city: 0.50 nrmse against 0.2 from this start). The same compiled sweep as the
+    full fit, the other terms' slots masked out. Returns the full start."""
+    keep = [h or (pp and not q and not w) for pp, q, w, h in zip(flags.p, flags.q, flags.w, flags.h)]
+    on = als.pad(np.asarray(keep, np.float32), p.order, 0.0)  # the kept terms' slots
+    m = p.masks
+    sub = als.Masks(*(np.asarray(x) * on for x in m[:5]), np.asarray(m.c) * on[None])
+    out, *_ = als_sweeps(p._replace(masks=sub), lam, max(1, int(opts.iterations) // 2), float(opts.tolerance), log)
+    keep_slot = on > 0
 
-    def pick(f):
-        return tuple(f[i] for i in idx)
+    def merged(new, old):  # on the host: no program per array shape
+        return jnp.asarray(np.where(keep_slot.reshape((-1,) + (1,) * (new.ndim - 1)), np.asarray(new), np.asarray(old)))
 
-    sub = als.Flags(pick(flags.p), pick(flags.q), pick(flags.w), pick(flags.h), tuple(pick(c) for c in flags.c))
-    has_c = bool(flags.c)
-    def cols(x):  # the kept terms' columns, picked on the host (no program per shape)
-        return jnp.asarray(np.asarray(x)[:, idx])
-
-    data = data._replace(hi=cols(data.hi), hw=cols(data.hw), ci=tuple(cols(c) for c in data.ci),
-                         cw=tuple(cols(c) for c in data.cw))
-    out, *_ = als_sweeps(*(jnp.asarray(x[idx], jnp.float32) for x in (P, Q, W)), data, jnp.float32(opts.laplacian),
-                         sub, max(1, int(opts.iterations) // 2), float(opts.tolerance), log,
-                         D=jnp.asarray(D[idx], jnp.float32),
-                         C=tuple(jnp.asarray(c[idx], jnp.float32) for c in C) if has_c else None)
-    P, Q, W, D, C = (np.array(x) for x in (P, Q, W, D, C))
-    for arr, new in zip((P, Q, W, D), out[:4]):
-        arr[idx] = np.asarray(new)
-    if has_c:
-        for e, new in enumerate(out[4]):
-            C[e][idx] = np.asarray(new)
-    return P, Q, W, D, C
+    P, Q, W, D, C = out.state
+    P0, Q0, W0, D0, C0 = p.state
+    return p._replace(state=(merged(P, P0), merged(Q, Q0), merged(W, W0), merged(D, D0),
+                             tuple(merged(c, c0) for c, c0 in zip(C, C0))))
 
 
 def _fit_lm(target, fitted_specs, fitted_terms, layouts, x0, a, b, y, opts: LinearOptions, method: str, weights,

@@ -69,7 +69,8 @@ def with_lights(env: Environment, lights: Sequence[dict]) -> Environment:
 
 def moments_of(directions, solid_angle, corners) -> tuple:
     m, sinr = texel_moments(directions, solid_angle, corners)
-    return jnp.asarray(m, jnp.float32), jnp.asarray(sinr, jnp.float32)
+    # cast on the host: jnp.asarray(float64, float32) compiles a conversion per shape
+    return jnp.asarray(np.asarray(m, np.float32)), jnp.asarray(np.asarray(sinr, np.float32))
 
 
 def light_corners(env: Environment) -> Float[Array, "L 4 3"]:

@@ -105,8 +105,9 @@ def mixture(coarse: Environment, fine: Environment, texels: np.ndarray) -> Envir
     corners_c, moments_c = light_corners(coarse), light_moments(coarse)
     corners_f, moments_f = light_corners(fine), light_moments(fine)
 
-    def cat(c, f):
-        return jnp.concatenate([jnp.asarray(f)[fine_idx], jnp.asarray(c)[keep], jnp.asarray(c)[extra]])
+    def cat(c, f):  # on the host (jnp here compiled a program per op and light count)
+        c = np.asarray(c, np.float32)
+        return jnp.asarray(np.concatenate([np.asarray(f, np.float32)[fine_idx], c[keep], c[extra]]))
 
     visible = len(fine_idx) + min(len(keep), 3 * r * r + 6 * r) + len(extra)
     info = {**coarse.info, "mixture": {"fine_resolution": big, "fine_texels": int(len(fine_idx)),
@@ -135,14 +136,15 @@ def blocks(env: Environment, size: int | None = None) -> list[Environment]:
     pm, ps = moments_of(up, np.ones(pad), np.zeros((pad, 4, 3)))
     m, sr = light_moments(env)
 
-    def cat(a, b):
-        return jnp.concatenate([jnp.asarray(a, jnp.float32), jnp.asarray(b, jnp.float32)])
+    def cat(a, b):  # on the host (jnp here compiled a program per op and light count)
+        return np.concatenate([np.asarray(a, np.float32), np.asarray(b, np.float32)])
 
     d, rad = cat(env.directions, up), cat(env.radiance, np.zeros((pad, 3)))
     w, corners = cat(env.solid_angle, np.ones(pad)), cat(light_corners(env), np.zeros((pad, 4, 3)))
     m, sr = cat(m, pm), cat(sr, ps)
-    return [Environment(d[i:i + size], rad[i:i + size], w[i:i + size], dict(BLOCK_INFO), corners[i:i + size],
-                        (m[i:i + size], sr[i:i + size])) for i in range(0, n + pad, size)]
+    j = jnp.asarray
+    return [Environment(j(d[i:i + size]), j(rad[i:i + size]), j(w[i:i + size]), dict(BLOCK_INFO), j(corners[i:i + size]),
+                        (j(m[i:i + size]), j(sr[i:i + size]))) for i in range(0, n + pad, size)]
 
 
 def split_texels(env: Environment, resolution: int) -> Environment:

@@ -1,0 +1,89 @@
+"""The ALS in term slots (:class:`homofac.fit.als.Slots`): the structures a run fits on one set of samples
+share one compiled sweep program, and a fit padded into larger slots is the fit in its own."""
+
+from __future__ import annotations
+
+import logging
+
+import jax
+import numpy as np
+import pytest
+
+import homofac as hf
+from homofac.fit import als, sums
+from homofac.fit.options import LinearOptions
+from homofac.fit.structures import Structure
+
+SUN = np.array([0.5, -0.3, 0.81]) / np.linalg.norm([0.5, -0.3, 0.81])
+GRID = {"kind": "grid", "size": 8, "mapper": "dual_paraboloid", "count": 6000, "validation": 500, "cache": False}
+OPTS = LinearOptions(iterations=4, tolerance=0.0)
+#: Three structures of one product and one highlight term, with and without the reflection term, with
+#: no, one or two extra lines.
+STRUCTURES = (
+    Structure("RO", 1, "fitted", True, reflection=True, highlights={"terms": 1}),
+    Structure("RO", 1, "fitted", True, highlights={"terms": 1, "fresnel": True, "cosine": True}),
+    Structure("RO", 1, "fitted", True, reflection=True, highlights={"terms": 1, "fresnel": True}),
+)
+
+
+@pytest.fixture(scope="module")
+def sun():
+    env = hf.light.sun_sky(SUN, sun_radiance=3.0e3, sun_angle_deg=4.0, sky=(0.3, 0.4, 0.6), resolution=8)
+    target = hf.light.lighting_target(hf.brdf.ggx(kd=0.3, ks=1.0, roughness=0.3, f0=0.04), env, parametrization="RO")
+    return target, hf.fit.draw_samples(target, "RO", GRID)
+
+
+def _fit(sun, structure, slots=None):
+    target, samples = sun
+    return sums.fit_sum(target, structure, "dual_paraboloid", 8, samples, OPTS, slots=slots)
+
+
+def _sweep_compiles(caplog) -> int:
+    return sum("compilation of jit(sweep)" in r.getMessage() for r in caplog.records)
+
+
+def test_the_slots_hold_every_structure_and_place_terms_by_group():
+    flags = als.Flags((True, False, False, False), (False, True, True, False), (False, False, True, True),
+                      (False, False, False, True), ((False, False, False, True),))
+    assert als.slots_of(flags) == als.Slots(plain=2, lined=1, high=1, extra=1)
+    order, masks = als.layout(flags, als.Slots(3, 2, 2, 1))
+    assert order.tolist() == [0, 1, -1, 2, -1, 3, -1]
+    np.testing.assert_array_equal(masks.t, [1, 1, 0, 1, 0, 1, 0])
+    np.testing.assert_array_equal(masks.c, [[0, 0, 0, 0, 0, 1, 0]])
+    X = np.arange(4.0)[:, None]
+    np.testing.assert_array_equal(als.unpad(als.pad(X, order), order), X)
+    with pytest.raises(ValueError):
+        als.layout(flags, als.Slots(1, 1, 1, 1))
+
+
+def test_a_fit_padded_into_larger_slots_is_its_fit_alone(sun):
+    """Empty slots are masked out and separate blocks of every system: the same textures to float rounding."""
+    slots = als.Slots(plain=2, lined=2, high=2, extra=2)
+    for structure in STRUCTURES[1:2]:  # the highlight term with both extra lines, in slots of two of each
+        alone, padded = _fit(sun, structure), _fit(sun, structure, slots)
+        assert [t.name for t in alone.model.textures] == [t.name for t in padded.model.textures]
+        for a, b in zip(alone.model.textures, padded.model.textures):
+            scale = float(np.max(np.abs(np.asarray(a.data)))) + 1e-6
+            np.testing.assert_allclose(np.asarray(b.data), np.asarray(a.data), atol=2e-4 * scale, rtol=2e-4)
+        assert padded.solver["objective"] == pytest.approx(alone.solver["objective"], rel=1e-4)
+
+
+def test_the_structures_of_a_run_compile_one_sweep_program(sun, caplog):
+    """Three structures (and the highlight terms' starts) in the run's slots: one compiled ALS sweep; in
+    their own slots each compiles its own."""
+    target, _ = sun
+    slots = sums.als_slots(target, STRUCTURES, "dual_paraboloid", 8)
+    assert slots == als.Slots(plain=2, extra=2)
+    caplog.set_level(logging.WARNING, logger="jax")
+    with jax.log_compiles():
+        als.sweep.clear_cache()
+        for structure in STRUCTURES:
+            _fit(sun, structure, slots)
+        shared = _sweep_compiles(caplog)
+        caplog.clear()
+        als.sweep.clear_cache()
+        for structure in STRUCTURES[:2]:
+            _fit(sun, structure)
+        own = _sweep_compiles(caplog)
+    assert shared == 1
+    assert own == 2
