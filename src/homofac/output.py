@@ -954,14 +954,16 @@ def bake_ktx2_layout(doc: dict, entry: dict) -> dict:
 
     ``P<k>`` is an atlas of cube-layout blocks, one per roughness layer (``layers``: roughness, block size S
     and the block's first texel x, y; a block is (S, 6 S), faces +X -X +Y -Y +Z -Z left to right); ``E<d>``
-    one cube layout (S, 6 S); ``W<t>`` a table with one row per layer and one column per n.v (texel centres
+    one cube layout (S, 6 S); ``sources`` the analytic lights the maps exclude (bake.json's); ``W<t>`` a table with one row per layer and one column per n.v (texel centres
     (i + 0.5) / X), its channels named by ``channels``. Rows are in file order (row 0 read at v = 0), the
     frame is homofac's +z up, the values linear; alpha is 1.
     """
     faces = "faces +X -X +Y -Y +Z -Z left to right (docs/conventions.md cube mapper)"
     common = {"format": "homofac.bake.texture", "texture": entry["name"], "kind": entry["kind"],
               "width": entry["width"], "height": entry["height"], "channels": entry["channels"],
-              "rows": "file order: row 0 is read at v = 0", "frame": "homofac world, +z up", "values": "linear, alpha 1"}
+              "rows": "file order: row 0 is read at v = 0", "frame": "homofac world, +z up", "values": "linear, alpha 1",
+              # the maps exclude these point lights: an engine adds their exact glTF lobes (docs/format.md)
+              "sources": doc.get("sources", [])}
     if entry["kind"] == "prefiltered":
         return {**common, "mapper": "cube", "layout": f"atlas: layer j is an (S, 6 S) cube-layout block at texel (x, y), {faces}",
                 "layer_coordinate": doc["layer_coordinate"],

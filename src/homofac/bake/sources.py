@@ -61,7 +61,8 @@ def brightest_source(env: Environment, radius: float = RADIUS, ratio: float = RA
 
     The rule (benchmarks/bake_sun.py): the brightest light texel seeds the source; the texels within ``radius``
     rad of it whose luminance is at least 1/``ratio`` of the seed's form its core; they are replaced by the
-    solid-angle weighted mean radiance ("fill") of the ring ``radius``-``2 radius`` around the seed, and the
+    solid-angle weighted mean radiance ("fill") of the ring ``radius``-``2 radius`` around the seed (at least
+    two texels wide), and the
     removed power sum (L - fill) dw becomes one point light at its power-weighted mean direction. No source
     (the environment unchanged) when the removed luminance power is below ``min_share`` of the total (a
     uniform map, a smooth sky) or not positive in every channel."""
@@ -73,7 +74,8 @@ def brightest_source(env: Environment, radius: float = RADIUS, ratio: float = RA
     seed = int(np.argmax(lum))
     cos = d @ d[seed]
     core = (cos > np.cos(radius)) & (lum >= lum[seed] / ratio)
-    ring = (cos <= np.cos(radius)) & (cos > np.cos(2 * radius))
+    outer = max(2 * radius, radius + 2 * float(np.sqrt(dw.max())))  # at least two texels wide on a coarse map
+    ring = (cos <= np.cos(radius)) & (cos > np.cos(outer))
     fill = (rad[ring] * dw[ring, None]).sum(0) / max(float(dw[ring].sum()), 1e-300) if ring.any() else np.zeros(3)
     excess = np.maximum(rad[core] - fill, 0.0) * dw[core, None]  # (C, 3)
     power = excess.sum(0)
