@@ -107,3 +107,15 @@ def test_bad_sources_are_refused_in_one_line(sun_bake, tmp_path, field, value):
     with pytest.raises(HomofacError) as e:
         hf.load(out)
     assert "\n" not in str(e.value) and "sources" in str(e.value)
+
+
+def test_cli_prints_the_source_and_turns_it_off(tmp_path, capsys):
+    from homofac.app import bake_cli
+    flags = ["--preset", "fast", "--layers", "3", "--max-size", "8", "--nv-size", "8", "--samples", "64",
+             "--data-resolution", "4", "--diffuse-size", "8"]
+    assert bake_cli.main(["interior", "--out", str(tmp_path / "a"), *flags]) == 0
+    assert "analytic source: direction" in capsys.readouterr().out
+    assert len(json.loads((tmp_path / "a" / "bake.json").read_text())["sources"]) == 1
+    assert bake_cli.main(["interior", "--out", str(tmp_path / "b"), "--no-analytic-source", *flags]) == 0
+    assert "analytic source: none" in capsys.readouterr().out
+    assert json.loads((tmp_path / "b" / "bake.json").read_text())["sources"] == []
