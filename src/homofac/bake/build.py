@@ -271,7 +271,7 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
     original = _Lights(environment)
     lights = _Lights(environment)
     # the brightest compact source leaves the map before every filter and is shaded as a point light
-    found, share = lights.take_source(max(max_size, opts.data_resolution, MIN_LIGHTS)) if opts.analytic_source else (None, 0.0)
+    found, share = lights.take_source(max(max_size, opts.data_resolution, MIN_LIGHTS)) if opts.analytic_source else (None, None)
     sources = (found,) if found is not None else ()
     x = kn.nv_centres(pl.nv_size)
     data_env = lights(opts.data_resolution)

@@ -88,7 +88,16 @@ class Bake:
     def describe(self) -> str:
         return (f"{self.plan.describe()}; layers {', '.join(f'{r:.3g}' for r in self.roughness)}; sizes "
                 f"{', '.join(str(int(p.shape[0])) for p in self.P)}; {self.texture_bytes() / 1e6:.2f} MB in half floats; "
-                f"analytic source: {'; '.join(s.describe() for s in self.sources) if self.sources else 'none'}")
+                f"analytic source: {self._sources_line()}")
+
+    def _sources_line(self) -> str:
+        """The analytic sources (direction, power, power share, radius) or ``none``, with the share found."""
+        record = (self.info or {}).get("analytic_source", {})
+        share = record.get("share")
+        pct = f"{100 * share:.1f} % of the power" if share is not None else ""
+        if not self.sources:
+            return f"none (brightest compact source {pct})" if pct else ("none (off)" if record else "none")
+        return "; ".join(s.describe() for s in self.sources) + (f", {pct}" if pct else "")
 
     # --- evaluation ------------------------------------------------------------------------------------
     def layer_coordinate(self, roughness) -> Array:
