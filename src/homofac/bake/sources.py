@@ -8,7 +8,7 @@ integral, sum (L - fill) dw),
 
     I_d += (1 - s5)/pi (n.l)+ Phi,   I_A += (1 - s5) S (n.l)+ Phi,   I_B += s5 S (n.l)+ Phi
 
-(the pinned integrals of DESIGN.md "Material-parametric bake" of a delta light), at zero texture fetches.
+(the pinned integrals of I_d, I_A, I_B, docs/format.md, of a delta light), at zero texture fetches.
 """
 
 from __future__ import annotations
