@@ -1,6 +1,7 @@
 """Today's bake with the environment's brightest compact source taken out and shaded as an analytic light.
 
-A measurement, not a bake option: the brightest pixel of the source lat-long map seeds a source; the pixels
+The measurement that led to the bake's ``analytic_source`` (homofac.bake.sources), kept reproducible with the
+bake's own source removal off: the brightest pixel of the source lat-long map seeds a source; the pixels
 within ``--radius`` rad of it whose luminance is at least 1/``--ratio`` of the seed's are replaced by the mean
 of the ring ``radius``-``2 radius`` around it, and the removed power sum (L - fill) dw becomes one point light
 at its power-weighted mean direction. The map without the source is baked as usual (``hf.bake`` on a
@@ -98,7 +99,7 @@ def main(argv=None):
         for preset in args.presets:
             for label, s in ((preset, name), (f"{preset}+source", str(path))):
                 t = time.perf_counter()
-                bakes[label] = hf.bake(s, preset=preset)
+                bakes[label] = hf.bake(s, preset=preset, analytic_source=False)  # the source by hand, as measured
                 print(json.dumps({"bake": label, "seconds": round(time.perf_counter() - t, 1)}), flush=True)
     rng = np.random.default_rng(0)
     for _ in range(4 * list(hf.light.BUNDLED).index(name)):  # the benchmark's draws (bake_breakdown's)

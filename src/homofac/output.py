@@ -45,6 +45,7 @@ from .bake import Bake, BakePlan
 from .bake import register_writer as register_bake_writer
 from .bake import shader as bake_shader
 from .bake.atlas import assemble, blocks_of, pack, split
+from .bake.sources import Source
 from .fit.result import Result, register_writer
 from .io.exr import read_exr, write_exr
 from .io.files import one_line, read_bounded
@@ -72,7 +73,7 @@ LIBRARY_FORMAT = "homofac.library"
 LIBRARY_VERSION = 1
 INDEX_NAME = "index.json"
 BAKE_FORMAT = "homofac.bake"
-BAKE_SCHEMA = 1
+BAKE_SCHEMA = 2
 BAKE_JSON = "bake.json"
 #: The shader files of a bake directory (homofac_ibl, homofac_ibl_terms).
 BAKE_SHADERS = {"glsl": "shader.glsl", "glsl_es": "shader_es.glsl", "hlsl": "shader.hlsl", "msl": "shader.metal",
@@ -872,11 +873,34 @@ class BakePlanEntry(Options):
     diffuse_basis: Literal["texture", "sh9"] = "texture"
 
 
+class BakeSourceEntry(Options):
+    """bake.json's ``sources[i]`` (:class:`homofac.bake.sources.Source`): a point light the shaders add with the
+    exact glTF lobes; every number finite and bounded (they reach generated code)."""
+
+    direction: list[float] = Field(min_length=3, max_length=3)
+    power: list[float] = Field(min_length=3, max_length=3)
+    radius: float = Field(ge=0, le=math.pi)
+
+    @field_validator("direction")
+    @classmethod
+    def _unit(cls, v):
+        if not all(math.isfinite(c) for c in v) or abs(math.sqrt(sum(c * c for c in v)) - 1.0) > 1e-3:
+            raise ValueError("must be a finite unit vector")
+        return v
+
+    @field_validator("power")
+    @classmethod
+    def _power(cls, v):
+        if not all(math.isfinite(c) and 0 <= c <= 1e30 for c in v):
+            raise ValueError("must be 3 finite non-negative numbers (RGB radiance integral)")
+        return v
+
+
 class BakeDocument(Options):
-    """bake.json (schema 1): see docs/format.md."""
+    """bake.json (schema 2; schema 1, without ``sources``, is read as a bake without sources): see docs/format.md."""
 
     format: Literal["homofac.bake"]
-    schema_version: Literal[1]
+    schema_version: Literal[1, 2]
     brdf: Literal["gltf"]
     plan: BakePlanEntry
     lookups: int
@@ -892,6 +916,8 @@ class BakeDocument(Options):
     sh9: Optional[dict[Literal["json", "filament"], Literal[SH9_JSON, SH9_FILAMENT]]] = None
     #: with plan.diffuse_basis sh9: the E_d maps' SH9 coefficients (D x 9 x RGB), finite (they reach generated code)
     diffuse_sh9: Optional[list[list[list[float]]]] = None
+    #: the analytic lights taken out of the maps (schema 2; at most 8)
+    sources: list[BakeSourceEntry] = Field(default_factory=list, max_length=8)
     info: dict = {}
 
 
@@ -917,6 +943,7 @@ def bake_document(bake: Bake, exr: str = "half") -> dict:
         "diffuse_size": s, "nv_size": pl.nv_size, "textures": tex, "exr": exr, "shaders": dict(BAKE_SHADERS),
         "texture_bytes_half": bake.texture_bytes(),
         **({"diffuse_sh9": np.asarray(bake.sh, np.float64).tolist()} if pl.diffuse_basis == "sh9" else {}),
+        "sources": [{"direction": list(src.direction), "power": list(src.power), "radius": src.radius} for src in bake.sources],
         "info": _jsonable(bake.info, bad),
     }
 
@@ -927,14 +954,16 @@ def bake_ktx2_layout(doc: dict, entry: dict) -> dict:
 
     ``P<k>`` is an atlas of cube-layout blocks, one per roughness layer (``layers``: roughness, block size S
     and the block's first texel x, y; a block is (S, 6 S), faces +X -X +Y -Y +Z -Z left to right); ``E<d>``
-    one cube layout (S, 6 S); ``W<t>`` a table with one row per layer and one column per n.v (texel centres
+    one cube layout (S, 6 S); ``sources`` the analytic lights the maps exclude (bake.json's); ``W<t>`` a table with one row per layer and one column per n.v (texel centres
     (i + 0.5) / X), its channels named by ``channels``. Rows are in file order (row 0 read at v = 0), the
     frame is homofac's +z up, the values linear; alpha is 1.
     """
     faces = "faces +X -X +Y -Y +Z -Z left to right (docs/conventions.md cube mapper)"
     common = {"format": "homofac.bake.texture", "texture": entry["name"], "kind": entry["kind"],
               "width": entry["width"], "height": entry["height"], "channels": entry["channels"],
-              "rows": "file order: row 0 is read at v = 0", "frame": "homofac world, +z up", "values": "linear, alpha 1"}
+              "rows": "file order: row 0 is read at v = 0", "frame": "homofac world, +z up", "values": "linear, alpha 1",
+              # the maps exclude these point lights: an engine adds their exact glTF lobes (docs/format.md)
+              "sources": doc.get("sources", [])}
     if entry["kind"] == "prefiltered":
         return {**common, "mapper": "cube", "layout": f"atlas: layer j is an (S, 6 S) cube-layout block at texel (x, y), {faces}",
                 "layer_coordinate": doc["layer_coordinate"],
@@ -1021,7 +1050,8 @@ def load_bake(d, *, max_bytes: int = 1 << 28) -> Bake:
     E = None if sh9 else np.stack([read(t, (s, 6 * s)) for t in by_kind["diffuse"]], axis=2)
     W = np.concatenate([read(t, (pl.layers, doc.nv_size)) for t in by_kind["weights"]], axis=-1)[:, :, :2 * pl.terms + pl.diffuse]
     return Bake(pl, tuple(layer.roughness for layer in doc.layers), tuple(layer.shift for layer in doc.layers), P, E, W,
-                dict(raw.get("info") or {}), sh=None if sh is None else sh.astype(np.float32), blocks=blocks)
+                dict(raw.get("info") or {}), sh=None if sh is None else sh.astype(np.float32), blocks=blocks,
+                sources=tuple(Source(tuple(e.direction), tuple(e.power), e.radius) for e in doc.sources))
 
 
 register_bake_writer(save_bake)

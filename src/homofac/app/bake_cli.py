@@ -34,7 +34,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--debug", action="store_true", help="show tracebacks")
     for name, field in BakeOptions.model_fields.items():
         if field.annotation is bool:
-            p.add_argument(_flag(name), dest=name, default=None, action="store_true", help=field.description)
+            p.add_argument(_flag(name), dest=name, default=None, help=field.description,
+                           action=argparse.BooleanOptionalAction if field.default else "store_true")
             continue
         kind = typing.get_args(field.annotation)
         choices = kind if typing.get_origin(field.annotation) is typing.Literal else None

@@ -30,6 +30,7 @@ import numpy as np
 from ..errors import HomofacError
 from ..io.limits import image_info
 from ..light import Environment, load_environment
+from ..light.resample import from_cube
 from ..light.sh import sh9
 from ..light.sources import BUNDLED, bundled
 from ..options import validate
@@ -39,6 +40,7 @@ from .filter import normalized, prefilter, two_scale
 from .model import Bake, diffuse_sh9
 from .options import BakeOptions
 from .plan import BakePlan, plan as make_plan
+from .sources import Source, brightest_source
 
 #: Roughness from which layers try axis shifts (below it the choice was measured unreliable: forest, fast,
 #: rho 0.156 picked s = 2 alpha and read 0.57 nrmse on I_A where s = 0 reads 0.20; at 0.538 s = alpha: 0.33 -> 0.21).
@@ -97,18 +99,37 @@ def source_size(source) -> int:
 
 
 class _Lights:
-    """The source resampled at each light resolution the bake needs (loaded once per resolution)."""
+    """The source resampled at each light resolution the bake needs (loaded once per resolution); after
+    :meth:`take_source`, the map without its brightest compact source, resampled from the resolution it was
+    found at."""
 
     def __init__(self, source):
         self.source = source
         self.cache: dict[int, Environment] = {}
+        self.strip: np.ndarray | None = None
 
     def __call__(self, resolution: int) -> Environment:
         if isinstance(self.source, Environment):
             return self.source
         if resolution not in self.cache:
-            self.cache[resolution] = load_environment(self.source, resolution)
+            self.cache[resolution] = (load_environment(self.source, resolution) if self.strip is None
+                                      else from_cube(self.strip, resolution, source=str(self.source)))
         return self.cache[resolution]
+
+    def take_source(self, resolution: int) -> tuple[Source | None, float]:
+        """Find the brightest compact source at light ``resolution`` (:func:`~homofac.bake.sources.brightest_source`)
+        and remove it from every resolution served afterwards; ``(source or None, its power share)``."""
+        env = self(resolution)
+        rest, found, share = brightest_source(env)
+        if found is None:
+            return None, share
+        if isinstance(self.source, Environment):
+            self.source = rest
+        else:
+            r = int(env.info["resolution"]) if "resolution" in env.info else resolution
+            self.strip = np.asarray(rest.radiance, np.float32)[: 6 * r * r].reshape(r, 6 * r, 3)
+            self.cache = {resolution: rest}
+        return found, share
 
 
 def texel_radius(env: Environment) -> float:
@@ -247,7 +268,11 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
     max_size = int(opts.max_size or source_size(environment))
     pl = make_plan(opts.preset, max_size=max_size, min_roughness=opts.min_roughness, nv_size=opts.nv_size,
                    diffuse_size=opts.diffuse_size, layers=opts.layers, terms=opts.terms, diffuse_basis=opts.diffuse)
+    original = _Lights(environment)
     lights = _Lights(environment)
+    # the brightest compact source leaves the map before every filter and is shaded as a point light
+    found, share = lights.take_source(max(max_size, opts.data_resolution, MIN_LIGHTS)) if opts.analytic_source else (None, None)
+    sources = (found,) if found is not None else ()
     x = kn.nv_centres(pl.nv_size)
     data_env = lights(opts.data_resolution)
     dirs = fibonacci(opts.samples)
@@ -319,15 +344,16 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
     wd = np.broadcast_to(vd[None], (pl.layers, len(x), pl.diffuse))
     table = np.concatenate([w, wd], axis=-1).astype(np.float32)
     t = time.perf_counter()
-    sh = sh9(lights(opts.data_resolution))
+    sh = sh9(original(opts.data_resolution))  # the environment's irradiance, source included
     timings["sh9_s"] = time.perf_counter() - t
     timings["total_s"] = time.perf_counter() - t0
     info = {"sh9": sh.document(), "source": str(getattr(environment, "info", {}).get("source", environment)) if isinstance(environment, Environment)
             else str(_path(environment)), "options": opts.model_dump(), "sizes": sizes,
-            "data_resolution": int(data_env.info.get("resolution", 0)), "timings": timings}
+            "data_resolution": int(data_env.info.get("resolution", 0)), "timings": timings,
+            "analytic_source": {"share": share, "found": found is not None}}
     blocks = tuple(int(np.argmax(shared)) if shared[j] else j for j in range(pl.layers))
     return Bake(pl, roughness, tuple(shifts), tuple(P), E, table, info,
-                sh=diffuse_sh9(E) if pl.diffuse_basis == "sh9" else None, blocks=blocks)
+                sh=diffuse_sh9(E) if pl.diffuse_basis == "sh9" else None, blocks=blocks, sources=sources)
 
 
 __all__ = ["bake", "compress", "fibonacci", "layer_fit", "layer_size", "sharp", "source_size"]

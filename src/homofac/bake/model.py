@@ -30,6 +30,7 @@ from ..light.sh import SH9_NORM
 from ..param import mappers
 from .atlas import Atlas, pack
 from .plan import BakePlan
+from .sources import Source, source_terms
 
 #: Writers of a bake's directory, registered by :mod:`homofac.output` (a layer above this one).
 _WRITERS: list = []
@@ -50,7 +51,8 @@ class Bake:
     layer's array; empty: every layer its own block); ``roughness`` the layers' roughnesses; ``shift`` each layer's
     axis shift s (P_kj is read at a_j = normalize((1 - s_j) r + s_j n)); ``info`` provenance and timings
     (JSON-friendly); ``sh`` (D, 9, 3) the SH9 coefficients of the E_d maps when the plan's ``diffuse_basis`` is
-    ``sh9`` (then ``E`` is not read and may be None).
+    ``sh9`` (then ``E`` is not read and may be None); ``sources`` the analytic lights taken out of the map
+    (:mod:`.sources`), whose exact glTF lobes the integrals add.
     """
 
     plan: BakePlan
@@ -62,6 +64,7 @@ class Bake:
     info: dict
     sh: Any = None
     blocks: tuple[int, ...] = ()
+    sources: tuple[Source, ...] = ()
 
     # --- structure -------------------------------------------------------------------------------------
     @property
@@ -84,7 +87,17 @@ class Bake:
 
     def describe(self) -> str:
         return (f"{self.plan.describe()}; layers {', '.join(f'{r:.3g}' for r in self.roughness)}; sizes "
-                f"{', '.join(str(int(p.shape[0])) for p in self.P)}; {self.texture_bytes() / 1e6:.2f} MB in half floats")
+                f"{', '.join(str(int(p.shape[0])) for p in self.P)}; {self.texture_bytes() / 1e6:.2f} MB in half floats; "
+                f"analytic source: {self._sources_line()}")
+
+    def _sources_line(self) -> str:
+        """The analytic sources (direction, power, power share, radius) or ``none``, with the share found."""
+        record = (self.info or {}).get("analytic_source", {})
+        share = record.get("share")
+        pct = f"{100 * share:.1f} % of the power" if share is not None else ""
+        if not self.sources:
+            return f"none (brightest compact source {pct})" if pct else ("none (off)" if record else "none")
+        return "; ".join(s.describe() for s in self.sources) + (f", {pct}" if pct else "")
 
     # --- evaluation ------------------------------------------------------------------------------------
     def layer_coordinate(self, roughness) -> Array:
@@ -96,7 +109,7 @@ class Bake:
 
     def terms(self, n: Float[Array, "N 3"], v: Float[Array, "N 3"], roughness) -> Float[Array, "N 3 3"]:
         """``(I_d, I_A, I_B)`` stacked on axis 1 (N, 3, 3): the bake's approximation of
-        :func:`homofac.light.integrals.integrals`."""
+        :func:`homofac.light.integrals.integrals` (the maps' products plus the sources' exact lobes)."""
         n = jnp.asarray(n, jnp.float32)
         v = jnp.asarray(v, jnp.float32)
         rho = jnp.broadcast_to(jnp.asarray(roughness, jnp.float32), n.shape[:1])
@@ -104,10 +117,11 @@ class Bake:
         if sh9 and self.sh is None:
             raise HomofacError("this bake's plan reads the diffuse term from SH9 coefficients, and it has none")
         diffuse = jnp.asarray(self.sh if sh9 else self.E, jnp.float32)
-        return _terms(tuple(jnp.asarray(p, jnp.float32) for p in self.P), diffuse,
+        maps = _terms(tuple(jnp.asarray(p, jnp.float32) for p in self.P), diffuse,
                       jnp.asarray(self.W, jnp.float32), jnp.asarray(self.shift, jnp.float32),
                       self.layer_coordinate(rho), n, v, self.plan.terms,
                       self.plan.diffuse, sh9)
+        return maps + source_terms(self.sources, n, v, rho) if self.sources else maps
 
     def evaluate(self, n, v, base_color, metallic, roughness) -> Float[Array, "N 3"]:
         """L(n, v; c, m, rho) = (1 - m) 0.96 c I_d + f0_eff I_A + I_B (pinned) from the bake's integrals:

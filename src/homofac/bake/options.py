@@ -26,6 +26,9 @@ class BakeOptions(Options):
     diffuse: Literal["texture", "sh9"] = Field(
         "texture", description="the diffuse maps E_d as cube textures (1 lookup each) or as 9 SH coefficients each, "
                                "evaluated in the shader from constants (0 lookups; docs/format.md)")
+    analytic_source: bool = Field(
+        True, description="take the environment's brightest compact source out of the maps and shade it as a point "
+                          "light with the exact glTF lobes (0 lookups; homofac.bake.sources)")
     exr: Literal["half", "float32"] = "half"
     ktx2: bool = Field(False, description="also write each texture as <name>.ktx2 (RGBA half or float, as exr)")
 

@@ -97,6 +97,8 @@ def source(bake: Bake, language: str = "glsl", *, y_up: bool = False, flip_v: bo
     ]
     if sh9:
         lines += [_sh9_function(d, np.asarray(bake.sh)[d]) for d in range(D)]
+    if bake.sources:
+        lines += _source_function(language)
     body = [
         "void homofac_ibl_terms(vec3 n, vec3 v, float roughness, out vec3 I_d, out vec3 I_A, out vec3 I_B) {",
         "#ifdef HOMOFAC_Y_UP",
@@ -129,6 +131,7 @@ def source(bake: Bake, language: str = "glsl", *, y_up: bool = False, flip_v: bo
     for d in range(D):
         read = f"hf_sh9_{d}(n)" if sh9 else f"hf_cube(hf_E{d}, {_f(se)}, n)"
         body.append(f"    I_d += {read} * {chans[2 * K + d]};")
+    body += ["    " + b for b in _source_lines(bake, language, ("I_d", "I_A", "I_B"))]
     body.append("}")
     entry = [
         "vec3 homofac_ibl(vec3 n, vec3 v, vec3 base_color, float metallic, float roughness) {",
@@ -140,6 +143,52 @@ def source(bake: Bake, language: str = "glsl", *, y_up: bool = False, flip_v: bo
     ]
     text = "\n".join(lines + body + entry) + "\n"
     return _to_hlsl(text, bake) if language == "hlsl" else text
+
+
+def _source_function(language: str) -> list[str]:
+    """``hf_source(n, v, x, roughness, l)``: ((1 - s5)/pi, (1 - s5) S, s5 S) (n.l)+ of a point light at unit l
+    (:func:`homofac.bake.sources.source_terms`; x = n.v > 0; sin^2 theta_h from |n x h|^2, no cancellation at
+    the peak). Returned as a vector (d, A, B); the caller multiplies by the light's RGB power."""
+    msl, wgsl = language == "msl", language == "wgsl"
+    v3, ft = ("float3", "float") if msl else (("vec3<f32>", "f32") if wgsl else ("vec3", "float"))
+    f = (lambda x: L.float_literal(float(x), "f")) if msl else _f
+
+    def let(name, t, e):
+        return f"let {name}: {t} = {e};" if wgsl else f"{t} {name} = {e};"
+
+    one, zero = f(1.0), f(0.0)
+    body = [let("nl", ft, "dot(n, l)"), f"if (nl <= {zero}) {{ return {v3}({zero}, {zero}, {zero}); }}",
+            let("h", v3, "normalize(l + v)"), let("c", v3, "cross(n, h)"),
+            let("nh", ft, f"max(dot(n, h), {zero})"), let("vh", ft, f"min(abs(dot(v, h)), {one})"),
+            let("a2", ft, "roughness * roughness * roughness * roughness"),
+            let("q", ft, "a2 * nh * nh + dot(c, c)"), let("dd", ft, f"a2 / ({f(np.pi)} * q * q)"),
+            let("lv", ft, f"{f(0.5)} * (sqrt({one} + a2 * ({one} - x * x) / (x * x)) - {one})"),
+            let("ll", ft, f"{f(0.5)} * (sqrt({one} + a2 * ({one} - nl * nl) / (nl * nl)) - {one})"),
+            let("sv", ft, f"dd / (({one} + ll + lv) * {f(4.0)} * nl * x)"),
+            let("m", ft, f"{one} - vh"), let("s5", ft, "m * m * m * m * m"),
+            f"return {v3}(({one} - s5) / {f(np.pi)}, ({one} - s5) * sv, s5 * sv) * nl;"]
+    params = [("n", v3), ("v", v3), ("x", ft), ("roughness", ft), ("l", v3)]
+    if wgsl:
+        head = f"fn hf_source({', '.join(f'{a}: {t}' for a, t in params)}) -> {v3}"
+    else:
+        head = f"{v3} hf_source({', '.join(f'{t} {a}' for a, t in params)})"
+    return [head + " {  // ((1 - s5)/pi, (1 - s5) S, s5 S) (n.l)+ of a point light at l (exact glTF lobes)",
+            *("    " + b for b in body), "}"]
+
+
+def _source_lines(bake: Bake, language: str, out: tuple[str, str, str]) -> list[str]:
+    """The body lines adding each analytic source's lobes times its RGB power to I_d, I_A, I_B (constants)."""
+    msl, wgsl = language == "msl", language == "wgsl"
+    v3 = "float3" if msl else ("vec3<f32>" if wgsl else "vec3")
+    f = (lambda x: L.float_literal(float(x), "f")) if msl else _f
+    lines = []
+    for i, src in enumerate(bake.sources):
+        d = ", ".join(f(c) for c in src.direction)
+        p = f"{v3}({', '.join(f(c) for c in src.power)})"
+        g = f"hf_source(n, v, x, roughness, {v3}({d}))"
+        lines.append(f"let g{i}: {v3} = {g};" if wgsl else f"{v3} g{i} = {g};")
+        lines += [f"{o} = {o} + g{i}.{c} * {p};" for o, c in zip(out, "xyz")]
+    return lines
 
 
 def _sh9_function(d: int, c) -> str:
@@ -284,6 +333,8 @@ def _metal_or_wgsl(bake: Bake, language: str, *, y_up: bool, flip_v: bool) -> st
             lines += fn(f"hf_layer_P{k}", [("layer", v4), ("d", v3)], v3, layer_body(f"hf_P{k}"))
         for d in range(D):
             lines += fn(f"hf_cube_E{d}", [("s", ft), ("d", v3)], v3, cube_body(f"hf_E{d}"))
+    if bake.sources:
+        lines += _source_function(language)
     nv, vv = ("n", "v") if msl else ("n_in", "v_in")
     body = []
     if msl:
@@ -318,6 +369,7 @@ def _metal_or_wgsl(bake: Bake, language: str, *, y_up: bool, flip_v: bool) -> st
     for d in range(D):
         e = f"hf_cube(hf.hf_E{d}, {f(se)}, n)" if msl else f"hf_cube_E{d}({f(se)}, n)"
         body.append(f"{out[0]} = {out[0]} + {e} * {chans[2 * K + d]};")
+    body += _source_lines(bake, language, out)
     if not msl:
         body.append("return o;")
     if msl:

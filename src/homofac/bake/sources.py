@@ -1,0 +1,118 @@
+"""The environment's brightest compact source, taken out of the map and shaded as an analytic light.
+
+A bake's prefiltered maps blur a sun into every lobe; at low and middle roughness that blur is most of the
+bake's error (docs/notes/bake.md, "Today's bake with the brightest source as an analytic light"). So the bake
+removes the brightest compact source from the lights before every filter and adds it back as a point light
+with the exact glTF lobes (:func:`source_terms`): per source of direction l and RGB power Phi (its radiance
+integral, sum (L - fill) dw),
+
+    I_d += (1 - s5)/pi (n.l)+ Phi,   I_A += (1 - s5) S (n.l)+ Phi,   I_B += s5 S (n.l)+ Phi
+
+(the pinned integrals of I_d, I_A, I_B, docs/format.md, of a delta light), at zero texture fetches.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from ..brdf.gltf import gltf_lobes_at
+from ..light import Environment
+from ..light.environment import LUMINANCE
+from .kernels import _frame, _local
+
+#: Angular radius (rad) of the core taken out: pixels within it of the brightest one. Measured
+#: (benchmarks/bake_sun.py, fast and balanced): 0.15 rad moves city 0.15-0.3 from 1.26x to 0.15x the idealized
+#: split-sum but costs forest (a 5.5-degree sun) below 0.3 (balanced 1.20 -> 1.34x below 0.15); the core only
+#: (0.05 rad) turns forest below 0.15 into a small gain (1.46 -> 1.36x fast) and holds the same compact suns.
+RADIUS = 0.05
+
+#: A pixel of the core is at least 1/RATIO of the brightest one's luminance (bake_sun.py's rule).
+RATIO = 20.0
+
+#: Smallest share of the environment's luminance power a source must hold to be taken out. The bundled
+#: environments' compact sources hold 6-33 % (city's sun 23.7 %, interior's lamp 20.3 %, forest's sun core 6.1 %);
+#: a uniform or smooth sky holds ~0 (its fill equals its core) and is left to the maps.
+MIN_SHARE = 0.03
+
+
+class Source(NamedTuple):
+    """One analytic light: unit ``direction`` (3,), RGB ``power`` (3,) (the radiance integral over the removed
+    texels, W sr-free: radiance x solid angle), angular ``radius`` (rad: the power-weighted RMS angle of the
+    removed texels about the direction; shaded as a point)."""
+
+    direction: tuple[float, float, float]
+    power: tuple[float, float, float]
+    radius: float
+
+    def describe(self) -> str:
+        d, p = self.direction, self.power
+        return (f"direction ({d[0]:.3f}, {d[1]:.3f}, {d[2]:.3f}), power ({p[0]:.4g}, {p[1]:.4g}, {p[2]:.4g}), "
+                f"radius {self.radius:.3g} rad")
+
+
+def brightest_source(env: Environment, radius: float = RADIUS, ratio: float = RATIO,
+                     min_share: float = MIN_SHARE) -> tuple[Environment, Source | None, float]:
+    """``(environment without the source, source or None, its luminance power share)``.
+
+    The rule (benchmarks/bake_sun.py): the brightest light texel seeds the source; the texels within ``radius``
+    rad of it whose luminance is at least 1/``ratio`` of the seed's form its core; they are replaced by the
+    solid-angle weighted mean radiance ("fill") of the ring ``radius``-``2 radius`` around the seed (at least
+    two texels wide), and the
+    removed power sum (L - fill) dw becomes one point light at its power-weighted mean direction. No source
+    (the environment unchanged) when the removed luminance power is below ``min_share`` of the total (a
+    uniform map, a smooth sky) or not positive in every channel."""
+    d = np.asarray(env.directions, np.float64)
+    rad = np.asarray(env.radiance, np.float64)
+    dw = np.asarray(env.solid_angle, np.float64)
+    lum = rad @ np.asarray(LUMINANCE, np.float64)
+    total = float(np.sum(lum * dw))
+    seed = int(np.argmax(lum))
+    cos = d @ d[seed]
+    core = (cos > np.cos(radius)) & (lum >= lum[seed] / ratio)
+    outer = max(2 * radius, radius + 2 * float(np.sqrt(dw.max())))  # at least two texels wide on a coarse map
+    ring = (cos <= np.cos(radius)) & (cos > np.cos(outer))
+    fill = (rad[ring] * dw[ring, None]).sum(0) / max(float(dw[ring].sum()), 1e-300) if ring.any() else np.zeros(3)
+    excess = np.maximum(rad[core] - fill, 0.0) * dw[core, None]  # (C, 3)
+    power = excess.sum(0)
+    share = float(power @ np.asarray(LUMINANCE, np.float64)) / total if total > 0 else 0.0
+    if not (share >= min_share and np.all(power > 0)):
+        return env, None, share
+    weight = excess @ np.asarray(LUMINANCE, np.float64)
+    mean = weight @ d[core]
+    direction = mean / np.linalg.norm(mean)
+    ang = np.arccos(np.clip(d[core] @ direction, -1.0, 1.0))
+    spread = float(np.sqrt(np.sum(weight * ang * ang) / np.sum(weight)))
+    out = rad.copy()
+    out[core] = np.minimum(rad[core], fill)
+    rest = eqx.tree_at(lambda e: e.radiance, env, jnp.asarray(out, jnp.asarray(env.radiance).dtype))
+    src = Source(tuple(float(c) for c in direction), tuple(float(c) for c in power), spread)
+    return rest, src, share
+
+
+def source_terms(sources, n: Float[Array, "N 3"], v: Float[Array, "N 3"], roughness) -> Float[Array, "N 3 3"]:
+    """``(I_d, I_A, I_B)`` (N, 3, 3) of the point lights ``sources`` (a sequence of :class:`Source`) at the
+    pairs: the exact glTF lobes (module docstring) times (n.l)+ times each power; 0 where n.v <= 0."""
+    n = jnp.asarray(n, jnp.float32)
+    v = jnp.asarray(v, jnp.float32)
+    rho = jnp.broadcast_to(jnp.asarray(roughness, jnp.float32), n.shape[:1])
+    out = jnp.zeros(n.shape[:1] + (3, 3), jnp.float32)
+    if not sources:
+        return out
+    t, b = _frame(n)
+    wo = _local(v, t, b, n)
+    for s in sources:  # a handful of lights, not samples
+        wi = _local(jnp.broadcast_to(jnp.asarray(s.direction, jnp.float32), n.shape), t, b, n)
+        above = (wi[2] > 0) & (wo[2] > 0)
+        wi = tuple(jnp.where(above, c, 0.0 if i < 2 else 1.0) for i, c in enumerate(wi))
+        lobes = jnp.stack(gltf_lobes_at(rho, wi, (wo[0], wo[1], jnp.where(above, wo[2], 1.0))), 1)  # (N, 3)
+        lobes = jnp.where(above[:, None], lobes * wi[2][:, None], 0.0)
+        out = out + lobes[:, :, None] * jnp.asarray(s.power, jnp.float32)[None, None, :]
+    return out
+
+
+__all__ = ["MIN_SHARE", "RADIUS", "RATIO", "Source", "brightest_source", "source_terms"]

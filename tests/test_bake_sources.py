@@ -1,0 +1,121 @@
+"""The bake's analytic source: found by the rule of bake/sources.py, taken out of the map, added back as a point
+light with the exact glTF lobes; bake.json schema 2 ``sources`` (schema 1 read as none; bad entries refused)."""
+
+from __future__ import annotations
+
+import json
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import homofac as hf
+from homofac.bake import shader
+from homofac.bake.sources import Source, brightest_source, source_terms
+from homofac.errors import HomofacError
+from homofac.light import Environment
+from homofac.light.integrals import integrals
+from helpers import visible_pairs as pairs
+
+TINY = dict(layers=3, max_size=8, nv_size=8, samples=64, data_resolution=4, diffuse_size=8)
+
+
+def sun_environment(r=16, seed=3):
+    """A uniform 0.1 sky with one texel 1000x brighter: (environment, sun texel index)."""
+    env = hf.light.uniform(0.1, r)
+    i = 6 * r * r // 2 + r // 2 + seed
+    rad = np.asarray(env.radiance).copy()
+    rad[i] = (100.0, 80.0, 60.0)
+    return Environment(env.directions, jnp.asarray(rad), env.solid_angle, env.info, env.corners, env.moments), i
+
+
+def test_the_rule_finds_a_compact_source_and_leaves_a_uniform_map():
+    env, i = sun_environment()
+    rest, src, share = brightest_source(env)
+    dw = float(env.solid_angle[i])
+    np.testing.assert_allclose(src.direction, np.asarray(env.directions[i]), atol=1e-6)
+    np.testing.assert_allclose(src.power, (np.array([100.0, 80.0, 60.0]) - 0.1) * dw, rtol=1e-5)
+    np.testing.assert_allclose(np.asarray(rest.radiance), 0.1, rtol=1e-5)  # the texel is filled with the ring's sky
+    lum = np.array([0.2126, 0.7152, 0.0722])
+    power = np.asarray(src.power) @ lum
+    np.testing.assert_allclose(share, power / (0.1 * 4 * np.pi + power), rtol=1e-4)
+    assert src.radius < 1e-6
+    for flat in (hf.light.uniform(1.0, 8), hf.light.uniform((0.2, 0.5, 1.0), 16)):
+        same, none, s = brightest_source(flat)
+        assert none is None and s < 1e-6 and same is flat
+
+
+def test_source_terms_are_the_integrals_of_a_directional_light(x64):
+    """The point light's (I_d, I_A, I_B) equal the pinned integrals of the same directional light."""
+    ell = np.array([0.3, -0.4, 0.866])
+    ell /= np.linalg.norm(ell)
+    power = (1.5, 1.0, 0.5)
+    env = hf.light.uniform(0.0, 4, lights=[{"type": "directional", "direction": ell.tolist(), "irradiance": list(power)}])
+    n, v = pairs(300, seed=2)
+    for rho in (0.05, 0.3, 0.9):
+        ref = np.asarray(integrals(env, jnp.asarray(n), jnp.asarray(v), rho))
+        got = np.asarray(source_terms((Source(tuple(ell), power, 0.0),), n, v, rho))
+        np.testing.assert_allclose(got, ref, rtol=2e-3, atol=1e-5 * np.abs(ref).max())
+
+
+def test_bake_takes_the_source_out_and_adds_it_back():
+    env, i = sun_environment()
+    with_src = hf.bake(env, preset="fast", **TINY)
+    without = hf.bake(env, preset="fast", analytic_source=False, **TINY)
+    assert len(with_src.sources) == 1 and without.sources == ()
+    assert "analytic source: direction" in with_src.describe() and "analytic source: none" in without.describe()
+    n, v = pairs(400, seed=4)
+    ref = np.asarray(integrals(env, jnp.asarray(n), jnp.asarray(v), 0.2))
+    err = [np.linalg.norm(np.asarray(b.terms(n, v, 0.2))[:, 1] - ref[:, 1]) / np.linalg.norm(ref[:, 1]) for b in (with_src, without)]
+    assert err[0] < 0.5 * err[1]  # a sun in an 8-texel map is the map's error; as a point light it is exact
+    assert hf.bake(hf.light.uniform(1.0, 8), preset="fast", **TINY).sources == ()
+
+
+@pytest.fixture(scope="module")
+def sun_bake():
+    return hf.bake(sun_environment()[0], preset="fast", **TINY)
+
+
+def test_round_trip_and_schema_1_reads_as_no_sources(sun_bake, tmp_path):
+    out = sun_bake.save(tmp_path / "bk")
+    doc = json.loads((out / "bake.json").read_text())
+    assert doc["schema_version"] == 2 and len(doc["sources"]) == 1
+    back = hf.load(out)
+    assert back.sources == sun_bake.sources
+    n, v = pairs(100, seed=8)
+    np.testing.assert_allclose(np.asarray(back.terms(n, v, 0.3)), np.asarray(sun_bake.terms(n, v, 0.3)), rtol=3e-3, atol=1e-4)
+    # a bake written in the previous format (schema 1, no field): the maps alone
+    old = {k: val for k, val in doc.items() if k != "sources"}
+    old["schema_version"] = 1
+    (out / "bake.json").write_text(json.dumps(old))
+    v1 = hf.load(out)
+    assert v1.sources == ()
+    maps = np.asarray(sun_bake.terms(n, v, 0.3)) - np.asarray(source_terms(sun_bake.sources, n, v, 0.3))
+    np.testing.assert_allclose(np.asarray(v1.terms(n, v, 0.3)), maps, rtol=3e-3, atol=1e-4)
+    assert "hf_source" not in shader.source(v1) and "hf_source" in shader.source(sun_bake)
+
+
+@pytest.mark.parametrize("field, value", [
+    ("power", [float("nan"), 1.0, 1.0]), ("power", [1.0, -1.0, 1.0]), ("direction", [1.0, 0.0]),
+    ("direction", [2.0, 0.0, 0.0]), ("radius", -1.0),
+])
+def test_bad_sources_are_refused_in_one_line(sun_bake, tmp_path, field, value):
+    out = sun_bake.save(tmp_path / "bk")
+    doc = json.loads((out / "bake.json").read_text())
+    doc["sources"][0][field] = value
+    (out / "bake.json").write_text(json.dumps(doc).replace("NaN", "1e400"))
+    with pytest.raises(HomofacError) as e:
+        hf.load(out)
+    assert "\n" not in str(e.value) and "sources" in str(e.value)
+
+
+def test_cli_prints_the_source_and_turns_it_off(tmp_path, capsys):
+    from homofac.app import bake_cli
+    flags = ["--preset", "fast", "--layers", "3", "--max-size", "8", "--nv-size", "8", "--samples", "64",
+             "--data-resolution", "4", "--diffuse-size", "8"]
+    assert bake_cli.main(["interior", "--out", str(tmp_path / "a"), *flags]) == 0
+    assert "analytic source: direction" in capsys.readouterr().out
+    assert len(json.loads((tmp_path / "a" / "bake.json").read_text())["sources"]) == 1
+    assert bake_cli.main(["interior", "--out", str(tmp_path / "b"), "--no-analytic-source", *flags]) == 0
+    assert "analytic source: none" in capsys.readouterr().out
+    assert json.loads((tmp_path / "b" / "bake.json").read_text())["sources"] == []
