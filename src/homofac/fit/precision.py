@@ -57,28 +57,30 @@ def exponentiate(x_textures: list, alpha, n_factors: int) -> list:
     return [jnp.exp(x) * s for x in x_textures]
 
 
+@eqx.filter_jit
 def normalize(model: Factorization) -> Factorization:
     """Scale each texture channel to a maximum |value| of 1 over its valid texels and move the scale into
     the corrections of the terms that read it (thesis §4.3, step 7): the evaluated sum is unchanged.
 
     Invalid texels (outside :func:`~homofac.param.mappers.valid_mask`) are filled with their nearest valid
     texel ("dilated"), so a GPU's hardware bilinear filter reads the same values as the pinned lookup.
+    One compiled program per model structure (op by op it compiled a program per operation and shape), and
+    traceable: a library's fits call it under ``vmap``.
     """
-    # on the host: a few small arrays, where jnp calls outside jit would compile a program per op and shape
     data, scale = [], {}
     for t in model.textures:
-        d = np.asarray(t.data)
-        valid = np.asarray(mappers.valid_mask(t.mapper, t.size))[..., None]
-        mx = np.max(np.where(valid, np.abs(d), 0).reshape(-1, d.shape[-1]), axis=0)
-        mx = np.where(mx > 0, mx, 1).astype(d.dtype)
-        data.append(jnp.asarray(mappers.dilate(t.mapper, t.size, d / mx)))
+        d = jnp.asarray(t.data)
+        valid = jnp.asarray(mappers.valid_mask(t.mapper, t.size))[..., None]
+        mx = jnp.max(jnp.where(valid, jnp.abs(d), 0.0).reshape(-1, d.shape[-1]), axis=0)
+        mx = jnp.where(mx > 0, mx, 1.0)
+        data.append(mappers.dilate(t.mapper, t.size, d / mx))
         scale[t.name] = mx
     terms = []
     for term in model.terms:
-        c = np.asarray(term.correction)
+        c = jnp.asarray(term.correction)
         for f in term.factors:
             c = c * scale[f.texture]
-        terms.append(Term(term.factors, jnp.asarray(c), term.kind))
+        terms.append(Term(term.factors, c, term.kind))
     out = model.replace_data(data)
     return eqx.tree_at(lambda m: m.terms, out, tuple(terms))
 
