@@ -40,7 +40,6 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import equinox as eqx
 import numpy as np
 from jaxtyping import Float
 
@@ -100,17 +99,12 @@ def filament_coefficients(c: Float[np.ndarray, "9 3"]) -> Float[np.ndarray, "9 3
     return s
 
 
-#: The exact irradiance as one compiled program (eagerly, its ~70 operations each compiled on a process's first
-#: call: 7.8 s against 2.5 s, the bake's SH9 at 16^2 x 6 lights).
-_exact_irradiance = eqx.filter_jit(exact_irradiance)
-
-
 def sh9_error(c: Float[np.ndarray, "9 3"], env: Environment, size: int = 16) -> dict:
     """SH9's irradiance against the exact one on a cube of face ``size`` (solid-angle weights):
     ``nrmse`` (per channel, then the mean over RGB) and ``max_rel`` (largest |error| / mean exact E)."""
     n = mappers.texel_directions("cube", size).reshape(-1, 3).astype(np.float64)
     w = mappers.texel_solid_angles("cube", size).reshape(-1).astype(np.float64)[:, None]
-    exact = np.asarray(_exact_irradiance(env, n.astype(np.float32)), np.float64)
+    exact = np.asarray(exact_irradiance(env, n.astype(np.float32)), np.float64)
     approx = sh9_basis(n) @ c
     err = approx - exact
     nrmse = np.sqrt((w * err**2).sum(0)) / np.maximum(np.sqrt((w * exact**2).sum(0)), 1e-300)
