@@ -81,7 +81,7 @@ def one(material: str, env: str, method: str, resolution: int, truth_limit: int 
     return {"material": material, "environment": env, "method": method, "wall_s": wall, "cpu_s": cpu,
             "lookups": int(fac.model.lookups), "structure": fac.parametrization,
             "tried": len((fac.selection or {}).get("tried", [])),
-            "screen": (fac.selection or {}).get("screen"), "polish": _polish_note(fac.selection),
+            "race": (fac.selection or {}).get("race"), "polish": _polish_note(fac.selection),
             "nrmse": err["nrmse"], "nrmse_grazing": err["nrmse_grazing"], "nrmse_frontal": err["nrmse_frontal"],
             "fit_validation": float(fac.metrics["validation"]["float"]["nrmse"]),
             "ground_truth_resolution": r_gt, "ground_truth_change": change, "light_resolution": resolution,

@@ -87,3 +87,26 @@ def test_the_structures_of_a_run_compile_one_sweep_program(sun, caplog):
         own = _sweep_compiles(caplog)
     assert shared == 1
     assert own == 2
+
+
+def test_a_fit_continued_from_where_it_stopped_is_the_uninterrupted_fit(sun):
+    """The race's candidates stop after a few sweeps and the leader continues (``sums.begin``, ``advance``,
+    ``finish``): 2 sweeps then 3 more give the textures, objective history and record of 5 sweeps in one
+    call, bit for bit; a stopped fit reads as a fit of its sweeps so far, and no fit runs past its budget."""
+    target, samples = sun
+    opts = LinearOptions(iterations=5, tolerance=0.0)
+    structure = STRUCTURES[0]
+    whole = sums.fit_sum(target, structure, "dual_paraboloid", 8, samples, opts)
+    run = sums.begin(target, structure, "dual_paraboloid", 8, samples, opts)
+    two = sums.advance(run, 2)
+    short = sums.finish(two)
+    assert two.sweeps == 2 and short.solver["iterations"] == 2
+    rest = sums.advance(two, None)
+    assert rest.sweeps == 5 and sums.advance(rest, 3).sweeps == 5
+    cont = sums.finish(rest)
+    np.testing.assert_array_equal(rest.hist[:2], two.hist)
+    assert cont.solver["objective"] == whole.solver["objective"]
+    assert cont.solver["iterations"] == whole.solver["iterations"] == 5
+    for a, b in zip(whole.model.textures, cont.model.textures):
+        np.testing.assert_array_equal(np.asarray(a.data), np.asarray(b.data))
+    assert short.solver["objective"] > cont.solver["objective"]  # the two sweeps' fit is a fit of its own

@@ -9,6 +9,8 @@ build plans that decide it."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import json
 from pathlib import Path
 
@@ -56,7 +58,7 @@ def test_each_preset_is_a_named_lookup_budget_whose_candidates_fit_it(envs):
         budgets.append(p.max_lookups)
         assert p.mode == "choose" and p.preset == name and p.candidates
         assert all(hf.fit.structures.lookups(c, "lighting") <= p.max_lookups for c in p.candidates)
-        assert [v.name for v in p.votes if v.name != "screen"][0] == "structure"
+        assert [v.name for v in p.votes if v.name != "race"][0] == "structure"
         assert str(p).startswith(f"plan: choose (preset {name})") and name in plan.dumps(p)
     assert budgets == [4, 8, 16]
 
@@ -70,7 +72,7 @@ def test_an_override_replaces_the_presets_value_and_nothing_else(envs):
                                                     "highlights": {"disc": False}}})
     assert (less.grid_count, less.validation, less.line_sizes, less.ridge) == (1000, 500, (48,), 0)
     assert less.linear.nv_balance == 0.5 and not less.disc_vote
-    assert [v.name for v in less.votes if v.name != "screen"] == ["structure", "polish"]  # no line vote, no disc vote
+    assert [v.name for v in less.votes if v.name != "race"] == ["structure", "polish"]  # no line vote, no disc vote
     assert less.candidates == best.candidates  # the candidates were not overridden
     assert _plan(t, "best", {"max_lookups": 6}).max_lookups == 6
     fewer = _plan(t, "balanced", {"advanced": {"highlights": {"terms": 0}}})
@@ -316,39 +318,74 @@ def test_split_sum_candidates_only_for_models_with_a_split_sum():
     assert any(c.prefiltered for c in _plan(ct, None, {"max_lookups": 8}, samples_given="r").candidates)
 
 
-def test_the_screen_is_planned_where_the_preset_chooses_by_the_lowest_figure(envs):
-    """A preset that screens fits every candidate short and only its lowest in full; a ``target_error``
-    (the first candidate that meets it) or a linear fit too short to screen plans no screen."""
+def test_the_race_is_planned_where_the_preset_chooses_by_the_lowest_figure(envs):
+    """A preset that races runs every candidate's first sweeps and continues only its lowest; its rounds
+    lie below the linear fit's sweeps and each keeps fewer than it ranks. A ``target_error`` (the first
+    candidate that meets it) or a linear fit too short for a round plans no race."""
     t = _gold(envs["interior"])
+    raced = []
     for name, p in plan.PRESETS.items():
         got = _plan(t, name)
-        assert got.screen == (p.screen if len(got.candidates) > p.screen_keep else 0)
-        assert ("screen" in [v.name for v in got.votes]) == bool(got.screen) == ("screen:" in str(got))
-        if got.screen:
-            assert 0 < got.screen < got.linear.iterations and 1 <= got.screen_keep < len(got.candidates)
-    screened = next(name for name, p in plan.PRESETS.items() if p.screen)
-    assert _plan(t, screened, {"target_error": 0.1}).screen == 0
-    assert _plan(t, screened, {"advanced": {"linear": {"iterations": 2}}}).screen == 0
+        assert ("race" in [v.name for v in got.votes]) == bool(got.race) == ("race:" in str(got))
+        assert got.to_dict()["race"]["sweeps"] == list(got.race)
+        left = len(got.candidates)
+        for sweeps, keep in zip(got.race, got.race_keep):
+            assert 0 < sweeps < got.linear.iterations and 1 <= keep < left
+            left = keep
+        if got.race:
+            raced.append(name)
+            assert _plan(t, name, {"target_error": 0.1}).race == ()
+            assert _plan(t, name, {"advanced": {"linear": {"iterations": 2}}}).race == ()
+    assert raced
+    assert plan.race_of(plan.Preset(4, 1, 1, 0, False, False, 0.0, 0, 0, False, race=(2, 5), race_keep=(3, 1)),
+                        hf.fit.options.LinearOptions(iterations=30), 3) == ((5,), (1,))  # keeping 3 of 3 is no round
+
+
+def test_the_race_continues_the_lowest_and_those_within_its_margin_round_by_round():
+    """``pipeline._race`` on candidates whose figure after k sweeps is given: each round brings the ones
+    still in to its sweeps (never back), keeps the lowest and those within the margin, at most its keep,
+    in the candidates' order; the record holds every round's labels, figures, sweeps run and kept."""
+    figures = {"A": {3: 0.30, 8: 0.25}, "B": {3: 0.20, 8: 0.19}, "C": {3: 0.21, 8: 0.185}, "D": {3: 0.50}}
+    cands = [Structure.parse(f"NROW x{k}") for k in (1, 2, 3, 4)]
+    name = dict(zip(cands, "ABCD"))
+    calls = []
+
+    def to(structure, sweeps):
+        calls.append((name[structure], sweeps))
+        f = figures[name[structure]][sweeps]
+        return hf.fit.Result(None, solver={"iterations": sweeps - (name[structure] == "B")},
+                             metrics={"validation": {"float": {"nrmse": f}}})
+
+    kept, note = hf.fit.pipeline._race(cands, to, (3, 8), (3, 1), 0.1, None, lambda m: None)
+    assert calls == [("A", 3), ("B", 3), ("C", 3), ("D", 3), ("B", 8), ("C", 8)]  # A (0.30 > 0.22) and D out
+    assert kept == [cands[2]] and note["kept"] == [cands[2].label()]
+    first, second = note["rounds"]
+    assert first["kept"] == [cands[1].label(), cands[2].label()] and first["validation_nrmse"] == [0.3, 0.2, 0.21, 0.5]
+    assert first["ran"] == [3, 2, 3, 3] and second["sweeps"] == 8 and second["labels"] == first["kept"]
 
 
 @pytest.mark.slow
-def test_the_screen_fits_in_full_only_the_candidates_it_keeps():
-    """On a tiny fit (a screening preset held to 4 lookups: 3 candidates): every candidate's short-fit
-    figure is recorded, the lowest is among those fitted in full, and the structure vote reads only those."""
-    env = hf.light.load_environment("forest", 4)
-    t = _gold(env)
-    name = next(n for n, p in plan.PRESETS.items() if p.screen)
+def test_the_race_keeps_the_structure_that_full_fits_of_every_candidate_keep():
+    """On a tiny fit of a racing preset held to 4 lookups (3 candidates) whose full fits differ clearly (by
+    more than 10 %): the race keeps the lowest of the full fits, continued from the race to the same fit,
+    records every candidate's figure after its first round, and the structure vote reads only those it kept."""
+    t = _gold(hf.light.load_environment("forest", 4))
+    name = next(n for n, p in plan.PRESETS.items() if p.race)
     kw = {"texture_size": 8, "max_lookups": 4, "sampling": {"count": 6000, "validation": 600},
-          "advanced": {"linear": {"polish": 0}}}
-    p = _plan(t, name, kw)
-    assert p.screen
-    fac = hf.fit.factorize(t, preset=name, **kw)
-    scr = fac.selection["screen"]
-    assert scr["labels"] == [c.label() for c in p.candidates] and scr["sweeps"] == p.screen
-    lowest = scr["labels"][min(range(len(scr["labels"])), key=lambda i: scr["validation_nrmse"][i])]
-    assert lowest in scr["kept"] and 1 <= len(scr["kept"]) <= p.screen_keep
-    assert [r["label"] for r in fac.selection["tried"]] == scr["kept"]
-    assert fac.parametrization in scr["kept"]
+          "advanced": {"linear": {"polish": 0}, "validation_light": 4}}
+    p = plan.build_plan(t, name, kw)
+    assert p.race
+    full = hf.fit.execute(dataclasses.replace(p, race=(), race_keep=()), t)  # every candidate fitted in full
+    assert "race" not in full.selection
+    errs = sorted(r["validation_nrmse"] for r in full.selection["tried"])
+    assert errs[1] > 1.1 * errs[0]
+    fac = hf.fit.execute(p, t)
+    assert fac.parametrization == full.parametrization
+    assert fac.metrics["validation"]["float"]["nrmse"] == pytest.approx(
+        full.metrics["validation"]["float"]["nrmse"], rel=1e-5)
+    rec = fac.selection["race"]
+    assert rec["rounds"][0]["labels"] == [c.label() for c in p.candidates]
+    assert [r["label"] for r in fac.selection["tried"]] == rec["kept"]
 
 
 def test_the_polish_trial_pairs_are_every_kth_view_of_the_polish_pairs_with_the_same_values(envs):

@@ -284,9 +284,18 @@ def _sums(target: Target, the_plan: Plan, samples: Samples, record: dict, sample
     # every candidate's ALS in one set of term slots: one compiled sweep per sample count, not per structure
     slots = sums.als_slots(target, the_plan.candidates, mapper, opts.texture_size, sizes[0])
 
+    running: dict = {}  # structure -> its fit under way (the race's candidates still in it)
+
+    def start(structure: Structure) -> sums.Running:
+        tgt, smp, _ = pool(structure)
+        return sums.begin(tgt, structure, mapper, opts.texture_size, smp, lin, log, line_size=sizes[0], slots=slots)
+
     def fit(structure: Structure, line: int = sizes[0]) -> Result:
         tgt, smp, _ = pool(structure)
-        sf = sums.fit_sum(tgt, structure, mapper, opts.texture_size, smp, lin, log, line_size=line, slots=slots)
+        if line == sizes[0] and structure in running:  # a candidate of the race continues from where it stopped
+            sf = sums.finish(sums.advance(running.pop(structure), None, log))
+        else:
+            sf = sums.fit_sum(tgt, structure, mapper, opts.texture_size, smp, lin, log, line_size=line, slots=slots)
         if lin.polish > 0:
             sf = polish.polish(tgt, structure, mapper, opts.texture_size, sf, smp, pairs(), lin, log,
                                seed=opts.sampling.seed)
@@ -337,24 +346,21 @@ def _sums(target: Target, the_plan: Plan, samples: Samples, record: dict, sample
         log(f"validation: {len(rv.pairs.a)} ridge pairs stand in for the {int(rv.inside.sum())} validation pairs on "
             f"the ridges of the {len(rv.lights)} brightest lights")
     score = None if rv is None else (lambda res: polish.ridge_nrmse(res, samples, rv))
-    cands, screened = list(the_plan.candidates), None
-    if the_plan.screen:  # a short fit of every candidate; the plan's lowest fitted in full
+    cands, raced = list(the_plan.candidates), None
+    if the_plan.race:  # every candidate's first sweeps; the plan's lowest continue (fit() picks them up)
 
-        def short(structure: Structure) -> Result:
-            tgt, smp, _ = pool(structure)
-            k = the_plan.screen_stride
-            smp = smp._replace(a=smp.a[::k], b=smp.b[::k], y=smp.y[::k])
-            slin = lin.model_copy(update={"iterations": the_plan.screen})
-            return as_result(structure, sums.fit_sum(tgt, structure, mapper, opts.texture_size, smp, slin, log,
-                                                     line_size=sizes[0], slots=slots))
+        def to(structure: Structure, sweeps: int) -> Result:
+            run = running[structure] if structure in running else start(structure)
+            running[structure] = sums.advance(run, sweeps - run.sweeps, log)
+            return as_result(structure, sums.finish(running[structure]))
 
-        cands, screened = _screen(cands, short, the_plan.screen, the_plan.screen_keep, the_plan.screen_margin,
-                                  score, log)
-        screened["stride"] = the_plan.screen_stride
+        cands, raced = _race(cands, to, the_plan.race, the_plan.race_keep, the_plan.race_margin, score, log)
+        for structure in [s for s in running if s not in cands]:
+            del running[structure]
     result = sums.choose(fit, cands, target_error=opts.target_error,
                          max_lookups=the_plan.max_lookups, log=log, score=score)
-    if screened is not None:
-        result = result.replace(selection={**result.selection, "screen": screened})
+    if raced is not None:
+        result = result.replace(selection={**result.selection, "race": raced})
     structure = Structure.of(result.solver["structure"])
     line = sizes[0]  # the kept fit's line size (fits[structure, line] is its SumFit)
     if len(sizes) > 1 and any(t.mapper == "line" for t in result.model.textures):
@@ -385,23 +391,30 @@ def _sums(target: Target, the_plan: Plan, samples: Samples, record: dict, sample
     return kept(result if analysis is None else result.replace(analysis=analysis))
 
 
-def _screen(candidates: list[Structure], short: Callable[[Structure], Result], sweeps: int, keep: int,
-            margin: float, score: Callable | None, log) -> tuple[list[Structure], dict]:
-    """The plan's screen: each of ``candidates`` fitted by ``short`` (``sweeps`` ALS sweeps) and ranked on
-    the figure the votes read (``score``'s where given); the lowest and the next ones whose figure is within
-    ``margin`` (relative) of it, at most ``keep``, in the candidates' order (cheapest first), with the
-    record ``selection.screen`` (the sweeps, each candidate's figure, the kept labels)."""
-    tried = [short(c) for c in candidates]
-    plain, errs, what = _vote_errors(tried, score)
-    order = np.argsort(errs, kind="stable")
-    best = errs[order[0]]
-    chosen = {int(k) for k in order[:max(1, keep)] if errs[k] <= best * (1.0 + margin)}
-    kept = [c for i, c in enumerate(candidates) if i in chosen]
-    log(f"screen ({sweeps} ALS sweeps): {what} " + ", ".join(f"{c.label()} {e:.4g}" for c, e in zip(candidates, errs))
-        + "; fitted in full: " + ", ".join(c.label() for c in kept))
-    note = {"sweeps": int(sweeps), "labels": [c.label() for c in candidates], "validation_nrmse": plain,
-            **({} if score is None else {sums.RIDGE_METRIC: errs}), "kept": [c.label() for c in kept]}
-    return kept, note
+def _race(candidates: list[Structure], to: Callable[[Structure, int], Result], rounds: tuple[int, ...],
+          keep: tuple[int, ...], margin: float, score: Callable | None, log) -> tuple[list[Structure], dict]:
+    """The plan's race: at each round ``rounds[j]`` (ALS sweeps), every candidate still in is brought to that
+    many sweeps by ``to`` (continuing its own fit) and ranked on the figure the votes read (``score``'s where
+    given); the lowest and the next ones whose figure is within ``margin`` (relative) of it, at most
+    ``keep[j]``, stay in, in the candidates' order (cheapest first). Returns those and the record
+    ``selection.race``: per round its sweeps, the labels in it, their figures, the sweeps each actually ran
+    (a fit that converged stops early) and the labels kept."""
+    left, note = list(candidates), {"rounds": []}
+    for sweeps, k in zip(rounds, keep):
+        tried = [to(c, sweeps) for c in left]
+        plain, errs, what = _vote_errors(tried, score)
+        order = np.argsort(errs, kind="stable")
+        best = errs[order[0]]
+        chosen = {int(i) for i in order[:max(1, k)] if errs[i] <= best * (1.0 + margin)}
+        kept = [c for i, c in enumerate(left) if i in chosen]
+        log(f"race ({sweeps} ALS sweeps): {what} " + ", ".join(f"{c.label()} {e:.4g}" for c, e in zip(left, errs))
+            + "; continue: " + ", ".join(c.label() for c in kept))
+        note["rounds"].append({"sweeps": int(sweeps), "labels": [c.label() for c in left], "validation_nrmse": plain,
+                               **({} if score is None else {sums.RIDGE_METRIC: errs}),
+                               "ran": [int(r.solver["iterations"]) for r in tried], "kept": [c.label() for c in kept]})
+        left = kept
+    note["kept"] = [c.label() for c in left]
+    return left, note
 
 
 def _figures(res: Result, score: Callable | None) -> dict:

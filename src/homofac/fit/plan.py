@@ -48,10 +48,11 @@ class Preset(NamedTuple):
     (:func:`~homofac.fit.draw.grid_projection`) whose candidates a lighting fit tries (empty: all);
     ``polish_trial``: steps of a short polish (no ridge pairs) run first, the polish running only where it
     lowers the validation figure (0: no trial); ``trial_stride``: the trial fits every k-th grid pair and
-    every k-th view of the polish's off-grid pairs (only those evaluated); ``screen``: ALS sweeps of a short fit of every candidate
-    that ranks them on the validation figure, only the lowest ones then fitted in full (0: every candidate
-    fitted in full); ``screen_keep``: at most that many fitted in full, the lowest and those within
-    ``screen_margin`` (relative) of it; ``screen_stride``: the screen fits every k-th training pair."""
+    every k-th view of the polish's off-grid pairs (only those evaluated); ``race``: the ALS sweep counts
+    (increasing) after which the candidates still in the race are ranked on the validation figure (every
+    candidate runs its first sweeps on the training pairs with the programs of its full fit; after each
+    round only the lowest and those within ``race_margin`` (relative) of it, at most ``race_keep`` of the
+    round, continue from where they stopped; empty: every candidate fitted in full)."""
 
     lookups: int
     grid_count: int
@@ -66,10 +67,9 @@ class Preset(NamedTuple):
     directions: tuple[str, ...] = ()
     polish_trial: int = 0
     trial_stride: int = 1
-    screen: int = 0
-    screen_keep: int = 1
-    screen_margin: float = 0.0
-    screen_stride: int = 1
+    race: tuple[int, ...] = ()
+    race_keep: tuple[int, ...] = ()
+    race_margin: float = 0.0
 
 
 #: The grid directions of the presets' candidates: the off-specular reflection ``r_off`` only. On the
@@ -79,12 +79,8 @@ class Preset(NamedTuple):
 PRESET_DIRECTIONS = ("r_off",)
 
 
-#: The screen of ``balanced`` and ``best`` (:class:`Preset`): every candidate fitted with 10 ALS sweeps on
-#: every 4th grid pair, the lowest and those within 3 % of it (at most 2) then fitted in full. Gold / forest
-#: at 8 lookups: 192 s CPU against 348-374 s for the 9 full fits, the kept structure 0.4 % above the full
-#: fits' lowest on the validation pairs (docs/notes/speed.md). ``fast`` has no screen: of its 3 candidates
-#: the screen kept 2, and its own programs (another pair count) cost more than the one full fit it saved.
-SCREEN = {"screen": 10, "screen_keep": 2, "screen_margin": 0.03, "screen_stride": 4}
+#: The race of the presets (:class:`Preset`, provisional: decided in docs/notes/speed.md, "The race").
+RACE = {"race": (3,), "race_keep": (1,), "race_margin": 0.05}
 
 #: ``fast`` has no polish: on the accuracy benchmark's four speed cases its 2-step trial lowered the figure on
 #: one (mirror / studio, 0.3514 unpolished against 0.3454 polished on the converged truth, +1.7 %), and the
@@ -99,13 +95,14 @@ TRIAL_STRIDE = 4
 #: 32 / 4 x texture_size, tables, the disc vote, the plain objective and 20 000 ridge pairs.
 PRESETS: dict[str, Preset] = {
     "fast": Preset(lookups=4, grid_count=GRID_COUNT, validation=DEFAULT_VALIDATION, line_ratio=0, table=False,
-                   disc_vote=False, nv_balance=1.0, polish=0, ridge=0, analysis=False, directions=PRESET_DIRECTIONS),
+                   disc_vote=False, nv_balance=1.0, polish=0, ridge=0, analysis=False, directions=PRESET_DIRECTIONS,
+                   **RACE),
     "balanced": Preset(lookups=8, grid_count=GRID_COUNT, validation=DEFAULT_VALIDATION, line_ratio=0, table=False,
                        disc_vote=False, nv_balance=1.0, polish=8, ridge=0, analysis=False,
-                       directions=PRESET_DIRECTIONS, polish_trial=2, trial_stride=TRIAL_STRIDE, **SCREEN),
+                       directions=PRESET_DIRECTIONS, polish_trial=2, trial_stride=TRIAL_STRIDE, **RACE),
     "best": Preset(lookups=16, grid_count=600_000, validation=80_000, line_ratio=4, table=True, disc_vote=True,
                    nv_balance=0.0, polish=8, ridge=20_000, analysis=False, directions=PRESET_DIRECTIONS,
-                   **SCREEN),
+                   **RACE),
 }
 
 #: The lookup budget of ``target_error`` with sum keys but no ``max_lookups``.
@@ -148,10 +145,9 @@ class Plan:
     polish: int  # steps of the kept structure's polish (0: none, or every candidate polished by linear.polish)
     polish_trial: int  # steps of the short polish that decides whether the polish runs (0: it runs)
     polish_trial_stride: int  # ... fitted on every k-th grid pair and polish pair
-    screen: int  # ALS sweeps of the screening fit of every candidate (0: no screen, each fitted in full)
-    screen_keep: int  # at most this many screened candidates fitted in full
-    screen_margin: float  # ... the lowest and those within this relative margin of its figure
-    screen_stride: int  # the screen fits every k-th training pair
+    race: tuple[int, ...]  # ALS sweeps after which the candidates still in are ranked (empty: no race)
+    race_keep: tuple[int, ...]  # at most this many continue after each round
+    race_margin: float  # ... the lowest and those within this relative margin of its figure
     ridge: int
     line_sizes: tuple[int, ...]
     disc_vote: bool
@@ -171,8 +167,7 @@ class Plan:
                 "linear": None if self.linear is None else self.linear.model_dump(),
                 "polish": self.polish, "polish_trial": self.polish_trial,
                 "polish_trial_stride": self.polish_trial_stride, "ridge": self.ridge,
-                "screen": {"sweeps": self.screen, "keep": self.screen_keep, "margin": self.screen_margin,
-                           "stride": self.screen_stride},
+                "race": {"sweeps": list(self.race), "keep": list(self.race_keep), "margin": self.race_margin},
                 "line_sizes": list(self.line_sizes),
                 "disc_vote": self.disc_vote, "analysis": self.analysis,
                 "votes": [dataclasses.asdict(v) for v in self.votes]}
@@ -195,12 +190,8 @@ class Plan:
         elif self.candidates:
             lines.append(f"  candidates ({len(self.candidates)}):")
             lines += [f"    {c.label()} ({c.describe()})" for c in self.candidates]
-        if self.screen:
-            lines.append(f"  screen: every candidate {self.screen} ALS sweeps"
-                         + (f" on every {self.screen_stride}th training pair" if self.screen_stride > 1 else "")
-                         + "; fitted in full: the lowest validation "
-                         f"figure" + (f" and those within {100 * self.screen_margin:g} % of it (at most "
-                                      f"{self.screen_keep})" if self.screen_keep > 1 else ""))
+        if self.race:
+            lines.append("  race: " + describe_race(self.race, self.race_keep, self.race_margin))
         if self.linear is not None:
             lin = self.linear
             lines.append(f"  linear fit: {lin.method}, {lin.iterations} iterations, laplacian {lin.laplacian:g}, "
@@ -216,10 +207,33 @@ class Plan:
         if self.analysis:
             lines.append("  records Mahajan's in-out analysis")
         for v in self.votes:
-            choices = ("the candidates" + (" the screen keeps" if v.name == "structure" and self.screen else "")
-                       if v.name in ("structure", "screen") else " | ".join(v.choices))
+            choices = ("the candidates" + (" the race keeps" if v.name == "structure" and self.race else "")
+                       if v.name in ("structure", "race") else " | ".join(v.choices))
             lines.append(f"  vote {v.name}: {choices}; reads {v.reads}")
         return "\n".join(lines)
+
+
+def race_of(p: Preset | None, lin: LinearOptions | None, candidates: int) -> tuple[tuple[int, ...], tuple[int, ...]]:
+    """The rounds of the race (sweep counts, at most how many continue after each) of preset ``p`` for
+    ``candidates`` candidates fitted with ``lin``: the preset's rounds below ``linear.iterations`` whose
+    keep is below the candidates still in (a round that would keep every one is no round); none without
+    a preset (or where the caller passes None: a target_error, a polish of every candidate, no ALS fit)."""
+    if p is None or lin is None:
+        return (), ()
+    rounds, keep, left = [], [], candidates
+    for sweeps, k in zip(p.race, p.race_keep):
+        if 0 < sweeps < lin.iterations and k < left and (not rounds or sweeps > rounds[-1]):
+            rounds.append(int(sweeps))
+            keep.append(int(k))
+            left = k
+    return tuple(rounds), tuple(keep)
+
+
+def describe_race(race: tuple[int, ...], keep: tuple[int, ...], margin: float) -> str:
+    """The race in words (``--plan``): after each round's sweeps, who continues."""
+    return "; ".join(f"after {n} ALS sweeps the lowest validation figure"
+                     + (f" and those within {100 * margin:g} % of it (at most {k})" if k > 1 else "")
+                     + " continue" for n, k in zip(race, keep)) + " (from where they stopped)"
 
 
 def preset_of(opts: FitOptions) -> str | None:
@@ -374,9 +388,9 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
         elif p is not None and p.directions and target.kind == "lighting":
             found = [c for c in found if grid_projection(target.kind, c.parametrization, grid) in p.directions] or found
         cands = tuple(found)
-    # the screen: a short ALS fit of every candidate ranks them; only the lowest are fitted in full
-    screen = (p.screen if choosing and p is not None and opts.target_error is None and als_fit and not lin.polish
-              and 0 < p.screen < lin.iterations and len(cands) > p.screen_keep else 0)
+    # the race: every candidate's first ALS sweeps rank them; only the lowest continue to the full fit
+    race, race_keep = race_of(p if choosing and opts.target_error is None and als_fit and not lin.polish else None,
+                              lin, len(cands))
     sizes = line_sizes(opts) if opts.is_sum else ()
     disc = bool(choosing and p is not None and p.disc_vote and hl.disc is None
                 and any(c.highlights.terms for c in cands))
@@ -384,11 +398,9 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
         figure = _vote_figure(ridge)
         rule = (f"the first whose figure meets target_error {opts.target_error:g}" if opts.target_error is not None
                 else "the lowest")
-        if screen:
-            votes.append(Vote("screen", tuple(c.label() for c in cands),
-                              f"{figure} after {screen} ALS sweeps (the lowest"
-                              + (f" and those within {100 * p.screen_margin:g} %, at most {p.screen_keep}"
-                                 if p.screen_keep > 1 else "") + ", fitted in full)"))
+        if race:
+            votes.append(Vote("race", tuple(c.label() for c in cands),
+                              f"{figure} after each round of ALS sweeps ({describe_race(race, race_keep, p.race_margin)})"))
         votes.append(Vote("structure", tuple(c.label() for c in cands), f"{figure} ({rule})"))
         if len(sizes) > 1:
             votes.append(Vote("lines", tuple(f"{n} texels" for n in sizes), figure + " of the kept structure"))
@@ -410,9 +422,7 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
                 light_resolution=int(res) if res else None, validation_light=vlight, max_lookups=budget if choosing else None,
                 candidates=cands, linear=lin, polish=int(steps or 0), polish_trial=int(trial),
                 polish_trial_stride=int(p.trial_stride) if trial else 1, ridge=int(ridge or 0),
-                screen=int(screen), screen_keep=int(p.screen_keep) if screen else 0,
-                screen_margin=float(p.screen_margin) if screen else 0.0,
-                screen_stride=int(p.screen_stride) if screen else 1,
+                race=race, race_keep=race_keep, race_margin=float(p.race_margin) if race else 0.0,
                 line_sizes=sizes,
                 disc_vote=disc, analysis=bool(choosing and target.kind == "lighting"
                                               and (p.analysis if p else True) or opts.advanced.analysis is not None),
@@ -435,5 +445,5 @@ def dumps(plan: Plan) -> str:
     return json.dumps(plan.to_dict(), indent=2)
 
 
-__all__ = ["constrained", "DEFAULT_MAX_LOOKUPS", "PRESET_DIRECTIONS", "PRESETS", "Plan", "Preset", "RIDGE_NEEDS_POLISH", "Vote", "budget_of",
+__all__ = ["constrained", "DEFAULT_MAX_LOOKUPS", "PRESET_DIRECTIONS", "PRESETS", "Plan", "Preset", "RIDGE_NEEDS_POLISH", "Vote", "budget_of", "describe_race", "race_of",
            "build_plan", "dumps", "grid_count", "line_sizes", "preset_of", "validation_count", "validation_light"]

@@ -346,28 +346,36 @@ def split_sum_possible(target, structure) -> bool:
 # the fit
 
 
-def fit_sum(target: Target, structure: Structure, mapper: str, size: int, samples: Samples,
-            options: LinearOptions | None = None, log: Callable[[str], None] | None = None,
-            previous: Factorization | None = None, line_size: int = LINE_SIZE,
-            sample_weights: np.ndarray | None = None, chunk: int = 0, slots: als.Slots | None = None) -> SumFit:
-    """Fit ``structure`` to the training samples in linear space (see the module docstring).
+class Running(NamedTuple):
+    """A sum's fit under way (:func:`begin`, :func:`advance`, :func:`finish`): the ALS state in its slots after
+    the sweeps run so far, so that a fit can stop after a few sweeps (the candidates' race,
+    :func:`homofac.fit.pipeline.execute`) and continue later from where it stopped, with the same compiled
+    sweep: ``advance(advance(r, k), m)`` is ``advance(r, k + m)``, sweep for sweep. A fit that is not ALS
+    (Levenberg-Marquardt) is finished at :func:`begin` (``state`` None, ``done`` its :class:`SumFit`)."""
 
-    ``sample_weights``: a weight per training sample (the polish's ridge pairs, :mod:`homofac.fit.ridge`),
-    times the ``nv_balance`` weights, scaled to mean 1.
+    structure: Structure
+    state: als.Padded | None  # the padded ALS state (None: finished at begin)
+    hist: np.ndarray  # the data objective after each sweep run so far
+    converged: bool  # a sweep lowered the objective by less than ``tolerance`` of it: no further sweep runs
+    budget: int  # sweeps of the whole fit (``linear.iterations``)
+    tolerance: float
+    lam: float
+    done: Callable  # (state, sweeps run, converged, hist, solve_s) -> SumFit: the model of a state
+    solve_s: float = 0.0  # seconds of the sweeps run so far
 
-    ``line_size``: texels of the ``line`` textures (w(n.v), the highlight lines;
-    :func:`homofac.fit.plan.line_sizes`).
+    @property
+    def sweeps(self) -> int:
+        """Sweeps run so far."""
+        return len(self.hist)
 
-    ``previous``: a model of the same structure (a refit, :mod:`homofac.fit.refit`): the fitted textures
-    start from its texels (:func:`warm_start`) instead of step 2's start.
 
-    ``chunk``: Levenberg-Marquardt steps per compiled call (:func:`homofac.fit.refine.solve`; 0: one call).
-
-    ``slots``: the ALS term slots to pad the structure's terms into (a group with fewer slots than the
-    structure has terms: its own count; :func:`als_slots` of every structure a run fits on these samples):
-    fits in the same slots share one compiled sweep; the same fit as without, to float rounding (default:
-    the structure's own).
-    """
+def begin(target: Target, structure: Structure, mapper: str, size: int, samples: Samples,
+          options: LinearOptions | None = None, log: Callable[[str], None] | None = None,
+          previous: Factorization | None = None, line_size: int = LINE_SIZE,
+          sample_weights: np.ndarray | None = None, chunk: int = 0, slots: als.Slots | None = None) -> Running:
+    """Steps 1-2 of :func:`fit_sum` (fixed terms, start; for highlight terms their own start) and no sweep
+    of the ALS yet: a :class:`Running` fit that :func:`advance` continues and :func:`finish` reads. The
+    arguments are :func:`fit_sum`'s."""
     log = log or (lambda msg: None)
     opts = (options or LinearOptions()).resolved()
     if opts.nv_balance > 0 and target.kind != "lighting":
@@ -392,9 +400,12 @@ def fit_sum(target: Target, structure: Structure, mapper: str, size: int, sample
         raise HomofacError(f"{POLISH_NEEDS_GRID}, not {method}")
     if method == "als" and structure.highlights.table:  # the ALS fits the lines; the table is their product
         prev = None if previous is None else table.separate(previous, line_size)
-        sf = fit_sum(target, lined(structure), mapper, size, samples, opts, log, previous=prev, line_size=line_size,
-                     sample_weights=sample_weights, slots=slots)
-        return tabulated(sf, structure, sum(lay.n_valid for lay in layouts.values()))
+        run = begin(target, lined(structure), mapper, size, samples, opts, log, previous=prev, line_size=line_size,
+                    sample_weights=sample_weights, slots=slots)
+        n_unknowns = sum(lay.n_valid for lay in layouts.values())
+        inner = run.done
+        return run._replace(structure=structure,
+                            done=lambda *args: tabulated(inner(*args), structure, n_unknowns))
     fixed_specs = [s for s in specs if s.role in FIXED_ROLES]
     fixed_data = {s.name: _fixed_texture(s, target) for s in fixed_specs}
     fixed_terms = [t for t in terms if not t.fitted]
@@ -409,39 +420,94 @@ def fit_sum(target: Target, structure: Structure, mapper: str, size: int, sample
         x0, rule = warm_start(previous, terms, layouts, sigma), "previous"
     else:
         x0, rule = start(target, structure, terms, layouts, samples, y_fit, sigma, opts.start, mapper, size, log)
-    assemble_s = time.perf_counter() - t0
     fitted_terms = [t for t in terms if t.fitted]
     log(f"fitting {structure.label()} in linear space with {method} ({sum(l.n_valid for l in layouts.values())} "
         f"unknowns x 3 channels, {len(a)} samples, start {rule})")
-    t1 = time.perf_counter()
     weights = nv_weights(a, b, y, NV_BINS, opts.nv_balance)
     if sample_weights is not None:
         weights = np.asarray(weights, np.float64) * np.asarray(sample_weights, np.float64)
         weights = (weights / np.mean(weights)).astype(np.float32)
-    if method == "als":
-        X, steps, converged, hist = _fit_als(structure, specs, fitted_terms, layouts, x0, grid, a, b, y_fit / sigma, opts,
-                                             weights, target.context, log, slots)
-        backend = "homofac"
-    else:
+    n_unknowns = int(sum(l.n_valid for l in layouts.values()))
+
+    def done(X, steps, converged, hist, backend, solve_s) -> SumFit:
+        bad = [n for n, x in X.items() if not np.all(np.isfinite(x))]
+        if bad:
+            raise HomofacError(f"the linear-space fit produced non-finite texels in {', '.join(bad)}; "
+                               "try a larger linear.laplacian")
+        model = _model(target, structure, specs, terms, fixed_data, {n: X[n] for n in X}, sigma=sigma, layouts=layouts)
+        warnings = [] if converged or method == "als" else [
+            f"linear {method} stopped after {steps} steps without meeting its tolerance"]
+        record = {
+            "method": method, "backend": backend, "iterations": int(steps), "converged": bool(converged),
+            "start": rule, "laplacian": float(opts.laplacian), "nv_balance": float(opts.nv_balance),
+            "structure": structure.record(),
+            "lookups": int(model.lookups), "objective": float(hist[-1]) if len(hist) else None,
+            "objective_start": float(hist[0]) if len(hist) else None, "sigma": [float(s) for s in sigma],
+        }
+        return SumFit(model, record, assemble_s, solve_s, tuple(warnings), n_unknowns)
+
+    if method != "als":
+        assemble_s = time.perf_counter() - t0
+        t1 = time.perf_counter()
         X, steps, converged, hist = _fit_lm(target, fitted_specs, fitted_terms, layouts, x0, a, b, y_fit / sigma, opts,
                                             method, weights, chunk)
-        backend = opts.backend
-    solve_s = time.perf_counter() - t1
-    bad = [n for n, x in X.items() if not np.all(np.isfinite(x))]
-    if bad:
-        raise HomofacError(f"the linear-space fit produced non-finite texels in {', '.join(bad)}; "
-                           "try a larger linear.laplacian")
-    model = _model(target, structure, specs, terms, fixed_data, {n: X[n] for n in X}, sigma=sigma, layouts=layouts)
-    warnings = [] if converged or method == "als" else [
-        f"linear {method} stopped after {steps} steps without meeting its tolerance"]
-    record = {
-        "method": method, "backend": backend, "iterations": int(steps), "converged": bool(converged),
-        "start": rule, "laplacian": float(opts.laplacian), "nv_balance": float(opts.nv_balance),
-        "structure": structure.record(),
-        "lookups": int(model.lookups), "objective": float(hist[-1]) if len(hist) else None,
-        "objective_start": float(hist[0]) if len(hist) else None, "sigma": [float(s) for s in sigma],
-    }
-    return SumFit(model, record, assemble_s, solve_s, tuple(warnings), int(sum(l.n_valid for l in layouts.values())))
+        sf = done(X, steps, converged, hist, opts.backend, time.perf_counter() - t1)
+        return Running(structure, None, np.asarray(hist, np.float32), bool(converged), int(opts.iterations),
+                       float(opts.tolerance), float(opts.laplacian), lambda *_: sf)
+    p, unpack = _als_start(structure, specs, fitted_terms, layouts, x0, grid, a, b, y_fit / sigma, opts, weights,
+                           target.context, log, slots)
+    assemble_s = time.perf_counter() - t0
+
+    def done_als(state, steps, converged, hist, solve_s) -> SumFit:
+        return done(unpack(state), steps, converged, hist, "homofac", solve_s)
+
+    return Running(structure, p, np.zeros(0, np.float32), False, int(opts.iterations), float(opts.tolerance),
+                   float(opts.laplacian), done_als)
+
+
+def advance(run: Running, sweeps: int | None = None, log=None) -> Running:
+    """``run`` after at most ``sweeps`` more ALS sweeps (default: the rest of its budget), none past its
+    budget or after it converged (:func:`als_sweeps`' rule, its objective history continued)."""
+    left = run.budget - run.sweeps if sweeps is None else min(int(sweeps), run.budget - run.sweeps)
+    if run.state is None or run.converged or left <= 0:
+        return run
+    t0 = time.perf_counter()
+    p, _, converged, hist = als_sweeps(run.state, jnp.float32(run.lam), left, run.tolerance, log, run.hist)
+    return run._replace(state=p, hist=hist, converged=converged, solve_s=run.solve_s + time.perf_counter() - t0)
+
+
+def finish(run: Running) -> SumFit:
+    """The :class:`SumFit` of ``run`` at its current state (the model of the sweeps run so far)."""
+    return run.done(run.state, run.sweeps, run.converged, run.hist, run.solve_s)
+
+
+def fit_sum(target: Target, structure: Structure, mapper: str, size: int, samples: Samples,
+            options: LinearOptions | None = None, log: Callable[[str], None] | None = None,
+            previous: Factorization | None = None, line_size: int = LINE_SIZE,
+            sample_weights: np.ndarray | None = None, chunk: int = 0, slots: als.Slots | None = None) -> SumFit:
+    """Fit ``structure`` to the training samples in linear space (see the module docstring): :func:`begin`,
+    :func:`advance` through ``linear.iterations`` sweeps (or to convergence), :func:`finish`.
+
+    ``sample_weights``: a weight per training sample (the polish's ridge pairs, :mod:`homofac.fit.ridge`),
+    times the ``nv_balance`` weights, scaled to mean 1.
+
+    ``line_size``: texels of the ``line`` textures (w(n.v), the highlight lines;
+    :func:`homofac.fit.plan.line_sizes`).
+
+    ``previous``: a model of the same structure (a refit, :mod:`homofac.fit.refit`): the fitted textures
+    start from its texels (:func:`warm_start`) instead of step 2's start.
+
+    ``chunk``: Levenberg-Marquardt steps per compiled call (:func:`homofac.fit.refine.solve`; 0: one call).
+
+    ``slots``: the ALS term slots to pad the structure's terms into (a group with fewer slots than the
+    structure has terms: its own count; :func:`als_slots` of every structure a run fits on these samples):
+    fits in the same slots share one compiled sweep; the same fit as without, to float rounding (default:
+    the structure's own).
+    """
+    log = log or (lambda msg: None)
+    run = begin(target, structure, mapper, size, samples, options, log, previous, line_size, sample_weights, chunk,
+                slots)
+    return finish(advance(run, None, log))
 
 
 def tabulated(fit: SumFit, structure: Structure, unknowns: int | None = None) -> SumFit:
@@ -513,13 +579,17 @@ def nv_weights(a, b, y, bins: int, beta: float) -> np.ndarray:
 PROGRESS_S = 3.0
 
 
-def als_sweeps(p: als.Padded, lam, sweeps: int, tolerance: float, log=None) -> tuple[als.Padded, int, bool, np.ndarray]:
+def als_sweeps(p: als.Padded, lam, sweeps: int, tolerance: float, log=None,
+               history: np.ndarray | None = None) -> tuple[als.Padded, int, bool, np.ndarray]:
     """At most ``sweeps`` ALS sweeps (:func:`homofac.fit.als.sweep`, one compiled sweep per slots, called
     per sweep) of the padded state ``p``, stopping when a sweep lowers the objective f by less than
-    ``tolerance * f`` (relative decrease ``(f_prev - f) / f_prev``; 0: never). Logs ``ALS sweep i /
-    sweeps: objective f`` at most every :data:`PROGRESS_S` seconds. Returns ``(p after, sweeps run,
-    converged, hist)``."""
-    hist: list[float] = []
+    ``tolerance * f`` (relative decrease ``(f_prev - f) / f_prev``; 0: never). ``history``: the objective
+    after each sweep run before (a fit continued, :func:`advance`): the rule reads it as if the sweeps had
+    run in one call. Logs ``ALS sweep i: objective f`` at most every :data:`PROGRESS_S` seconds. Returns
+    ``(p after, sweeps run in this call, converged, hist)``, hist the whole history (float32: the sweeps'
+    own values)."""
+    hist: list[float] = [] if history is None else [float(h) for h in np.asarray(history)]
+    before = len(hist)
     converged = False
     shown = time.perf_counter()
     state = p.state
@@ -529,11 +599,11 @@ def als_sweeps(p: als.Padded, lam, sweeps: int, tolerance: float, log=None) -> t
         if len(hist) > 1 and tolerance > 0 and hist[-2] - hist[-1] <= tolerance * abs(hist[-2]):
             converged = True
         if log is not None and (time.perf_counter() - shown >= PROGRESS_S or converged) and i < sweeps:
-            log(f"ALS sweep {i} / {sweeps}: objective {hist[-1]:.6g}" + (" (converged)" if converged else ""))
+            log(f"ALS sweep {len(hist)}: objective {hist[-1]:.6g}" + (" (converged)" if converged else ""))
             shown = time.perf_counter()
         if converged:
             break
-    return p._replace(state=tuple(state)), len(hist), converged, np.asarray(hist, np.float32)
+    return p._replace(state=tuple(state)), len(hist) - before, converged, np.asarray(hist, np.float32)
 
 
 def _term_flags(structure, fitted_terms, kinds: tuple[int, ...] | None = None):
@@ -582,8 +652,10 @@ def als_slots(target: Target, structures, mapper: str, size: int, line_size: int
     return out
 
 
-def _fit_als(structure, specs, fitted_terms, layouts, x0, grid, a, b, y, opts: LinearOptions, weights, context=None,
-             log=None, slots: als.Slots | None = None):
+def _als_start(structure, specs, fitted_terms, layouts, x0, grid, a, b, y, opts: LinearOptions, weights, context=None,
+               log=None, slots: als.Slots | None = None):
+    """The padded ALS state of the start ``x0`` (with the highlight terms' own start, :func:`_highlight_first`)
+    and the function that reads a state back into texels by texture name."""
     ia, ib, lay = grid
     n = lay.n_valid
     # padded to slots with extra lines, every kind of extra line has its place (the masks say which are read)
@@ -619,17 +691,20 @@ def _fit_als(structure, specs, fitted_terms, layouts, x0, grid, a, b, y, opts: L
     lam = jnp.float32(opts.laplacian)
     if has_h:
         p = _highlight_first(p, flags, lam, opts, log)
-    p, steps, converged, hist = als_sweeps(p, lam, int(opts.iterations), float(opts.tolerance), log)
-    out = als.unpadded(p, flags)
-    P, Q, W = out[:3]
-    D = out[3] if has_h else None
-    C = list(out[4]) if flags.c else []
-    X = {}
-    for t, names_t in enumerate(names):
-        for name, arr in zip(names_t + tuple(cnames[t][e] for e in kinds), (P, Q, W, D, *C)):
-            if name:
-                X[name] = arr[t]
-    return X, steps, converged, hist
+
+    def unpack(state: als.Padded) -> dict:
+        out = als.unpadded(state, flags)
+        P, Q, W = out[:3]
+        D = out[3] if has_h else None
+        C = list(out[4]) if flags.c else []
+        X = {}
+        for t, names_t in enumerate(names):
+            for name, arr in zip(names_t + tuple(cnames[t][e] for e in kinds), (P, Q, W, D, *C)):
+                if name:
+                    X[name] = arr[t]
+        return X
+
+    return p, unpack
 
 
 def _scalar_footprints(projs, a, b, context, size: int):
@@ -824,5 +899,5 @@ def _selected(res, tried, reason, target_error, max_lookups, met, analysis, ridg
     })
 
 
-__all__ = ["RIDGE_METRIC", "RIDGE_WORDS", "SumFit", "choose", "diffuse_albedo", "fit_sum", "nv_weights", "has_diffuse",
+__all__ = ["RIDGE_METRIC", "RIDGE_WORDS", "Running", "SumFit", "advance", "begin", "choose", "finish", "diffuse_albedo", "fit_sum", "nv_weights", "has_diffuse",
            "line_size_of", "scored_by", "start", "tabulated", "warm_start"]
