@@ -136,8 +136,9 @@ class LinearOptions(Options):
     ``jaxopt`` (the optional extra ``homofac[jaxopt]``; unmaintained upstream, for comparisons).
     ``iterations``: ALS sweeps or outer LM / GN steps; ``inner_iterations``: LSMR steps per LM / GN step.
     ``tolerance``: ALS stops when a sweep lowers the objective by less than this fraction of it
-    (converged; 0: always run ``iterations`` sweeps); the solver record holds the sweeps run and whether
-    it converged, and a long fit logs its progress every few seconds.
+    (converged; 0: always run ``iterations`` sweeps; None: the preset's, else :data:`DEFAULT_TOLERANCE`);
+    the solver record holds the sweeps run and whether it converged, and a long fit logs its progress
+    every few seconds.
     ``laplacian``: the smoothing weight lambda, scaled by samples per texel (mu = lambda N / texels).
     ``start``: ``split_sum`` (term 1 = the split sum; microfacet lighting targets), ``product`` (term 1
     = the log-space product of the parametrization) or ``auto`` (split_sum where it exists).
@@ -170,7 +171,7 @@ class LinearOptions(Options):
     polish: Optional[int] = Field(None, ge=0, le=1000)
     polish_size: int = Field(24, ge=4, le=256)
     ridge: Optional[int] = Field(None, ge=0, le=1_000_000)
-    tolerance: float = Field(1e-5, ge=0, le=1, allow_inf_nan=False)
+    tolerance: Optional[float] = Field(None, ge=0, le=1, allow_inf_nan=False)
 
     @model_validator(mode="after")
     def _ridge_objective(self):
@@ -184,8 +185,13 @@ class LinearOptions(Options):
         update = {k: preset.get(k, 0) for k in ("nv_balance", "polish", "ridge") if getattr(self, k) is None}
         if "nv_balance" in update:
             update["nv_balance"] = float(update["nv_balance"])
+        if self.tolerance is None:
+            update["tolerance"] = float(preset.get("tolerance", DEFAULT_TOLERANCE))
         return self.model_copy(update=update) if update else self
 
+
+#: ``linear.tolerance`` where neither the options nor a preset give one.
+DEFAULT_TOLERANCE = 1e-5
 
 #: Why ``linear.ridge`` with ``linear.nv_balance`` is refused.
 RIDGE_NEEDS_PLAIN = ("ridge weighs its pairs as a share of uniform pairs, which the n.v-bin weights of "

@@ -26,7 +26,7 @@ from ..param import parametrizations as pz
 from ..target import Target
 from . import structures, sums, validation
 from .draw import default_mapper, grid_projection
-from .options import DEFAULT_VALIDATION, FitOptions, LinearOptions
+from .options import DEFAULT_TOLERANCE, DEFAULT_VALIDATION, FitOptions, LinearOptions
 from .polish import RIDGE_NEEDS_ENVIRONMENT
 from .sampling import GRID_COUNT
 from .structures import HIGHLIGHT_LINES, Structure
@@ -52,7 +52,8 @@ class Preset(NamedTuple):
     (increasing) after which the candidates still in the race are ranked on the validation figure (every
     candidate runs its first sweeps on the training pairs with the programs of its full fit; after each
     round only the lowest and those within ``race_margin`` (relative) of it, at most ``race_keep`` of the
-    round, continue from where they stopped; empty: every candidate fitted in full)."""
+    round, continue from where they stopped; empty: every candidate fitted in full); ``tolerance``: the ALS
+    stops where a sweep lowers its objective by less than this fraction (``advanced.linear.tolerance``)."""
 
     lookups: int
     grid_count: int
@@ -70,6 +71,7 @@ class Preset(NamedTuple):
     race: tuple[int, ...] = ()
     race_keep: tuple[int, ...] = ()
     race_margin: float = 0.0
+    tolerance: float = DEFAULT_TOLERANCE
 
 
 #: The grid directions of the presets' candidates: the off-specular reflection ``r_off`` only. On the
@@ -79,8 +81,16 @@ class Preset(NamedTuple):
 PRESET_DIRECTIONS = ("r_off",)
 
 
-#: The race of the presets (:class:`Preset`, provisional: decided in docs/notes/speed.md, "The race").
-RACE = {"race": (3,), "race_keep": (1,), "race_margin": 0.05}
+#: ``fast``'s race and ALS stop (:class:`Preset`; docs/notes/speed.md, "The race"): every candidate runs 3
+#: ALS sweeps, the lowest and those within 8 % of it (at most 2) continue; a fit stops where a sweep lowers
+#: its objective by less than 1e-3 of it. On the accuracy benchmark's four speed cases
+#: (benchmarks/race_study_fast.json) the candidates' figures after 3 sweeps put the full fits' lowest first
+#: on each; the nearest other one was 4.9 % above it there (interior) and every candidate's figure moved by
+#: less than 13 % from 3 sweeps to 30; stopping at 1e-3 moved the kept structures' figures by at most 0.3 %.
+FAST_RACE = {"race": (3,), "race_keep": (2,), "race_margin": 0.08, "tolerance": 1e-3}
+
+#: The race of ``balanced`` and ``best`` (provisional: docs/notes/speed.md, "The race").
+RACE = {"race": (3,), "race_keep": (2,), "race_margin": 0.08}
 
 #: ``fast`` has no polish: on the accuracy benchmark's four speed cases its 2-step trial lowered the figure on
 #: one (mirror / studio, 0.3514 unpolished against 0.3454 polished on the converged truth, +1.7 %), and the
@@ -96,7 +106,7 @@ TRIAL_STRIDE = 4
 PRESETS: dict[str, Preset] = {
     "fast": Preset(lookups=4, grid_count=GRID_COUNT, validation=DEFAULT_VALIDATION, line_ratio=0, table=False,
                    disc_vote=False, nv_balance=1.0, polish=0, ridge=0, analysis=False, directions=PRESET_DIRECTIONS,
-                   **RACE),
+                   **FAST_RACE),
     "balanced": Preset(lookups=8, grid_count=GRID_COUNT, validation=DEFAULT_VALIDATION, line_ratio=0, table=False,
                        disc_vote=False, nv_balance=1.0, polish=8, ridge=0, analysis=False,
                        directions=PRESET_DIRECTIONS, polish_trial=2, trial_stride=TRIAL_STRIDE, **RACE),
@@ -194,8 +204,8 @@ class Plan:
             lines.append("  race: " + describe_race(self.race, self.race_keep, self.race_margin))
         if self.linear is not None:
             lin = self.linear
-            lines.append(f"  linear fit: {lin.method}, {lin.iterations} iterations, laplacian {lin.laplacian:g}, "
-                         f"nv_balance {lin.nv_balance:g}")
+            lines.append(f"  linear fit: {lin.method}, {lin.iterations} iterations (stops where one lowers the "
+                         f"objective by < {lin.tolerance:g} of it), laplacian {lin.laplacian:g}, nv_balance {lin.nv_balance:g}")
             if self.polish:
                 lines.append(f"  polish: {self.polish} Levenberg-Marquardt steps"
                              + (f", {self.ridge} ridge pairs" if self.ridge else "")
@@ -355,7 +365,7 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
         # the candidates: the preset's nv_balance; a polish given explicitly runs on every candidate (as on
         # a named structure), else the preset's polishes the kept one (the polish vote)
         kd = target.kind == "lighting" and sums.has_diffuse(target)
-        lin = given.resolved(nv_balance=p.nv_balance if kd else 0.0)
+        lin = given.resolved(nv_balance=p.nv_balance if kd else 0.0, tolerance=p.tolerance)
         als_fit = lin.method in ("auto", "als") and (kind == "grid" or samples_given is not None)
         steps = 0 if given.polish is not None or target.kind != "lighting" or not als_fit else p.polish
         ridge = given.ridge if given.ridge is not None else (p.ridge if lit and steps else 0)
@@ -400,7 +410,7 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
                 else "the lowest")
         if race:
             votes.append(Vote("race", tuple(c.label() for c in cands),
-                              f"{figure} after each round of ALS sweeps ({describe_race(race, race_keep, p.race_margin)})"))
+                              f"{figure} after each round of ALS sweeps (the race above)"))
         votes.append(Vote("structure", tuple(c.label() for c in cands), f"{figure} ({rule})"))
         if len(sizes) > 1:
             votes.append(Vote("lines", tuple(f"{n} texels" for n in sizes), figure + " of the kept structure"))
