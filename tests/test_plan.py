@@ -343,25 +343,27 @@ def test_the_race_is_planned_where_the_preset_chooses_by_the_lowest_figure(envs)
 
 def test_the_race_continues_the_lowest_and_those_within_its_margin_round_by_round():
     """``pipeline._race`` on candidates whose figure after k sweeps is given: each round brings the ones
-    still in to its sweeps (never back), keeps the lowest and those within the margin, at most its keep,
+    still in to its sweeps (the first on every stride-th pair), keeps the lowest and those within the margin, at most its keep,
     in the candidates' order; the record holds every round's labels, figures, sweeps run and kept."""
     figures = {"A": {3: 0.30, 8: 0.25}, "B": {3: 0.20, 8: 0.19}, "C": {3: 0.21, 8: 0.185}, "D": {3: 0.50}}
     cands = [Structure.parse(f"NROW x{k}") for k in (1, 2, 3, 4)]
     name = dict(zip(cands, "ABCD"))
     calls = []
 
-    def to(structure, sweeps):
-        calls.append((name[structure], sweeps))
+    def to(structure, sweeps, stride):
+        calls.append((name[structure], sweeps, stride))
         f = figures[name[structure]][sweeps]
         return hf.fit.Result(None, solver={"iterations": sweeps - (name[structure] == "B")},
                              metrics={"validation": {"float": {"nrmse": f}}})
 
-    kept, note = hf.fit.pipeline._race(cands, to, (3, 8), (3, 1), 0.1, None, lambda m: None)
-    assert calls == [("A", 3), ("B", 3), ("C", 3), ("D", 3), ("B", 8), ("C", 8)]  # A (0.30 > 0.22) and D out
+    kept, note = hf.fit.pipeline._race(cands, to, (3, 8), (3, 1), 0.1, None, lambda m: None, stride=4)
+    # A (0.30 > 0.22) and D out after the first round, which alone fits every 4th pair
+    assert calls == [("A", 3, 4), ("B", 3, 4), ("C", 3, 4), ("D", 3, 4), ("B", 8, 1), ("C", 8, 1)]
     assert kept == [cands[2]] and note["kept"] == [cands[2].label()]
     first, second = note["rounds"]
     assert first["kept"] == [cands[1].label(), cands[2].label()] and first["validation_nrmse"] == [0.3, 0.2, 0.21, 0.5]
     assert first["ran"] == [3, 2, 3, 3] and second["sweeps"] == 8 and second["labels"] == first["kept"]
+    assert note["stride"] == 4
 
 
 @pytest.mark.slow

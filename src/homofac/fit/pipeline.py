@@ -349,12 +349,19 @@ def _sums(target: Target, the_plan: Plan, samples: Samples, record: dict, sample
     cands, raced = list(the_plan.candidates), None
     if the_plan.race:  # every candidate's first sweeps; the plan's lowest continue (fit() picks them up)
 
-        def to(structure: Structure, sweeps: int) -> Result:
+        def to(structure: Structure, sweeps: int, stride: int = 1) -> Result:
+            if stride > 1:  # a short fit of its own on every stride-th pair (those that continue start over)
+                tgt, smp, _ = pool(structure)
+                smp = smp._replace(a=smp.a[::stride], b=smp.b[::stride], y=smp.y[::stride])
+                return as_result(structure, sums.fit_sum(tgt, structure, mapper, opts.texture_size, smp,
+                                                         lin.model_copy(update={"iterations": sweeps}), log,
+                                                         line_size=sizes[0], slots=slots))
             run = running[structure] if structure in running else start(structure)
             running[structure] = sums.advance(run, sweeps - run.sweeps, log)
             return as_result(structure, sums.finish(running[structure]))
 
-        cands, raced = _race(cands, to, the_plan.race, the_plan.race_keep, the_plan.race_margin, score, log)
+        cands, raced = _race(cands, to, the_plan.race, the_plan.race_keep, the_plan.race_margin, score, log,
+                             the_plan.race_stride)
         for structure in [s for s in running if s not in cands]:
             del running[structure]
     result = sums.choose(fit, cands, target_error=opts.target_error,
@@ -391,17 +398,20 @@ def _sums(target: Target, the_plan: Plan, samples: Samples, record: dict, sample
     return kept(result if analysis is None else result.replace(analysis=analysis))
 
 
-def _race(candidates: list[Structure], to: Callable[[Structure, int], Result], rounds: tuple[int, ...],
-          keep: tuple[int, ...], margin: float, score: Callable | None, log) -> tuple[list[Structure], dict]:
+def _race(candidates: list[Structure], to: Callable[..., Result], rounds: tuple[int, ...],
+          keep: tuple[int, ...], margin: float, score: Callable | None, log,
+          stride: int = 1) -> tuple[list[Structure], dict]:
     """The plan's race: at each round ``rounds[j]`` (ALS sweeps), every candidate still in is brought to that
-    many sweeps by ``to`` (continuing its own fit) and ranked on the figure the votes read (``score``'s where
+    many sweeps by ``to(structure, sweeps, stride)`` (continuing its own fit; the first round on every
+    ``stride``-th training pair where ``stride`` > 1, a short fit of its own from which nothing continues)
+    and ranked on the figure the votes read (``score``'s where
     given); the lowest and the next ones whose figure is within ``margin`` (relative) of it, at most
     ``keep[j]``, stay in, in the candidates' order (cheapest first). Returns those and the record
     ``selection.race``: per round its sweeps, the labels in it, their figures, the sweeps each actually ran
     (a fit that converged stops early) and the labels kept."""
-    left, note = list(candidates), {"rounds": []}
-    for sweeps, k in zip(rounds, keep):
-        tried = [to(c, sweeps) for c in left]
+    left, note = list(candidates), {"rounds": [], "stride": int(stride)}
+    for j, (sweeps, k) in enumerate(zip(rounds, keep)):
+        tried = [to(c, sweeps, stride if j == 0 else 1) for c in left]
         plain, errs, what = _vote_errors(tried, score)
         order = np.argsort(errs, kind="stable")
         best = errs[order[0]]

@@ -52,7 +52,9 @@ class Preset(NamedTuple):
     (increasing) after which the candidates still in the race are ranked on the validation figure (every
     candidate runs its first sweeps on the training pairs with the programs of its full fit; after each
     round only the lowest and those within ``race_margin`` (relative) of it, at most ``race_keep`` of the
-    round, continue from where they stopped; empty: every candidate fitted in full); ``tolerance``: the ALS
+    round, continue from where they stopped; empty: every candidate fitted in full); ``race_stride``: the
+    first round fits every k-th training pair (k > 1: short fits of their own, those kept start over on
+    every pair; nothing continues from them); ``tolerance``: the ALS
     stops where a sweep lowers its objective by less than this fraction (``advanced.linear.tolerance``)."""
 
     lookups: int
@@ -71,6 +73,7 @@ class Preset(NamedTuple):
     race: tuple[int, ...] = ()
     race_keep: tuple[int, ...] = ()
     race_margin: float = 0.0
+    race_stride: int = 1
     tolerance: float = DEFAULT_TOLERANCE
 
 
@@ -89,8 +92,13 @@ PRESET_DIRECTIONS = ("r_off",)
 #: less than 13 % from 3 sweeps to 30; stopping at 1e-3 moved the kept structures' figures by at most 0.3 %.
 FAST_RACE = {"race": (3,), "race_keep": (2,), "race_margin": 0.08, "tolerance": 1e-3}
 
-#: The race of ``balanced`` and ``best`` (provisional: docs/notes/speed.md, "The race").
-RACE = {"race": (3,), "race_keep": (2,), "race_margin": 0.08}
+#: The race of ``balanced`` and ``best``: a first round of 10 ALS sweeps on every 4th training pair (fits of
+#: their own), the lowest and those within 3 % of it (at most 2) fitted in full (the screen of the second speed
+#: work: gold / forest 192 s CPU against 348-374 s for the 9 full fits, the kept structure 0.4 % above the full
+#: fits' lowest on the validation pairs). A first round on every pair, from which the kept would continue, costs
+#: more there: each of the 9 candidates' start (its highlight terms' own 15 sweeps) runs on every pair, and their
+#: figures cross between 6 and 8 sweeps (docs/notes/speed.md, "The race").
+RACE = {"race": (10,), "race_keep": (2,), "race_margin": 0.03, "race_stride": 4}
 
 #: ``fast`` has no polish: on the accuracy benchmark's four speed cases its 2-step trial lowered the figure on
 #: one (mirror / studio, 0.3514 unpolished against 0.3454 polished on the converged truth, +1.7 %), and the
@@ -158,6 +166,7 @@ class Plan:
     race: tuple[int, ...]  # ALS sweeps after which the candidates still in are ranked (empty: no race)
     race_keep: tuple[int, ...]  # at most this many continue after each round
     race_margin: float  # ... the lowest and those within this relative margin of its figure
+    race_stride: int  # the first round fits every k-th training pair (k > 1: fits of their own)
     ridge: int
     line_sizes: tuple[int, ...]
     disc_vote: bool
@@ -177,7 +186,8 @@ class Plan:
                 "linear": None if self.linear is None else self.linear.model_dump(),
                 "polish": self.polish, "polish_trial": self.polish_trial,
                 "polish_trial_stride": self.polish_trial_stride, "ridge": self.ridge,
-                "race": {"sweeps": list(self.race), "keep": list(self.race_keep), "margin": self.race_margin},
+                "race": {"sweeps": list(self.race), "keep": list(self.race_keep), "margin": self.race_margin,
+                         "stride": self.race_stride},
                 "line_sizes": list(self.line_sizes),
                 "disc_vote": self.disc_vote, "analysis": self.analysis,
                 "votes": [dataclasses.asdict(v) for v in self.votes]}
@@ -201,7 +211,7 @@ class Plan:
             lines.append(f"  candidates ({len(self.candidates)}):")
             lines += [f"    {c.label()} ({c.describe()})" for c in self.candidates]
         if self.race:
-            lines.append("  race: " + describe_race(self.race, self.race_keep, self.race_margin))
+            lines.append("  race: " + describe_race(self.race, self.race_keep, self.race_margin, self.race_stride))
         if self.linear is not None:
             lin = self.linear
             lines.append(f"  linear fit: {lin.method}, {lin.iterations} iterations (stops where one lowers the "
@@ -239,11 +249,13 @@ def race_of(p: Preset | None, lin: LinearOptions | None, candidates: int) -> tup
     return tuple(rounds), tuple(keep)
 
 
-def describe_race(race: tuple[int, ...], keep: tuple[int, ...], margin: float) -> str:
+def describe_race(race: tuple[int, ...], keep: tuple[int, ...], margin: float, stride: int = 1) -> str:
     """The race in words (``--plan``): after each round's sweeps, who continues."""
-    return "; ".join(f"after {n} ALS sweeps the lowest validation figure"
+    return "; ".join(f"after {n} ALS sweeps" + (f" on every {stride}th training pair" if stride > 1 and not j else "")
+                     + " the lowest validation figure"
                      + (f" and those within {100 * margin:g} % of it (at most {k})" if k > 1 else "")
-                     + " continue" for n, k in zip(race, keep)) + " (from where they stopped)"
+                     + (" start over on every pair" if stride > 1 and not j else " continue from where they stopped")
+                     for j, (n, k) in enumerate(zip(race, keep)))
 
 
 def preset_of(opts: FitOptions) -> str | None:
@@ -433,6 +445,7 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
                 candidates=cands, linear=lin, polish=int(steps or 0), polish_trial=int(trial),
                 polish_trial_stride=int(p.trial_stride) if trial else 1, ridge=int(ridge or 0),
                 race=race, race_keep=race_keep, race_margin=float(p.race_margin) if race else 0.0,
+                race_stride=int(p.race_stride) if race else 1,
                 line_sizes=sizes,
                 disc_vote=disc, analysis=bool(choosing and target.kind == "lighting"
                                               and (p.analysis if p else True) or opts.advanced.analysis is not None),
