@@ -16,6 +16,9 @@ the same with the axis n (rank D), on Fibonacci directions.
 Successive layers' V are aligned by an orthogonal Procrustes rotation (the products are unchanged), so
 blending two layers blends like terms. Layer face sizes follow the lobe width alpha = rho^2 (:func:`layer_size`);
 the layers whose lobe is at most half a texel of the largest map share one block (:func:`sharp`).
+With the plan's ``harmonic``, each layer from that roughness up also gets the rank-1 product of its lobes' second
+azimuthal harmonic about the axis, from the luminance: a tensor map M(a) read as t^T M t and weights h_A, h_B
+(:func:`harmonic_maps`, :func:`harmonic_fit`; orthogonal to the azimuth means, so the products are unchanged).
 """
 
 from __future__ import annotations

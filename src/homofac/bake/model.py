@@ -9,6 +9,12 @@ With the plan's ``diffuse_basis`` ``sh9``, E_d(n) is ``sum_i c_di Y_i(n)`` inste
 :mod:`homofac.light.sh`, pinned order, +z up; c_d the least-squares projection of the E_d map on them,
 :func:`diffuse_sh9`): no texture fetch, the weights w_d unchanged.
 
+With the plan's ``harmonic`` (the layers from that roughness up), the luminance's second azimuthal harmonic about
+each layer's axis is added, coloured as the products (:func:`tensor_read`, :func:`harmonic_colour`):
+
+    H = sum_j hat(u - j) t_j^T M_j(a_j) t_j,   t_j = normalize(n - (n.a_j) a_j)
+    I_A <- I_A max(0, 1 + h_A H / Y(I_A)),     I_B <- I_B max(0, 1 + h_B H / Y(I_B))   (h_A, h_B: table channels)
+
 with hat(t) = max(0, 1 - |t|), r = 2 (n.v) n - v, every 2D read the cube mapper's bilinear lookup and every
 n.v read the line mapper's (:func:`homofac.param.mappers.lookup`: what the GPU's filter computes on the
 clamped coordinates). Pairs with n.v <= 0 give 0.
