@@ -3,11 +3,17 @@ coloured as the isotropic part, and a bake carries it (fetches, tables, save / l
 
 from __future__ import annotations
 
+import json
+import os
+import shutil
+import subprocess
+
 import numpy as np
 import pytest
 
 import homofac as hf
 from homofac.bake import kernels as kn
+from homofac.bake import shader
 from homofac.bake.build import harmonic_maps
 from homofac.bake.model import Bake, tensor_read
 from homofac.bake.plan import plan as make_plan
@@ -134,7 +140,6 @@ def test_a_bake_fits_the_harmonic_in_its_rough_layers_only(harmonic_bake):
 def test_save_load_round_trip_and_schema_2(harmonic_bake, tmp_path):
     """bake.json schema 3 with RGBA specular maps reads back to the same terms; a schema-2 directory (no
     ``harmonic``) still loads, as a bake without it."""
-    import json
     b = harmonic_bake
     out = b.save(tmp_path / "h", exr="float32")
     doc = json.loads((out / "bake.json").read_text())
@@ -165,7 +170,6 @@ def _pairs(count, seed):
 
 def test_gpu_equals_cpu_with_the_harmonic(harmonic_bake):
     pytest.importorskip("moderngl")
-    from homofac.bake import shader
     from homofac.gl.engine import run_glsl
     b = harmonic_bake
     n, v = _pairs(1500, 9)
@@ -182,9 +186,6 @@ def test_gpu_equals_cpu_with_the_harmonic(harmonic_bake):
 
 @pytest.mark.parametrize("language", ["glsl", "glsl_es", "hlsl"])
 def test_harmonic_shader_compiles_with_glslang(harmonic_bake, language, tmp_path):
-    import shutil
-    import subprocess
-    from homofac.bake import shader
     exe = shutil.which("glslangValidator")
     if exe is None:
         pytest.skip("glslangValidator is not installed (Debian glslang-tools)")
@@ -205,7 +206,6 @@ def test_harmonic_shader_compiles_with_glslang(harmonic_bake, language, tmp_path
 
 
 def test_harmonic_msl_compiles_against_the_metal_shim(harmonic_bake, tmp_path):
-    from homofac.bake import shader
     from test_bake import BAKE_SHIM
     from test_shaders import CLANG_FLAGS, METAL_SHIM, run, tool
     exe = tool("clang++")
@@ -223,8 +223,6 @@ def test_harmonic_msl_compiles_against_the_metal_shim(harmonic_bake, tmp_path):
 def test_harmonic_wgsl_runs_on_wgpu_and_equals_cpu(harmonic_bake):
     """The WGSL of a bake with RGBA specular maps on wgpu (lavapipe) equals bake.terms."""
     wgpu = pytest.importorskip("wgpu")
-    import os
-    from homofac.bake import shader
     os.environ.setdefault("XDG_RUNTIME_DIR", "/tmp")
     try:
         adapter = wgpu.gpu.request_adapter_sync(power_preference="low-power")
