@@ -180,6 +180,13 @@ def ideal_split_sum(src, uniform, name, n, v, rho, samples):
     return np.stack([e / np.pi * alb[:, :1], p * alb[:, 1:2], p * alb[:, 2:3]], 1)
 
 
+def preset_flags(preset: str) -> list[str]:
+    """The CLI flags of a benchmark preset: a preset name, or ``PRESET+hR`` (the preset with ``--harmonic R``:
+    the layers from roughness R up carry the second harmonic)."""
+    base, _, extra = preset.partition("+h")
+    return ["--preset", base] + (["--harmonic", extra] if extra else [])
+
+
 def fresh_bake(name, preset, tmp):
     """``python -m homofac.bake NAME --preset PRESET`` in a fresh process with JAX's persistent compilation
     cache off (``HOMOFAC_JAX_CACHE=0``: every program compiles, as on a new user's first run), the textures
@@ -188,7 +195,7 @@ def fresh_bake(name, preset, tmp):
     env = {**os.environ, "HOMOFAC_JAX_CACHE": "0"}
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "homofac.bake", name, "--preset", preset, "--out", str(out), "--exr", "float32"],
+    subprocess.run([sys.executable, "-m", "homofac.bake", name, *preset_flags(preset), "--out", str(out), "--exr", "float32"],
                    check=True, env=env, stdout=subprocess.DEVNULL)
     wall = time.perf_counter() - t
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -261,7 +268,8 @@ def fit_rows(name, band, n, v, rng, count, lookups, src, samples, bakes, presets
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--pairs", type=int, default=150, help="random pairs (and materials) per band")
-    ap.add_argument("--presets", nargs="+", default=["fast", "balanced"])
+    ap.add_argument("--presets", nargs="+", default=["fast", "balanced"],
+                    help="presets, or PRESET+hR: the preset with the second harmonic from roughness R (--harmonic R)")
     ap.add_argument("--envs", nargs="+", default=list(hf.light.BUNDLED))
     ap.add_argument("--cap", type=int, default=65536, help="largest reference sample count per strategy")
     ap.add_argument("--fits", type=int, default=1, help="per-material homofac fits per band (0: none)")

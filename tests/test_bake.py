@@ -281,6 +281,8 @@ def test_ktx2_files_read_by_ktx_parse_name_their_layout(forest_bake, tmp_path):
     (("shaders", "glsl_es"), "evil.glsl"),
     (("layers", 0, "roughness"), 1e400),
     (("plan", "terms"), 10**9),
+    (("plan", "harmonic"), 5.0),
+    (("plan", "harmonic"), 0.3),  # the lookups and textures no longer match the plan
 ])
 def test_a_crafted_bake_json_is_refused_in_one_line(forest_bake, tmp_path, path, value):
     """bake.json is input like factorization.json: what reaches generated code, file names or sizes is validated."""

@@ -139,3 +139,16 @@ def test_the_side_by_side_page_renders_both_ways(rendered, tmp_path):
     assert state["lit"][0] > 0.2 * px and state["lit"][1] > 0.2 * px, state
     assert state["label"] == f"homofac bake ({rendered['lookups'][0]} lookups per pixel)", state
     assert not console_problems(log), console_problems(log)
+
+
+def test_a_bake_with_the_harmonic_renders_in_three_as_bake_evaluate(tmp_path):
+    """A bake whose rough layers carry the second harmonic (RGBA specular maps, schema 3) through the same
+    drop-in (the generated GLSL ES, its KTX2 files through KTX2Loader) equals its own evaluation within 2/255."""
+    if not (ROOT / "js" / "node_modules" / "three").is_dir():
+        missing("js/node_modules/three is missing (make js-packages)")
+    bake = hf.bake(ENV, preset="fast", harmonic=0.3, max_size=32, diffuse_size=16, data_resolution=8, samples=256)
+    out = render(ENV, bake, tmp_path, SIZE, REFERENCE_SAMPLES)
+    assert out["setup"] is True and out["lookups"][0] == bake.lookups == 7
+    want = np.clip(out["bake"] * out["exposure"], 0, 1) * 255
+    got = out["canvas"][out["mask"]][:, :3].astype(np.float64)
+    assert np.percentile(np.abs(got - want), 99.9) <= 2.0, np.percentile(np.abs(got - want), [50, 99, 99.9, 100])

@@ -73,7 +73,7 @@ LIBRARY_FORMAT = "homofac.library"
 LIBRARY_VERSION = 1
 INDEX_NAME = "index.json"
 BAKE_FORMAT = "homofac.bake"
-BAKE_SCHEMA = 2
+BAKE_SCHEMA = 3
 BAKE_JSON = "bake.json"
 #: The shader files of a bake directory (homofac_ibl, homofac_ibl_terms).
 BAKE_SHADERS = {"glsl": "shader.glsl", "glsl_es": "shader_es.glsl", "hlsl": "shader.hlsl", "msl": "shader.metal",
@@ -871,6 +871,8 @@ class BakePlanEntry(Options):
     diffuse_size: int = Field(ge=2, le=MAX_SIZE)
     min_roughness: float = Field(gt=0, le=1)
     diffuse_basis: Literal["texture", "sh9"] = "texture"
+    #: schema 3: the layers from this roughness up store the second harmonic (0: none; schemas 1-2: none)
+    harmonic: float = Field(0.0, ge=0, le=1)
 
 
 class BakeSourceEntry(Options):
@@ -897,10 +899,11 @@ class BakeSourceEntry(Options):
 
 
 class BakeDocument(Options):
-    """bake.json (schema 2; schema 1, without ``sources``, is read as a bake without sources): see docs/format.md."""
+    """bake.json (schema 3; schema 2 is read as a bake without the harmonic, schema 1, without ``sources``, as a
+    bake without sources either): see docs/format.md."""
 
     format: Literal["homofac.bake"]
-    schema_version: Literal[1, 2]
+    schema_version: Literal[1, 2, 3]
     brdf: Literal["gltf"]
     plan: BakePlanEntry
     lookups: int
@@ -925,9 +928,10 @@ def bake_document(bake: Bake, exr: str = "half") -> dict:
     """The bake.json of ``bake`` (see docs/format.md)."""
     pl = bake.plan
     atlas = bake.atlas
-    chans = [f"{c}{k}" for k in range(pl.terms) for c in ("a", "b")] + [f"w{d}" for d in range(pl.diffuse)]
-    tex = [{"name": f"P{k}", "file": f"P{k}.exr", "kind": "prefiltered", "width": atlas.width, "height": atlas.height,
-            "channels": ["r", "g", "b"]} for k in range(pl.terms)]
+    chans = ([f"{c}{k}" for k in range(pl.terms) for c in ("a", "b")] + [f"w{d}" for d in range(pl.diffuse)]
+             + (["hA", "hB"] if pl.harmonic else []))
+    tex = [{"name": f"P{i}", "file": f"P{i}.exr", "kind": "prefiltered", "width": atlas.width, "height": atlas.height,
+            "channels": c if pl.harmonic else ["r", "g", "b"]} for i, c in enumerate(bake_shader.specular_channels(bake))]
     s = pl.diffuse_size
     tex += [{"name": f"E{d}", "file": f"E{d}.exr", "kind": "diffuse", "width": 6 * s, "height": s,
              "channels": ["r", "g", "b"]} for d in range(pl.diffuse if pl.diffuse_basis == "texture" else 0)]
@@ -990,7 +994,7 @@ def save_bake(bake: Bake, out_dir, *, exr: str | None = None, ktx2: bool | None 
     def write(tmp: Path) -> None:
         doc = bake_document(bake, exr)
         for entry, (_, array) in zip(doc["textures"], bake_shader.texture_arrays(bake)):
-            write_exr(tmp / entry["file"], array, half=half)
+            write_exr(tmp / entry["file"], array, half=half, alpha=True)
             if ktx2:
                 entry["ktx2"] = f"{entry['name']}.ktx2"
                 write_ktx2(tmp / entry["ktx2"], array, kind="2d", format="half" if half else "float",
@@ -1028,7 +1032,7 @@ def load_bake(d, *, max_bytes: int = 1 << 28) -> Bake:
     by_kind = {k: [t for t in doc.textures if t.kind == k] for k in ("prefiltered", "diffuse", "weights")}
     sh9 = pl.diffuse_basis == "sh9"
     if (len(by_kind["prefiltered"]), len(by_kind["diffuse"]), len(by_kind["weights"])) != (
-            pl.terms, 0 if sh9 else pl.diffuse, pl.tables):
+            pl.maps, 0 if sh9 else pl.diffuse, pl.tables):
         raise HomofacError(f"{f}: texture count does not match the plan")
     sh = None
     if sh9:
@@ -1037,7 +1041,7 @@ def load_bake(d, *, max_bytes: int = 1 << 28) -> Bake:
             raise HomofacError(f"{f}: diffuse_sh9 must hold {pl.diffuse} x 9 x 3 finite coefficients (plan diffuse_basis sh9)")
 
     def read(t: BakeTextureEntry, shape) -> np.ndarray:
-        a = read_exr(_confined(d, t.file, "texture"), max_bytes=max_bytes)
+        a = read_exr(_confined(d, t.file, "texture"), max_bytes=max_bytes, alpha=t.kind == "prefiltered" and pl.harmonic > 0)
         if a.shape[:2] != tuple(shape):
             raise HomofacError(f"{d / t.file}: shape {list(a.shape[:2])} does not match {BAKE_JSON} ({list(shape)})")
         if not np.all(np.isfinite(a)):
@@ -1045,13 +1049,20 @@ def load_bake(d, *, max_bytes: int = 1 << 28) -> Bake:
         return np.asarray(a, np.float32)
 
     ps = [split(atlas, read(t, (atlas.height, atlas.width))) for t in by_kind["prefiltered"]]
-    P = tuple(np.stack([p[j] for p in ps], axis=2) for j in range(pl.layers))
+    H: tuple = ()
+    if pl.harmonic:  # RGBA maps: the K products' RGB, then the tensor's 5 channels (docs/format.md)
+        flat = [np.concatenate([p[j][..., :4] for p in ps], axis=-1) for j in range(pl.layers)]
+        P = tuple(a[..., :3 * pl.terms].reshape(a.shape[:2] + (pl.terms, 3)) for a in flat)
+        H = tuple(np.ascontiguousarray(a[..., 3 * pl.terms:3 * pl.terms + 5]) if rho >= pl.harmonic else None
+                  for a, rho in zip(flat, (layer.roughness for layer in doc.layers)))
+    else:
+        P = tuple(np.stack([p[j][..., :3] for p in ps], axis=2) for j in range(pl.layers))
     s = doc.diffuse_size
-    E = None if sh9 else np.stack([read(t, (s, 6 * s)) for t in by_kind["diffuse"]], axis=2)
-    W = np.concatenate([read(t, (pl.layers, doc.nv_size)) for t in by_kind["weights"]], axis=-1)[:, :, :2 * pl.terms + pl.diffuse]
+    E = None if sh9 else np.stack([read(t, (s, 6 * s))[..., :3] for t in by_kind["diffuse"]], axis=2)
+    W = np.concatenate([read(t, (pl.layers, doc.nv_size))[..., :3] for t in by_kind["weights"]], axis=-1)[:, :, :pl.channels]
     return Bake(pl, tuple(layer.roughness for layer in doc.layers), tuple(layer.shift for layer in doc.layers), P, E, W,
                 dict(raw.get("info") or {}), sh=None if sh is None else sh.astype(np.float32), blocks=blocks,
-                sources=tuple(Source(tuple(e.direction), tuple(e.power), e.radius) for e in doc.sources))
+                sources=tuple(Source(tuple(e.direction), tuple(e.power), e.radius) for e in doc.sources), H=H)
 
 
 register_bake_writer(save_bake)

@@ -16,6 +16,9 @@ the same with the axis n (rank D), on Fibonacci directions.
 Successive layers' V are aligned by an orthogonal Procrustes rotation (the products are unchanged), so
 blending two layers blends like terms. Layer face sizes follow the lobe width alpha = rho^2 (:func:`layer_size`);
 the layers whose lobe is at most half a texel of the largest map share one block (:func:`sharp`).
+With the plan's ``harmonic``, each layer from that roughness up also gets the rank-1 product of its lobes' second
+azimuthal harmonic about the axis, from the luminance: a tensor map M(a) read as t^T M t and weights h_A, h_B
+(:func:`harmonic_maps`, :func:`harmonic_fit`; orthogonal to the azimuth means, so the products are unchanged).
 """
 
 from __future__ import annotations
@@ -25,11 +28,13 @@ import os
 import time
 from pathlib import Path
 
+import jax.numpy as jnp
 import numpy as np
 
 from ..errors import HomofacError
 from ..io.limits import image_info
 from ..light import Environment, load_environment
+from ..light.environment import LUMINANCE
 from ..light.resample import from_cube
 from ..light.sh import sh9
 from ..light.sources import BUNDLED, bundled
@@ -228,6 +233,80 @@ def layer_fit(kernels: np.ndarray, size: int, env: Environment, rank: int, data_
     return v, weights, filtered(kp, size, env, coarse, np.ones(len(kp) - 1, bool)), energy
 
 
+def _luminance_lights(env: Environment | None) -> tuple[Environment, Environment] | None:
+    """The environment's luminance times l l^T as two 3-channel light lists, ``(l_x^2, l_y^2, l_z^2)`` and
+    ``(l_x l_y, l_x l_z, l_y l_z)`` (the channels the tensor map's filter reads, :func:`harmonic_maps`)."""
+    if env is None:
+        return None
+    d = np.asarray(env.directions, np.float64)
+    lum = np.asarray(env.radiance, np.float64) @ np.asarray(LUMINANCE, np.float64)
+    diag = lum[:, None] * d * d
+    off = lum[:, None] * np.stack([d[:, 0] * d[:, 1], d[:, 0] * d[:, 2], d[:, 1] * d[:, 2]], -1)
+    return tuple(Environment(env.directions, jnp.asarray(c, jnp.float32), env.solid_angle, env.info) for c in (diag, off))
+
+
+def harmonic_maps(kernels: np.ndarray, ref: np.ndarray, size: int, env: Environment,
+                  coarse: Environment | None) -> np.ndarray:
+    """``(6 size^2, J, 5)``: the tensor maps M_j(a) of the second-harmonic kernels ``kernels`` (J, G) (k_2(gamma),
+    :func:`~homofac.bake.kernels.harmonic_kernels`) of the environment's luminance at the texel centres a of a cube
+    of face ``size``, stored as (M_xx, M_yy, M_xy, M_xz, M_yz) (M_zz = -M_xx - M_yy).
+
+    With omega the light's azimuth about a from the unit tangent t (t perpendicular to a) and gamma its angle
+    from a, cos(2 omega) sin^2(gamma) = 2 (l.t)^2 - sin^2(gamma), so
+    sum_l Y(l) dw k_2(gamma) cos(2 omega) = t^T M(a) t with
+    M(a) = P (2 A - B I) P,  A = sum_l Y(l) dw k~(gamma) l l^T,  B = tr A - a^T A a,  P = I - a a^T,
+    k~ = k_2 / sin^2(gamma): six isotropic filters of the luminance times l_i l_j (the filter of
+    :func:`filtered`, normalized by the reference kernel ``ref``'s discrete mass). M is symmetric, traceless and
+    M a = 0 (5 numbers)."""
+    gamma = 2.0 * np.arcsin(kn.q_grid(kernels.shape[-1]))
+    s2 = np.sin(gamma) ** 2
+    kt = np.where(s2 > 0, kernels / np.where(s2 > 0, s2, 1.0), 0.0)
+    kt[:, 0] = kt[:, 1]  # the limit at the axis (k_2 ~ gamma^2 there)
+    pad = np.zeros(((-len(kt) - 1) % 8, kt.shape[1]))
+    tables = np.concatenate([kt, pad, ref[None]])
+    own = np.zeros(len(tables) - 1, bool)
+    fine, far = _luminance_lights(env), _luminance_lights(coarse)
+    parts = [filtered(tables, size, fine[i], None if far is None else far[i], own)[:, :len(kt)] for i in range(2)]
+    xx, yy, zz = parts[0][..., 0], parts[0][..., 1], parts[0][..., 2]
+    xy, xz, yz = parts[1][..., 0], parts[1][..., 1], parts[1][..., 2]
+    A = np.stack([np.stack([xx, xy, xz], -1), np.stack([xy, yy, yz], -1), np.stack([xz, yz, zz], -1)], -1)  # (T, J, 3, 3)
+    a = np.asarray(mappers.texel_directions("cube", size), np.float64).reshape(-1, 3)
+    B = np.trace(A, axis1=-2, axis2=-1) - np.einsum("ti,tjik,tk->tj", a, A, a)
+    proj = np.eye(3)[None] - a[:, :, None] * a[:, None, :]  # (T, 3, 3)
+    M = np.einsum("tik,tjkl,tlm->tjim", proj, 2.0 * A, proj) - B[..., None, None] * proj[:, None]
+    return np.stack([M[..., 0, 0], M[..., 1, 1], M[..., 0, 1], M[..., 0, 2], M[..., 1, 2]], -1)
+
+
+#: The Frobenius inner product of two stored tensors (M_xx, M_yy, M_xy, M_xz, M_yz) (M_zz = -M_xx - M_yy): over
+#: the unit tangents t, mean (t^T M t)^2 is proportional to it.
+TENSOR_METRIC = np.array([[2.0, 1, 0, 0, 0], [1, 2, 0, 0, 0], [0, 0, 2, 0, 0], [0, 0, 0, 2, 0], [0, 0, 0, 0, 2]])
+
+
+def harmonic_fit(kernels: np.ndarray, ref: np.ndarray, size: int, env: Environment, data_size: int = 32,
+                 coarse: Environment | None = None, previous: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(v (2X,), weights (2X,) = (h_A(x_i)..., h_B(x_i)...), M (6 size^2, 5))`` of one layer's second harmonic:
+    the rank-1 product M(a) (t^T M t) h(n.v) closest, in the materials' metric (:data:`MATERIALS`, as
+    :func:`layer_fit`) and the sphere's measure, to the harmonic's data, the tensor maps of the rows of
+    ``kernels`` (2X, G) (:func:`harmonic_maps`) at the texels of a cube of face min(size, data_size)
+    (Eckart-Young; computed on :func:`compress`'s basis). The sign is the one closest to ``previous`` (the
+    layer below's v): blending two layers then blends like harmonics."""
+    basis, coef = compress(kernels)
+    d = min(size, data_size)
+    mb = harmonic_maps(basis, ref, d, env, coarse)  # (T, J', 5)
+    w = mappers.texel_solid_angles("cube", d).reshape(-1)
+    gram_b = np.einsum("t,tia,ab,tjb->ij", w, mb, TENSOR_METRIC, mb)
+    mix = np.kron(np.asarray(MATERIALS, np.float64) / np.sqrt(len(MATERIALS)), np.eye(len(kernels) // 2))
+    gram = mix @ coef @ gram_b @ coef.T @ mix.T
+    vals, vecs = np.linalg.eigh(0.5 * (gram + gram.T))
+    v = vecs[:, -1]
+    if (previous is not None and v @ previous < 0) or (previous is None and np.sum(np.linalg.solve(mix, v)) < 0):
+        v = -v
+    weights = np.linalg.solve(mix, v)
+    m = harmonic_maps(((mix.T @ v) @ kernels)[None], ref, size, env, coarse)[:, 0]
+    return v, weights, m
+
+
 def _svd(y: np.ndarray, rank: int) -> tuple[np.ndarray, float]:
     """V (columns, rank) of the truncated SVD of data (rows, columns, 3) with the channels as rows, and the
     energy it captures (sum of the kept squared singular values)."""
@@ -267,7 +346,8 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
     timings: dict[str, float] = {}
     max_size = int(opts.max_size or source_size(environment))
     pl = make_plan(opts.preset, max_size=max_size, min_roughness=opts.min_roughness, nv_size=opts.nv_size,
-                   diffuse_size=opts.diffuse_size, layers=opts.layers, terms=opts.terms, diffuse_basis=opts.diffuse)
+                   diffuse_size=opts.diffuse_size, layers=opts.layers, terms=opts.terms, diffuse_basis=opts.diffuse,
+                   harmonic=opts.harmonic)
     original = _Lights(environment)
     lights = _Lights(environment)
     # the brightest compact source leaves the map before every filter and is shaded as a point light
@@ -297,6 +377,7 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
     sizes = [layer_size(rho, max_size) for rho in roughness]
     shared = [sharp(rho, max_size) for rho in roughness]
     P, W, shifts, previous = [None] * pl.layers, [None] * pl.layers, [0.0] * pl.layers, None
+    H, Hw, previous_h = [None] * pl.layers, [np.zeros(2 * len(x))] * pl.layers, None
     timings["kernels_s"] = timings["weights_s"] = timings["maps_s"] = 0.0
     # the sharp layers (lobe at most half a texel of the largest map) share one block, computed at the sharpest
     # (the environment at the block's detail, as a mip chain's level 0)
@@ -339,10 +420,20 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
             continue
         P[j] = p.reshape(s, 6 * s, pl.terms, 3).astype(np.float32)
         W[j], shifts[j] = wt, float(shift)
+        if pl.harmonic and rho >= pl.harmonic:
+            t = time.perf_counter()
+            k2 = kn.harmonic_kernels(rho, x, shift=shift).reshape(2 * len(x), -1)
+            timings["kernels_s"] += time.perf_counter() - t
+            t = time.perf_counter()
+            ref = kn.smooth(best[1], texel_radius(env_j)).sum(0)
+            previous_h, Hw[j], m = harmonic_fit(k2, ref, s, env_j, DATA_SIZE, lights(MIN_LIGHTS), previous_h)
+            H[j] = m.reshape(s, 6 * s, 5).astype(np.float32)
+            timings["harmonic_s"] = timings.get("harmonic_s", 0.0) + time.perf_counter() - t
     W = [np.stack([v[: len(x)], v[len(x):]], axis=-1).reshape(len(x), 2 * pl.terms) for v in W]  # a_k, b_k interleaved
     w = np.stack(W)  # (L, X, 2K)
     wd = np.broadcast_to(vd[None], (pl.layers, len(x), pl.diffuse))
-    table = np.concatenate([w, wd], axis=-1).astype(np.float32)
+    hw = [np.stack([h[: len(x)], h[len(x):]], axis=-1) for h in Hw] if pl.harmonic else []  # h_A, h_B
+    table = np.concatenate([w, wd] + ([np.stack(hw)] if hw else []), axis=-1).astype(np.float32)
     t = time.perf_counter()
     sh = sh9(original(opts.data_resolution))  # the environment's irradiance, source included
     timings["sh9_s"] = time.perf_counter() - t
@@ -353,7 +444,8 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
             "analytic_source": {"share": share, "found": found is not None}}
     blocks = tuple(int(np.argmax(shared)) if shared[j] else j for j in range(pl.layers))
     return Bake(pl, roughness, tuple(shifts), tuple(P), E, table, info,
-                sh=diffuse_sh9(E) if pl.diffuse_basis == "sh9" else None, blocks=blocks, sources=sources)
+                sh=diffuse_sh9(E) if pl.diffuse_basis == "sh9" else None, blocks=blocks, sources=sources,
+                H=tuple(H) if pl.harmonic else ())
 
 
-__all__ = ["bake", "compress", "fibonacci", "layer_fit", "layer_size", "sharp", "source_size"]
+__all__ = ["bake", "compress", "fibonacci", "harmonic_fit", "harmonic_maps", "layer_fit", "layer_size", "sharp", "source_size"]

@@ -51,12 +51,11 @@ def _local(d, t, b, n):
     return (jnp.sum(d * t, -1), jnp.sum(d * b, -1), jnp.sum(d * n, -1))
 
 
-@jax.jit
-def _specular(rough, x, gamma, shift):
-    """(2, X, G): the azimuth means of the lobes (1 - s5) S and s5 S times max(n.l, 0) about the axis
-    a = normalize((1 - s) r + s n) (= r for s = 0; the lobe's dominant direction leans from r to n), a = +z."""
+def _cone_lobes(rough, x, gamma, shift):
+    """The lobes (1 - s5) S and s5 S times max(n.l, 0), each (X, G, F), for the normals n at azimuth phi_f on the
+    cone about the axis a = normalize((1 - s) r + s n) (a = +z) and the light at angle gamma from a, azimuth 0;
+    the light's azimuth about a from the plane of (a, n) is then omega = -phi_f."""
     phi = (jnp.arange(PHI_NODES) + 0.5) * (2 * jnp.pi / PHI_NODES)
-    X, G = x.shape[0], gamma.shape[0]
     theta = jnp.arccos(jnp.clip(x, -1.0, 1.0))  # angle(r, n) = angle(n, v)
     beta = jnp.arctan2(shift * jnp.sin(theta), (1.0 - shift) + shift * jnp.cos(theta))  # angle(r, a)
     tn = (theta - beta)[:, None]
@@ -73,7 +72,25 @@ def _specular(rough, x, gamma, shift):
     wi = (jnp.where(above, wi[0], 0.0), jnp.where(above, wi[1], 0.0), jnp.where(above, wi[2], 1.0))
     _, ga, gb = gltf_lobes_at(rough, wi, wo)
     cos = jnp.where(above, wi[2], 0.0)
-    return jnp.stack([jnp.mean(ga * cos, -1), jnp.mean(gb * cos, -1)]).reshape(2, X, G)
+    return ga * cos, gb * cos, phi
+
+
+@jax.jit
+def _specular(rough, x, gamma, shift):
+    """(2, X, G): the azimuth means of the lobes (1 - s5) S and s5 S times max(n.l, 0) about the axis
+    a = normalize((1 - s) r + s n) (= r for s = 0; the lobe's dominant direction leans from r to n), a = +z."""
+    ga, gb, _ = _cone_lobes(rough, x, gamma, shift)
+    return jnp.stack([jnp.mean(ga, -1), jnp.mean(gb, -1)]).reshape(2, x.shape[0], gamma.shape[0])
+
+
+@jax.jit
+def _harmonic(rough, x, gamma, shift):
+    """(2, X, G): the second azimuthal Fourier coefficients k_2(gamma) = (1/pi) int g cos(2 omega) domega of the
+    lobes (1 - s5) S and s5 S times max(n.l, 0) about the axis a (omega the light's azimuth about a from the
+    plane of incidence): the lobe's elongation in (or across) that plane."""
+    ga, gb, phi = _cone_lobes(rough, x, gamma, shift)
+    c2 = 2.0 * jnp.cos(2.0 * phi)
+    return jnp.stack([jnp.mean(ga * c2, -1), jnp.mean(gb * c2, -1)]).reshape(2, x.shape[0], gamma.shape[0])
 
 
 @jax.jit
@@ -95,6 +112,16 @@ def specular_kernels(roughness: float, x: np.ndarray, nodes: int = TABLE_NODES, 
     gamma = 2.0 * np.arcsin(q_grid(nodes))
     with jax.enable_x64(True):
         out = _specular(jnp.float64(roughness), jnp.asarray(x, jnp.float64), jnp.asarray(gamma), jnp.float64(shift))
+    return np.asarray(out, np.float64)
+
+
+def harmonic_kernels(roughness: float, x: np.ndarray, nodes: int = TABLE_NODES, shift: float = 0.0) -> np.ndarray:
+    """``(2, X, nodes)``: the second harmonics k^A_2, k^B_2 of the lobes about the axis
+    normalize((1 - shift) r + shift n) (:func:`_harmonic`), at the table nodes (float64): the lobe is
+    K_x(gamma) + k_2(gamma) cos(2 omega) + (odd and higher harmonics)."""
+    gamma = 2.0 * np.arcsin(q_grid(nodes))
+    with jax.enable_x64(True):
+        out = _harmonic(jnp.float64(roughness), jnp.asarray(x, jnp.float64), jnp.asarray(gamma), jnp.float64(shift))
     return np.asarray(out, np.float64)
 
 
@@ -162,5 +189,5 @@ def support(kernel: np.ndarray, fraction: float = 0.999) -> float:
     return float(2.0 * np.arcsin(q[min(idx + 1, len(q) - 1)]))
 
 
-__all__ = ["PHI_NODES", "TABLE_NODES", "albedos", "calibrate", "diffuse_kernels", "mass", "nv_centres", "q_grid", "smooth",
+__all__ = ["PHI_NODES", "TABLE_NODES", "albedos", "calibrate", "diffuse_kernels", "harmonic_kernels", "mass", "nv_centres", "q_grid", "smooth",
            "specular_kernels", "support"]

@@ -9,6 +9,12 @@ With the plan's ``diffuse_basis`` ``sh9``, E_d(n) is ``sum_i c_di Y_i(n)`` inste
 :mod:`homofac.light.sh`, pinned order, +z up; c_d the least-squares projection of the E_d map on them,
 :func:`diffuse_sh9`): no texture fetch, the weights w_d unchanged.
 
+With the plan's ``harmonic`` (the layers from that roughness up), the luminance's second azimuthal harmonic about
+each layer's axis is added, coloured as the products (:func:`tensor_read`, :func:`harmonic_colour`):
+
+    H = sum_j hat(u - j) t_j^T M_j(a_j) t_j,   t_j = normalize(n - (n.a_j) a_j)
+    I_A <- I_A max(0, 1 + h_A H / Y(I_A)),     I_B <- I_B max(0, 1 + h_B H / Y(I_B))   (h_A, h_B: table channels)
+
 with hat(t) = max(0, 1 - |t|), r = 2 (n.v) n - v, every 2D read the cube mapper's bilinear lookup and every
 n.v read the line mapper's (:func:`homofac.param.mappers.lookup`: what the GPU's filter computes on the
 clamped coordinates). Pairs with n.v <= 0 give 0.
@@ -26,6 +32,7 @@ from jaxtyping import Array, Float
 
 from ..errors import HomofacError
 from ..light.integrals import material_radiance
+from ..light.environment import LUMINANCE
 from ..light.sh import SH9_NORM
 from ..param import mappers
 from .atlas import Atlas, pack
@@ -52,7 +59,9 @@ class Bake:
     axis shift s (P_kj is read at a_j = normalize((1 - s_j) r + s_j n)); ``info`` provenance and timings
     (JSON-friendly); ``sh`` (D, 9, 3) the SH9 coefficients of the E_d maps when the plan's ``diffuse_basis`` is
     ``sh9`` (then ``E`` is not read and may be None); ``sources`` the analytic lights taken out of the map
-    (:mod:`.sources`), whose exact glTF lobes the integrals add.
+    (:mod:`.sources`), whose exact glTF lobes the integrals add; ``H[j]`` (S_j, 6 S_j, 5) layer j's tensor map
+    (M_xx, M_yy, M_xy, M_xz, M_yz) of the luminance's second harmonic, or None (the plan's ``harmonic``; empty
+    without it; the tables' last two channels are then h_A, h_B).
     """
 
     plan: BakePlan
@@ -65,6 +74,7 @@ class Bake:
     sh: Any = None
     blocks: tuple[int, ...] = ()
     sources: tuple[Source, ...] = ()
+    H: tuple[Any, ...] = ()
 
     # --- structure -------------------------------------------------------------------------------------
     @property
@@ -80,7 +90,7 @@ class Bake:
     def texture_bytes(self, bytes_per_channel: int = 2) -> int:
         """GPU memory of the textures in half floats (RGB): P_k atlases, E_d maps, weight tables."""
         a = self.atlas
-        p = self.plan.terms * a.width * a.height * 3
+        p = self.plan.maps * a.width * a.height * (4 if self.plan.harmonic else 3)
         e = self.plan.diffuse * 6 * self.plan.diffuse_size ** 2 * 3 if self.plan.diffuse_basis == "texture" else 0
         w = self.plan.tables * self.plan.layers * self.plan.nv_size * 3
         return (p + e + w) * bytes_per_channel
@@ -117,10 +127,12 @@ class Bake:
         if sh9 and self.sh is None:
             raise HomofacError("this bake's plan reads the diffuse term from SH9 coefficients, and it has none")
         diffuse = jnp.asarray(self.sh if sh9 else self.E, jnp.float32)
+        H = tuple(jnp.zeros(p.shape[:2] + (5,), jnp.float32) if h is None else jnp.asarray(h, jnp.float32)
+                  for p, h in zip(self.P, self.H)) if self.H else None
         maps = _terms(tuple(jnp.asarray(p, jnp.float32) for p in self.P), diffuse,
                       jnp.asarray(self.W, jnp.float32), jnp.asarray(self.shift, jnp.float32),
                       self.layer_coordinate(rho), n, v, self.plan.terms,
-                      self.plan.diffuse, sh9)
+                      self.plan.diffuse, sh9, H)
         return maps + source_terms(self.sources, n, v, rho) if self.sources else maps
 
     def evaluate(self, n, v, base_color, metallic, roughness) -> Float[Array, "N 3"]:
@@ -178,22 +190,45 @@ def diffuse_sh9(E) -> np.ndarray:
     return np.moveaxis(c.reshape(9, E.shape[2], 3), 1, 0).astype(np.float32)
 
 
+def tensor_read(m: Float[Array, "N 5"], t: Float[Array, "N 3"]) -> Float[Array, "N"]:
+    """t^T M t of the stored symmetric traceless tensors m = (M_xx, M_yy, M_xy, M_xz, M_yz), M_zz = -M_xx - M_yy."""
+    xx, yy, xy, xz, yz = (m[:, i] for i in range(5))
+    tx, ty, tz = t[:, 0], t[:, 1], t[:, 2]
+    return (xx * (tx * tx - tz * tz) + yy * (ty * ty - tz * tz)
+            + 2.0 * (xy * tx * ty + xz * tx * tz + yz * ty * tz))
+
+
+def harmonic_colour(i0: Float[Array, "N 3"], h: Float[Array, "N"]) -> Float[Array, "N 3"]:
+    """A lobe's RGB integral with its second harmonic's luminance ``h`` added, coloured as its isotropic part
+    ``i0``: i0 max(0, 1 + h / Y(i0)) (Y the Rec. 709 luminance; Y(i0) <= 0 adds nothing)."""
+    y = i0 @ jnp.asarray(LUMINANCE, i0.dtype)
+    return i0 * jnp.where(y > 1e-20, jnp.maximum(0.0, 1.0 + h / jnp.where(y > 1e-20, y, 1.0)), 1.0)[:, None]
+
+
 @jax.jit(static_argnums=(7, 8, 9))
-def _terms(P, E, W, shift, u, n, v, K: int, D: int, sh9: bool = False):
+def _terms(P, E, W, shift, u, n, v, K: int, D: int, sh9: bool = False, H=None):
     x = jnp.sum(n * v, axis=-1)
     r = 2.0 * x[:, None] * n - v
     xc = jnp.clip(x, 0.0, 1.0)
     pb = 0.0
+    hb = 0.0
     for j, layer in enumerate(P):  # the layers (a handful), not samples
         hat = jnp.maximum(0.0, 1.0 - jnp.abs(u - j))[:, None, None]
         a = (1.0 - shift[j]) * r + shift[j] * n
         a = a / jnp.maximum(jnp.linalg.norm(a, axis=-1, keepdims=True), 1e-12)
         pb = pb + hat * _cube(layer, a).reshape(-1, K, 3)
+        if H is not None:  # t: the unit tangent from the axis towards n (the plane of incidence)
+            tg = n - jnp.sum(n * a, -1, keepdims=True) * a
+            tg = tg / jnp.maximum(jnp.linalg.norm(tg, axis=-1, keepdims=True), 1e-6)
+            hb = hb + hat[:, 0, 0] * tensor_read(_cube(H[j], a).reshape(-1, 5), tg)
     rows = jnp.arange(W.shape[0], dtype=jnp.float32)
     hats = jnp.maximum(0.0, 1.0 - jnp.abs(u[:, None] - rows[None]))  # (N, L)
     t = jnp.sum(hats[:, :, None] * _line(W, xc), axis=1)  # (N, C)
     ia = jnp.sum(pb * t[:, 0:2 * K:2, None], axis=1)
     ib = jnp.sum(pb * t[:, 1:2 * K:2, None], axis=1)
+    if H is not None:  # the tables' last two channels: h_A, h_B
+        ia = harmonic_colour(ia, hb * t[:, 2 * K + D])
+        ib = harmonic_colour(ib, hb * t[:, 2 * K + D + 1])
     # the diffuse maps: cube textures, or (sh9) E holds their SH coefficients (D, 9, 3)
     e = jnp.einsum("ni,dic->ndc", sh9_basis(n), E) if sh9 else _cube(E, n).reshape(-1, D, 3)
     idf = jnp.sum(e * t[:, 2 * K:2 * K + D, None], axis=1)
@@ -201,4 +236,4 @@ def _terms(P, E, W, shift, u, n, v, K: int, D: int, sh9: bool = False):
     return jnp.where((x > 0)[:, None, None], out, 0.0)
 
 
-__all__ = ["Bake", "diffuse_sh9", "register_writer", "sh9_basis"]
+__all__ = ["Bake", "diffuse_sh9", "harmonic_colour", "register_writer", "sh9_basis", "tensor_read"]

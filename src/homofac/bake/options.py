@@ -29,6 +29,10 @@ class BakeOptions(Options):
     analytic_source: bool = Field(
         True, description="take the environment's brightest compact source out of the maps and shade it as a point "
                           "light with the exact glTF lobes (0 lookups; homofac.bake.sources)")
+    harmonic: Optional[float] = Field(
+        None, ge=0.0, le=1.0,
+        description="the layers from this roughness up also store the luminance's second azimuthal harmonic about "
+                    "their axis (a tensor map per layer, read as t^T M t; docs/format.md); 0: off; default: the preset's")
     exr: Literal["half", "float32"] = "half"
     ktx2: bool = Field(False, description="also write each texture as <name>.ktx2 (RGBA half or float, as exr)")
 

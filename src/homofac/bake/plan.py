@@ -35,17 +35,29 @@ class BakePlan(NamedTuple):
     diffuse_size: int
     min_roughness: float
     diffuse_basis: str = "texture"
+    harmonic: float = 0.0
+
+    @property
+    def channels(self) -> int:
+        """Weight-table channels: a_1, b_1, ..., a_K, b_K, w_1, ..., w_D (and h_A, h_B with the harmonic)."""
+        return 2 * self.terms + self.diffuse + (2 if self.harmonic else 0)
 
     @property
     def tables(self) -> int:
-        """RGB weight tables: channels a_1, b_1, ..., a_K, b_K, w_1, ..., w_D, three per table."""
-        return math.ceil((2 * self.terms + self.diffuse) / 3)
+        """RGB weight tables: the :attr:`channels`, three per table."""
+        return math.ceil(self.channels / 3)
+
+    @property
+    def maps(self) -> int:
+        """Specular textures per layer: K RGB maps P_k; with the harmonic, P_k's RGB and the tensor map's 5
+        channels packed into ceil((3 K + 5) / 4) RGBA maps."""
+        return math.ceil((3 * self.terms + 5) / 4) if self.harmonic else self.terms
 
     @property
     def lookups(self) -> int:
-        """Texture fetches per pixel: D (E_d; none with ``diffuse_basis`` sh9) + 2 K (P_k, two layers blended by
-        hand) + the tables."""
-        return (self.diffuse if self.diffuse_basis == "texture" else 0) + 2 * self.terms + self.tables
+        """Texture fetches per pixel: D (E_d; none with ``diffuse_basis`` sh9) + 2 x the specular maps (two layers
+        blended by hand) + the tables."""
+        return (self.diffuse if self.diffuse_basis == "texture" else 0) + 2 * self.maps + self.tables
 
     def roughnesses(self) -> tuple[float, ...]:
         """The layers' roughnesses: min_roughness (1/min_roughness)^(j/(layers-1)) (lobe width alpha = rho^2
@@ -59,20 +71,24 @@ class BakePlan(NamedTuple):
                 f"({self.min_roughness:g}..1), {self.diffuse} diffuse term(s), {self.tables} weight table(s) of "
                 f"{self.nv_size} n.v columns; P up to {self.max_size}^2 x 6, E {self.diffuse_size}^2 x 6"
                 f"{' as SH9 constants' if self.diffuse_basis == 'sh9' else ''}; "
+                f"{f'second harmonic from roughness {self.harmonic:g}; ' if self.harmonic else ''}"
                 f"{self.lookups} lookups per pixel")
 
 
 #: preset -> (terms, diffuse, layers): 4, 7 and 16 lookups (budgets 4, 8, 16).
 _STRUCTURE = {"fast": (1, 1, 10), "balanced": (2, 1, 12), "best": (5, 2, 12)}
 
+#: preset -> the roughness from which layers store the second harmonic (0: none).
+_HARMONIC = {"fast": 0.0, "balanced": 0.0, "best": 0.0}
+
 
 def plan(preset: str = "balanced", *, max_size: int = 256, min_roughness: float = 0.045, nv_size: int = 32,
          diffuse_size: int = 32, layers: int | None = None, terms: int | None = None,
-         diffuse_basis: str = "texture") -> BakePlan:
+         diffuse_basis: str = "texture", harmonic: float | None = None) -> BakePlan:
     """The plan of a preset, with the given overrides (validated by :class:`homofac.bake.BakeOptions`)."""
     k, d, n = _STRUCTURE[preset]
     return BakePlan(preset, int(terms or k), d, int(layers or n), int(nv_size), int(max_size), int(diffuse_size),
-                    float(min_roughness), str(diffuse_basis))
+                    float(min_roughness), str(diffuse_basis), float(_HARMONIC[preset] if harmonic is None else harmonic))
 
 
 __all__ = ["BakePlan", "PRESETS", "Preset", "plan"]

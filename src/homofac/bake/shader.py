@@ -58,8 +58,10 @@ def source(bake: Bake, language: str = "glsl", *, y_up: bool = False, flip_v: bo
     if flip_v:
         lines.append("#define HOMOFAC_FLIP_V")
     lines += [L.table_source(L.get(language), n, v) for n, v in tables.items()]
-    for k in range(K):
-        lines.append(f"uniform {prec}sampler2D hf_P{k};  // P{k}.exr: {layers} layers in a {atlas.width} x {atlas.height} atlas")
+    harm = bool(pl.harmonic)
+    for k in range(pl.maps):
+        what = f" (RGBA: {', '.join(specular_channels(bake)[k])})" if harm else ""
+        lines.append(f"uniform {prec}sampler2D hf_P{k};  // P{k}.exr: {layers} layers in a {atlas.width} x {atlas.height} atlas{what}")
     sh9 = pl.diffuse_basis == "sh9"
     for d in range(D if not sh9 else 0):
         lines.append(f"uniform {prec}sampler2D hf_E{d};  // E{d}.exr: cube {se}")
@@ -95,6 +97,18 @@ def source(bake: Bake, language: str = "glsl", *, y_up: bool = False, flip_v: bo
         "    return textureLod(t, vec2(uv.x, hf_flip_v(uv.y)), 0.0).rgb;",
         "}",
     ]
+    if harm:
+        lines += [
+            "vec4 hf_layer4(sampler2D t, vec4 layer, vec3 d) {  // hf_layer's RGBA",
+            "    vec3 fuv = hf_map_cube(d);",
+            "    float s = layer.z;",
+            "    float cu = clamp(fuv.y * s - 0.5, 0.0, s - 1.0);",
+            "    float cv = clamp(fuv.z * s - 0.5, 0.0, s - 1.0);",
+            "    vec2 uv = vec2(layer.x + floor(fuv.x + 0.5) * s + cu + 0.5, layer.y + cv + 0.5) / HF_ATLAS;",
+            "    return textureLod(t, vec2(uv.x, hf_flip_v(uv.y)), 0.0);",
+            "}",
+        ]
+        lines += _harmonic_functions(language)
     if sh9:
         lines += [_sh9_function(d, np.asarray(bake.sh)[d]) for d in range(D)]
     if bake.sources:
@@ -124,10 +138,25 @@ def source(bake: Bake, language: str = "glsl", *, y_up: bool = False, flip_v: bo
     for t in range(pl.tables):
         body.append(f"    vec3 w{t} = textureLod(hf_W{t}, wuv, 0.0).rgb;")
         chans += [f"w{t}.{c}" for c in "rgb"]
+    if harm:
+        c0, c1 = [], []
+        for i in range(pl.maps):
+            body.append(f"    vec4 q0_{i} = hf_layer4(hf_P{i}, l0, a0);")
+            body.append(f"    vec4 q1_{i} = hf_layer4(hf_P{i}, l1, a1);")
+            c0 += [f"q0_{i}.{c}" for c in "xyzw"]
+            c1 += [f"q1_{i}.{c}" for c in "xyzw"]
     for k in range(K):
-        body.append(f"    vec3 p{k} = mix(hf_layer(hf_P{k}, l0, a0), hf_layer(hf_P{k}, l1, a1), t);")
+        if harm:
+            body.append(f"    vec3 p{k} = mix(vec3({', '.join(c0[3 * k:3 * k + 3])}), vec3({', '.join(c1[3 * k:3 * k + 3])}), t);")
+        else:
+            body.append(f"    vec3 p{k} = mix(hf_layer(hf_P{k}, l0, a0), hf_layer(hf_P{k}, l1, a1), t);")
         body.append(f"    I_A += p{k} * {chans[2 * k]};")
         body.append(f"    I_B += p{k} * {chans[2 * k + 1]};")
+    if harm:
+        body.append(f"    float hh = mix(hf_tensor({', '.join(c0[3 * K:3 * K + 5])}, hf_tangent(n, a0)), "
+                    f"hf_tensor({', '.join(c1[3 * K:3 * K + 5])}, hf_tangent(n, a1)), t);")
+        body.append(f"    I_A = hf_harmonic(I_A, hh * {chans[2 * K + D]});")
+        body.append(f"    I_B = hf_harmonic(I_B, hh * {chans[2 * K + D + 1]});")
     for d in range(D):
         read = f"hf_sh9_{d}(n)" if sh9 else f"hf_cube(hf_E{d}, {_f(se)}, n)"
         body.append(f"    I_d += {read} * {chans[2 * K + d]};")
@@ -143,6 +172,39 @@ def source(bake: Bake, language: str = "glsl", *, y_up: bool = False, flip_v: bo
     ]
     text = "\n".join(lines + body + entry) + "\n"
     return _to_hlsl(text, bake) if language == "hlsl" else text
+
+
+def _harmonic_functions(language: str) -> list[str]:
+    """``hf_tangent(n, a)`` (the unit tangent from the axis a towards n), ``hf_tensor(xx, yy, xy, xz, yz, t)``
+    (t^T M t, M_zz = -M_xx - M_yy) and ``hf_harmonic(i0, h)`` (i0 max(0, 1 + h / Y(i0)): the harmonic's
+    luminance coloured as the isotropic part): :func:`homofac.bake.model.tensor_read`, ``harmonic_colour``."""
+    msl, wgsl = language == "msl", language == "wgsl"
+    v3, ft = ("float3", "float") if msl else (("vec3<f32>", "f32") if wgsl else ("vec3", "float"))
+    f = (lambda x: L.float_literal(float(x), "f")) if msl else _f
+
+    def head(name, params, ret):
+        if wgsl:
+            return f"fn {name}({', '.join(f'{a}: {t}' for a, t in params)}) -> {ret} {{"
+        return f"{ret} {name}({', '.join(f'{t} {a}' for a, t in params)}) {{"
+
+    def let(name, t, e):
+        return f"let {name}: {t} = {e};" if wgsl else f"{t} {name} = {e};"
+
+    lum = f"{v3}({f(0.2126)}, {f(0.7152)}, {f(0.0722)})"
+    return [
+        head("hf_tangent", [("n", v3), ("a", v3)], v3) + "  // unit tangent from the axis a towards n",
+        "    " + let("g", v3, "n - dot(n, a) * a"),
+        f"    return g / max(sqrt(dot(g, g)), {f(1e-6)});",
+        "}",
+        head("hf_tensor", [(c, ft) for c in ("xx", "yy", "xy", "xz", "yz")] + [("t", v3)], ft) + "  // t^T M t, M_zz = -M_xx - M_yy",
+        f"    return xx * (t.x * t.x - t.z * t.z) + yy * (t.y * t.y - t.z * t.z) + {f(2.0)} * (xy * t.x * t.y + xz * t.x * t.z + yz * t.y * t.z);",
+        "}",
+        head("hf_harmonic", [("i0", v3), ("h", ft)], v3) + "  // i0 max(0, 1 + h / Y(i0))",
+        "    " + let("y", ft, f"dot(i0, {lum})"),
+        f"    if (y <= {f(1e-20)}) {{ return i0; }}",
+        f"    return i0 * max({f(0.0)}, {f(1.0)} + h / y);",
+        "}",
+    ]
 
 
 def _source_function(language: str) -> list[str]:
@@ -227,8 +289,10 @@ def _to_hlsl(text: str, bake: Bake) -> str:
         if "sampler2D t" in line:
             line = line.replace("sampler2D t", "Texture2D<float4> t, SamplerState ts")
         line = line.replace("textureLod(t, vec2(uv.x, hf_flip_v(uv.y)), 0.0).rgb", "t.SampleLevel(ts, vec2(uv.x, hf_flip_v(uv.y)), 0).rgb")
-        for k in range(bake.plan.terms):
+        line = line.replace("textureLod(t, vec2(uv.x, hf_flip_v(uv.y)), 0.0)", "t.SampleLevel(ts, vec2(uv.x, hf_flip_v(uv.y)), 0)")
+        for k in range(bake.plan.maps):
             line = line.replace(f"hf_layer(hf_P{k}, ", f"hf_layer(hf_P{k}, sampler_hf_P{k}, ")
+            line = line.replace(f"hf_layer4(hf_P{k}, ", f"hf_layer4(hf_P{k}, sampler_hf_P{k}, ")
         for d in range(bake.plan.diffuse):
             line = line.replace(f"hf_cube(hf_E{d}, ", f"hf_cube(hf_E{d}, sampler_hf_E{d}, ")
         for t in range(bake.plan.tables):
@@ -244,7 +308,7 @@ def _to_hlsl(text: str, bake: Bake) -> str:
 def _names(bake: Bake) -> list[tuple[str, str]]:
     """``(texture name, comment)`` of every texture, in binding order (P<k>, E<d>, W<t>)."""
     pl, atlas = bake.plan, bake.atlas
-    return ([(f"hf_P{k}", f"P{k}: {pl.layers} layers in a {atlas.width} x {atlas.height} atlas") for k in range(pl.terms)]
+    return ([(f"hf_P{k}", f"P{k}: {pl.layers} layers in a {atlas.width} x {atlas.height} atlas") for k in range(pl.maps)]
             + [(f"hf_E{d}", f"E{d}: cube {pl.diffuse_size}") for d in range(pl.diffuse)]
             + [(f"hf_W{t}", f"W{t}: {pl.layers} x {pl.nv_size} weight table") for t in range(pl.tables)])
 
@@ -325,14 +389,29 @@ def _metal_or_wgsl(bake: Bake, language: str, *, y_up: bool, flip_v: bool) -> st
         return coords + [let("uv", v2, f"{v2}((floor(fuv.x + {half}) * s + cu + {half}) / ({f(6.0)} * s), (cv + {half}) / s)"),
                          f"return {read(tname, 'uv')};"]
 
+    harm = bool(pl.harmonic)
+
+    def layer4_body(tname):  # the RGBA read of a specular map with the harmonic
+        body = layer_body(tname)
+        return body[:-1] + [body[-1].replace(".rgb;", ";")]
+
     if msl:
         lines += fn("hf_layer", [("t", "texture2d<float>"), ("layer", v4), ("d", v3)], v3, layer_body("t"))
         lines += fn("hf_cube", [("t", "texture2d<float>"), ("s", ft), ("d", v3)], v3, cube_body("t"))
+        if harm:
+            lines += fn("hf_layer4", [("t", "texture2d<float>"), ("layer", v4), ("d", v3)], v4,
+                        [b.replace(f"return {read('t', 'uv')};", "return t.sample(hf_sampler, float2(uv.x, hf_flip_v(uv.y)), level(0.0f));")
+                         for b in layer_body("t")])
     else:
-        for k in range(K):
-            lines += fn(f"hf_layer_P{k}", [("layer", v4), ("d", v3)], v3, layer_body(f"hf_P{k}"))
+        for k in range(pl.maps):
+            if harm:
+                lines += fn(f"hf_layer4_P{k}", [("layer", v4), ("d", v3)], v4, layer4_body(f"hf_P{k}"))
+            else:
+                lines += fn(f"hf_layer_P{k}", [("layer", v4), ("d", v3)], v3, layer_body(f"hf_P{k}"))
         for d in range(D):
             lines += fn(f"hf_cube_E{d}", [("s", ft), ("d", v3)], v3, cube_body(f"hf_E{d}"))
+    if harm:
+        lines += _harmonic_functions(language)
     if bake.sources:
         lines += _source_function(language)
     nv, vv = ("n", "v") if msl else ("n_in", "v_in")
@@ -359,13 +438,29 @@ def _metal_or_wgsl(bake: Bake, language: str, *, y_up: bool, flip_v: bool) -> st
         body.append(let(f"w{t}", v3, read(f"hf.hf_W{t}" if msl else f"hf_W{t}", "wuv")))
         chans += [f"w{t}.{c}" for c in "xyz"]
     out = ("I_d", "I_A", "I_B") if msl else ("o.I_d", "o.I_A", "o.I_B")
+    if harm:
+        c0, c1 = [], []
+        for i in range(pl.maps):
+            for lay, a, cs in (("l0", "a0", c0), ("l1", "a1", c1)):
+                q = f"q{lay[1]}_{i}"
+                body.append(let(q, v4, f"hf_layer4(hf.hf_P{i}, {lay}, {a})" if msl else f"hf_layer4_P{i}({lay}, {a})"))
+                cs += [f"{q}.{c}" for c in "xyzw"]
     for k in range(K):
-        if msl:
+        if harm:
+            blend = f"mix({v3}({', '.join(c0[3 * k:3 * k + 3])}), {v3}({', '.join(c1[3 * k:3 * k + 3])}), {bl('t')})"
+            body.append(let(f"p{k}", v3, blend))
+        elif msl:
             body.append(let(f"p{k}", v3, f"mix(hf_layer(hf.hf_P{k}, l0, a0), hf_layer(hf.hf_P{k}, l1, a1), float3(t))"))
         else:
             body.append(let(f"p{k}", v3, f"mix(hf_layer_P{k}(l0, a0), hf_layer_P{k}(l1, a1), t)"))
         body.append(f"{out[1]} = {out[1]} + p{k} * {chans[2 * k]};")
         body.append(f"{out[2]} = {out[2]} + p{k} * {chans[2 * k + 1]};")
+    if harm:
+        body.append(let("h0", ft, f"hf_tensor({', '.join(c0[3 * K:3 * K + 5])}, hf_tangent(n, a0))"))
+        body.append(let("h1", ft, f"hf_tensor({', '.join(c1[3 * K:3 * K + 5])}, hf_tangent(n, a1))"))
+        body.append(let("hh", ft, "h0 + (h1 - h0) * t"))
+        body.append(f"{out[1]} = hf_harmonic({out[1]}, hh * {chans[2 * K + D]});")
+        body.append(f"{out[2]} = hf_harmonic({out[2]}, hh * {chans[2 * K + D + 1]});")
     for d in range(D):
         e = f"hf_cube(hf.hf_E{d}, {f(se)}, n)" if msl else f"hf_cube_E{d}({f(se)}, n)"
         body.append(f"{out[0]} = {out[0]} + {e} * {chans[2 * K + d]};")
@@ -390,10 +485,38 @@ def _metal_or_wgsl(bake: Bake, language: str, *, y_up: bool, flip_v: bool) -> st
     return "\n".join(x for x in lines if x != "") + "\n"
 
 
-def texture_arrays(bake: Bake) -> list[tuple[str, object]]:
-    """``(uniform name, (H, W, 3) float32 array)`` of every texture, as the files hold them."""
+def specular_channels(bake: Bake) -> list[list[str]]:
+    """The channels of each specular map ``P<i>``: ``P<k>.r/g/b`` of the K products; with the plan's ``harmonic``
+    followed by the tensor's ``M.xx, M.yy, M.xy, M.xz, M.yz``, four to a map (RGBA, the last padded with ``-``)."""
     pl = bake.plan
-    out = [(f"hf_P{k}", assemble(bake.atlas, [np.asarray(p)[:, :, k] for p in bake.P], 3)) for k in range(pl.terms)]
+    flat = [f"P{k}.{c}" for k in range(pl.terms) for c in "rgb"]
+    if not pl.harmonic:
+        return [flat[3 * k:3 * k + 3] for k in range(pl.terms)]
+    flat += ["M.xx", "M.yy", "M.xy", "M.xz", "M.yz"]
+    flat += ["-"] * (4 * pl.maps - len(flat))
+    return [flat[4 * i:4 * i + 4] for i in range(pl.maps)]
+
+
+def _specular_layer(bake: Bake, j: int) -> np.ndarray:
+    """Layer j's specular channels (S, 6 S, C) in :func:`specular_channels`' order (a tensor of 0 below the
+    harmonic's roughness)."""
+    p = np.asarray(bake.P[j], np.float32)
+    flat = p.reshape(p.shape[0], p.shape[1], -1)
+    if not bake.plan.harmonic:
+        return flat
+    h = bake.H[j] if bake.H and bake.H[j] is not None else np.zeros(p.shape[:2] + (5,), np.float32)
+    pad = np.zeros(p.shape[:2] + (4 * bake.plan.maps - flat.shape[2] - 5,), np.float32)
+    return np.concatenate([flat, np.asarray(h, np.float32), pad], axis=-1)
+
+
+def texture_arrays(bake: Bake) -> list[tuple[str, object]]:
+    """``(uniform name, (H, W, 3 or 4) float32 array)`` of every texture, as the files hold them."""
+    pl = bake.plan
+    if pl.harmonic:
+        layers = [_specular_layer(bake, j) for j in range(pl.layers)]
+        out = [(f"hf_P{i}", assemble(bake.atlas, [layer[:, :, 4 * i:4 * i + 4] for layer in layers], 4)) for i in range(pl.maps)]
+    else:
+        out = [(f"hf_P{k}", assemble(bake.atlas, [np.asarray(p)[:, :, k] for p in bake.P], 3)) for k in range(pl.terms)]
     e = np.asarray(bake.E, np.float32) if pl.diffuse_basis == "texture" else None
     out += [(f"hf_E{d}", np.ascontiguousarray(e[:, :, d])) for d in range(pl.diffuse if pl.diffuse_basis == "texture" else 0)]
     w = np.asarray(bake.W, np.float32)
@@ -402,4 +525,4 @@ def texture_arrays(bake: Bake) -> list[tuple[str, object]]:
     return out
 
 
-__all__ = ["LANGUAGES", "source", "texture_arrays"]
+__all__ = ["LANGUAGES", "source", "specular_channels", "texture_arrays"]

@@ -316,8 +316,14 @@ def _chunk_offsets(path: Path, hd: _Header) -> np.ndarray | None:
     return table
 
 
-def _rgb_from_channels(path: Path, channels: dict[str, Any], native: bool = False) -> np.ndarray:
+def _rgb_from_channels(path: Path, channels: dict[str, Any], native: bool = False, alpha: bool = False) -> np.ndarray:
     pix = {name: np.asarray(ch.pixels) for name, ch in channels.items()}
+    if alpha:  # RGB and A (an RGBA group's fourth channel, an "A" channel, or 1)
+        rgb = _rgb_from_channels(path, channels, native)
+        a = pix["RGBA"][..., 3] if "RGBA" in pix and pix["RGBA"].ndim == 3 and pix["RGBA"].shape[2] >= 4 else pix.get("A")
+        if a is None or a.shape != rgb.shape[:2]:
+            a = np.ones(rgb.shape[:2], rgb.dtype)
+        return np.concatenate([rgb, np.asarray(a, rgb.dtype)[..., None]], axis=-1)
     if "RGB" in pix or "RGBA" in pix:
         a = pix["RGB"] if "RGB" in pix else pix["RGBA"]
         if a.ndim != 3 or a.shape[2] < 3:
@@ -351,7 +357,7 @@ def _rgb_from_channels(path: Path, channels: dict[str, Any], native: bool = Fals
 
 
 def read_exr_with_header(
-    path: str | os.PathLike, *, native: bool = False, max_bytes: int | None = DEFAULT_MAX_BYTES
+    path: str | os.PathLike, *, native: bool = False, max_bytes: int | None = DEFAULT_MAX_BYTES, alpha: bool = False
 ) -> tuple[np.ndarray, dict]:
     """``(rgb (H, W, 3) float32, header dict)`` of the first part of an OpenEXR file.
 
@@ -378,16 +384,18 @@ def read_exr_with_header(
         raise HomofacError(f"{p}: cannot read EXR (corrupt or truncated?): {_one_line(e)}") from None
     if not channels:
         raise HomofacError(f"{p}: cannot read EXR pixel data (corrupt or truncated?)")
-    return _rgb_from_channels(p, channels, native), header
+    return _rgb_from_channels(p, channels, native, alpha), header
 
 
-def read_exr(path: str | os.PathLike, *, native: bool = False, max_bytes: int | None = DEFAULT_MAX_BYTES) -> np.ndarray:
-    """RGB pixels of an OpenEXR file as an ``(H, W, 3)`` float32 array (row 0 is the top row).
+def read_exr(path: str | os.PathLike, *, native: bool = False, max_bytes: int | None = DEFAULT_MAX_BYTES,
+             alpha: bool = False) -> np.ndarray:
+    """RGB pixels of an OpenEXR file as an ``(H, W, 3)`` float32 array (row 0 is the top row); ``alpha=True``:
+    ``(H, W, 4)`` RGBA (alpha 1 when the file has none).
 
     ``native=True`` returns half files as float16 arrays (bit-exact half round trip). An image whose
     whole read would need more than ``max_bytes`` (default 1 GiB; None: no cap) is refused up front.
     """
-    return read_exr_with_header(path, native=native, max_bytes=max_bytes)[0]
+    return read_exr_with_header(path, native=native, max_bytes=max_bytes, alpha=alpha)[0]
 
 
 # ------------------------------------------------------------------------------------------ strips
@@ -625,8 +633,10 @@ def write_exr(
     half: bool = False,
     header: dict | None = None,
     compression: str | None = None,
+    alpha: bool = False,
 ) -> Path:
     """Write an ``(H, W, 3)`` (or ``(H, W)`` grey) image as an RGB OpenEXR file; returns the path.
+    ``alpha=True`` and an ``(H, W, 4)`` image: an RGBA file (else a fourth channel is dropped).
 
     float32 by default (bit-exact round trip), half precision with ``half=True``. ``header`` adds or
     overrides attributes (e.g. ``{"envmap": OpenEXR.ENVMAP_CUBE}``); ``compression`` is a name such
@@ -641,7 +651,8 @@ def write_exr(
         a = np.repeat(a[..., None], 3, axis=-1)
     if a.ndim != 3 or a.shape[2] not in (3, 4) or a.shape[0] == 0 or a.shape[1] == 0:
         raise HomofacError(f"{p}: cannot write EXR: expected an (H, W, 3) image, got shape {a.shape}")
-    a = np.ascontiguousarray(a[..., :3], dtype=np.float16 if half else np.float32)
+    keep = 4 if alpha and a.shape[2] == 4 else 3
+    a = np.ascontiguousarray(a[..., :keep], dtype=np.float16 if half else np.float32)
     hdr: dict = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     if compression is not None:
         name = compression.upper().removesuffix("_COMPRESSION")
@@ -651,4 +662,5 @@ def write_exr(
         hdr["compression"] = getattr(OpenEXR, name)
     if header:
         hdr.update(header)
-    return write_atomically(p, "EXR", lambda tmp: OpenEXR.File(hdr, {"RGB": a}).write(tmp), suffix=".tmp.exr")
+    group = "RGBA" if keep == 4 else "RGB"
+    return write_atomically(p, "EXR", lambda tmp: OpenEXR.File(hdr, {group: a}).write(tmp), suffix=".tmp.exr")
