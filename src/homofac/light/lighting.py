@@ -181,6 +181,12 @@ def _lobe_sums(brdf, spec, wi, wo, wrad, lum):
     return jnp.sum(f, axis=-2), (f @ lum if lum is not None else None)
 
 
+#: The band above the horizon, in coarse texel widths, whose cells the tree refines first per normal: at a
+#: grazing view a cell's estimate there (the BRDF at its mean direction) can be far below the sum over its
+#: lights, as the lobe grows like 1 / cos towards the horizon.
+HORIZON_BAND = 2.0
+
+
 #: Luminance weights of the refinement score (Rec. 709, as :func:`.environment.luminance`).
 _LUM = (0.2126, 0.7152, 0.0722)
 
@@ -193,7 +199,10 @@ def _normal_radiance_tree(brdf, spec, kd, dirs, rad, geom, tree, n, v, centroid=
     cosine-weighted radiance W_j = sum_{k in j} w_k(n) L_k and its direction d_j, the mean of its lights'
     directions weighted by w_k(n) lum(L_k) (the aggregate is exact for a BRDF linear across the cell). Per
     view: the cells' estimates c_j = f(d_j, v) W_j, and the ``tree.refine`` cells of largest lum(c_j) (the
-    BRDF's own values: any model, measured ones included) replaced by the sum over their lights:
+    BRDF's own values: any model, measured ones included) replaced by the sum over their lights, as are the
+    ``tree.bright`` cells of largest power lum(W_j) of the normal, those within :data:`HORIZON_BAND` coarse
+    texels of its horizon first, for every view (at a grazing view a cell's estimate near the horizon can be
+    far below its value, as the lobe grows like 1 / cos there; these need no per-view gather):
 
         L(v, n) = kd/pi E(n) + sum_j c_j - sum_{j in top} c_j + sum_{j in top} sum_{k in j} f(l_k, v) w_k(n) L_k.
 
@@ -232,6 +241,14 @@ def _normal_radiance_tree(brdf, spec, kd, dirs, rad, geom, tree, n, v, centroid=
         wo = v @ frame  # (P, 3)
         wo3 = tuple(wo[:, None, c] for c in range(3))
         total, score = _lobe_sums(brdf, spec, tuple(dc[None, :, c] for c in range(3)), wo3, wrc, lum)  # (P, 3), (P, S)
+        if tree.bright:  # the normal's brightest cells, those near its horizon first, refined for every view
+            low = dc[:, 2] < HORIZON_BAND * (jnp.pi / 2) / tree.coarse  # within about two coarse texels of it
+            _, hot = jax.lax.top_k((wrc @ lum) * jnp.where(low, 1e6, 1.0), tree.bright)  # (B,)
+            score = jnp.where(jnp.zeros(score.shape[1:], bool).at[hot].set(True)[None], -jnp.inf, score)
+            lit = cell[hot].reshape(-1, 6)  # (B M, 6)
+            fine_b, _ = _lobe_sums(brdf, spec, tuple(lit[None, :, c] for c in range(3)), wo3, lit[:, 3:], None)
+            chosen_b, _ = _lobe_sums(brdf, spec, tuple(dc[None, hot, c] for c in range(3)), wo3, wrc[hot], None)
+            total = total - chosen_b + fine_b
         _, top = jax.lax.top_k(score, tree.refine)  # (P, K)
         chosen, _ = _lobe_sums(brdf, spec, tuple(dc[top, c] for c in range(3)), wo3, wrc[top], None)
         p = v.shape[0]
@@ -396,7 +413,8 @@ class Lighting(eqx.Module):
         where ``tree`` is set (:func:`_normal_radiance_tree`)."""
         spec, kd = _split_diffuse(self.brdf)
         dirs, rad, geom = self._arrays(normals.dtype)
-        k = max_visible(self.env) if self.tree is None else self.tree.slots + self.tree.refine * self.tree.width
+        k = max_visible(self.env) if self.tree is None else (
+            self.tree.slots + (self.tree.refine + self.tree.bright) * self.tree.width)
         g_count, p = views.shape[0], views.shape[1]
         # several normals per lax.map step (vmapped) so each step has a few million light terms
         per = int(max(1, min(g_count, STEP_TERMS // max(1, p * k))))

@@ -26,12 +26,15 @@ from .lights import light_corners
 
 class LightTree(eqx.Module):
     """Coarse cells of an environment's lights: ``children`` (C, M) light indices (``L`` = none), the
-    coarse cube face size, how many cells each view refines (``refine``), and ``slots``, a static bound on
-    the cells with a light above any horizon (half the coarse cube, its straddlers, every delta cell)."""
+    coarse cube face size, how many cells each view refines by their estimated contribution (``refine``)
+    and each normal by their power (``bright``: the lamps, whose estimate a sharp or grazing lobe can miss),
+    and ``slots``, a static bound on the cells with a light above any horizon (half the coarse cube, its
+    straddlers, every delta cell)."""
 
     children: Int[Array, "C M"]
     coarse: int = eqx.field(static=True)
     refine: int = eqx.field(static=True)
+    bright: int = eqx.field(static=True)
     slots: int = eqx.field(static=True)
 
     @property
@@ -55,8 +58,9 @@ def cube_texel(directions: np.ndarray, r: int) -> np.ndarray:
 
 def light_tree(env: Environment, coarse: int, refine: int) -> LightTree:
     """The two-level tree of ``env``'s lights over the cube texels of face size ``coarse`` (module
-    docstring); ``refine`` cells per view are summed over their lights (all of them where ``refine`` is at
-    least the visible cells: the full sum)."""
+    docstring); ``refine`` cells per view (of largest estimate) and ``refine`` more per normal (of largest
+    power) are summed over their lights (every cell where ``refine`` is at least the visible cells: the
+    full sum)."""
     coarse = int(coarse)
     if coarse < 1 or refine < 1:
         raise ValueError(f"light tree: coarse face size and refined cells must be >= 1, got {coarse}, {refine}")
@@ -73,7 +77,8 @@ def light_tree(env: Environment, coarse: int, refine: int) -> LightTree:
     children = np.full((n_cells, width), L, np.int32)
     children[cell[order], rank] = order
     slots = min(n_cells, 3 * coarse * coarse + 6 * coarse + int(delta.sum()))
-    return LightTree(jnp.asarray(children), coarse, int(min(refine, slots)), int(slots))
+    per_view = int(min(refine, slots))
+    return LightTree(jnp.asarray(children), coarse, per_view, int(min(refine, slots - per_view)), int(slots))
 
 
 def texel_resolution(env: Environment) -> int:
