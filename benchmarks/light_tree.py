@@ -5,9 +5,9 @@
 For each case (the accuracy benchmark's speed cases, lights at the fit's resolution 32):
 
 * the plan's validation-light decision (``homofac.fit.validation.decide``: 2048 pairs at 32, 64, ...) with
-  the refined lightings summed over every light (the code before: light blocks of 4096) and by the light
-  tree (the code now), CPU seconds each, compilation included;
-* the fit's 20 000 validation values at the decided resolution R, both ways, CPU seconds (cold: with its
+  the refined lightings summed over every light (light blocks of 4096) and as the plan says
+  (``validation.light_sum``: the light tree where it pays), CPU seconds each, compilation included;
+* the fit's 20 000 validation values at the decided resolution R, by every light and as the plan says, CPU seconds (cold: with its
   compilation; warm: a second call) and the tree's nrmse and largest relative error against the full sum;
 * with ``--training``: the training-type evaluation (64 views per normal, the 6144 lights at 32) by the full
   sum and by trees of coarse face size 8 and 16, the evidence that the training grid keeps the full sum.
@@ -56,7 +56,7 @@ def validation_case(material: str, env_name: str) -> dict:
     env = hf.light.load_environment(env_name, 32)
     target = hf.light.lighting_target(acc.MATERIALS[material](), env)
     rule = validation.light_sum
-    validation.light_sum = lambda start, resolution: None  # the code before: every light, in blocks
+    validation.light_sum = lambda start, resolution, visible: None  # every light, in blocks
     try:
         before, t_before = _cpu(lambda: validation._decide(target, env, COUNT, SEED, lambda m: None))
     finally:
@@ -74,7 +74,7 @@ def validation_case(material: str, env_name: str) -> dict:
     z, t_tree = _cpu(lambda: evaluate_blocked(tree_t, groups))
     _, t_tree_warm = _cpu(lambda: evaluate_blocked(tree_t, groups))
     row["validation"] = {"resolution": r, "lights": int(full_t.fn.env.num_lights), "pairs": int(len(y)),
-                         "light_sum": validation.light_sum(32, r),
+                         "light_sum": None if tree_t.fn.tree is None else [tree_t.fn.tree.coarse, tree_t.fn.tree.refine],
                          "full_cpu_s": t_full, "full_warm_cpu_s": t_full_warm,
                          "tree_cpu_s": t_tree, "tree_warm_cpu_s": t_tree_warm, **_errors(z, y)}
     return row

@@ -63,19 +63,21 @@ def test_few_refined_cells_stay_close_to_the_full_sum_and_more_get_closer():
     assert errs[0] < 0.05 and errs[1] < 0.005 and errs[1] < errs[0] / 4, errs
 
 
-def test_the_validation_lighting_above_the_fit_resolution_is_summed_by_a_tree_within_its_tolerance():
+def test_the_plan_sums_the_validation_lighting_by_a_tree_only_where_it_has_many_more_lights():
+    assert validation.light_sum(32, 32, 10**6) is None and validation.light_sum(8, 32, 10**6) is None  # R = r; too few
+    assert validation.light_sum(32, 128, 39232) == (32, validation.REFINED_LIGHTS // 16)  # the interior at 128
+    assert validation.light_sum(32, 64, 6576) is None  # the studio at 64: the full sum is cheaper
+
+
+def test_the_validation_lighting_summed_by_a_tree_is_within_its_tolerance_and_recorded():
     env = hf.light.load_environment("studio", 16)
     target = hf.light.lighting_target(hf.brdf.ggx(kd=0.1, ks=1.0, roughness=0.2, f0=0.9), env)
-    assert validation.light_sum(16, 16) is None and validation.light_sum(8, 32) is None  # nothing refined; too few
-    assert validation.light_sum(16, 64) == (16, validation.REFINED_LIGHTS // 16)
     groups = _groups()
-    tree = validation.lighting_at(target, 32)
+    tree = validation.lighting_at(target, 32, (16, 64))
     full = validation.lighting_at(target, 32, None)
     assert tree.fn.tree is not None and full.fn.tree is None and tree.fn.env.num_lights == full.fn.env.num_lights
     err = metrics(evaluate_blocked(tree, groups), evaluate_blocked(full, groups))["nrmse"]
     assert err < 0.003, err  # far below the decision's tolerance
-    given = validation.given(target, 32)
-    k = validation.REFINED_LIGHTS // 4
-    assert given.light_sum == (16, k) and given.record()["light_sum"] == {"coarse": 16, "refined": k}
-    assert "light tree" in given.describe()
-    assert plan.build_plan(target, "fast", {"advanced": {"validation_light": 32}}).validation_light == given
+    given = validation.ValidationLight(32, 16, "given", (), False, validation.TOLERANCE, 100, (16, 64))
+    assert given.record()["light_sum"] == {"coarse": 16, "refined": 64} and "light tree" in given.describe()
+    assert plan.build_plan(target, "fast", {"advanced": {"validation_light": 32}}).validation_light == validation.given(target, 32)

@@ -26,7 +26,8 @@ The refined lighting is summed by a two-level light tree (:func:`light_sum`, :mo
 every pair sums the fit's light texels (the refined ones aggregated) and replaces the
 :data:`REFINED_LIGHTS` / (R/r)^2 cells of largest contribution by their fine texels, about 6x cheaper
 than every light at R = 4r, within 0.2-0.3 % nrmse of the full sum (benchmarks/light_tree.md). Below
-:data:`TREE_MIN_START` the fit's texels are too few to be a coarse level, and the full sum is used.
+:data:`TREE_MIN_START` the fit's texels are too few to be a coarse level, and where the refined lighting
+has few more lights than the tree evaluates (:data:`TREE_GAIN`) the full sum is cheaper: both use it.
 
 The decision is a plan value (:class:`ValidationLight`, :func:`homofac.fit.plan.build_plan`): printed by
 ``--plan`` and recorded in factorization.json (``selection.validation_light``), the light sum with it.
@@ -42,6 +43,7 @@ import numpy as np
 
 from ..errors import HomofacError
 from ..light import Lighting
+from ..light.lighting import max_visible
 from ..light.refine import at_resolution, bright_texels, mixture, route
 from ..light.tree import light_tree
 from ..target import Target
@@ -74,15 +76,25 @@ REFINED_LIGHTS = 1024
 TREE_MIN_START = 16
 
 
-def light_sum(start: int, resolution: int) -> tuple[int, int] | None:
-    """How the validation lighting at ``resolution`` R is summed when the fit's lights are at ``start`` r:
-    ``(coarse face size, refined cells per pair)`` of the two-level light tree (the coarse cells are the
-    fit's own texels, each refined one summed over its (R/r)^2 texels at R), or None for the full sum (R = r:
-    nothing refined; r below :data:`TREE_MIN_START`: too few coarse cells to be exact)."""
+#: The tree is used where the refined lighting has this many times the lights above a horizon that the tree
+#: evaluates per view (its coarse cells and its refined cells' lights): below it the full sum is cheaper
+#: (mirror / studio at 64, 6576 visible lights: 2.8 s CPU the full sum, 4.6 s the tree; benchmarks/light_tree.md).
+TREE_GAIN = 2.0
+
+
+def light_sum(start: int, resolution: int, visible: int) -> tuple[int, int] | None:
+    """How the validation lighting at ``resolution`` R is summed when the fit's lights are at ``start`` r and
+    the refined lighting has ``visible`` lights above a horizon (``info["max_visible"]``): ``(coarse face
+    size, refined cells per pair)`` of the two-level light tree (the coarse cells are the fit's own texels,
+    each refined one summed over its (R/r)^2 texels at R), or None for the full sum (R = r: nothing refined;
+    r below :data:`TREE_MIN_START`: too few coarse cells to be exact; fewer than :data:`TREE_GAIN` x the
+    tree's evaluations: the full sum is cheaper)."""
     start, resolution = int(start), int(resolution)
     if resolution <= start or start < TREE_MIN_START:
         return None
-    return start, max(1, REFINED_LIGHTS // (resolution // start) ** 2)
+    refined = max(1, REFINED_LIGHTS // (resolution // start) ** 2)
+    work = 3 * start * start + 6 * start + 2 * refined * (resolution // start) ** 2
+    return (start, refined) if int(visible) > TREE_GAIN * work else None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -147,7 +159,7 @@ def lighting_at(target: Target, resolution: int, summed=_RULE) -> Target:
     if env is None or int(resolution) == int(env.info["resolution"]):
         return target
     fine = mixture(env, at_resolution(env, int(resolution)), bright_texels(env, SHARE))
-    how = light_sum(int(env.info["resolution"]), int(resolution)) if summed is _RULE else summed
+    how = light_sum(int(env.info["resolution"]), int(resolution), max_visible(fine)) if summed is _RULE else summed
     tree = None if how is None else light_tree(fine, *how)
     return Target(target.kind, dataclasses.replace(target.fn, env=fine, tree=tree), target.quantity, dict(target.context))
 
@@ -161,9 +173,10 @@ def given(target: Target, resolution: int) -> ValidationLight:
     if int(resolution) % start or f & (f - 1):
         raise HomofacError(f"advanced.validation_light must be the light resolution {start} times a power of 2 "
                            f"(the validation refines the fit's light texels), got {resolution}")
+    fine = lighting_at(target, int(resolution), None).fn.env
     return ValidationLight(resolution=int(resolution), start=start, route="given", changes=(), converged=False,
-                           tolerance=TOLERANCE, lights=int(lighting_at(target, int(resolution), None).fn.env.num_lights),
-                           light_sum=light_sum(start, int(resolution)))
+                           tolerance=TOLERANCE, lights=int(fine.num_lights),
+                           light_sum=light_sum(start, int(resolution), max_visible(fine)))
 
 
 def decision_pairs(count: int, seed: int) -> sampling.Grouped:
@@ -190,7 +203,7 @@ def decide(target: Target, count: int, seed: int, log=None) -> ValidationLight |
         return None
     k = cache.key(target, {"validation_light": [int(count), int(seed), TOLERANCE,
                                                 SHARE, MAX_RESOLUTION, MAX_DOUBLINGS, route(env),
-                                                REFINED_LIGHTS, TREE_MIN_START]}, "")
+                                                REFINED_LIGHTS, TREE_MIN_START, TREE_GAIN]}, "")
     if k is not None and k in _DECIDED:
         return _DECIDED[k]
     found = _decide(target, env, count, seed, log)
@@ -215,10 +228,10 @@ def _decide(target: Target, env, count: int, seed: int, log) -> ValidationLight:
             break
         r, y = 2 * r, y2
     converged = bool(changes) and changes[-1][1] < TOLERANCE
-    lights = int(lighting_at(target, r, None).fn.env.num_lights)
+    fine = lighting_at(target, r, None).fn.env
     return ValidationLight(resolution=r, start=start, route=how, changes=tuple(changes), converged=converged,
-                           tolerance=TOLERANCE, lights=lights, light_sum=light_sum(start, r))
+                           tolerance=TOLERANCE, lights=int(fine.num_lights), light_sum=light_sum(start, r, max_visible(fine)))
 
 
 __all__ = ["DECISION_NORMALS", "FIT_NRMSE", "MAX_DOUBLINGS", "MAX_RESOLUTION", "MOVE", "REFINED_LIGHTS", "SHARE", "TOLERANCE",
-           "TREE_MIN_START", "ValidationLight", "decide", "decision_pairs", "environment", "given", "light_sum", "lighting_at"]
+           "TREE_GAIN", "TREE_MIN_START", "ValidationLight", "decide", "decision_pairs", "environment", "given", "light_sum", "lighting_at"]
