@@ -27,7 +27,10 @@ How it is computed (docs/architecture.md, "Performance"):
 * :meth:`Lighting.grouped` (used by sampling) takes many views per normal: weights, the local light
   frame and the diffuse term are computed once per normal, and only the lights above its horizon
   (about half) are evaluated;
-* optional light culling (:func:`cull_lights`) drops the weakest lights under a stated error bound.
+* optional light culling (:func:`cull_lights`) drops the weakest lights under a stated error bound;
+* optional two-level light sum (``Lighting(tree=...)``, :mod:`.tree`): coarse cells of lights, the
+  largest per view and the brightest per normal summed over their lights (the plan's refined validation
+  lighting, :func:`homofac.fit.validation.light_sum`).
 """
 
 from __future__ import annotations
