@@ -50,6 +50,9 @@ def draw_samples(target: Target, parametrization: str, options: SamplingOptions 
     settings = cache_settings(s, target.kind, parametrization, target.context)
     if validation_target is not None and validation_target is not target:
         settings["validation_light"] = int(validation_light or 0)
+        tree = getattr(validation_target.fn, "tree", None)
+        if tree is not None:  # the two-level light sum (homofac.fit.validation.light_sum)
+            settings["validation_sum"] = [tree.coarse, tree.refine]
     if s.kind == "scene":  # the mesh file's content and the cameras (a bundled scene's own), not only names
         settings["mesh_sha256"] = scene.fingerprint(s)
         settings["cameras"] = [c.model_dump() for c in scene.resolve_cameras(s)]

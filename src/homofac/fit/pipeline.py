@@ -169,7 +169,7 @@ def execute(the_plan: Plan, target: Target, *, samples: Samples | None = None, c
         raise HomofacError(f"{sums.POLISH_NEEDS_GRID}, not sampling.kind: {resolved.kind}")
     first = opts.parametrization if samples is not None else drawn_for(the_plan)  # the samples' direction
     vl = the_plan.validation_light  # the validation pairs read the plan's validation lighting (its votes' figure)
-    vtarget = lighting_at(target, vl.resolution) if vl is not None and samples is None else target
+    vtarget = lighting_at(target, vl.resolution, vl.light_sum) if vl is not None and samples is None else target
     if samples is None:  # on the grid direction of the first candidate (every candidate's, for texel pairs)
         samples = draw_samples(with_context(target, first) if target.kind == "lighting" else target, first,
                                resolved, log, validation_target=vtarget, validation_light=vl and vl.resolution)

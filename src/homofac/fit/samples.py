@@ -78,8 +78,11 @@ def evaluate_blocked(target: Target, grouped) -> np.ndarray:
     """:func:`evaluate_grouped` of a lighting target as the sum over its lights in blocks
     (:func:`homofac.light.refine.blocks`; its clamp applied to the sum), float64: one compiled program
     for every environment, whatever its light count (the validation lighting's levels,
-    :mod:`homofac.fit.validation`)."""
+    :mod:`homofac.fit.validation`). A target summed by a two-level light tree (``fn.tree``,
+    :mod:`homofac.light.tree`) is evaluated at once: the tree reads every light of the environment."""
     fn = target.fn
+    if getattr(fn, "tree", None) is not None:  # a two-level light tree sums every light of the environment at once
+        return np.asarray(evaluate_grouped(target, grouped), np.float64)
     out = None
     for env in blocks(fn.env):
         part = np.asarray(evaluate_grouped(Target(target.kind, dataclasses.replace(fn, env=env, clamp=None),

@@ -22,8 +22,15 @@ studio; 0.174), 0.0009 (metal / forest; 0.029), 0.0006 (plastic / city; 0.004), 
 the lights. How the finer map is made (its file reloaded, an analytic sky rebuilt, else its texels
 split): :mod:`homofac.light.refine`.
 
+The refined lighting is summed by a two-level light tree (:func:`light_sum`, :mod:`homofac.light.tree`):
+every pair sums the fit's light texels (the refined ones aggregated) and replaces the
+:data:`REFINED_LIGHTS` / (R/r)^2 cells of largest contribution by their fine texels, about 6x cheaper
+than every light at R = 4r, within 0.2-0.3 % nrmse of the full sum (benchmarks/light_tree.md). Below
+:data:`TREE_MIN_START` the fit's texels are too few to be a coarse level, and where the refined lighting
+has few more lights than the tree evaluates (:data:`TREE_GAIN`) the full sum is cheaper: both use it.
+
 The decision is a plan value (:class:`ValidationLight`, :func:`homofac.fit.plan.build_plan`): printed by
-``--plan`` and recorded in factorization.json (``selection.validation_light``).
+``--plan`` and recorded in factorization.json (``selection.validation_light``), the light sum with it.
 """
 
 from __future__ import annotations
@@ -36,7 +43,9 @@ import numpy as np
 
 from ..errors import HomofacError
 from ..light import Lighting
+from ..light.lighting import max_visible
 from ..light.refine import at_resolution, bright_texels, mixture, route
+from ..light.tree import light_tree
 from ..target import Target
 from . import cache, sampling
 from .draw import VALIDATION_VIEWS
@@ -60,6 +69,32 @@ MAX_DOUBLINGS = 3
 #: Normals of the validation pairs the doubling is measured on (:data:`~homofac.fit.draw.VALIDATION_VIEWS`
 #: views each).
 DECISION_NORMALS = 256
+#: Fine lights each pair sums of the two-level light tree (:func:`light_sum`): the refined cells are
+#: ``REFINED_LIGHTS // (R / r)^2`` (R = 2r: 256 cells, 4r: 64, 8r: 16).
+REFINED_LIGHTS = 1024
+#: The smallest fit light resolution whose texels are the tree's coarse level (fewer: the full sum).
+TREE_MIN_START = 16
+
+
+#: The tree is used where the refined lighting has this many times the lights above a horizon that the tree
+#: evaluates per view (its coarse cells and its refined cells' lights): below it the full sum is cheaper
+#: (mirror / studio at 64, 6576 visible lights: 2.8 s CPU the full sum, 4.6 s the tree; benchmarks/light_tree.md).
+TREE_GAIN = 2.0
+
+
+def light_sum(start: int, resolution: int, visible: int) -> tuple[int, int] | None:
+    """How the validation lighting at ``resolution`` R is summed when the fit's lights are at ``start`` r and
+    the refined lighting has ``visible`` lights above a horizon (``info["max_visible"]``): ``(coarse face
+    size, refined cells per pair)`` of the two-level light tree (the coarse cells are the fit's own texels,
+    each refined one summed over its (R/r)^2 texels at R), or None for the full sum (R = r: nothing refined;
+    r below :data:`TREE_MIN_START`: too few coarse cells to be exact; fewer than :data:`TREE_GAIN` x the
+    tree's evaluations: the full sum is cheaper)."""
+    start, resolution = int(start), int(resolution)
+    if resolution <= start or start < TREE_MIN_START:
+        return None
+    refined = max(1, REFINED_LIGHTS // (resolution // start) ** 2)
+    work = 3 * start * start + 6 * start + 2 * refined * (resolution // start) ** 2
+    return (start, refined) if int(visible) > TREE_GAIN * work else None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -67,7 +102,8 @@ class ValidationLight:
     """The validation lighting a plan decided: ``resolution`` R (the fit's ``start`` where nothing finer
     exists or is needed), ``route`` (how the finer map is made, :data:`homofac.light.refine.ROUTES`),
     ``changes`` ((r, nrmse of the values at r against 2r) per doubling measured), ``converged`` (the last
-    change is below ``tolerance``), ``lights`` (the lights of the validation lighting)."""
+    change is below ``tolerance``), ``lights`` (the lights of the validation lighting), ``light_sum``
+    (:func:`light_sum`: the two-level light tree's coarse face size and refined cells, None: every light)."""
 
     resolution: int
     start: int
@@ -76,18 +112,23 @@ class ValidationLight:
     converged: bool
     tolerance: float
     lights: int
+    light_sum: tuple[int, int] | None = None
 
     def record(self) -> dict[str, Any]:
         """Plain data (the plan's JSON and factorization.json's ``selection.validation_light``)."""
         return {"resolution": self.resolution, "start": self.start, "route": self.route,
                 "changes": [{"resolution": r, "nrmse_to_double": c} for r, c in self.changes],
-                "converged": self.converged, "tolerance": self.tolerance, "share": SHARE, "lights": self.lights}
+                "converged": self.converged, "tolerance": self.tolerance, "share": SHARE, "lights": self.lights,
+                "light_sum": None if self.light_sum is None else {"coarse": self.light_sum[0], "refined": self.light_sum[1]}}
 
     def describe(self) -> str:
         """One line of the printed plan."""
         last = f"{self.changes[-1][1]:.4f}" if self.changes else "0"
         where = (f"the lights holding {SHARE:.0%} of the power at resolution {self.resolution}, the rest at "
                  f"{self.start}" if self.resolution != self.start else f"lights at resolution {self.start}")
+        if self.light_sum is not None:
+            where += (f", summed by a light tree (the {self.light_sum[1]} cells of face size {self.light_sum[0]} "
+                      f"of largest contribution refined per pair)")
         if not self.changes:
             why = "advanced.validation_light" if self.route == "given" else f"at the limit, {MAX_RESOLUTION}"
             return f"{where} ({self.lights} lights; {why}, no doubling measured)"
@@ -106,14 +147,21 @@ def environment(target: Target):
     return env if env.num_lights >= 6 * int(env.info["resolution"]) ** 2 else None
 
 
-def lighting_at(target: Target, resolution: int) -> Target:
+_RULE = object()
+
+
+def lighting_at(target: Target, resolution: int, summed=_RULE) -> Target:
     """``target`` with its lights refined to ``resolution`` where :data:`SHARE` of the power is (module
-    docstring); ``target`` itself at its own resolution or without an environment to refine."""
+    docstring), summed as ``summed`` says (a plan's ``ValidationLight.light_sum``: a light tree's
+    ``(coarse, refined)`` or None for every light; not given: :func:`light_sum`); ``target`` itself at its
+    own resolution or without an environment to refine."""
     env = environment(target)
     if env is None or int(resolution) == int(env.info["resolution"]):
         return target
     fine = mixture(env, at_resolution(env, int(resolution)), bright_texels(env, SHARE))
-    return Target(target.kind, dataclasses.replace(target.fn, env=fine), target.quantity, dict(target.context))
+    how = light_sum(int(env.info["resolution"]), int(resolution), max_visible(fine)) if summed is _RULE else summed
+    tree = None if how is None else light_tree(fine, *how)
+    return Target(target.kind, dataclasses.replace(target.fn, env=fine, tree=tree), target.quantity, dict(target.context))
 
 
 def given(target: Target, resolution: int) -> ValidationLight:
@@ -125,8 +173,10 @@ def given(target: Target, resolution: int) -> ValidationLight:
     if int(resolution) % start or f & (f - 1):
         raise HomofacError(f"advanced.validation_light must be the light resolution {start} times a power of 2 "
                            f"(the validation refines the fit's light texels), got {resolution}")
+    fine = lighting_at(target, int(resolution), None).fn.env
     return ValidationLight(resolution=int(resolution), start=start, route="given", changes=(), converged=False,
-                           tolerance=TOLERANCE, lights=int(lighting_at(target, int(resolution)).fn.env.num_lights))
+                           tolerance=TOLERANCE, lights=int(fine.num_lights),
+                           light_sum=light_sum(start, int(resolution), max_visible(fine)))
 
 
 def decision_pairs(count: int, seed: int) -> sampling.Grouped:
@@ -152,7 +202,8 @@ def decide(target: Target, count: int, seed: int, log=None) -> ValidationLight |
     if env is None or count <= 0:
         return None
     k = cache.key(target, {"validation_light": [int(count), int(seed), TOLERANCE,
-                                                SHARE, MAX_RESOLUTION, MAX_DOUBLINGS, route(env)]}, "")
+                                                SHARE, MAX_RESOLUTION, MAX_DOUBLINGS, route(env),
+                                                REFINED_LIGHTS, TREE_MIN_START, TREE_GAIN]}, "")
     if k is not None and k in _DECIDED:
         return _DECIDED[k]
     found = _decide(target, env, count, seed, log)
@@ -177,10 +228,10 @@ def _decide(target: Target, env, count: int, seed: int, log) -> ValidationLight:
             break
         r, y = 2 * r, y2
     converged = bool(changes) and changes[-1][1] < TOLERANCE
-    lights = int(lighting_at(target, r).fn.env.num_lights)
+    fine = lighting_at(target, r, None).fn.env
     return ValidationLight(resolution=r, start=start, route=how, changes=tuple(changes), converged=converged,
-                           tolerance=TOLERANCE, lights=lights)
+                           tolerance=TOLERANCE, lights=int(fine.num_lights), light_sum=light_sum(start, r, max_visible(fine)))
 
 
-__all__ = ["DECISION_NORMALS", "FIT_NRMSE", "MAX_DOUBLINGS", "MAX_RESOLUTION", "MOVE", "SHARE", "TOLERANCE", "ValidationLight",
-           "decide", "decision_pairs", "environment", "given", "lighting_at"]
+__all__ = ["DECISION_NORMALS", "FIT_NRMSE", "MAX_DOUBLINGS", "MAX_RESOLUTION", "MOVE", "REFINED_LIGHTS", "SHARE", "TOLERANCE",
+           "TREE_GAIN", "TREE_MIN_START", "ValidationLight", "decide", "decision_pairs", "environment", "given", "light_sum", "lighting_at"]

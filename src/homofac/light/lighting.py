@@ -27,7 +27,10 @@ How it is computed (docs/architecture.md, "Performance"):
 * :meth:`Lighting.grouped` (used by sampling) takes many views per normal: weights, the local light
   frame and the diffuse term are computed once per normal, and only the lights above its horizon
   (about half) are evaluated;
-* optional light culling (:func:`cull_lights`) drops the weakest lights under a stated error bound.
+* optional light culling (:func:`cull_lights`) drops the weakest lights under a stated error bound;
+* optional two-level light sum (``Lighting(tree=...)``, :mod:`.tree`): coarse cells of lights, the
+  largest per view and the brightest per normal summed over their lights (the plan's refined validation
+  lighting, :func:`homofac.fit.validation.light_sum`).
 """
 
 from __future__ import annotations
@@ -49,6 +52,7 @@ from ..target import Target, evaluate
 from .environment import Environment, dominant_direction
 from .geometry import cosine_weights, light_geometry
 from .lights import light_corners, light_moments
+from .tree import LightTree, texel_resolution
 
 #: Pairs per inner chunk of the arbitrary-pair path is CHUNK // 4 (B x L x 4 x 3 weight terms live at once).
 CHUNK = 256
@@ -159,6 +163,105 @@ def _normal_radiance(brdf, spec, kd, dirs, rad, geom, k, n, v, centroid=False):
     return jnp.where(valid[:, None], out, 0.0)
 
 
+def _lobe_sums(brdf, spec, wi, wo, wrad, lum):
+    """The specular sum over lights k of f_spec(wi_k, wo) wrad_k -> (..., 3), and the luminance of each
+    light's term (..., K), with wi, wo component triples of broadcastable arrays (wi (..., K), wo
+    (..., 1)) and wrad (..., K, 3) the cosine-weighted radiance (or (K, 3), shared: then the sum is a
+    matmul). A model's lobe form is used where it has one (one evaluation per lobe, not per channel),
+    else the specular BRDF ``spec`` in RGB. ``lum`` None: no luminances (returns None for them)."""
+    if has_lobes(brdf):
+        total, score = 0.0, 0.0
+        for g, c in zip(lobe_terms(brdf, wi, wo), lobe_colors(brdf)):
+            if wrad.ndim == 2:
+                total = total + c * (g @ wrad)
+            else:
+                total = total + c * jnp.einsum("...k,...kc->...c", g, wrad)
+            if lum is not None:
+                score = score + g * (wrad @ (c * lum))
+        return total, (score if lum is not None else None)
+    both = jnp.broadcast_arrays(*wi, *wo)
+    f = spec(jnp.stack(both[:3], axis=-1), jnp.stack(both[3:], axis=-1)) * wrad
+    return jnp.sum(f, axis=-2), (f @ lum if lum is not None else None)
+
+
+#: The band above the horizon, in coarse texel widths, whose cells the tree refines first per normal: at a
+#: grazing view a cell's estimate there (the BRDF at its mean direction) can be far below the sum over its
+#: lights, as the lobe grows like 1 / cos towards the horizon.
+HORIZON_BAND = 2.0
+
+
+#: Luminance weights of the refinement score (Rec. 709, as :func:`.environment.luminance`).
+_LUM = (0.2126, 0.7152, 0.0722)
+
+
+def _normal_radiance_tree(brdf, spec, kd, dirs, rad, geom, tree, n, v, centroid=False):
+    """L(v_p, n) for one normal n (3,) and views v (P, 3) by the two-level light sum of ``tree``
+    (:mod:`.tree`; Walter et al. 2005, Lightcuts, cut by the largest estimates).
+
+    Per normal: the exact texel weights w_k(n) (as :func:`_normal_radiance`), each coarse cell j's summed
+    cosine-weighted radiance W_j = sum_{k in j} w_k(n) L_k and its direction d_j, the mean of its lights'
+    directions weighted by w_k(n) lum(L_k) (the aggregate is exact for a BRDF linear across the cell). Per
+    view: the cells' estimates c_j = f(d_j, v) W_j, and the ``tree.refine`` cells of largest lum(c_j) (the
+    BRDF's own values: any model, measured ones included) replaced by the sum over their lights, as are the
+    ``tree.bright`` cells of largest power lum(W_j) of the normal, those within :data:`HORIZON_BAND` coarse
+    texels of its horizon first, for every view (at a grazing view a cell's estimate near the horizon can be
+    far below its value, as the lobe grows like 1 / cos there; these need no per-view gather):
+
+        L(v, n) = kd/pi E(n) + sum_j c_j - sum_{j in top} c_j + sum_{j in top} sum_{k in j} f(l_k, v) w_k(n) L_k.
+
+    Where ``tree.refine`` covers every visible cell this is the full sum of eq. 10 (to float rounding).
+    """
+    if centroid:
+        w, (sidx, cent) = cosine_weights(n[None], geom, select=True, centroids=True)
+        w = w[0]
+        dirs = dirs.at[sidx[0]].set(cent[0], mode="drop")
+    else:
+        w = cosine_weights(n[None], geom, select=True)[0]
+    out = jnp.zeros(v.shape[:-1] + (3,), v.dtype)
+    if kd is not None:
+        out = out + (kd / jnp.pi) * (w @ rad)
+    if spec is not None:
+        lum = jnp.asarray(_LUM, v.dtype)
+        ch = tree.children  # (C, M); index L is "no light"
+        wx = jnp.concatenate([w, jnp.zeros((1,), w.dtype)])
+        wrx = jnp.concatenate([w[:, None] * rad, jnp.zeros((1, 3), rad.dtype)])
+        t, b, nn = sphere.frame(n)
+        frame = jnp.stack([t, b, nn], axis=1)  # (3, 3): columns t, b, n
+        dloc = jnp.concatenate([dirs @ frame, nn[None] @ frame])  # (L + 1, 3) local light directions
+        # the visible cells (a light with w > 0) compacted into tree.slots places (cumsum, no sort)
+        vis = jnp.sum(wx[ch], axis=1) > 0
+        slot = jnp.where(vis, jnp.cumsum(vis) - 1, tree.slots)
+        cells = jnp.full((tree.slots,), 0, jnp.int32).at[slot].set(jnp.arange(ch.shape[0], dtype=jnp.int32), mode="drop")
+        used = jnp.zeros((tree.slots,), bool).at[slot].set(True, mode="drop")
+        kids = jnp.where(used[:, None], ch[cells], wx.shape[0] - 1)  # (S, M)
+        wr_k = wrx[kids]  # (S, M, 3)
+        d_k = dloc[kids]  # (S, M, 3)
+        a = wr_k @ lum + 1e-12 * wx[kids]  # (S, M): the direction's weights (w alone for a black cell)
+        dc = jnp.sum(a[..., None] * d_k, axis=1)
+        dc = dc / jnp.maximum(jnp.linalg.norm(dc, axis=-1, keepdims=True), 1e-30)  # (S, 3)
+        wrc = jnp.sum(wr_k, axis=1)  # (S, 3)
+        cell = jnp.concatenate([d_k, wr_k], axis=-1)  # (S, M, 6): a refined cell's lights in one gather
+        wo = v @ frame  # (P, 3)
+        wo3 = tuple(wo[:, None, c] for c in range(3))
+        total, score = _lobe_sums(brdf, spec, tuple(dc[None, :, c] for c in range(3)), wo3, wrc, lum)  # (P, 3), (P, S)
+        if tree.bright:  # the normal's brightest cells, those near its horizon first, refined for every view
+            low = dc[:, 2] < HORIZON_BAND * (jnp.pi / 2) / tree.coarse  # within about two coarse texels of it
+            _, hot = jax.lax.top_k((wrc @ lum) * jnp.where(low, 1e6, 1.0), tree.bright)  # (B,)
+            score = jnp.where(jnp.zeros(score.shape[1:], bool).at[hot].set(True)[None], -jnp.inf, score)
+            lit = cell[hot].reshape(-1, 6)  # (B M, 6)
+            fine_b, _ = _lobe_sums(brdf, spec, tuple(lit[None, :, c] for c in range(3)), wo3, lit[:, 3:], None)
+            chosen_b, _ = _lobe_sums(brdf, spec, tuple(dc[None, hot, c] for c in range(3)), wo3, wrc[hot], None)
+            total = total - chosen_b + fine_b
+        _, top = jax.lax.top_k(score, tree.refine)  # (P, K)
+        chosen, _ = _lobe_sums(brdf, spec, tuple(dc[top, c] for c in range(3)), wo3, wrc[top], None)
+        p = v.shape[0]
+        sel = cell[top].reshape(p, -1, 6)  # (P, K M, 6)
+        fine, _ = _lobe_sums(brdf, spec, tuple(sel[..., c] for c in range(3)), wo3, sel[..., 3:], None)
+        out = out + (total - chosen) + fine
+    valid = v @ n > 0
+    return jnp.where(valid[:, None], out, 0.0)
+
+
 #: Views per lobe-culling cluster: each cluster of consecutive views of a normal shares one cone of lights.
 CULL_CLUSTER = 16
 
@@ -232,6 +335,8 @@ class Lighting(eqx.Module):
     #: where the BRDF is evaluated for texels straddling the horizon of n: ``centroid`` (the centroid of
     #: the texel's visible part, the default) or ``centre`` (the texel centre, the plain sum of eq. 10).
     horizon: str = eqx.field(static=True, default="centroid")
+    #: the two-level light sum of :meth:`grouped` (:func:`.tree.light_tree` of ``env``); None: every light.
+    tree: Optional[LightTree] = None
 
     @property
     def culls_lobes(self) -> bool:
@@ -285,8 +390,10 @@ class Lighting(eqx.Module):
     def _arrays(self, dtype):
         e = self.env
         dirs = e.directions.astype(dtype)
-        geom = light_geometry(dirs, e.solid_angle.astype(dtype), light_corners(e).astype(dtype),
-                              int(e.info.get("resolution", 0)), moments=light_moments(e))
+        # the straddler bound follows the smallest texels (a refined mixture's fine ones, a block's source's)
+        res = texel_resolution(e)
+        geom = light_geometry(dirs, e.solid_angle.astype(dtype), light_corners(e).astype(dtype), res,
+                              moments=light_moments(e))
         return dirs, e.radiance.astype(dtype), geom
 
     def __call__(self, n: Float[Array, "N 3"], v: Float[Array, "N 3"]) -> Float[Array, "N 3"]:
@@ -305,10 +412,12 @@ class Lighting(eqx.Module):
         return self._clamp(out)
 
     def grouped(self, normals: Float[Array, "G 3"], views: Float[Array, "G P 3"]) -> Float[Array, "G P 3"]:
-        """L(v_gp, n_g) for G normals with P views each (invalid views give 0)."""
+        """L(v_gp, n_g) for G normals with P views each (invalid views give 0); by the two-level light sum
+        where ``tree`` is set (:func:`_normal_radiance_tree`)."""
         spec, kd = _split_diffuse(self.brdf)
         dirs, rad, geom = self._arrays(normals.dtype)
-        k = max_visible(self.env)
+        k = max_visible(self.env) if self.tree is None else (
+            self.tree.slots + (self.tree.refine + self.tree.bright) * self.tree.width)
         g_count, p = views.shape[0], views.shape[1]
         # several normals per lax.map step (vmapped) so each step has a few million light terms
         per = int(max(1, min(g_count, STEP_TERMS // max(1, p * k))))
@@ -317,8 +426,12 @@ class Lighting(eqx.Module):
         if pad:
             normals = jnp.concatenate([normals, jnp.broadcast_to(normals[:1], (pad, 3))])
             views = jnp.concatenate([views, jnp.broadcast_to(views[:1], (pad, p, 3))])
-        one = lambda n, v: _normal_radiance(self.brdf, spec, kd, dirs, rad, geom, k, n, v,  # noqa: E731
-                                            self.horizon == "centroid")
+        if self.tree is None or spec is None:
+            one = lambda n, v: _normal_radiance(self.brdf, spec, kd, dirs, rad, geom, max_visible(self.env), n, v,  # noqa: E731
+                                                self.horizon == "centroid")
+        else:
+            one = lambda n, v: _normal_radiance_tree(self.brdf, spec, kd, dirs, rad, geom, self.tree, n, v,  # noqa: E731
+                                                     self.horizon == "centroid")
         out = jax.lax.map(
             lambda nv: jax.vmap(one)(nv[0], nv[1]),
             (normals.reshape(-1, per, 3), views.reshape(-1, per, p, 3)),

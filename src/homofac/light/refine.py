@@ -35,6 +35,7 @@ from .lights import light_corners, light_moments, moments_of
 from .sky import preetham_sky
 from .sources import load_environment
 from .synthetic import gradient_sky, painted_lights, sun_sky, uniform
+from .tree import texel_resolution
 
 #: How :func:`at_resolution` refines, in order of faithfulness (``info["refined"]``).
 ROUTES = ("source", "synthetic", "texels")
@@ -128,7 +129,9 @@ def blocks(env: Environment, size: int | None = None) -> list[Environment]:
     holds fewer lights), the last padded with dark delta lights, each an Environment of the same shapes and
     ``info``. The pinned light sum is a sum over lights, so the lighting of ``env`` is the sum of its
     blocks' lighting (a clamp applies to that sum); evaluated block by block, environments of any light
-    count share a few compiled programs (one per block size)."""
+    count share a few compiled programs (one per block size and texel size). Each block records the face
+    size of ``env``'s smallest texels (:func:`texel_resolution`), so that only the texels that can straddle a
+    horizon are clipped exactly (a block is a subset of the lights: the same bound holds)."""
     n = env.num_lights
     size = int(size or (LIGHT_BLOCK if n >= LIGHT_BLOCK else max(256, 1 << int(np.ceil(np.log2(max(n, 1)))))))
     pad = (-n) % size
@@ -143,8 +146,10 @@ def blocks(env: Environment, size: int | None = None) -> list[Environment]:
     w, corners = cat(env.solid_angle, np.ones(pad)), cat(light_corners(env), np.zeros((pad, 4, 3)))
     m, sr = cat(m, pm), cat(sr, ps)
     j = jnp.asarray
-    return [Environment(j(d[i:i + size]), j(rad[i:i + size]), j(w[i:i + size]), dict(BLOCK_INFO), j(corners[i:i + size]),
+    info = {**BLOCK_INFO, "texel_resolution": texel_resolution(env)}
+    return [Environment(j(d[i:i + size]), j(rad[i:i + size]), j(w[i:i + size]), dict(info), j(corners[i:i + size]),
                         (j(m[i:i + size]), j(sr[i:i + size]))) for i in range(0, n + pad, size)]
+
 
 
 def split_texels(env: Environment, resolution: int) -> Environment:
