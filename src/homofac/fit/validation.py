@@ -38,10 +38,9 @@ from ..errors import HomofacError
 from ..light import Lighting
 from ..light.refine import at_resolution, bright_texels, mixture, route
 from ..target import Target
-from . import cache, sampling
+from . import cache, levels, sampling
 from .draw import VALIDATION_VIEWS
 from .metrics import metrics
-from .samples import evaluate_blocked
 
 #: The relative move of a fit's validation nrmse that one more doubling of the lights may cause (issue 41).
 MOVE = 0.01
@@ -166,10 +165,10 @@ def _decide(target: Target, env, count: int, seed: int, log) -> ValidationLight:
     how = route(env)
     pairs = decision_pairs(count, seed)
     r, changes = start, []
-    y = evaluate_blocked(target, pairs)
+    y = levels.evaluate(target, pairs, refined=False)
     limit = min(MAX_RESOLUTION, start << MAX_DOUBLINGS)
     while 2 * r <= limit:
-        y2 = evaluate_blocked(lighting_at(target, 2 * r), pairs)
+        y2 = levels.evaluate(lighting_at(target, 2 * r), pairs, refined=True)
         change = float(metrics(y, y2)["nrmse"])
         changes.append((r, change))
         log(f"validation lighting: resolution {r} -> {2 * r} changes the values by {change:.4f} nrmse")
@@ -177,7 +176,9 @@ def _decide(target: Target, env, count: int, seed: int, log) -> ValidationLight:
             break
         r, y = 2 * r, y2
     converged = bool(changes) and changes[-1][1] < TOLERANCE
-    lights = int(lighting_at(target, r).fn.env.num_lights)
+    at = lighting_at(target, r)
+    levels.remember(at, pairs, r != start, y)  # the validation values at r reuse these pairs' (levels.values)
+    lights = int(at.fn.env.num_lights)
     return ValidationLight(resolution=r, start=start, route=how, changes=tuple(changes), converged=converged,
                            tolerance=TOLERANCE, lights=lights)
 
