@@ -23,7 +23,10 @@ the lights. How the finer map is made (its file reloaded, an analytic sky rebuil
 split): :mod:`homofac.light.refine`.
 
 The decision is a plan value (:class:`ValidationLight`, :func:`homofac.fit.plan.build_plan`): printed by
-``--plan`` and recorded in factorization.json (``selection.validation_light``).
+``--plan`` and recorded in factorization.json (``selection.validation_light``). Its values are computed as
+the validation values are (:mod:`homofac.fit.levels`: the grouped program at the fit's own lights, light
+blocks at a refined level), and its pairs' values at R are kept, so the validation values of the fit
+evaluate only the other normals.
 """
 
 from __future__ import annotations
