@@ -17,6 +17,7 @@ from typing import Any, Callable
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
 from .errors import HomofacError
@@ -39,9 +40,11 @@ class Target(eqx.Module):
         return v
 
     def shown(self, a, values: Float[Array, "N 3"]) -> Float[Array, "N 3"]:
-        """Turn factorized values into what the metrics compare: f cos(theta_i) for BRDF targets."""
+        """Turn factorized values into what the metrics compare: f cos(theta_i) for BRDF targets (in numpy
+        for numpy arrays, so host metrics compile nothing)."""
         if self.kind == "brdf" and self.quantity == "brdf":
-            return values * jnp.maximum(a[..., 2:3], 0.0)
+            xp = np if isinstance(values, np.ndarray) and isinstance(a, np.ndarray) else jnp
+            return values * xp.maximum(a[..., 2:3], 0.0)
         return values
 
 

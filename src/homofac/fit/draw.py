@@ -15,9 +15,9 @@ from ..options import validate
 from ..param import parametrizations as pz
 from ..param import projections as pj
 from ..target import Target
-from . import cache, sampling, scene
+from . import cache, levels, sampling, scene
 from .options import DEFAULT_VALIDATION, SamplingOptions
-from .samples import Samples, evaluate, evaluate_blocked, evaluate_grouped
+from .samples import Samples, evaluate, evaluate_grouped
 
 #: Views per normal of the lighting validation pairs (``count / VALIDATION_VIEWS`` random normals). Under a
 #: sun the squared error sits on the few pairs whose view grazes and reflects it, so the figure depends on
@@ -42,8 +42,9 @@ def draw_samples(target: Target, parametrization: str, options: SamplingOptions 
     and the sampling settings (and, for BRDF targets, the parametrization, whose texel iterator decides
     the pairs). ``validation_target``: the target the validation values are read from (the lighting at
     the plan's validation resolution ``validation_light``, :func:`homofac.fit.validation.lighting_at`;
-    default ``target``). With ``validation_light`` the validation values are summed over blocks of lights
-    (:func:`~homofac.fit.samples.evaluate_blocked`), the program the plan's decision compiled.
+    default ``target``). With ``validation_light`` the validation values are those of the plan's decision's
+    program at that level (:func:`homofac.fit.levels.values`: grouped at the fit's own light resolution,
+    in light blocks at a refined one), the decision's pairs not evaluated again.
     """
     log = log or (lambda msg: None)
     s = counted(validate(SamplingOptions, options, "sampling"))
@@ -62,7 +63,7 @@ def draw_samples(target: Target, parametrization: str, options: SamplingOptions 
         if hit is not None:
             log(f"samples from cache {k[:12]} ({len(hit.a)} training pairs)")
             return hit
-    samples = _draw(target, parametrization, s, log, validation_target or target, bool(validation_light))
+    samples = _draw(target, parametrization, s, log, validation_target or target, validation_light)
     samples = Samples(*(np.ascontiguousarray(x, np.float32) for x in samples))
     if k is not None:
         cache.store(k, samples)
@@ -123,7 +124,7 @@ def draw_pairs(kind: str, parametrization: str, s: SamplingOptions, context: dic
 
 
 def _draw(target: Target, parametrization: str, s: SamplingOptions, log: Callable, vtarget: Target,
-          blocked: bool = False) -> Samples:
+          level: int | None = None) -> Samples:
     if s.kind == "scene" and target.kind == "lighting":
         # the exact lighting at every covered pixel, evaluated once (the scene metrics reuse it), then
         # gathered at the drawn pixels: the pairs of draw_pairs, in its order
@@ -143,9 +144,11 @@ def _draw(target: Target, parametrization: str, s: SamplingOptions, log: Callabl
         y = np.asarray(evaluate_grouped(target, groups))
         if len(val) and vtarget is not target:
             log(f"validation values of {len(val)} pairs on {vtarget.fn.env.num_lights} lights")
-        # at a plan's validation lighting (``blocked``), in light blocks: the program its decision compiled
-        val_y = (np.zeros((0, 3), np.float32) if not len(val) else evaluate_blocked(vtarget, vgroups)
-                 if blocked or vtarget is not target else np.asarray(evaluate_grouped(target, vgroups)))
+        # at a plan's validation lighting (``level``): its decision's program, its decision's pairs reused
+        env = getattr(target.fn, "env", None)
+        own = int((env.info.get("resolution") if env is not None else 0) or 0)
+        val_y = (np.zeros((0, 3), np.float32) if not len(val) else np.asarray(evaluate_grouped(target, vgroups))
+                 if not level and vtarget is target else levels.values(vtarget, vgroups, refined=int(level or 0) != own))
         return Samples(pairs.a, pairs.b, y, val.a, val.b, val_y)
     log(f"sampling {len(pairs)} training pairs")
     y = np.asarray(evaluate(target, pairs.a, pairs.b))

@@ -74,15 +74,18 @@ def metrics(approx, exact, eps: float = 1e-5) -> dict[str, float]:
 CHUNK = 32768
 
 
-def _chunks(fn, a, b, chunk: int):
+def _chunks(fn, a, b, chunk: int) -> np.ndarray:
     """``fn(a, b)`` over calls of exactly ``chunk`` pairs (the last padded with copies of the first pair,
-    its padding cut off): one program shape for every pair count."""
+    its padding cut off): one program shape for every pair count. Padded, sliced and joined on the host
+    (``jnp`` here compiled a program per operation and pair count)."""
+    a, b = np.asarray(a), np.asarray(b)
     n = int(a.shape[0])
     pad = (-n) % chunk
     if pad:
-        a = jnp.concatenate([a, jnp.broadcast_to(a[:1], (pad, a.shape[1]))])
-        b = jnp.concatenate([b, jnp.broadcast_to(b[:1], (pad, b.shape[1]))])
-    return jnp.concatenate([fn(a[i:i + chunk], b[i:i + chunk]) for i in range(0, n + pad, chunk)], axis=0)[:n]
+        a = np.concatenate([a, np.broadcast_to(a[:1], (pad, a.shape[1]))])
+        b = np.concatenate([b, np.broadcast_to(b[:1], (pad, b.shape[1]))])
+    return np.concatenate([np.asarray(fn(a[i:i + chunk], b[i:i + chunk])) for i in range(0, n + pad, chunk)],
+                          axis=0)[:n]
 
 
 def measure(result, target, samples, eps: float = 1e-5, chunk: int = CHUNK,
@@ -105,10 +108,10 @@ def measure(result, target, samples, eps: float = 1e-5, chunk: int = CHUNK,
     ):
         if len(a) == 0 or split not in splits:
             continue
-        aj, bj = jnp.asarray(a), jnp.asarray(b)
-        exact = target.shown(aj, jnp.asarray(y))
+        a, b = np.asarray(a), np.asarray(b)
+        exact = target.shown(a, np.asarray(y))  # on the host, as the metrics (float64) are
         out[split] = {}
         for name, quant in ((k, k == "quantized") for k in kinds):
-            values = _chunks(lambda x, z, q=quant: result.evaluate(x, z, quantized=q), aj, bj, int(chunk))
-            out[split][name] = metrics(target.shown(aj, values), exact, eps)
+            values = _chunks(lambda x, z, q=quant: result.evaluate(x, z, quantized=q), a, b, int(chunk))
+            out[split][name] = metrics(target.shown(a, values), exact, eps)
     return out

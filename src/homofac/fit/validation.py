@@ -30,7 +30,10 @@ than every light at R = 4r, within 0.2-0.3 % nrmse of the full sum (benchmarks/l
 has few more lights than the tree evaluates (:data:`TREE_GAIN`) the full sum is cheaper: both use it.
 
 The decision is a plan value (:class:`ValidationLight`, :func:`homofac.fit.plan.build_plan`): printed by
-``--plan`` and recorded in factorization.json (``selection.validation_light``), the light sum with it.
+``--plan`` and recorded in factorization.json (``selection.validation_light``), the light sum with it. Its
+values are computed as the validation values are (:mod:`homofac.fit.levels`: the grouped program at the fit's
+own lights, light blocks at a refined level), and its pairs' values at R are kept, so the validation values
+of the fit evaluate only the other normals.
 """
 
 from __future__ import annotations
@@ -47,10 +50,9 @@ from ..light.lighting import max_visible
 from ..light.refine import at_resolution, bright_texels, mixture, route
 from ..light.tree import light_tree
 from ..target import Target
-from . import cache, sampling
+from . import cache, levels, sampling
 from .draw import VALIDATION_VIEWS
 from .metrics import metrics
-from .samples import evaluate_blocked
 
 #: The relative move of a fit's validation nrmse that one more doubling of the lights may cause (issue 41).
 MOVE = 0.01
@@ -217,10 +219,10 @@ def _decide(target: Target, env, count: int, seed: int, log) -> ValidationLight:
     how = route(env)
     pairs = decision_pairs(count, seed)
     r, changes = start, []
-    y = evaluate_blocked(target, pairs)
+    y = levels.evaluate(target, pairs, refined=False)
     limit = min(MAX_RESOLUTION, start << MAX_DOUBLINGS)
     while 2 * r <= limit:
-        y2 = evaluate_blocked(lighting_at(target, 2 * r), pairs)
+        y2 = levels.evaluate(lighting_at(target, 2 * r), pairs, refined=True)
         change = float(metrics(y, y2)["nrmse"])
         changes.append((r, change))
         log(f"validation lighting: resolution {r} -> {2 * r} changes the values by {change:.4f} nrmse")
@@ -228,7 +230,9 @@ def _decide(target: Target, env, count: int, seed: int, log) -> ValidationLight:
             break
         r, y = 2 * r, y2
     converged = bool(changes) and changes[-1][1] < TOLERANCE
-    fine = lighting_at(target, r, None).fn.env
+    at = lighting_at(target, r)
+    levels.remember(at, pairs, r != start, y)  # the validation values at r reuse these pairs' (levels.values)
+    fine = at.fn.env
     return ValidationLight(resolution=r, start=start, route=how, changes=tuple(changes), converged=converged,
                            tolerance=TOLERANCE, lights=int(fine.num_lights), light_sum=light_sum(start, r, max_visible(fine)))
 
