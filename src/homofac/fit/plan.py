@@ -51,7 +51,10 @@ class Preset(NamedTuple):
     every k-th view of the polish's off-grid pairs (only those evaluated); ``screen``: ALS sweeps of a short fit of every candidate
     that ranks them on the validation figure, only the lowest ones then fitted in full (0: every candidate
     fitted in full); ``screen_keep``: at most that many fitted in full, the lowest and those within
-    ``screen_margin`` (relative) of it; ``screen_stride``: the screen fits every k-th training pair."""
+    ``screen_margin`` (relative) of it; ``screen_stride``: the screen fits every k-th training pair;
+    ``vote_screen``: ALS sweeps of the short fits (on every ``screen_stride``-th pair, as the screen's) that the
+    line and disc votes read first: the kept structure's other line size, or its disc, is fitted in full only
+    where its short fit's figure is below the kept structure's (0: always fitted in full)."""
 
     lookups: int
     grid_count: int
@@ -70,6 +73,7 @@ class Preset(NamedTuple):
     screen_keep: int = 1
     screen_margin: float = 0.0
     screen_stride: int = 1
+    vote_screen: int = 0
 
 
 #: The grid directions of the presets' candidates: the off-specular reflection ``r_off`` only. On the
@@ -105,7 +109,7 @@ PRESETS: dict[str, Preset] = {
                        directions=PRESET_DIRECTIONS, polish_trial=2, trial_stride=TRIAL_STRIDE, **SCREEN),
     "best": Preset(lookups=16, grid_count=600_000, validation=80_000, line_ratio=4, table=True, disc_vote=True,
                    nv_balance=0.0, polish=8, ridge=20_000, analysis=False, directions=PRESET_DIRECTIONS,
-                   **SCREEN),
+                   vote_screen=SCREEN["screen"], **SCREEN),
 }
 
 #: The lookup budget of ``target_error`` with sum keys but no ``max_lookups``.
@@ -152,6 +156,8 @@ class Plan:
     screen_keep: int  # at most this many screened candidates fitted in full
     screen_margin: float  # ... the lowest and those within this relative margin of its figure
     screen_stride: int  # the screen fits every k-th training pair
+    vote_screen: int  # ALS sweeps of the short fits the line and disc votes read first (0: full refits only)
+    vote_stride: int  # ... fitted on every k-th training pair
     ridge: int
     line_sizes: tuple[int, ...]
     disc_vote: bool
@@ -174,6 +180,7 @@ class Plan:
                 "screen": {"sweeps": self.screen, "keep": self.screen_keep, "margin": self.screen_margin,
                            "stride": self.screen_stride},
                 "line_sizes": list(self.line_sizes),
+                "vote_screen": {"sweeps": self.vote_screen, "stride": self.vote_stride},
                 "disc_vote": self.disc_vote, "analysis": self.analysis,
                 "votes": [dataclasses.asdict(v) for v in self.votes]}
 
@@ -380,6 +387,13 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
     sizes = line_sizes(opts) if opts.is_sum else ()
     disc = bool(choosing and p is not None and p.disc_vote and hl.disc is None
                 and any(c.highlights.terms for c in cands))
+    # the line and disc votes read a short fit of the alternative first (the screen's sweeps and stride)
+    vote_screen = (p.vote_screen if choosing and p is not None and (len(sizes) > 1 or disc) and als_fit
+                   and not lin.polish and 0 < p.vote_screen < lin.iterations else 0)
+    vote_stride = int(p.screen_stride) if vote_screen else 1
+    quick = (f"; the alternative fitted in full only where a {vote_screen}-sweep ALS fit"
+             + (f" on every {vote_stride}th training pair" if vote_stride > 1 else "")
+             + " reads lower than the kept structure's" if vote_screen else "")
     if choosing:
         figure = _vote_figure(ridge)
         rule = (f"the first whose figure meets target_error {opts.target_error:g}" if opts.target_error is not None
@@ -391,9 +405,9 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
                                  if p.screen_keep > 1 else "") + ", fitted in full)"))
         votes.append(Vote("structure", tuple(c.label() for c in cands), f"{figure} ({rule})"))
         if len(sizes) > 1:
-            votes.append(Vote("lines", tuple(f"{n} texels" for n in sizes), figure + " of the kept structure"))
+            votes.append(Vote("lines", tuple(f"{n} texels" for n in sizes), figure + " of the kept structure" + quick))
         if disc:
-            votes.append(Vote("disc", ("point light", "the light's disc"), figure + " of the kept structure"))
+            votes.append(Vote("disc", ("point light", "the light's disc"), figure + " of the kept structure" + quick))
         if steps:
             stages = ("ALS fit", "polish") + (("polish + ridge pairs", "polish + ridge pairs from the ALS fit")
                                               if ridge else ())
@@ -413,6 +427,7 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
                 screen=int(screen), screen_keep=int(p.screen_keep) if screen else 0,
                 screen_margin=float(p.screen_margin) if screen else 0.0,
                 screen_stride=int(p.screen_stride) if screen else 1,
+                vote_screen=int(vote_screen), vote_stride=vote_stride,
                 line_sizes=sizes,
                 disc_vote=disc, analysis=bool(choosing and target.kind == "lighting"
                                               and (p.analysis if p else True) or opts.advanced.analysis is not None),
