@@ -34,6 +34,7 @@ from __future__ import annotations
 import time
 from typing import Callable, NamedTuple
 
+import jax.numpy as jnp
 import numpy as np
 
 from ..errors import HomofacError
@@ -42,6 +43,7 @@ from ..param import projections as pj
 from ..target import Target
 from ..options import validate
 from .draw import draw_pairs, draw_samples
+from .metrics import CHUNK, _chunks
 from .options import LinearOptions, SamplingOptions
 from .ridge import RidgePairs, in_any_ridge, ridge_pairs, stratified_nrmse
 from .samples import Samples, evaluate, evaluate_grouped
@@ -111,15 +113,20 @@ def ridge_validation(target: Target, samples: Samples, count: int, seed: int) ->
     return RidgeValidation(rp, y, inside, lights)
 
 
-def ridge_nrmse(model, samples: Samples, rv: RidgeValidation, chunk: int = 65536) -> float:
+def ridge_nrmse(model, samples: Samples, rv: RidgeValidation, chunk: int = CHUNK) -> float:
     """The validation nrmse of ``model`` (float textures) with the ridge as its own stratum
     (:func:`homofac.fit.ridge.stratified_nrmse`): under a sun the 30-80 validation pairs on the ridge
     decide the plain figure (gold under the city sun at 16 lookups: 0.062 plain, 0.128 stratified,
-    0.148 on 270 000 uniform pairs)."""
-    a, b = np.asarray(samples.val_a), np.asarray(samples.val_b)
-    approx = np.concatenate([np.asarray(model.evaluate(a[i:i + chunk], b[i:i + chunk]), np.float64)
-                             for i in range(0, len(a), chunk)] or [np.zeros((0, 3))])
-    ridge = np.asarray(model.evaluate(rv.pairs.a, rv.pairs.b), np.float64)
+    0.148 on 270 000 uniform pairs). The model is evaluated in calls of ``chunk`` pairs, the last padded
+    (:data:`homofac.fit.metrics.CHUNK`: the program shape the candidates' metrics compiled)."""
+    def values(a, b) -> np.ndarray:
+        if len(a) == 0:
+            return np.zeros((0, 3))
+        return np.asarray(_chunks(model.evaluate, jnp.asarray(a, jnp.float32), jnp.asarray(b, jnp.float32),
+                                  int(chunk)), np.float64)
+
+    approx = values(np.asarray(samples.val_a), np.asarray(samples.val_b))
+    ridge = values(np.asarray(rv.pairs.a), np.asarray(rv.pairs.b))
     return stratified_nrmse(approx, np.asarray(samples.val_y, np.float64), rv.inside, ridge, rv.y, rv.pairs.weight)
 
 

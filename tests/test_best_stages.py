@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import homofac as hf
-from homofac.fit import pipeline, plan, sums, validation
+from homofac.fit import pipeline, plan, polish, sums, validation
 from homofac.fit.structures import Structure
 
 LINED = Structure.of({"parametrization": "RO", "terms": 2, "diffuse": "fitted", "nv_factor": True,
@@ -94,3 +94,21 @@ def test_best_plans_the_short_fits_of_its_votes_and_balanced_has_no_such_votes()
 
 if __name__ == "__main__":
     pytest.main([__file__, "-q"])
+
+
+def test_the_ridge_score_in_padded_calls_is_the_score_of_every_pair_evaluated_once():
+    """``polish.ridge_nrmse`` evaluates the model in calls of ``metrics.CHUNK`` pairs (the last padded, the
+    program shape the metrics compiled): the same figure as every pair evaluated in one call."""
+    env = hf.light.sun_sky((0.3, 0.2, 0.9), sun_radiance=300.0, sun_angle_deg=4.0, sky=(0.3, 0.4, 0.6), resolution=8)
+    t = hf.light.lighting_target(hf.brdf.ggx(kd=0.1, ks=1.0, roughness=0.3, f0=0.9), env)
+    fac = hf.fit.factorize(t, "split_sum", texture_size=8, sampling={"kind": "texels", "size": 4, "validation": 700,
+                                                                     "cache": False})
+    smp = hf.fit.draw_samples(t, "NR", {"kind": "texels", "size": 4, "validation": 700, "cache": False})
+    rv = polish.ridge_validation(t, smp, 300, 1)
+    got = polish.ridge_nrmse(fac, smp, rv)
+    small = polish.ridge_nrmse(fac, smp, rv, chunk=256)  # three calls, the last padded
+    approx = np.asarray(fac.evaluate(smp.val_a, smp.val_b), np.float64)
+    ridge = np.asarray(fac.evaluate(rv.pairs.a, rv.pairs.b), np.float64)
+    want = hf.fit.ridge.stratified_nrmse(approx, np.asarray(smp.val_y, np.float64), rv.inside, ridge, rv.y,
+                                         rv.pairs.weight)
+    assert np.isfinite(want) and got == pytest.approx(want, rel=1e-5) and small == pytest.approx(want, rel=1e-5)
