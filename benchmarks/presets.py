@@ -5,6 +5,7 @@
     python benchmarks/presets.py --cases metal/forest,plastic/city   # other cases of benchmarks/accuracy.py
     python benchmarks/presets.py --presets fast --warm               # also a row with a warm compilation cache
     python benchmarks/presets.py --presets fast --no-split-sum --overrides '{"sampling": {"count": 150000}}'
+    python benchmarks/presets.py --presets best --no-split-sum --log   # each fit's stage log (wall, CPU s) on stderr
 
 Each preset is fitted as a user would fit it: ``hf.fit.factorize(target, preset=NAME)`` on the
 environment at its default light resolution (32) with the default texture size (32), in a fresh
@@ -59,16 +60,21 @@ def _polish_note(selection: dict | None) -> dict | None:
 
 
 def one(material: str, env: str, method: str, resolution: int, truth_limit: int = 512,
-        overrides: dict | None = None) -> dict:
+        overrides: dict | None = None, log: bool = False) -> dict:
     """One row: fit ``method`` (a preset name or ``split_sum``, with ``overrides``: factorize keywords
-    that replace the preset's values) and measure it."""
+    that replace the preset's values) and measure it; with ``log``, the fit's log on stderr, each line
+    after the wall and CPU seconds since the row started."""
     t0, c0 = time.perf_counter(), time.process_time()
+
+    def stage(msg: str) -> None:
+        print(f"{time.perf_counter() - t0:8.2f} {time.process_time() - c0:8.2f} {msg}", file=sys.stderr, flush=True)
+
     target = hf.light.lighting_target({**acc.MATERIALS, **WARM_MATERIALS}[material](),
                                       hf.light.load_environment(env, resolution))
     if method == "split_sum":
         fac = hf.fit.factorize(target, "split_sum")
     else:
-        fac = hf.fit.factorize(target, preset=method, **(overrides or {}))
+        fac = hf.fit.factorize(target, preset=method, log=stage if log else None, **(overrides or {}))
     wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     if material in WARM_MATERIALS:  # a warm row's first fit: its time only
         return {"wall_s": wall, "cpu_s": cpu}
@@ -96,7 +102,9 @@ def _child(args, material: str, env: str, method: str, fresh: str, cache_dir: st
     child["HOMOFAC_JAX_CACHE"] = cache_dir or "0"
     out = subprocess.run([sys.executable, __file__, "--one", f"{material}/{env}/{method}", "--resolution",
                           str(args.resolution), "--truth-limit", str(args.truth_limit), "--overrides",
-                          json.dumps(overrides)], capture_output=True, text=True, check=True, env=child)
+                          json.dumps(overrides)] + (["--log"] if args.log else []),
+                         stdout=subprocess.PIPE, stderr=None if args.log else subprocess.PIPE, text=True, check=True,
+                         env=child)
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
@@ -135,12 +143,13 @@ def main(argv=None) -> int:
                     help="also a second row per preset with a warm compilation cache: after a first fit of "
                          f"another material ({WARM_FIRST}) under the same environment filled it, as a user who "
                          "changes a material re-runs")
+    ap.add_argument("--log", action="store_true", help="each fit's log on stderr (wall and CPU s per stage)")
     ap.add_argument("--one", help=argparse.SUPPRESS)  # material/env/method: one row in this process
     args = ap.parse_args(argv)
     overrides = json.loads(args.overrides)
     if args.one:
         material, env, method = args.one.split("/")
-        print(json.dumps(one(material, env, method, args.resolution, args.truth_limit, overrides)))
+        print(json.dumps(one(material, env, method, args.resolution, args.truth_limit, overrides, args.log)))
         return 0
     rows = []
     for case in args.cases.split(","):

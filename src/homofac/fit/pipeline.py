@@ -370,10 +370,30 @@ def _sums(target: Target, the_plan: Plan, samples: Samples, record: dict, sample
         result = result.replace(selection={**result.selection, "race": raced})
     structure = Structure.of(result.solver["structure"])
     line = sizes[0]  # the kept fit's line size (fits[structure, line] is its SumFit)
+    quick = None
+    if the_plan.vote_screen:  # the line and disc votes read a short fit of the alternative first
+        known = _race_figures(raced, score) if the_plan.race and (the_plan.race[0], the_plan.race_stride) == (
+            the_plan.vote_screen, the_plan.vote_stride) else {}
+        shorts: dict = {}
+
+        def quick(s: Structure, n: int) -> tuple[float, Result | None]:
+            if (s, n) not in shorts:
+                if n == sizes[0] and s.label() in known:  # the race's first round fitted it the same way
+                    shorts[s, n] = (known[s.label()], None)
+                else:
+                    tgt, smp, _ = pool(s)
+                    k = the_plan.vote_stride
+                    slin = lin.model_copy(update={"iterations": the_plan.vote_screen})
+                    r = as_result(s, sums.fit_sum(tgt, s, mapper, opts.texture_size,
+                                                  smp._replace(a=smp.a[::k], b=smp.b[::k], y=smp.y[::k]), slin,
+                                                  log, line_size=n, slots=slots))
+                    shorts[s, n] = (_vote_errors([r], score)[1][0], r)
+            return shorts[s, n]
+
     if len(sizes) > 1 and any(t.mapper == "line" for t in result.model.textures):
-        result, line = _line_vote(result, structure, sizes, fit, log, score)
+        result, line = _line_vote(result, structure, sizes, fit, log, score, quick, the_plan.vote_screen)
     if structure.highlights.terms and the_plan.disc_vote:
-        result = _disc_vote(result, structure, line, fit, log, score)
+        result = _disc_vote(result, structure, line, fit, log, score, quick, the_plan.vote_screen)
         structure = Structure.of(result.solver["structure"])
     steps = the_plan.polish
     if steps and result.solver.get("method") == "als":
@@ -485,15 +505,42 @@ def _vote_errors(tried: list[Result], score: Callable | None) -> tuple[list[floa
     return plain, errs, sums.scored_by(score is not None)[1]
 
 
+def _race_figures(raced: dict | None, score: Callable | None) -> dict[str, float]:
+    """Each candidate's figure after the race's first round (``selection.race``: the one the votes read), by
+    label."""
+    if not raced or not raced.get("rounds"):
+        return {}
+    first = raced["rounds"][0]
+    key = sums.RIDGE_METRIC if score is not None else "validation_nrmse"
+    return dict(zip(first.get("labels", []), first.get(key, [])))
+
+
+def _quick_note(sweeps: int, tried: dict, what: str) -> dict:
+    """``selection.lines.screen`` / ``selection.disc.screen``: the short fits' sweeps and figures."""
+    return {"sweeps": int(sweeps), "figure": what, "tried": [str(k) for k in tried],
+            "figures": [float(v) for v in tried.values()]}
+
+
 def _line_vote(result: Result, structure: Structure, sizes: tuple[int, ...], fit: Callable,
-               log, score: Callable | None = None) -> tuple[Result, int]:
+               log, score: Callable | None = None, quick: Callable | None = None,
+               sweeps: int = 0) -> tuple[Result, int]:
     """The kept ``structure`` (``result``, fitted with ``sizes[0]``-texel lines) fitted again with each
     further line size, the one of lowest validation error kept (ties: the first), with its size;
-    ``selection.lines`` records the sizes, their validation nrmse and the kept size (:func:`line_sizes`).
+    ``selection.lines`` records the sizes fitted, their validation nrmse and the kept size (:func:`line_sizes`).
     ``score(result)``: the validation error the vote uses instead of the plain one (the ridge stratum's,
-    recorded beside it)."""
-    tried = [(sizes[0], result)]
+    recorded beside it). ``quick(structure, size) -> (figure, result)``: a short fit's figure (``sweeps``
+    ALS sweeps, the plan's ``vote_screen``); a size is then fitted in full only where its short figure is
+    below ``sizes[0]``'s (``selection.lines.screen`` records the short figures)."""
+    tried, shorts = [(sizes[0], result)], {}
+    _, what = sums.scored_by(score is not None)
     for size in sizes[1:]:
+        if quick is not None:
+            shorts.setdefault(sizes[0], quick(structure, sizes[0])[0])
+            shorts[size] = quick(structure, size)[0]
+            if not shorts[size] < shorts[sizes[0]]:
+                log(f"line vote: {structure.label()} short fits, {what} {shorts[sizes[0]]:.4g} ({sizes[0]} texels), "
+                    f"{shorts[size]:.4g} ({size} texels): {size} not fitted in full")
+                continue
         log(f"line vote: {structure.label()} with {size}-texel lines")
         tried.append((size, fit(structure, size)))
     plain, errs, what = _vote_errors([r for _, r in tried], score)
@@ -501,17 +548,35 @@ def _line_vote(result: Result, structure: Structure, sizes: tuple[int, ...], fit
     log(f"line vote: {what} " + ", ".join(f"{e:.4g} ({n} texels)" for (n, _), e in zip(tried, errs))
         + f": {tried[k][0]} kept")
     note = {"sizes": [int(n) for n, _ in tried], "validation_nrmse": plain, "kept": int(tried[k][0]),
-            **({} if score is None else {sums.RIDGE_METRIC: errs})}
+            **({} if score is None else {sums.RIDGE_METRIC: errs}),
+            **({"screen": _quick_note(sweeps, shorts, what)} if shorts else {})}
     return tried[k][1].replace(selection={**result.selection, "lines": note}), int(tried[k][0])
 
 
 def _disc_vote(result: Result, structure: Structure, line: int, fit: Callable, log,
-               score: Callable | None = None) -> Result:
+               score: Callable | None = None, quick: Callable | None = None, sweeps: int = 0) -> Result:
     """The kept ``structure`` (``result``) against the same read at its lights' discs (``highlights.disc``,
     fitted with ``line``-texel lines): the one of lower validation error (``score``'s where given; ties:
-    the kept one). ``selection.disc`` records the radii, both errors and whether the disc was kept
-    (:func:`disc_rule`)."""
+    the kept one). ``selection.disc`` records the radii, the errors and whether the disc was kept
+    (:func:`disc_rule`). ``quick`` (see :func:`_line_vote`): the other is fitted in full only where its
+    short fit's figure is below the kept structure's; else ``selection.disc`` holds the kept one's figures
+    only, with ``screen`` (the short figures)."""
     other = structure.with_highlights(disc=not structure.highlights.disc)
+    if quick is not None:
+        (mine, _), (theirs, short) = quick(structure, line), quick(other, line)
+        _, what = sums.scored_by(score is not None)
+        shorts = {structure.label(): mine, other.label(): theirs}
+        if not theirs < mine:
+            log(f"disc vote: short fits, {what} {mine:.4g} ({structure.label()}), {theirs:.4g} ({other.label()}): "
+                f"{structure.label()} kept without a full fit of the other")
+            plain, errs, _ = _vote_errors([result], score)
+            disc = short if other.highlights.disc else result
+            radii = [] if disc is None else [float(disc.model.context[r])
+                                             for _, _, r in pj.HIGHLIGHT_DISCS[:structure.highlights.terms]]
+            note = {"radii": radii, "labels": [structure.label()], "validation_nrmse": plain,
+                    "kept": bool(structure.highlights.disc), **({} if score is None else {sums.RIDGE_METRIC: errs}),
+                    "screen": _quick_note(sweeps, shorts, what)}
+            return result.replace(selection={**(result.selection or {}), "disc": note})
     log(f"disc vote: {other.label()}")
     tried = [result, fit(other, line)]
     plain, errs, what = _vote_errors(tried, score)
@@ -521,7 +586,8 @@ def _disc_vote(result: Result, structure: Structure, line: int, fit: Callable, l
     disc = tried[1] if other.highlights.disc else tried[0]
     radii = [float(disc.model.context[r]) for _, _, r in pj.HIGHLIGHT_DISCS[:structure.highlights.terms]]
     note = {"radii": radii, "labels": [structure.label(), other.label()], "validation_nrmse": plain,
-            "kept": bool((structure, other)[k].highlights.disc), **({} if score is None else {sums.RIDGE_METRIC: errs})}
+            "kept": bool((structure, other)[k].highlights.disc), **({} if score is None else {sums.RIDGE_METRIC: errs}),
+            **({"screen": _quick_note(sweeps, shorts, what)} if quick is not None else {})}
     return tried[k].replace(selection={**(result.selection or {}), "disc": note})
 
 

@@ -55,7 +55,10 @@ class Preset(NamedTuple):
     round, continue from where they stopped; empty: every candidate fitted in full); ``race_stride``: the
     first round fits every k-th training pair (k > 1: short fits of their own, those kept start over on
     every pair; nothing continues from them); ``tolerance``: the ALS
-    stops where a sweep lowers its objective by less than this fraction (``advanced.linear.tolerance``)."""
+    stops where a sweep lowers its objective by less than this fraction (``advanced.linear.tolerance``);
+    ``vote_screen``: ALS sweeps of the short fits (on every ``race_stride``-th pair, as the race's first round)
+    that the line and disc votes read first: the kept structure's other line size, or its disc, is fitted in
+    full only where its short fit's figure is below the kept structure's (0: always fitted in full)."""
 
     lookups: int
     grid_count: int
@@ -75,6 +78,7 @@ class Preset(NamedTuple):
     race_margin: float = 0.0
     race_stride: int = 1
     tolerance: float = DEFAULT_TOLERANCE
+    vote_screen: int = 0
 
 
 #: The grid directions of the presets' candidates: the off-specular reflection ``r_off`` only. On the
@@ -120,7 +124,7 @@ PRESETS: dict[str, Preset] = {
                        directions=PRESET_DIRECTIONS, polish_trial=2, trial_stride=TRIAL_STRIDE, **RACE),
     "best": Preset(lookups=16, grid_count=600_000, validation=80_000, line_ratio=4, table=True, disc_vote=True,
                    nv_balance=0.0, polish=8, ridge=20_000, analysis=False, directions=PRESET_DIRECTIONS,
-                   **RACE),
+                   vote_screen=RACE["race"][0], **RACE),
 }
 
 #: The lookup budget of ``target_error`` with sum keys but no ``max_lookups``.
@@ -167,6 +171,8 @@ class Plan:
     race_keep: tuple[int, ...]  # at most this many continue after each round
     race_margin: float  # ... the lowest and those within this relative margin of its figure
     race_stride: int  # the first round fits every k-th training pair (k > 1: fits of their own)
+    vote_screen: int  # ALS sweeps of the short fits the line and disc votes read first (0: full refits only)
+    vote_stride: int  # ... fitted on every k-th training pair
     ridge: int
     line_sizes: tuple[int, ...]
     disc_vote: bool
@@ -189,6 +195,7 @@ class Plan:
                 "race": {"sweeps": list(self.race), "keep": list(self.race_keep), "margin": self.race_margin,
                          "stride": self.race_stride},
                 "line_sizes": list(self.line_sizes),
+                "vote_screen": {"sweeps": self.vote_screen, "stride": self.vote_stride},
                 "disc_vote": self.disc_vote, "analysis": self.analysis,
                 "votes": [dataclasses.asdict(v) for v in self.votes]}
 
@@ -416,6 +423,13 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
     sizes = line_sizes(opts) if opts.is_sum else ()
     disc = bool(choosing and p is not None and p.disc_vote and hl.disc is None
                 and any(c.highlights.terms for c in cands))
+    # the line and disc votes read a short fit of the alternative first (the race's first round's sweeps and stride)
+    vote_screen = (p.vote_screen if choosing and p is not None and (len(sizes) > 1 or disc) and als_fit
+                   and not lin.polish and 0 < p.vote_screen < lin.iterations else 0)
+    vote_stride = int(p.race_stride) if vote_screen else 1
+    quick = (f"; the alternative fitted in full only where a {vote_screen}-sweep ALS fit"
+             + (f" on every {vote_stride}th training pair" if vote_stride > 1 else "")
+             + " reads lower than the kept structure's" if vote_screen else "")
     if choosing:
         figure = _vote_figure(ridge)
         rule = (f"the first whose figure meets target_error {opts.target_error:g}" if opts.target_error is not None
@@ -425,9 +439,9 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
                               f"{figure} after each round of ALS sweeps (the race above)"))
         votes.append(Vote("structure", tuple(c.label() for c in cands), f"{figure} ({rule})"))
         if len(sizes) > 1:
-            votes.append(Vote("lines", tuple(f"{n} texels" for n in sizes), figure + " of the kept structure"))
+            votes.append(Vote("lines", tuple(f"{n} texels" for n in sizes), figure + " of the kept structure" + quick))
         if disc:
-            votes.append(Vote("disc", ("point light", "the light's disc"), figure + " of the kept structure"))
+            votes.append(Vote("disc", ("point light", "the light's disc"), figure + " of the kept structure" + quick))
         if steps:
             stages = ("ALS fit", "polish") + (("polish + ridge pairs", "polish + ridge pairs from the ALS fit")
                                               if ridge else ())
@@ -446,6 +460,7 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
                 polish_trial_stride=int(p.trial_stride) if trial else 1, ridge=int(ridge or 0),
                 race=race, race_keep=race_keep, race_margin=float(p.race_margin) if race else 0.0,
                 race_stride=int(p.race_stride) if race else 1,
+                vote_screen=int(vote_screen), vote_stride=vote_stride,
                 line_sizes=sizes,
                 disc_vote=disc, analysis=bool(choosing and target.kind == "lighting"
                                               and (p.analysis if p else True) or opts.advanced.analysis is not None),

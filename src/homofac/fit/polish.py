@@ -34,6 +34,7 @@ from __future__ import annotations
 import time
 from typing import Callable, NamedTuple
 
+import jax.numpy as jnp
 import numpy as np
 
 from ..errors import HomofacError
@@ -42,6 +43,7 @@ from ..param import projections as pj
 from ..target import Target
 from ..options import validate
 from .draw import draw_pairs, draw_samples
+from .metrics import CHUNK, _chunks
 from .options import LinearOptions, SamplingOptions
 from .ridge import RidgePairs, in_any_ridge, ridge_pairs, stratified_nrmse
 from .samples import Samples, evaluate, evaluate_grouped
@@ -111,15 +113,20 @@ def ridge_validation(target: Target, samples: Samples, count: int, seed: int) ->
     return RidgeValidation(rp, y, inside, lights)
 
 
-def ridge_nrmse(model, samples: Samples, rv: RidgeValidation, chunk: int = 65536) -> float:
+def ridge_nrmse(model, samples: Samples, rv: RidgeValidation, chunk: int = CHUNK) -> float:
     """The validation nrmse of ``model`` (float textures) with the ridge as its own stratum
     (:func:`homofac.fit.ridge.stratified_nrmse`): under a sun the 30-80 validation pairs on the ridge
     decide the plain figure (gold under the city sun at 16 lookups: 0.062 plain, 0.128 stratified,
-    0.148 on 270 000 uniform pairs)."""
-    a, b = np.asarray(samples.val_a), np.asarray(samples.val_b)
-    approx = np.concatenate([np.asarray(model.evaluate(a[i:i + chunk], b[i:i + chunk]), np.float64)
-                             for i in range(0, len(a), chunk)] or [np.zeros((0, 3))])
-    ridge = np.asarray(model.evaluate(rv.pairs.a, rv.pairs.b), np.float64)
+    0.148 on 270 000 uniform pairs). The model is evaluated in calls of ``chunk`` pairs, the last padded
+    (:data:`homofac.fit.metrics.CHUNK`: the program shape the candidates' metrics compiled)."""
+    def values(a, b) -> np.ndarray:
+        if len(a) == 0:
+            return np.zeros((0, 3))
+        return np.asarray(_chunks(model.evaluate, jnp.asarray(a, jnp.float32), jnp.asarray(b, jnp.float32),
+                                  int(chunk)), np.float64)
+
+    approx = values(np.asarray(samples.val_a), np.asarray(samples.val_b))
+    ridge = values(np.asarray(rv.pairs.a), np.asarray(rv.pairs.b))
     return stratified_nrmse(approx, np.asarray(samples.val_y, np.float64), rv.inside, ridge, rv.y, rv.pairs.weight)
 
 
@@ -165,10 +172,29 @@ def polish_stages(target: Target, structure: Structure, mapper: str, size: int, 
                          log, seed)
     if lin.ridge <= 0:
         return [first]
-    second = polish_stage(target, structure, mapper, size, first, samples, pairs, lin, log, seed)
+    ridge = ridge_samples(target, structure, int(lin.ridge), int(seed))  # the same pairs in both ridge stages
+    second = polish_stage(target, structure, mapper, size, first, samples, pairs, lin, log, seed, ridge=ridge)
     if not direct:
         return [first, second]
-    return [first, second, polish_stage(target, structure, mapper, size, fit, samples, pairs, lin, log, seed)]
+    return [first, second, polish_stage(target, structure, mapper, size, fit, samples, pairs, lin, log, seed,
+                                        ridge=ridge)]
+
+
+class RidgeSamples(NamedTuple):
+    """The ridge pairs of a polish stage (:func:`homofac.fit.ridge.ridge_pairs`), their lights and the
+    target's values there."""
+
+    pairs: RidgePairs
+    lights: np.ndarray  # (L, 3)
+    y: np.ndarray  # (M, 3) float32
+
+
+def ridge_samples(target: Target, structure: Structure, count: int, seed: int) -> RidgeSamples:
+    """``count`` ridge pairs (seeded) of ``structure``'s lights (:func:`ridge_lights`) and the target there:
+    what every ridge stage of one polish reads (evaluated once for all of them)."""
+    lights = ridge_lights(target, structure)
+    rp = ridge_pairs(lights, int(count), int(seed))
+    return RidgeSamples(rp, lights, np.asarray(evaluate(target, rp.a, rp.b), np.float32))
 
 
 #: Levenberg-Marquardt steps per compiled call of a polish stage (:func:`homofac.fit.refine.solve`'s
@@ -177,22 +203,23 @@ POLISH_CHUNK = 2
 
 
 def polish_stage(target: Target, structure: Structure, mapper: str, size: int, fit: SumFit, samples: Samples,
-                 pairs: Samples, lin: LinearOptions, log: Callable[[str], None], seed: int = 0) -> SumFit:
+                 pairs: Samples, lin: LinearOptions, log: Callable[[str], None], seed: int = 0,
+                 ridge: RidgeSamples | None = None) -> SumFit:
     """One stage of :func:`polish_stages`: ``lin.polish`` Levenberg-Marquardt steps from ``fit`` on the
     grid ``samples`` and the off-grid ``pairs`` (in calls of :data:`POLISH_CHUNK` steps), with ``lin.ridge``
-    ridge pairs (seeded by ``seed``) where it is above 0. ``fit``'s own polish record, if any, becomes the
-    new one's ``first``."""
+    ridge pairs (seeded by ``seed``; ``ridge``: those already drawn and evaluated, :func:`ridge_samples`)
+    where it is above 0. ``fit``'s own polish record, if any, becomes the new one's ``first``."""
     lin = lin.resolved()
     t0 = time.perf_counter()
     a, b, y = (np.concatenate([np.asarray(u), np.asarray(v)]) for u, v in
                ((samples.a, pairs.a), (samples.b, pairs.b), (samples.y, pairs.y)))
     weights, ridge_note = None, None
     if lin.ridge > 0:
-        lights = ridge_lights(target, structure)
-        rp = ridge_pairs(lights, int(lin.ridge), int(seed))
+        if ridge is None or len(ridge.pairs.a) != int(lin.ridge):
+            ridge = ridge_samples(target, structure, int(lin.ridge), int(seed))
+        lights, rp, ry = ridge.lights, ridge.pairs, ridge.y
         log(f"ridge: {len(rp.a)} pairs on the grazing ridge of {len(lights)} light(s), probability "
             f"{sum(rp.probability):.3g} of the validation distribution")
-        ry = np.asarray(evaluate(target, rp.a, rp.b), np.float32)
         inside = in_any_ridge(a, b, lights)  # counted by the ridge pairs instead
         weights = np.concatenate([np.where(inside, 0.0, 1.0), len(a) * rp.weight])
         a, b, y = np.concatenate([a, rp.a]), np.concatenate([b, rp.b]), np.concatenate([y, ry])
@@ -244,6 +271,6 @@ def recorded_linear(lin: LinearOptions, solver: dict | None) -> LinearOptions:
     return lin.model_copy(update=update)
 
 
-__all__ = ["POLISH_CHUNK", "RIDGE_NEEDS_ENVIRONMENT", "RidgeValidation", "STAGE_STARTS", "VALIDATION_RIDGE_LIGHTS", "polish",
+__all__ = ["POLISH_CHUNK", "RIDGE_NEEDS_ENVIRONMENT", "RidgeSamples", "RidgeValidation", "STAGE_STARTS", "VALIDATION_RIDGE_LIGHTS", "polish",
            "polish_pairs", "polish_stage", "polish_stages", "recorded_direct", "recorded_linear", "ridge_lights",
-           "ridge_nrmse", "ridge_validation"]
+           "ridge_nrmse", "ridge_samples", "ridge_validation"]
