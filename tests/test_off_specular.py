@@ -219,7 +219,9 @@ def test_max_lookups_draws_grid_pairs_per_direction_and_keeps_the_chosen_structu
                            advanced={"linear": {"iterations": 8, "polish": 0}, "validation_light": 8},
                            sampling={"count": 20000, "validation": 3000, "cache": False}, log=logs.append)
     tried = {t["label"]: t for t in fac.selection["tried"]}
-    assert set(tried) == {"E'+NROW x1", "E'+ROW x1+R", "E'+RO x1+HW x1"}  # fast's directions: r_off
+    raced = fac.selection["race"]["rounds"][0]["labels"]  # every candidate runs the race's first sweeps
+    assert set(raced) == {"E'+NROW x1", "E'+ROW x1+R", "E'+RO x1+HW x1"}  # fast's directions: r_off
+    assert tried and set(tried) <= set(raced) and set(tried) == set(fac.selection["race"]["kept"])
     assert sum("training pairs" in m for m in logs) == 1  # one grid, on r_off (RO's with or without HW)
     best = min(tried.values(), key=lambda t: t["validation_nrmse"])
     assert fac.selection["chosen"]["label"] == best["label"]

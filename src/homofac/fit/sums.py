@@ -472,7 +472,8 @@ def advance(run: Running, sweeps: int | None = None, log=None) -> Running:
     if run.state is None or run.converged or left <= 0:
         return run
     t0 = time.perf_counter()
-    p, _, converged, hist = als_sweeps(run.state, jnp.float32(run.lam), left, run.tolerance, log, run.hist)
+    p, _, converged, hist = als_sweeps(run.state, jnp.float32(run.lam), left, run.tolerance, log, run.hist,
+                                       run.budget)
     return run._replace(state=p, hist=hist, converged=converged, solve_s=run.solve_s + time.perf_counter() - t0)
 
 
@@ -580,16 +581,18 @@ PROGRESS_S = 3.0
 
 
 def als_sweeps(p: als.Padded, lam, sweeps: int, tolerance: float, log=None,
-               history: np.ndarray | None = None) -> tuple[als.Padded, int, bool, np.ndarray]:
+               history: np.ndarray | None = None, budget: int | None = None) -> tuple[als.Padded, int, bool, np.ndarray]:
     """At most ``sweeps`` ALS sweeps (:func:`homofac.fit.als.sweep`, one compiled sweep per slots, called
     per sweep) of the padded state ``p``, stopping when a sweep lowers the objective f by less than
     ``tolerance * f`` (relative decrease ``(f_prev - f) / f_prev``; 0: never). ``history``: the objective
     after each sweep run before (a fit continued, :func:`advance`): the rule reads it as if the sweeps had
-    run in one call. Logs ``ALS sweep i: objective f`` at most every :data:`PROGRESS_S` seconds. Returns
+    run in one call. Logs ``ALS sweep i / budget: objective f`` (``budget``: the fit's whole sweep budget, default
+    the history's sweeps plus ``sweeps``) at most every :data:`PROGRESS_S` seconds. Returns
     ``(p after, sweeps run in this call, converged, hist)``, hist the whole history (float32: the sweeps'
     own values)."""
     hist: list[float] = [] if history is None else [float(h) for h in np.asarray(history)]
     before = len(hist)
+    total = int(budget) if budget is not None else before + int(sweeps)
     converged = False
     shown = time.perf_counter()
     state = p.state
@@ -599,7 +602,7 @@ def als_sweeps(p: als.Padded, lam, sweeps: int, tolerance: float, log=None,
         if len(hist) > 1 and tolerance > 0 and hist[-2] - hist[-1] <= tolerance * abs(hist[-2]):
             converged = True
         if log is not None and (time.perf_counter() - shown >= PROGRESS_S or converged) and i < sweeps:
-            log(f"ALS sweep {len(hist)}: objective {hist[-1]:.6g}" + (" (converged)" if converged else ""))
+            log(f"ALS sweep {len(hist)} / {total}: objective {hist[-1]:.6g}" + (" (converged)" if converged else ""))
             shown = time.perf_counter()
         if converged:
             break
