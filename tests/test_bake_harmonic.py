@@ -113,7 +113,7 @@ def test_plan_counts_the_harmonic_fetches():
     tables gain h_A, h_B: fast + harmonic reads 2 x 2 + 1 + 2 = 7 fetches."""
     assert make_plan("fast", harmonic=0.3).lookups == 7
     assert make_plan("fast", harmonic=0.0).lookups == 4
-    assert make_plan("balanced", harmonic=0.3).lookups == 2 * 3 + 1 + 3
+    assert make_plan("balanced", harmonic=0.3, mixed=False).lookups == 2 * 3 + 1 + 3
     assert "second harmonic from roughness 0.3" in make_plan("fast", harmonic=0.3).describe()
 
 

@@ -13,6 +13,7 @@ import homofac as hf
 import test_bake_harmonic as th
 from homofac.bake import shader
 from homofac.bake.model import Bake
+from homofac.errors import HomofacError
 from homofac.bake.plan import plan as make_plan
 
 #: layers 0.3, 0.38, 0.49, 0.62, 0.79, 1: layer 1 stores 2 products, layer 2 (the crossing) 1, layers 3-5 1 + the harmonic
@@ -43,14 +44,15 @@ def test_plan_of_a_mixed_bake():
     (10 unpacked); the layers from 0.3 up and the one below them keep 1 product."""
     pl = make_plan("balanced", harmonic=0.3, mixed=True)
     assert (pl.lookups, pl.maps, pl.tables, pl.channels, pl.harmonic_channel) == (7, 2, 2, 5, 2)
-    assert make_plan("balanced", harmonic=0.3).lookups == 10
+    assert make_plan("balanced", harmonic=0.3, mixed=False).lookups == 10
     rho, h = pl.roughnesses(), pl.harmonic_layers()
     assert h == tuple(j for j in range(pl.layers) if rho[j] >= 0.3) and rho[min(h) - 1] < 0.3
     assert pl.layer_terms() == tuple(1 if j >= min(h) - 1 else 2 for j in range(pl.layers))
     assert f"the harmonic in layers {min(h)}-{pl.layers - 1}" in pl.describe()
-    assert make_plan("balanced", mixed=True).layer_terms() == (2,) * 12  # no harmonic: nothing changes
-    with pytest.raises(ValueError, match="mixed needs at least 2"):
+    assert make_plan("balanced", harmonic=0.0).layer_terms() == (2,) * 12  # no harmonic: nothing changes
+    with pytest.raises(HomofacError, match="mixed needs at least 2"):
         make_plan("fast", harmonic=0.3, mixed=True)
+    assert make_plan("balanced", harmonic=0.35, mixed=True).lookups == 7
 
 
 def test_each_layer_stores_its_own_channels(mixed_bake):

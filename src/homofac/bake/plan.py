@@ -15,6 +15,8 @@ from __future__ import annotations
 import math
 from typing import Literal, NamedTuple
 
+from ..errors import HomofacError
+
 PRESETS = ("fast", "balanced", "best")
 Preset = Literal["fast", "balanced", "best"]
 
@@ -120,11 +122,12 @@ def plan(preset: str = "balanced", *, max_size: int = 256, min_roughness: float 
          mixed: bool | None = None) -> BakePlan:
     """The plan of a preset, with the given overrides (validated by :class:`homofac.bake.BakeOptions`)."""
     k, d, n = _STRUCTURE[preset]
-    if (_MIXED[preset] if mixed is None else mixed) and int(terms or k) < 2:
-        raise ValueError("mixed needs at least 2 specular terms (the harmonic layers keep K - 1)")
+    if mixed and int(terms or k) < 2:
+        raise HomofacError("bake: mixed needs at least 2 specular terms (the harmonic layers keep K - 1)")
+    mixed = bool(_MIXED[preset] and int(terms or k) >= 2) if mixed is None else mixed
     return BakePlan(preset, int(terms or k), d, int(layers or n), int(nv_size), int(max_size), int(diffuse_size),
                     float(min_roughness), str(diffuse_basis), float(_HARMONIC[preset] if harmonic is None else harmonic),
-                    bool(_MIXED[preset] if mixed is None else mixed))
+                    bool(mixed))
 
 
 __all__ = ["BakePlan", "PRESETS", "Preset", "plan"]
