@@ -52,7 +52,16 @@ def test_plan_of_a_mixed_bake():
     assert make_plan("balanced", harmonic=0.0).layer_terms() == (2,) * 12  # no harmonic: nothing changes
     with pytest.raises(HomofacError, match="mixed needs at least 2"):
         make_plan("fast", harmonic=0.3, mixed=True)
-    assert make_plan("balanced", harmonic=0.35, mixed=True).lookups == 7
+    assert make_plan("balanced", terms=1).mixed is False  # the preset's mixed needs K >= 2
+
+
+def test_balanced_is_mixed_from_0_35():
+    """The preset (benchmarks/bake_accuracy.md, balanced+m0.35): K = 2 below 0.35, 1 + the harmonic from the 0.429
+    layer up (the 0.324 layer the crossing), 7 fetches; --harmonic 0 is the plain K = 2 bake."""
+    pl = make_plan("balanced")
+    assert (pl.harmonic, pl.mixed, pl.lookups) == (0.35, True, 7)
+    assert pl.layer_terms() == (2,) * 7 + (1,) * 5 and pl.harmonic_layers() == (8, 9, 10, 11)
+    assert make_plan("balanced", harmonic=0.0).layer_terms() == (2,) * 12
 
 
 def test_each_layer_stores_its_own_channels(mixed_bake):
@@ -132,3 +141,11 @@ def test_mixed_msl_compiles_against_the_metal_shim(mixed_bake, tmp_path):
 
 def test_mixed_wgsl_runs_on_wgpu_and_equals_cpu(mixed_bake):
     th.test_harmonic_wgsl_runs_on_wgpu_and_equals_cpu(mixed_bake)
+
+
+@pytest.mark.parametrize("material", [(0.8, 0.3, 0.2, 0.0, 0.45), (0.95, 0.64, 0.54, 1.0, 0.7)], ids=["dielectric", "metal"])
+def test_opengl_recipe_reads_the_rgba_maps(mixed_bake, material, tmp_path):
+    """docs/recipes/opengl.md's bake program, run as written on a mixed bake (RGBA P maps), equals its evaluation."""
+    import test_recipes_bake as tr
+    d = mixed_bake.save(tmp_path / "bake")
+    tr.test_opengl_bake_recipe_renders_homofac_ibl((d, hf.load(d)), material, tmp_path)

@@ -1038,6 +1038,8 @@ def load_bake(d, *, max_bytes: int = 1 << 28) -> Bake:
     if (len(by_kind["prefiltered"]), len(by_kind["diffuse"]), len(by_kind["weights"])) != (
             pl.maps, 0 if sh9 else pl.diffuse, pl.tables):
         raise HomofacError(f"{f}: texture count does not match the plan")
+    if any(len(t.channels) != (4 if pl.harmonic else 3) for t in by_kind["prefiltered"]):
+        raise HomofacError(f"{f}: the specular maps' channels do not match the plan (RGBA with the harmonic, else RGB)")
     sh = None
     if sh9:
         sh = np.asarray(doc.diffuse_sh9 if doc.diffuse_sh9 is not None else [], np.float64)

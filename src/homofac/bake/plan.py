@@ -110,10 +110,10 @@ class BakePlan(NamedTuple):
 _STRUCTURE = {"fast": (1, 1, 10), "balanced": (2, 1, 12), "best": (5, 2, 12)}
 
 #: preset -> the roughness from which layers store the second harmonic (0: none).
-_HARMONIC = {"fast": 0.0, "balanced": 0.0, "best": 0.0}
+_HARMONIC = {"fast": 0.0, "balanced": 0.35, "best": 0.0}
 
 #: preset -> whether the harmonic layers replace the K-th product (``mixed``, :meth:`BakePlan.layer_terms`).
-_MIXED = {"fast": False, "balanced": False, "best": False}
+_MIXED = {"fast": False, "balanced": True, "best": False}
 
 
 def plan(preset: str = "balanced", *, max_size: int = 256, min_roughness: float = 0.045, nv_size: int = 32,
@@ -124,10 +124,11 @@ def plan(preset: str = "balanced", *, max_size: int = 256, min_roughness: float 
     k, d, n = _STRUCTURE[preset]
     if mixed and int(terms or k) < 2:
         raise HomofacError("bake: mixed needs at least 2 specular terms (the harmonic layers keep K - 1)")
+    h = float(_HARMONIC[preset] if harmonic is None else harmonic)
     mixed = bool(_MIXED[preset] and int(terms or k) >= 2) if mixed is None else mixed
+    mixed = bool(mixed and h > 0)  # without a harmonic nothing is mixed
     return BakePlan(preset, int(terms or k), d, int(layers or n), int(nv_size), int(max_size), int(diffuse_size),
-                    float(min_roughness), str(diffuse_basis), float(_HARMONIC[preset] if harmonic is None else harmonic),
-                    bool(mixed))
+                    float(min_roughness), str(diffuse_basis), h, mixed)
 
 
 __all__ = ["BakePlan", "PRESETS", "Preset", "plan"]
