@@ -181,10 +181,13 @@ def ideal_split_sum(src, uniform, name, n, v, rho, samples):
 
 
 def preset_flags(preset: str) -> list[str]:
-    """The CLI flags of a benchmark preset: a preset name, or ``PRESET+hR`` (the preset with ``--harmonic R``:
-    the layers from roughness R up carry the second harmonic)."""
-    base, _, extra = preset.partition("+h")
-    return ["--preset", base] + (["--harmonic", extra] if extra else [])
+    """The CLI flags of a benchmark preset: a preset name, ``PRESET+hR`` (the preset with ``--harmonic R
+    --no-mixed``: the layers from roughness R up carry the second harmonic, unpacked; ``+h0``: none) or
+    ``PRESET+mR`` (``--harmonic R --mixed``: those layers carry K - 1 products and the harmonic in the K-th's
+    channels)."""
+    mixed = "+m" in preset
+    base, _, extra = preset.replace("+m", "+h").partition("+h")
+    return (["--preset", base] + (["--harmonic", extra, "--mixed" if mixed else "--no-mixed"] if extra else []))
 
 
 def fresh_bake(name, preset, tmp):
@@ -269,7 +272,8 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--pairs", type=int, default=150, help="random pairs (and materials) per band")
     ap.add_argument("--presets", nargs="+", default=["fast", "balanced"],
-                    help="presets, or PRESET+hR: the preset with the second harmonic from roughness R (--harmonic R)")
+                    help="presets, or PRESET+hR: the preset with the second harmonic from roughness R, unpacked "
+                         "(--harmonic R --no-mixed; +h0: none); PRESET+mR: mixed (--harmonic R --mixed)")
     ap.add_argument("--envs", nargs="+", default=list(hf.light.BUNDLED))
     ap.add_argument("--cap", type=int, default=65536, help="largest reference sample count per strategy")
     ap.add_argument("--fits", type=int, default=1, help="per-material homofac fits per band (0: none)")

@@ -83,7 +83,7 @@ def worst(a: dict, b: dict) -> tuple[float, str]:
 def made_up_bake(preset: str = "fast", seed: int = 0, diffuse_basis: str = "texture"):
     """A bake of the preset's structure (3 layers, small sizes) with smooth made-up positive textures: what the
     GPU == CPU and viewer tests need, without a fit. ``diffuse_basis="sh9"``: E_d's SH9 projections as well."""
-    pl = make_plan(preset, max_size=16, layers=3, nv_size=8, diffuse_size=8, diffuse_basis=diffuse_basis)
+    pl = make_plan(preset, max_size=16, layers=3, nv_size=8, diffuse_size=8, diffuse_basis=diffuse_basis, harmonic=0.0)
     rough = pl.roughnesses()
     P = tuple(np.stack([smooth_texture("cube", layer_size(r, pl.max_size), seed + 10 * j + k) for k in range(pl.terms)],
                        axis=2) for j, r in enumerate(rough))

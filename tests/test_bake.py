@@ -34,7 +34,7 @@ def nrmse(a, e):
 
 @pytest.fixture(scope="module")
 def forest_bake():
-    return hf.bake("forest", preset="balanced", **TINY)
+    return hf.bake("forest", preset="balanced", harmonic=0.0, **TINY)  # the plain products (mixed: test_bake_mixed.py)
 
 
 def test_white_furnace_integrals(x64):

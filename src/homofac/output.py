@@ -73,7 +73,7 @@ LIBRARY_FORMAT = "homofac.library"
 LIBRARY_VERSION = 1
 INDEX_NAME = "index.json"
 BAKE_FORMAT = "homofac.bake"
-BAKE_SCHEMA = 3
+BAKE_SCHEMA = 4
 BAKE_JSON = "bake.json"
 #: The shader files of a bake directory (homofac_ibl, homofac_ibl_terms).
 BAKE_SHADERS = {"glsl": "shader.glsl", "glsl_es": "shader_es.glsl", "hlsl": "shader.hlsl", "msl": "shader.metal",
@@ -873,6 +873,8 @@ class BakePlanEntry(Options):
     diffuse_basis: Literal["texture", "sh9"] = "texture"
     #: schema 3: the layers from this roughness up store the second harmonic (0: none; schemas 1-2: none)
     harmonic: float = Field(0.0, ge=0, le=1)
+    #: schema 4: the harmonic layers store K - 1 products and the harmonic in the K-th's channels (schemas 1-3: no)
+    mixed: bool = False
 
 
 class BakeSourceEntry(Options):
@@ -899,11 +901,11 @@ class BakeSourceEntry(Options):
 
 
 class BakeDocument(Options):
-    """bake.json (schema 3; schema 2 is read as a bake without the harmonic, schema 1, without ``sources``, as a
+    """bake.json (schema 4; schema 3 is read as a bake without ``plan.mixed``, schema 2 as one without the harmonic, schema 1, without ``sources``, as a
     bake without sources either): see docs/format.md."""
 
     format: Literal["homofac.bake"]
-    schema_version: Literal[1, 2, 3]
+    schema_version: Literal[1, 2, 3, 4]
     brdf: Literal["gltf"]
     plan: BakePlanEntry
     lookups: int
@@ -929,7 +931,9 @@ def bake_document(bake: Bake, exr: str = "half") -> dict:
     pl = bake.plan
     atlas = bake.atlas
     chans = ([f"{c}{k}" for k in range(pl.terms) for c in ("a", "b")] + [f"w{d}" for d in range(pl.diffuse)]
-             + (["hA", "hB"] if pl.harmonic else []))
+             + (["hA", "hB"] if pl.harmonic and not pl.mixed else []))
+    if pl.mixed and pl.harmonic:  # a_K, b_K's channels carry h_A, h_B in the harmonic layers
+        chans[2 * pl.terms - 2:2 * pl.terms] = [f"a{pl.terms - 1}/hA", f"b{pl.terms - 1}/hB"]
     tex = [{"name": f"P{i}", "file": f"P{i}.exr", "kind": "prefiltered", "width": atlas.width, "height": atlas.height,
             "channels": c if pl.harmonic else ["r", "g", "b"]} for i, c in enumerate(bake_shader.specular_channels(bake))]
     s = pl.diffuse_size
@@ -1034,6 +1038,8 @@ def load_bake(d, *, max_bytes: int = 1 << 28) -> Bake:
     if (len(by_kind["prefiltered"]), len(by_kind["diffuse"]), len(by_kind["weights"])) != (
             pl.maps, 0 if sh9 else pl.diffuse, pl.tables):
         raise HomofacError(f"{f}: texture count does not match the plan")
+    if any(len(t.channels) != (4 if pl.harmonic else 3) for t in by_kind["prefiltered"]):
+        raise HomofacError(f"{f}: the specular maps' channels do not match the plan (RGBA with the harmonic, else RGB)")
     sh = None
     if sh9:
         sh = np.asarray(doc.diffuse_sh9 if doc.diffuse_sh9 is not None else [], np.float64)
@@ -1050,7 +1056,13 @@ def load_bake(d, *, max_bytes: int = 1 << 28) -> Bake:
 
     ps = [split(atlas, read(t, (atlas.height, atlas.width))) for t in by_kind["prefiltered"]]
     H: tuple = ()
-    if pl.harmonic:  # RGBA maps: the K products' RGB, then the tensor's 5 channels (docs/format.md)
+    if pl.harmonic and pl.mixed:  # RGBA maps: K - 1 products' RGB, then P_K's RGB or (harmonic layers) the tensor
+        flat = [np.concatenate([p[j][..., :4] for p in ps], axis=-1) for j in range(pl.layers)]
+        harm, k1 = set(pl.harmonic_layers()), 3 * pl.terms - 3
+        P = tuple(np.concatenate([a[..., :k1], np.zeros_like(a[..., :3]) if j in harm else a[..., k1:k1 + 3]], -1)
+                  .reshape(a.shape[:2] + (pl.terms, 3)) for j, a in enumerate(flat))
+        H = tuple(np.ascontiguousarray(a[..., k1:k1 + 5]) if j in harm else None for j, a in enumerate(flat))
+    elif pl.harmonic:  # RGBA maps: the K products' RGB, then the tensor's 5 channels (docs/format.md)
         flat = [np.concatenate([p[j][..., :4] for p in ps], axis=-1) for j in range(pl.layers)]
         P = tuple(a[..., :3 * pl.terms].reshape(a.shape[:2] + (pl.terms, 3)) for a in flat)
         H = tuple(np.ascontiguousarray(a[..., 3 * pl.terms:3 * pl.terms + 5]) if rho >= pl.harmonic else None

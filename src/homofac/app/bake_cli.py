@@ -33,9 +33,9 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--config", help="YAML file with the bake options (keys as the flags, with underscores)")
     p.add_argument("--debug", action="store_true", help="show tracebacks")
     for name, field in BakeOptions.model_fields.items():
-        if field.annotation is bool:
+        if field.annotation in (bool, typing.Optional[bool]):  # an optional one (default: the preset's) as --x / --no-x
             p.add_argument(_flag(name), dest=name, default=None, help=field.description,
-                           action=argparse.BooleanOptionalAction if field.default else "store_true")
+                           action=argparse.BooleanOptionalAction if field.default or field.annotation is not bool else "store_true")
             continue
         kind = typing.get_args(field.annotation)
         choices = kind if typing.get_origin(field.annotation) is typing.Literal else None

@@ -347,7 +347,7 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
     max_size = int(opts.max_size or source_size(environment))
     pl = make_plan(opts.preset, max_size=max_size, min_roughness=opts.min_roughness, nv_size=opts.nv_size,
                    diffuse_size=opts.diffuse_size, layers=opts.layers, terms=opts.terms, diffuse_basis=opts.diffuse,
-                   harmonic=opts.harmonic)
+                   harmonic=opts.harmonic, mixed=opts.mixed)
     original = _Lights(environment)
     lights = _Lights(environment)
     # the brightest compact source leaves the map before every filter and is shaded as a point light
@@ -382,6 +382,7 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
     # the sharp layers (lobe at most half a texel of the largest map) share one block, computed at the sharpest
     # (the environment at the block's detail, as a mip chain's level 0)
     order = ([0] if shared[0] else []) + [j for j in range(pl.layers) if not shared[j]]
+    kept = pl.layer_terms()  # K, or K - 1 in a mixed plan's harmonic layers and the crossing
     for j in order:
         rho, s = roughness[j], sizes[j]
         env_j = lights(max(s, MIN_LIGHTS))
@@ -394,14 +395,17 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
             k_c = kn.calibrate(kn.specular_kernels(rho, x, shift=cand), exact).reshape(2 * len(x), -1)  # rows (A, x..), (B, x..)
             timings["kernels_s"] += time.perf_counter() - t
             t = time.perf_counter()
-            fit = layer_fit(kn.smooth(k_c, texel_radius(env_j)), s, env_j, pl.terms, DATA_SIZE,
+            fit = layer_fit(kn.smooth(k_c, texel_radius(env_j)), s, env_j, kept[j], DATA_SIZE,
                             np.concatenate([exact[0], exact[1]]) if shared[j] else None, coarse=lights(MIN_LIGHTS))
             timings["maps_s"] += time.perf_counter() - t
             if best is None or fit[3] > best[2][3]:
                 best = (cand, k_c, fit)
         shift, _, (v, wt, p, _) = best
+        if kept[j] < pl.terms:  # the K-th product's channels stay 0 (the harmonic's in a mixed plan)
+            v, wt = (np.concatenate([a, np.zeros((len(a), pl.terms - kept[j]))], 1) for a in (v, wt))
+            p = np.concatenate([p, np.zeros((len(p), pl.terms - kept[j], 3))], 1)
         t = time.perf_counter()
-        rot = _align(v, previous)
+        rot = _align(v, previous) if kept[j] == pl.terms else np.eye(pl.terms)
         v, wt, p = v @ rot, wt @ rot, np.einsum("tkc,kl->tlc", p, rot)
         previous = v
         timings["weights_s"] += time.perf_counter() - t
@@ -420,7 +424,7 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
             continue
         P[j] = p.reshape(s, 6 * s, pl.terms, 3).astype(np.float32)
         W[j], shifts[j] = wt, float(shift)
-        if pl.harmonic and rho >= pl.harmonic:
+        if j in pl.harmonic_layers():
             t = time.perf_counter()
             k2 = kn.harmonic_kernels(rho, x, shift=shift).reshape(2 * len(x), -1)
             timings["kernels_s"] += time.perf_counter() - t
@@ -433,7 +437,11 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
     w = np.stack(W)  # (L, X, 2K)
     wd = np.broadcast_to(vd[None], (pl.layers, len(x), pl.diffuse))
     hw = [np.stack([h[: len(x)], h[len(x):]], axis=-1) for h in Hw] if pl.harmonic else []  # h_A, h_B
-    table = np.concatenate([w, wd] + ([np.stack(hw)] if hw else []), axis=-1).astype(np.float32)
+    if pl.mixed and hw:  # h_A, h_B in a_K, b_K's channels of the harmonic layers (those are 0 there)
+        w = w.copy()
+        for j in pl.harmonic_layers():
+            w[j, :, 2 * pl.terms - 2:] = hw[j]
+    table = np.concatenate([w, wd] + ([np.stack(hw)] if hw and not pl.mixed else []), axis=-1).astype(np.float32)
     t = time.perf_counter()
     sh = sh9(original(opts.data_resolution))  # the environment's irradiance, source included
     timings["sh9_s"] = time.perf_counter() - t

@@ -15,6 +15,11 @@ each layer's axis is added, coloured as the products (:func:`tensor_read`, :func
     H = sum_j hat(u - j) t_j^T M_j(a_j) t_j,   t_j = normalize(n - (n.a_j) a_j)
     I_A <- I_A max(0, 1 + h_A H / Y(I_A)),     I_B <- I_B max(0, 1 + h_B H / Y(I_B))   (h_A, h_B: table channels)
 
+With the plan's ``mixed`` (:meth:`~homofac.bake.plan.BakePlan.layer_terms`) the harmonic layers store P_K = 0
+and h_A, h_B in a_K, b_K's channels, and the layer below them stores P_K = 0, a_K = b_K = 0 and no tensor: the
+formulas above then hold unchanged with h_A = T_{2K-2}, h_B = T_{2K-1} (every blended channel is, in both
+layers of a blend, either one meaning or 0).
+
 with hat(t) = max(0, 1 - |t|), r = 2 (n.v) n - v, every 2D read the cube mapper's bilinear lookup and every
 n.v read the line mapper's (:func:`homofac.param.mappers.lookup`: what the GPU's filter computes on the
 clamped coordinates). Pairs with n.v <= 0 give 0.
@@ -132,7 +137,7 @@ class Bake:
         maps = _terms(tuple(jnp.asarray(p, jnp.float32) for p in self.P), diffuse,
                       jnp.asarray(self.W, jnp.float32), jnp.asarray(self.shift, jnp.float32),
                       self.layer_coordinate(rho), n, v, self.plan.terms,
-                      self.plan.diffuse, sh9, H)
+                      self.plan.diffuse, sh9, H, self.plan.harmonic_channel)
         return maps + source_terms(self.sources, n, v, rho) if self.sources else maps
 
     def evaluate(self, n, v, base_color, metallic, roughness) -> Float[Array, "N 3"]:
@@ -205,8 +210,8 @@ def harmonic_colour(i0: Float[Array, "N 3"], h: Float[Array, "N"]) -> Float[Arra
     return i0 * jnp.where(y > 1e-20, jnp.maximum(0.0, 1.0 + h / jnp.where(y > 1e-20, y, 1.0)), 1.0)[:, None]
 
 
-@jax.jit(static_argnums=(7, 8, 9))
-def _terms(P, E, W, shift, u, n, v, K: int, D: int, sh9: bool = False, H=None):
+@jax.jit(static_argnums=(7, 8, 9, 11))
+def _terms(P, E, W, shift, u, n, v, K: int, D: int, sh9: bool = False, H=None, hc: int = 0):
     x = jnp.sum(n * v, axis=-1)
     r = 2.0 * x[:, None] * n - v
     xc = jnp.clip(x, 0.0, 1.0)
@@ -226,9 +231,9 @@ def _terms(P, E, W, shift, u, n, v, K: int, D: int, sh9: bool = False, H=None):
     t = jnp.sum(hats[:, :, None] * _line(W, xc), axis=1)  # (N, C)
     ia = jnp.sum(pb * t[:, 0:2 * K:2, None], axis=1)
     ib = jnp.sum(pb * t[:, 1:2 * K:2, None], axis=1)
-    if H is not None:  # the tables' last two channels: h_A, h_B
-        ia = harmonic_colour(ia, hb * t[:, 2 * K + D])
-        ib = harmonic_colour(ib, hb * t[:, 2 * K + D + 1])
+    if H is not None:  # h_A, h_B: the tables' channels hc, hc + 1
+        ia = harmonic_colour(ia, hb * t[:, hc])
+        ib = harmonic_colour(ib, hb * t[:, hc + 1])
     # the diffuse maps: cube textures, or (sh9) E holds their SH coefficients (D, 9, 3)
     e = jnp.einsum("ni,dic->ndc", sh9_basis(n), E) if sh9 else _cube(E, n).reshape(-1, D, 3)
     idf = jnp.sum(e * t[:, 2 * K:2 * K + D, None], axis=1)

@@ -33,6 +33,9 @@ class BakeOptions(Options):
         None, ge=0.0, le=1.0,
         description="the layers from this roughness up also store the luminance's second azimuthal harmonic about "
                     "their axis (a tensor map per layer, read as t^T M t; docs/format.md); 0: off; default: the preset's")
+    mixed: Optional[bool] = Field(
+        None, description="with harmonic: the harmonic layers store K - 1 products and the harmonic in the K-th "
+                          "product's channels (fewer fetches; docs/format.md); default: the preset's")
     exr: Literal["half", "float32"] = "half"
     ktx2: bool = Field(False, description="also write each texture as <name>.ktx2 (RGBA half or float, as exr)")
 

@@ -15,6 +15,8 @@ from __future__ import annotations
 import math
 from typing import Literal, NamedTuple
 
+from ..errors import HomofacError
+
 PRESETS = ("fast", "balanced", "best")
 Preset = Literal["fast", "balanced", "best"]
 
@@ -36,11 +38,32 @@ class BakePlan(NamedTuple):
     min_roughness: float
     diffuse_basis: str = "texture"
     harmonic: float = 0.0
+    mixed: bool = False
 
     @property
     def channels(self) -> int:
-        """Weight-table channels: a_1, b_1, ..., a_K, b_K, w_1, ..., w_D (and h_A, h_B with the harmonic)."""
-        return 2 * self.terms + self.diffuse + (2 if self.harmonic else 0)
+        """Weight-table channels: a_1, b_1, ..., a_K, b_K, w_1, ..., w_D (and h_A, h_B with the harmonic, unless
+        ``mixed``: then h_A, h_B are a_K, b_K's channels in the harmonic layers)."""
+        return 2 * self.terms + self.diffuse + (2 if self.harmonic and not self.mixed else 0)
+
+    @property
+    def harmonic_channel(self) -> int:
+        """The table channel of h_A (h_B the next): 2K + D, or with ``mixed`` 2K - 2 (a_K's)."""
+        return 2 * self.terms - 2 if self.mixed else 2 * self.terms + self.diffuse
+
+    def layer_terms(self) -> tuple[int, ...]:
+        """The products each layer stores: K, or with ``mixed`` K - 1 in the layers from the harmonic's roughness
+        up (the harmonic takes the K-th product's channels) and in the last layer below them (the crossing: the
+        bilinear table then never blends a_K with h_A, each layer's channels keep one meaning)."""
+        h = self.harmonic_layers()
+        first = min(h) if h else self.layers
+        return tuple(self.terms - 1 if self.mixed and h and j >= first - 1 else self.terms for j in range(self.layers))
+
+    def harmonic_layers(self) -> tuple[int, ...]:
+        """The layers that store the second harmonic: those with roughness >= ``harmonic`` (none if it is 0)."""
+        if not self.harmonic:
+            return ()
+        return tuple(j for j, r in enumerate(self.roughnesses()) if r >= self.harmonic)
 
     @property
     def tables(self) -> int:
@@ -50,7 +73,10 @@ class BakePlan(NamedTuple):
     @property
     def maps(self) -> int:
         """Specular textures per layer: K RGB maps P_k; with the harmonic, P_k's RGB and the tensor map's 5
-        channels packed into ceil((3 K + 5) / 4) RGBA maps."""
+        channels packed into ceil((3 K + 5) / 4) RGBA maps; ``mixed``: ceil(max(3 K, 3 (K - 1) + 5) / 4) RGBA maps
+        (a layer's channels after the first K - 1 products: P_K's RGB below the harmonic, the tensor from it up)."""
+        if self.harmonic and self.mixed:
+            return math.ceil(max(3 * self.terms, 3 * self.terms + 2) / 4)
         return math.ceil((3 * self.terms + 5) / 4) if self.harmonic else self.terms
 
     @property
@@ -58,6 +84,10 @@ class BakePlan(NamedTuple):
         """Texture fetches per pixel: D (E_d; none with ``diffuse_basis`` sh9) + 2 x the specular maps (two layers
         blended by hand) + the tables."""
         return (self.diffuse if self.diffuse_basis == "texture" else 0) + 2 * self.maps + self.tables
+
+    @staticmethod
+    def _span(js) -> str:
+        return f"{js[0]}-{js[-1]}" if len(js) > 1 else str(js[0])
 
     def roughnesses(self) -> tuple[float, ...]:
         """The layers' roughnesses: min_roughness (1/min_roughness)^(j/(layers-1)) (lobe width alpha = rho^2
@@ -72,6 +102,7 @@ class BakePlan(NamedTuple):
                 f"{self.nv_size} n.v columns; P up to {self.max_size}^2 x 6, E {self.diffuse_size}^2 x 6"
                 f"{' as SH9 constants' if self.diffuse_basis == 'sh9' else ''}; "
                 f"{f'second harmonic from roughness {self.harmonic:g}; ' if self.harmonic else ''}"
+                f"{f'mixed: {self.terms - 1} term(s) + the harmonic in layers {self._span(self.harmonic_layers())}, {self.terms - 1} term(s) in the crossing layer {min(self.harmonic_layers()) - 1}; ' if self.mixed and self.harmonic_layers() else ''}"
                 f"{self.lookups} lookups per pixel")
 
 
@@ -79,16 +110,25 @@ class BakePlan(NamedTuple):
 _STRUCTURE = {"fast": (1, 1, 10), "balanced": (2, 1, 12), "best": (5, 2, 12)}
 
 #: preset -> the roughness from which layers store the second harmonic (0: none).
-_HARMONIC = {"fast": 0.0, "balanced": 0.0, "best": 0.0}
+_HARMONIC = {"fast": 0.0, "balanced": 0.35, "best": 0.0}
+
+#: preset -> whether the harmonic layers replace the K-th product (``mixed``, :meth:`BakePlan.layer_terms`).
+_MIXED = {"fast": False, "balanced": True, "best": False}
 
 
 def plan(preset: str = "balanced", *, max_size: int = 256, min_roughness: float = 0.045, nv_size: int = 32,
          diffuse_size: int = 32, layers: int | None = None, terms: int | None = None,
-         diffuse_basis: str = "texture", harmonic: float | None = None) -> BakePlan:
+         diffuse_basis: str = "texture", harmonic: float | None = None,
+         mixed: bool | None = None) -> BakePlan:
     """The plan of a preset, with the given overrides (validated by :class:`homofac.bake.BakeOptions`)."""
     k, d, n = _STRUCTURE[preset]
+    if mixed and int(terms or k) < 2:
+        raise HomofacError("bake: mixed needs at least 2 specular terms (the harmonic layers keep K - 1)")
+    h = float(_HARMONIC[preset] if harmonic is None else harmonic)
+    mixed = bool(_MIXED[preset] and int(terms or k) >= 2) if mixed is None else mixed
+    mixed = bool(mixed and h > 0)  # without a harmonic nothing is mixed
     return BakePlan(preset, int(terms or k), d, int(layers or n), int(nv_size), int(max_size), int(diffuse_size),
-                    float(min_roughness), str(diffuse_basis), float(_HARMONIC[preset] if harmonic is None else harmonic))
+                    float(min_roughness), str(diffuse_basis), h, mixed)
 
 
 __all__ = ["BakePlan", "PRESETS", "Preset", "plan"]

@@ -46,6 +46,7 @@ def source(bake: Bake, language: str = "glsl", *, y_up: bool = False, flip_v: bo
     se = pl.diffuse_size
     cube_src, tables = generate.mapper_function(L.get(language), "cube")
     prec = "highp " if language == "glsl_es" else ""
+    mixed = bool(pl.mixed and pl.harmonic_layers())
     lines = [
         f"// homofac {__version__}: material-parametric bake ({pl.preset}), {bake.lookups} texture lookups per pixel.",
         f"// {L.get(language).title}. Generated from the bake's records; the interface is pinned (docs/format.md).",
@@ -71,6 +72,7 @@ def source(bake: Bake, language: str = "glsl", *, y_up: bool = False, flip_v: bo
                      for (x, y), s, sh in zip(atlas.offsets, atlas.sizes, bake.shift))
     lines += [
         f"const int HF_LAYERS = {layers};",
+        *([f"const int HF_H0 = {min(pl.harmonic_layers())};  // the first layer storing the harmonic (mixed)"] if mixed else []),
         f"const float HF_RHO0 = {_f(bake.roughness[0])};",
         f"const float HF_RHO1 = {_f(bake.roughness[-1])};",
         f"const vec2 HF_ATLAS = vec2({_f(atlas.width)}, {_f(atlas.height)});",
@@ -145,18 +147,26 @@ def source(bake: Bake, language: str = "glsl", *, y_up: bool = False, flip_v: bo
             body.append(f"    vec4 q1_{i} = hf_layer4(hf_P{i}, l1, a1);")
             c0 += [f"q0_{i}.{c}" for c in "xyzw"]
             c1 += [f"q1_{i}.{c}" for c in "xyzw"]
+    if mixed:  # hg0, hg1: whether each layer stores the harmonic (then its channels after K - 1 products are M's)
+        body.append("    float hg0 = j >= HF_H0 ? 1.0 : 0.0;")
+        body.append("    float hg1 = j + 1 >= HF_H0 ? 1.0 : 0.0;")
+    m0 = 3 * K - 3 if mixed else 3 * K  # the tensor's first channel
     for k in range(K):
-        if harm:
+        if harm and mixed and k == K - 1:  # each layer's own meaning: P_K below the harmonic layers, 0 in them
+            body.append(f"    vec3 p{k} = mix((1.0 - hg0) * vec3({', '.join(c0[3 * k:3 * k + 3])}), "
+                        f"(1.0 - hg1) * vec3({', '.join(c1[3 * k:3 * k + 3])}), t);")
+        elif harm:
             body.append(f"    vec3 p{k} = mix(vec3({', '.join(c0[3 * k:3 * k + 3])}), vec3({', '.join(c1[3 * k:3 * k + 3])}), t);")
         else:
             body.append(f"    vec3 p{k} = mix(hf_layer(hf_P{k}, l0, a0), hf_layer(hf_P{k}, l1, a1), t);")
         body.append(f"    I_A += p{k} * {chans[2 * k]};")
         body.append(f"    I_B += p{k} * {chans[2 * k + 1]};")
     if harm:
-        body.append(f"    float hh = mix(hf_tensor({', '.join(c0[3 * K:3 * K + 5])}, hf_tangent(n, a0)), "
-                    f"hf_tensor({', '.join(c1[3 * K:3 * K + 5])}, hf_tangent(n, a1)), t);")
-        body.append(f"    I_A = hf_harmonic(I_A, hh * {chans[2 * K + D]});")
-        body.append(f"    I_B = hf_harmonic(I_B, hh * {chans[2 * K + D + 1]});")
+        gs = ("hg0 * ", "hg1 * ") if mixed else ("", "")
+        body.append(f"    float hh = mix({gs[0]}hf_tensor({', '.join(c0[m0:m0 + 5])}, hf_tangent(n, a0)), "
+                    f"{gs[1]}hf_tensor({', '.join(c1[m0:m0 + 5])}, hf_tangent(n, a1)), t);")
+        body.append(f"    I_A = hf_harmonic(I_A, hh * {chans[pl.harmonic_channel]});")
+        body.append(f"    I_B = hf_harmonic(I_B, hh * {chans[pl.harmonic_channel + 1]});")
     for d in range(D):
         read = f"hf_sh9_{d}(n)" if sh9 else f"hf_cube(hf_E{d}, {_f(se)}, n)"
         body.append(f"    I_d += {read} * {chans[2 * K + d]};")
@@ -325,6 +335,8 @@ def _metal_or_wgsl(bake: Bake, language: str, *, y_up: bool, flip_v: bool) -> st
     v2, v3, v4 = ("float2", "float3", "float4") if msl else ("vec2<f32>", "vec3<f32>", "vec4<f32>")
     cube_src, tables = generate.mapper_function(lang, "cube")
     names = _names(bake)
+    mixed = bool(pl.mixed and pl.harmonic_layers())
+    h0 = min(pl.harmonic_layers()) if mixed else 0
     lines = [
         f"// homofac {__version__}: material-parametric bake ({pl.preset}), {bake.lookups} texture lookups per pixel.",
         f"// {lang.title}. Generated from the bake's records; the interface is pinned (docs/format.md).",
@@ -339,7 +351,8 @@ def _metal_or_wgsl(bake: Bake, language: str, *, y_up: bool, flip_v: bool) -> st
         lines.append("struct HomofacBakeTextures {  // an argument buffer, or fill it from the entry point's arguments")
         lines += [f"    texture2d<float> {n} [[id({i})]];  // {c}" for i, (n, c) in enumerate(names)]
         lines += ["};", "constexpr sampler hf_sampler(coord::normalized, filter::linear, mip_filter::none, address::clamp_to_edge);",
-                  f"constant int HF_LAYERS = {layers};", f"constant float HF_RHO0 = {f(bake.roughness[0])};",
+                  f"constant int HF_LAYERS = {layers};", *([f"constant int HF_H0 = {h0};  // the first layer storing the harmonic (mixed)"] if mixed else []),
+                  f"constant float HF_RHO0 = {f(bake.roughness[0])};",
                   f"constant float HF_RHO1 = {f(bake.roughness[-1])};",
                   f"constant float2 HF_ATLAS = float2({f(atlas.width)}, {f(atlas.height)});",
                   f"constant float4 HF_LAYER[{layers}] = {{{', '.join(rows)}}};  // x0, y0, face size, axis shift",
@@ -354,7 +367,8 @@ def _metal_or_wgsl(bake: Bake, language: str, *, y_up: bool, flip_v: bool) -> st
         for i, (n, c) in enumerate(names):
             lines.append(f"@group(0) @binding({2 * i}) var {n}: texture_2d<f32>;  // {c}")
             lines.append(f"@group(0) @binding({2 * i + 1}) var {n}_sampler: sampler;  // linear, clamp to edge, no mipmaps")
-        lines += [f"const HF_LAYERS: i32 = {layers};", f"const HF_RHO0: f32 = {f(bake.roughness[0])};",
+        lines += [f"const HF_LAYERS: i32 = {layers};", *([f"const HF_H0: i32 = {h0};  // the first layer storing the harmonic (mixed)"] if mixed else []),
+                  f"const HF_RHO0: f32 = {f(bake.roughness[0])};",
                   f"const HF_RHO1: f32 = {f(bake.roughness[-1])};",
                   f"const HF_ATLAS: vec2<f32> = vec2<f32>({f(atlas.width)}, {f(atlas.height)});",
                   f"var<private> HF_LAYER: array<vec4<f32>, {layers}> = array<vec4<f32>, {layers}>({', '.join(rows)});  // x0, y0, face size, axis shift",
@@ -445,8 +459,16 @@ def _metal_or_wgsl(bake: Bake, language: str, *, y_up: bool, flip_v: bool) -> st
                 q = f"q{lay[1]}_{i}"
                 body.append(let(q, v4, f"hf_layer4(hf.hf_P{i}, {lay}, {a})" if msl else f"hf_layer4_P{i}({lay}, {a})"))
                 cs += [f"{q}.{c}" for c in "xyzw"]
+    if mixed:  # hg0, hg1: whether each layer stores the harmonic (then its channels after K - 1 products are M's)
+        for g, jj in (("hg0", "j"), ("hg1", "j + 1")):
+            body.append(let(g, ft, f"({jj} >= HF_H0 ? {one} : {zero})" if msl else f"select({zero}, {one}, {jj} >= HF_H0)"))
+    m0 = 3 * K - 3 if mixed else 3 * K  # the tensor's first channel
     for k in range(K):
-        if harm:
+        if harm and mixed and k == K - 1:  # each layer's own meaning: P_K below the harmonic layers, 0 in them
+            blend = (f"mix(({one} - hg0) * {v3}({', '.join(c0[3 * k:3 * k + 3])}), ({one} - hg1) * {v3}({', '.join(c1[3 * k:3 * k + 3])}), "
+                     f"{bl('t')})")
+            body.append(let(f"p{k}", v3, blend))
+        elif harm:
             blend = f"mix({v3}({', '.join(c0[3 * k:3 * k + 3])}), {v3}({', '.join(c1[3 * k:3 * k + 3])}), {bl('t')})"
             body.append(let(f"p{k}", v3, blend))
         elif msl:
@@ -456,11 +478,12 @@ def _metal_or_wgsl(bake: Bake, language: str, *, y_up: bool, flip_v: bool) -> st
         body.append(f"{out[1]} = {out[1]} + p{k} * {chans[2 * k]};")
         body.append(f"{out[2]} = {out[2]} + p{k} * {chans[2 * k + 1]};")
     if harm:
-        body.append(let("h0", ft, f"hf_tensor({', '.join(c0[3 * K:3 * K + 5])}, hf_tangent(n, a0))"))
-        body.append(let("h1", ft, f"hf_tensor({', '.join(c1[3 * K:3 * K + 5])}, hf_tangent(n, a1))"))
+        gs = ("hg0 * ", "hg1 * ") if mixed else ("", "")
+        body.append(let("h0", ft, f"{gs[0]}hf_tensor({', '.join(c0[m0:m0 + 5])}, hf_tangent(n, a0))"))
+        body.append(let("h1", ft, f"{gs[1]}hf_tensor({', '.join(c1[m0:m0 + 5])}, hf_tangent(n, a1))"))
         body.append(let("hh", ft, "h0 + (h1 - h0) * t"))
-        body.append(f"{out[1]} = hf_harmonic({out[1]}, hh * {chans[2 * K + D]});")
-        body.append(f"{out[2]} = hf_harmonic({out[2]}, hh * {chans[2 * K + D + 1]});")
+        body.append(f"{out[1]} = hf_harmonic({out[1]}, hh * {chans[pl.harmonic_channel]});")
+        body.append(f"{out[2]} = hf_harmonic({out[2]}, hh * {chans[pl.harmonic_channel + 1]});")
     for d in range(D):
         e = f"hf_cube(hf.hf_E{d}, {f(se)}, n)" if msl else f"hf_cube_E{d}({f(se)}, n)"
         body.append(f"{out[0]} = {out[0]} + {e} * {chans[2 * K + d]};")
@@ -492,6 +515,11 @@ def specular_channels(bake: Bake) -> list[list[str]]:
     flat = [f"P{k}.{c}" for k in range(pl.terms) for c in "rgb"]
     if not pl.harmonic:
         return [flat[3 * k:3 * k + 3] for k in range(pl.terms)]
+    if pl.mixed:  # after K - 1 products: P_K's RGB below the harmonic layers, the tensor in them
+        tensor = ["M.xx", "M.yy", "M.xy", "M.xz", "M.yz"]
+        flat = flat[:3 * pl.terms - 3] + [f"{p}/{m}" for p, m in zip(flat[3 * pl.terms - 3:] + ["-", "-"], tensor)]
+        flat += ["-"] * (4 * pl.maps - len(flat))
+        return [flat[4 * i:4 * i + 4] for i in range(pl.maps)]
     flat += ["M.xx", "M.yy", "M.xy", "M.xz", "M.yz"]
     flat += ["-"] * (4 * pl.maps - len(flat))
     return [flat[4 * i:4 * i + 4] for i in range(pl.maps)]
@@ -505,6 +533,12 @@ def _specular_layer(bake: Bake, j: int) -> np.ndarray:
     if not bake.plan.harmonic:
         return flat
     h = bake.H[j] if bake.H and bake.H[j] is not None else np.zeros(p.shape[:2] + (5,), np.float32)
+    if bake.plan.mixed:  # P_K's RGB (then 2 zeros), or in a harmonic layer the tensor, after the first K - 1 products
+        k1 = 3 * bake.plan.terms - 3
+        tail = h if bake.H and bake.H[j] is not None else np.concatenate([flat[..., k1:], np.zeros(p.shape[:2] + (2,), np.float32)], -1)
+        flat = np.concatenate([flat[..., :k1], tail], -1)
+        pad = np.zeros(p.shape[:2] + (4 * bake.plan.maps - flat.shape[2],), np.float32)
+        return np.concatenate([flat, pad], axis=-1)
     pad = np.zeros(p.shape[:2] + (4 * bake.plan.maps - flat.shape[2] - 5,), np.float32)
     return np.concatenate([flat, np.asarray(h, np.float32), pad], axis=-1)
 
