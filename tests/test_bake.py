@@ -313,14 +313,19 @@ inline float2 operator/(float2 a, float2 b) { return float2(a.x / b.x, a.y / b.y
 def test_msl_compiles_against_the_metal_shim(forest_bake, tmp_path):
     """The bake's MSL as C++17 against the factorization tests' <metal_stdlib> stand-in (strict constructors,
     no doubles) plus the few Metal functions it adds, with a fragment-like caller of both pinned functions."""
+    check_msl(forest_bake, tmp_path)
+
+
+def check_msl(bake, tmp_path, y_ups=(False, True)):
+    """``bake``'s MSL compiles (clang, C++17, the Metal stand-in) with a caller of both pinned functions."""
     from test_shaders import CLANG_FLAGS, METAL_SHIM, run, tool
     exe = tool("clang++")
     shim = tmp_path / "shim"
     shim.mkdir()
     (shim / "metal_stdlib").write_text(METAL_SHIM.replace("}  // namespace metal\n", "}  // namespace metal\n" + BAKE_SHIM, 1))
-    for y_up in (False, True):
+    for y_up in y_ups:
         src = tmp_path / "bake.metal"
-        src.write_text(shader.source(forest_bake, "msl", y_up=y_up) +
+        src.write_text(shader.source(bake, "msl", y_up=y_up) +
                        "float3 caller(float3 n, float3 v, thread const HomofacBakeTextures& hf) {\n"
                        "    float3 d, a, s; homofac_ibl_terms(n, v, 0.3f, d, a, s, hf);\n"
                        "    return homofac_ibl(n, v, float3(0.5f), 0.5f, 0.3f, hf) + d + a + s;\n}\n")
@@ -329,6 +334,13 @@ def test_msl_compiles_against_the_metal_shim(forest_bake, tmp_path):
 
 def test_wgsl_runs_on_wgpu_and_equals_cpu(forest_bake):
     """naga validates the bake's WGSL, and a compute pass over it on wgpu (lavapipe) equals bake.terms / evaluate."""
+    check_wgsl(forest_bake, 500, (1e-4, 2e-3))
+
+
+def check_wgsl(bake, count: int, tol: tuple[float, float]):
+    """A compute pass over ``bake``'s WGSL on wgpu (lavapipe) equals ``bake.terms`` and ``bake.evaluate`` on
+    ``count`` random pairs over the roughness range, within ``tol`` (float32 textures, half-float textures)
+    of the largest value. RGB textures are uploaded as RGBA with alpha 1, RGBA ones as they are."""
     wgpu = pytest.importorskip("wgpu")
     import os
     os.environ.setdefault("XDG_RUNTIME_DIR", "/tmp")
@@ -338,8 +350,8 @@ def test_wgsl_runs_on_wgpu_and_equals_cpu(forest_bake):
         pytest.skip(f"no WebGPU adapter: {e}")
     f32 = "float32-filterable" in adapter.features
     device = adapter.request_device_sync(required_features=["float32-filterable"] if f32 else [])
-    b = forest_bake
-    n, v = pairs(500, seed=10)
+    b = bake
+    n, v = pairs(count, seed=10)
     rho = np.linspace(0.03, 1.0, len(n))
     rng = np.random.default_rng(11)
     c, m = rng.uniform(size=(len(n), 3)), rng.uniform(size=len(n))
@@ -364,7 +376,8 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
     entries = []
     for k, (_, data) in enumerate(shader.texture_arrays(b)):
         H, W = data.shape[:2]
-        rgba = np.concatenate([data, np.ones((H, W, 1), np.float32)], -1).astype(np.float32 if f32 else np.float16)
+        rgba = data if data.shape[-1] == 4 else np.concatenate([data, np.ones((H, W, 1), np.float32)], -1)
+        rgba = np.asarray(rgba).astype(np.float32 if f32 else np.float16)
         tex = device.create_texture(size=(W, H, 1), format="rgba32float" if f32 else "rgba16float",
                                     usage=wgpu.TextureUsage.TEXTURE_BINDING | wgpu.TextureUsage.COPY_DST)
         device.queue.write_texture({"texture": tex}, np.ascontiguousarray(rgba).tobytes(),
@@ -387,8 +400,7 @@ fn main(@builtin(global_invocation_id) id: vec3<u32>) {
     device.queue.submit([enc.finish()])
     gpu = np.frombuffer(device.queue.read_buffer(buf_out), np.float32).reshape(len(n), 4, 4)[..., :3]
     cpu = np.concatenate([np.asarray(b.terms(n, v, rho)), np.asarray(b.evaluate(n, v, c, m, rho))[:, None]], axis=1)
-    tol = 1e-4 if f32 else 2e-3
-    assert np.abs(gpu - cpu).max() <= tol * np.abs(cpu).max()
+    assert np.abs(gpu - cpu).max() <= (tol[0] if f32 else tol[1]) * np.abs(cpu).max()
 
 
 def test_sharp_layers_share_one_block_and_round_trip(forest_bake):

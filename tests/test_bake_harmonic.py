@@ -4,7 +4,6 @@ coloured as the isotropic part, and a bake carries it (fetches, tables, save / l
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import subprocess
 
@@ -19,6 +18,7 @@ from homofac.bake.model import Bake, tensor_read
 from homofac.bake.plan import plan as make_plan
 from homofac.light.environment import LUMINANCE
 from homofac.param import mappers
+from test_bake import check_msl, check_wgsl
 
 
 def test_tensor_maps_read_the_second_harmonic_of_the_light_sum():
@@ -206,76 +206,9 @@ def test_harmonic_shader_compiles_with_glslang(harmonic_bake, language, tmp_path
 
 
 def test_harmonic_msl_compiles_against_the_metal_shim(harmonic_bake, tmp_path):
-    from test_bake import BAKE_SHIM
-    from test_shaders import CLANG_FLAGS, METAL_SHIM, run, tool
-    exe = tool("clang++")
-    shim = tmp_path / "shim"
-    shim.mkdir()
-    (shim / "metal_stdlib").write_text(METAL_SHIM.replace("}  // namespace metal\n", "}  // namespace metal\n" + BAKE_SHIM, 1))
-    src = tmp_path / "bake.metal"
-    src.write_text(shader.source(harmonic_bake, "msl") +
-                   "float3 caller(float3 n, float3 v, thread const HomofacBakeTextures& hf) {\n"
-                   "    float3 d, a, s; homofac_ibl_terms(n, v, 0.3f, d, a, s, hf);\n"
-                   "    return homofac_ibl(n, v, float3(0.5f), 0.5f, 0.3f, hf) + d + a + s;\n}\n")
-    run([exe, *CLANG_FLAGS, "-fsyntax-only", "-I", shim, "-x", "c++", src])
+    check_msl(harmonic_bake, tmp_path, y_ups=(False,))
 
 
 def test_harmonic_wgsl_runs_on_wgpu_and_equals_cpu(harmonic_bake):
-    """The WGSL of a bake with RGBA specular maps on wgpu (lavapipe) equals bake.terms."""
-    wgpu = pytest.importorskip("wgpu")
-    os.environ.setdefault("XDG_RUNTIME_DIR", "/tmp")
-    try:
-        adapter = wgpu.gpu.request_adapter_sync(power_preference="low-power")
-    except Exception as e:  # noqa: BLE001
-        pytest.skip(f"no WebGPU adapter: {e}")
-    f32 = "float32-filterable" in adapter.features
-    device = adapter.request_device_sync(required_features=["float32-filterable"] if f32 else [])
-    b = harmonic_bake
-    n, v = _pairs(400, 10)
-    rho = np.linspace(0.03, 1.0, len(n))
-    main = """
-@group(1) @binding(0) var<storage, read> hf_in: array<vec4<f32>>;
-@group(1) @binding(1) var<storage, read_write> hf_out: array<vec4<f32>>;
-@compute @workgroup_size(64)
-fn main(@builtin(global_invocation_id) id: vec3<u32>) {
-    let i = id.x;
-    if (i >= arrayLength(&hf_out) / 3u) { return; }
-    let n = hf_in[2u * i].xyz; let v = hf_in[2u * i + 1u].xyz; let rho = hf_in[2u * i].w;
-    let o = homofac_ibl_terms(n, v, rho);
-    hf_out[3u * i] = vec4<f32>(o.I_d, 0.0); hf_out[3u * i + 1u] = vec4<f32>(o.I_A, 0.0);
-    hf_out[3u * i + 2u] = vec4<f32>(o.I_B, 0.0);
-}
-"""
-    module = device.create_shader_module(code=shader.source(b, "wgsl") + main)
-    pipeline = device.create_compute_pipeline(layout="auto", compute={"module": module, "entry_point": "main"})
-    sampler = device.create_sampler(mag_filter="linear", min_filter="linear", address_mode_u="clamp-to-edge",
-                                    address_mode_v="clamp-to-edge")
-    entries = []
-    for k, (_, data) in enumerate(shader.texture_arrays(b)):
-        H, W = data.shape[:2]
-        rgba = data if data.shape[-1] == 4 else np.concatenate([data, np.ones((H, W, 1), np.float32)], -1)
-        rgba = rgba.astype(np.float32 if f32 else np.float16)
-        tex = device.create_texture(size=(W, H, 1), format="rgba32float" if f32 else "rgba16float",
-                                    usage=wgpu.TextureUsage.TEXTURE_BINDING | wgpu.TextureUsage.COPY_DST)
-        device.queue.write_texture({"texture": tex}, np.ascontiguousarray(rgba).tobytes(),
-                                   {"bytes_per_row": W * rgba.itemsize * 4, "rows_per_image": H}, (W, H, 1))
-        entries += [{"binding": 2 * k, "resource": tex.create_view()}, {"binding": 2 * k + 1, "resource": sampler}]
-    inp = np.zeros((len(n), 2, 4), np.float32)
-    inp[:, 0, :3], inp[:, 1, :3], inp[:, 0, 3] = n, v, rho
-    buf_in = device.create_buffer_with_data(data=inp.tobytes(), usage=wgpu.BufferUsage.STORAGE)
-    buf_out = device.create_buffer(size=len(n) * 48, usage=wgpu.BufferUsage.STORAGE | wgpu.BufferUsage.COPY_SRC)
-    groups = [device.create_bind_group(layout=pipeline.get_bind_group_layout(0), entries=entries),
-              device.create_bind_group(layout=pipeline.get_bind_group_layout(1), entries=[
-                  {"binding": 0, "resource": {"buffer": buf_in}}, {"binding": 1, "resource": {"buffer": buf_out}}])]
-    enc = device.create_command_encoder()
-    cp = enc.begin_compute_pass()
-    cp.set_pipeline(pipeline)
-    for i, g in enumerate(groups):
-        cp.set_bind_group(i, g)
-    cp.dispatch_workgroups(-(-len(n) // 64))
-    cp.end()
-    device.queue.submit([enc.finish()])
-    gpu = np.frombuffer(device.queue.read_buffer(buf_out), np.float32).reshape(len(n), 3, 4)[..., :3]
-    cpu = np.asarray(b.terms(n, v, rho))
-    tol = 1e-3 if f32 else 3e-3
-    assert np.abs(gpu - cpu).max() <= tol * np.abs(cpu).max()
+    """The WGSL of a bake with RGBA specular maps on wgpu (lavapipe) equals bake.terms and bake.evaluate."""
+    check_wgsl(harmonic_bake, 400, (1e-3, 3e-3))
