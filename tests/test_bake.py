@@ -184,11 +184,19 @@ def test_presets_are_one_printable_plan():
 @pytest.mark.parametrize("language", ["glsl", "glsl_es", "hlsl"])
 def test_shader_compiles_with_glslang(forest_bake, language, tmp_path):
     """GLSL 330 and GLSL ES 3.00 through glslangValidator; HLSL through its HLSL front end to SPIR-V, validated."""
+    check_glslang(forest_bake, language, tmp_path)
+    with pytest.raises(HomofacError, match="cg"):
+        shader.source(forest_bake, "cg")
+
+
+def check_glslang(bake, language: str, tmp_path, y_ups=(False, True)):
+    """``bake``'s shader in ``language`` (glsl, glsl_es, hlsl) compiles with glslangValidator in a caller of
+    ``homofac_ibl`` (HLSL to SPIR-V, validated by spirv-val where installed)."""
     exe = shutil.which("glslangValidator")
     if exe is None:
         pytest.skip("glslangValidator is not installed (Debian glslang-tools)")
-    for y_up in (False, True):
-        src = shader.source(forest_bake, language, y_up=y_up)
+    for y_up in y_ups:
+        src = shader.source(bake, language, y_up=y_up)
         if language == "hlsl":
             f = tmp_path / "bake.hlsl"
             f.write_text(src + "\nfloat4 ps_main(float4 pos : SV_Position) : SV_Target {\n"
@@ -205,8 +213,6 @@ def test_shader_compiles_with_glslang(forest_bake, language, tmp_path):
         if language == "hlsl" and shutil.which("spirv-val"):
             r = subprocess.run(["spirv-val", str(tmp_path / "bake.spv")], capture_output=True, text=True, timeout=120)
             assert r.returncode == 0, r.stdout + r.stderr
-    with pytest.raises(HomofacError, match="cg"):
-        shader.source(forest_bake, "cg")
 
 
 def test_gpu_equals_cpu(forest_bake):

@@ -4,8 +4,6 @@ coloured as the isotropic part, and a bake carries it (fetches, tables, save / l
 from __future__ import annotations
 
 import json
-import shutil
-import subprocess
 
 import numpy as np
 import pytest
@@ -18,7 +16,7 @@ from homofac.bake.model import Bake, tensor_read
 from homofac.bake.plan import plan as make_plan
 from homofac.light.environment import LUMINANCE
 from homofac.param import mappers
-from test_bake import check_msl, check_wgsl
+from test_bake import check_glslang, check_msl, check_wgsl
 
 
 def test_tensor_maps_read_the_second_harmonic_of_the_light_sum():
@@ -186,23 +184,7 @@ def test_gpu_equals_cpu_with_the_harmonic(harmonic_bake):
 
 @pytest.mark.parametrize("language", ["glsl", "glsl_es", "hlsl"])
 def test_harmonic_shader_compiles_with_glslang(harmonic_bake, language, tmp_path):
-    exe = shutil.which("glslangValidator")
-    if exe is None:
-        pytest.skip("glslangValidator is not installed (Debian glslang-tools)")
-    src = shader.source(harmonic_bake, language)
-    if language == "hlsl":
-        f = tmp_path / "bake.hlsl"
-        f.write_text(src + "\nfloat4 ps_main(float4 pos : SV_Position) : SV_Target {\n"
-                     "    return float4(homofac_ibl(normalize(pos.xyz), float3(0, 0, 1), float3(0.5, 0.5, 0.5), 0.5, 0.3), 1.0);\n}\n")
-        cmd = [exe, "-D", "-e", "ps_main", "-S", "frag", "-V", "-o", str(tmp_path / "bake.spv"), str(f)]
-    else:
-        head = "#version 330 core\n" if language == "glsl" else "#version 300 es\nprecision highp float;\n"
-        f = tmp_path / "bake.frag"
-        f.write_text(head + src + "uniform vec3 n_in; uniform vec3 v_in; out vec4 color;\n"
-                     "void main() { color = vec4(homofac_ibl(n_in, v_in, vec3(0.5), 0.5, 0.3), 1.0); }\n")
-        cmd = [exe, "-S", "frag", str(f)]
-    r = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
-    assert r.returncode == 0, r.stdout[-3000:]
+    check_glslang(harmonic_bake, language, tmp_path, y_ups=(False,))
 
 
 def test_harmonic_msl_compiles_against_the_metal_shim(harmonic_bake, tmp_path):

@@ -11,6 +11,7 @@ import pytest
 
 import homofac as hf
 import test_bake_harmonic as th
+from test_bake import check_glslang, check_msl, check_wgsl
 from homofac.bake import shader
 from homofac.bake.model import Bake
 from homofac.errors import HomofacError
@@ -132,15 +133,15 @@ def test_gpu_equals_cpu_across_the_crossings(mixed_bake):
 
 @pytest.mark.parametrize("language", ["glsl", "glsl_es", "hlsl"])
 def test_mixed_shader_compiles_with_glslang(mixed_bake, language, tmp_path):
-    th.test_harmonic_shader_compiles_with_glslang(mixed_bake, language, tmp_path)
+    check_glslang(mixed_bake, language, tmp_path, y_ups=(False,))
 
 
 def test_mixed_msl_compiles_against_the_metal_shim(mixed_bake, tmp_path):
-    th.test_harmonic_msl_compiles_against_the_metal_shim(mixed_bake, tmp_path)
+    check_msl(mixed_bake, tmp_path, y_ups=(False,))
 
 
 def test_mixed_wgsl_runs_on_wgpu_and_equals_cpu(mixed_bake):
-    th.test_harmonic_wgsl_runs_on_wgpu_and_equals_cpu(mixed_bake)
+    check_wgsl(mixed_bake, 400, (1e-3, 3e-3))
 
 
 @pytest.mark.parametrize("material", [(0.8, 0.3, 0.2, 0.0, 0.45), (0.95, 0.64, 0.54, 1.0, 0.7)], ids=["dielectric", "metal"])
