@@ -11,7 +11,7 @@ import pytest
 
 import homofac as hf
 import test_bake_harmonic as th
-from test_bake import check_glslang, check_msl, check_wgsl
+from test_bake import check_glsl_terms, check_glslang, check_msl, check_wgsl
 from homofac.bake import shader
 from homofac.bake.model import Bake
 from homofac.errors import HomofacError
@@ -118,17 +118,8 @@ def test_gpu_equals_cpu_across_the_crossings(mixed_bake):
     """The GLSL selects each layer's meaning (P_2 below the harmonic layers, the tensor in them) before the blend:
     GPU = CPU in a two-product interval (0.35), across both crossings (0.43, 0.55) and in the harmonic layers."""
     pytest.importorskip("moderngl")
-    from homofac.gl.engine import run_glsl
-    b = mixed_bake
     n, v = th._pairs(1500, 9)
-    decl = shader.source(b) + ("uniform float rho;\n"
-                               "vec3 hf_part(vec3 n, vec3 v, int i) { vec3 d, a, s; homofac_ibl_terms(n, v, rho, d, a, s);"
-                               " return i == 0 ? d : (i == 1 ? a : s); }\n")
-    for rho in (0.35, 0.43, 0.55, 0.9):
-        cpu = np.asarray(b.terms(n, v, rho))
-        for i in range(3):
-            gpu = run_glsl(decl, f"hf_part(a, b, {i})", n, v, textures=shader.texture_arrays(b), uniforms={"rho": rho})
-            assert np.abs(gpu - cpu[:, i]).max() <= 1e-3 * np.abs(cpu[:, i]).max(), (rho, i)
+    check_glsl_terms(mixed_bake, n, v, (0.35, 0.43, 0.55, 0.9), 1e-3)
 
 
 @pytest.mark.parametrize("language", ["glsl", "glsl_es", "hlsl"])
