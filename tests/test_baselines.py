@@ -38,9 +38,10 @@ def test_furnace_white_lambert_under_uniform_light_is_one():
     assert model.lookups == 3 and [t.kind for t in model.terms] == ["irradiance", "prefiltered"]
 
 
-def _hemisphere_integral(brdf, x: float, n_theta: int = 400, n_phi: int = 800) -> np.ndarray:
+def _hemisphere_integral(brdf, x: float, n_theta: int = 200, n_phi: int = 400) -> np.ndarray:
     """int f(wi, wo) cos(theta_i) dwi by Gauss-Legendre in cos(theta_i) and the trapezoid in phi (independent
-    of brdf.albedo's lobe-centred scheme)."""
+    of brdf.albedo's lobe-centred scheme). 200 x 400 nodes agree with 800 x 1600 to 1.2e-5 relative at roughness
+    0.4 (cook_torrance and ggx), a hundredth of the tests' 1e-3."""
     c, wc = np.polynomial.legendre.leggauss(n_theta)
     c, wc = 0.5 * (c + 1), 0.5 * wc  # cos theta_i in (0, 1)
     phi = 2 * np.pi * np.arange(n_phi) / n_phi
