@@ -505,17 +505,30 @@ N_PAIRS = 4096
 
 @pytest.mark.parametrize("quantized", [False, True], ids=["float", "8bit"])
 @pytest.mark.parametrize("name", sorted(CASES))
-@pytest.mark.parametrize("language", ["glsl", "glsl_es"])
-def test_glsl_render_equals_cpu(language, name, quantized):
-    """The exported GLSL (and GLSL ES, run as GLSL 330: the same code), rendered headless with
-    moderngl over random pairs, equals fac.evaluate."""
+def test_glsl_es_is_the_glsl_code_with_highp_samplers(name, quantized):
+    """The GLSL ES 3.00 library is the GLSL 330 one but for its first comment line and ``highp`` on its
+    samplers, so test_glsl_render_equals_cpu's renders of the GLSL give its values too (glslang compiles it as
+    ES in test_glsl_compiles_with_glslang; three.js runs it in test_threejs)."""
+    fac = case(name)
+    glsl = fac.shader("glsl", quantized=quantized).splitlines()
+    es = fac.shader("glsl_es", quantized=quantized).splitlines()
+    assert sum(line.startswith("// GLSL 330 core.") for line in glsl) == 1
+    assert es == [line.replace("// GLSL 330 core.", "// GLSL ES 3.00.", 1).replace("uniform sampler2D ", "uniform highp sampler2D ")
+                  for line in glsl]
+
+
+@pytest.mark.parametrize("quantized", [False, True], ids=["float", "8bit"])
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_glsl_render_equals_cpu(name, quantized):
+    """The exported GLSL, rendered headless with moderngl over random pairs, equals fac.evaluate (the GLSL ES
+    library is the same code: test_glsl_es_is_the_glsl_code_with_highp_samplers)."""
     fac = case(name)
     a, b = pairs(fac.kind, N_PAIRS)
-    src = fac.shader(language, quantized=quantized)
+    src = fac.shader("glsl", quantized=quantized)
     frag = "#version 330 core\n" + src + FRAGMENT_PAIRS.format(entry=entry(fac))
-    check(name, language, fac, a, b, render_pairs(frag, fac, a, b, quantized), quantized)
+    check(name, "glsl", fac, a, b, render_pairs(frag, fac, a, b, quantized), quantized)
     if quantized:  # the same 8-bit values, filtered exactly: the decode rule and constants to float rounding
-        check(name, language, fac, a, b, render_pairs(frag, fac, a, b, True, rgba8=False), True, rgba8=False)
+        check(name, "glsl", fac, a, b, render_pairs(frag, fac, a, b, True, rgba8=False), True, rgba8=False)
 
 
 @pytest.mark.parametrize("quantized", [False, True], ids=["float", "8bit"])
@@ -662,7 +675,7 @@ def test_error_table():
     """Prints the measured errors (pytest -s / -rA shows them): relative RMS (float), max/range (8-bit)."""
     if not ERRORS:
         pytest.skip("no GPU-vs-CPU test ran in this process")
-    langs = ["glsl", "glsl_es", "hlsl", "msl", "wgsl"]
+    langs = ["glsl", "hlsl", "msl", "wgsl"]
     cols = ["float", "8bit", "8bit_bound", "8bit_exact"]
     lines = ["float: relative RMS; 8bit: max |diff| / max |value| (RGBA8 textures), 8bit_bound: the same diff / "
              "the 1/255-per-texel bound; 8bit_exact: 8-bit values in float textures",
