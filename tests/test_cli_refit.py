@@ -55,16 +55,23 @@ def entries(tmp_path: Path) -> list[str]:
 
 @pytest.fixture(scope="module")
 def saved(tmp_path_factory):
-    """A full run of the forest config (the factorization that is refitted) and a full run of the city one."""
+    """A full run of the forest config (the factorization that is refitted), in ``forest``."""
     d = tmp_path_factory.mktemp("refit")
     assert main([str(config(d, "forest")), "--quiet", "--out", str(d / "forest")]) == 0
-    city = config(d, "city", target__environment={"file": "city", "resolution": 8})
-    assert main([str(city), "--quiet", "--out", str(d / "city_full")]) == 0
     return d
 
 
+@pytest.fixture(scope="module")
+def city_full(tmp_path_factory):
+    """A full run of the city config: what a refit of ``saved`` to city must equal (the slow tests read it)."""
+    d = tmp_path_factory.mktemp("city")
+    city = config(d, "city", target__environment={"file": "city", "resolution": 8})
+    assert main([str(city), "--quiet", "--out", str(d / "city_full")]) == 0
+    return d / "city_full"
+
+
 @pytest.mark.slow  # compile- or subprocess-heavy: with the slow set, to keep the fast suite under 5 min
-def test_refit_through_the_cli_equals_a_full_run(saved, tmp_path, capsys):
+def test_refit_through_the_cli_equals_a_full_run(saved, city_full, tmp_path, capsys):
     city = config(tmp_path, "city", target__environment={"file": "city", "resolution": 8})
     out = tmp_path / "city_refit"
     capsys.readouterr()
@@ -72,7 +79,7 @@ def test_refit_through_the_cli_equals_a_full_run(saved, tmp_path, capsys):
     lines = capsys.readouterr().out.splitlines()
     assert lines[0].startswith(f"wrote {out}: NR on dual_paraboloid 16") and "validation nrmse" in lines[0]
     assert lines[1].startswith(f"refit of {saved / 'forest'}: values ") and "solve" in lines[1]
-    rel, where = worst(metrics(out), metrics(saved / "city_full"))
+    rel, where = worst(metrics(out), metrics(city_full))
     assert rel < 0.01, where
     doc = json.loads((out / "factorization.json").read_text())
     assert doc["solver"]["refit"] is True
@@ -162,11 +169,11 @@ def test_lsmr_refit_equals_the_factored_one(saved):
 
 
 @pytest.mark.slow
-def test_refit_through_the_module_entry_point(saved, tmp_path):
+def test_refit_through_the_module_entry_point(saved, city_full, tmp_path):
     city = config(tmp_path, "city", target__environment={"file": "city", "resolution": 8})
     r = subprocess.run([sys.executable, "-m", "homofac.fit", str(city), "--quiet", "--refit", str(saved / "forest"),
                         "--out", str(tmp_path / "o")], capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr
     assert r.stdout.splitlines()[1].startswith(f"refit of {saved / 'forest'}: ")
-    rel, where = worst(metrics(tmp_path / "o"), metrics(saved / "city_full"))
+    rel, where = worst(metrics(tmp_path / "o"), metrics(city_full))
     assert rel < 0.01, where
