@@ -18,7 +18,7 @@ from homofac.param import projections as pj
 
 SUN = np.array([0.5, -0.3, 0.81])
 SUN /= np.linalg.norm(SUN)
-GRID = {"kind": "grid", "size": 8, "mapper": "dual_paraboloid", "count": 8000, "validation": 1500, "cache": False}
+GRID = {"kind": "grid", "size": 8, "mapper": "dual_paraboloid", "count": 20000, "validation": 3000, "cache": False}
 
 
 def _pairs(count: int, seed: int = 3):
