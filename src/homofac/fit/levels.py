@@ -11,12 +11,24 @@ The plan's decision (:func:`homofac.fit.validation.decide`) evaluates the first 
 pairs at every level it measures; :func:`remember` keeps the decided level's values, and :func:`values`
 (the validation values of :func:`homofac.fit.draw.draw_samples`) reuses them for those normals and
 evaluates only the rest.
+
+:func:`refined` gives the decision's refined levels without a program of their own: the lighting with
+the bright texels refined is the fit's lighting plus the difference of those texels' fine and coarse
+lights (the light sum is linear in the lights), evaluated in blocks by the fit's own compiled program.
 """
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
+from ..light.environment import Environment
+from ..light.geometry import light_geometry
+from ..light.lighting import max_visible
+from ..light.lights import light_corners, light_moments
+from ..light.refine import difference_blocks
+from ..light.tree import texel_resolution
 from ..target import Target
 from . import cache
 from .sampling import Grouped
@@ -40,6 +52,56 @@ def evaluate(target: Target, grouped: Grouped, refined: bool) -> np.ndarray:
     if refined:
         return evaluate_blocked(target, grouped)
     return np.asarray(evaluate_grouped(target, grouped), np.float64)
+
+
+#: The most blocks :func:`refined` evaluates: each costs about one evaluation at the fit's own lights, and
+#: a refined level's own lighting program about 4.6 s CPU to compile (the light tree at 64 on forest 32,
+#: against 0.14-0.3 s per block on the decision's 2048 pairs; docs/notes/speed.md, "fast, sixteenth session").
+MAX_BLOCKS = 12
+
+
+def _within(block: Environment, normals: np.ndarray, visible: int, straddlers: int) -> bool:
+    """Whether, for every normal, ``block``'s lights above or across its horizon (an upper bound of those
+    with w_k(n) > 0) fit in ``visible`` slots and those that can cross it in ``straddlers`` (the static
+    bounds of the compiled program that evaluates it, :func:`homofac.light.lighting.max_visible`,
+    :func:`homofac.light.geometry.light_geometry`)."""
+    m, sinr = (np.asarray(a, np.float64) for a in light_moments(block))
+    n = np.asarray(normals, np.float64).reshape(-1, 3)
+    d = np.asarray(block.directions, np.float64)
+    near = (np.abs(n @ d.T) <= sinr[None]) & (sinr[None] >= 0)
+    up = (n @ m.T > -1e-6) & (np.abs(m).sum(axis=1) > 0)[None]
+    return bool((near.sum(axis=1) <= straddlers).all() and ((up | near).sum(axis=1) <= visible).all())
+
+
+def refined(target: Target, fine: Environment, texels: np.ndarray, grouped: Grouped, y: np.ndarray,
+            max_blocks: int = MAX_BLOCKS) -> np.ndarray | None:
+    """``target``'s values at ``grouped`` with its cube ``texels`` refined to those of ``fine`` (the mixture of
+    :func:`homofac.fit.validation.lighting_at`, summed over every light), from ``y``, its values at its own
+    lights (:func:`evaluate`): ``y`` plus the lighting of :func:`homofac.light.refine.difference_blocks`,
+    each block evaluated by ``target``'s own compiled program. The blocks are made small enough that every
+    normal of ``grouped`` finds its lights within that program's static bounds; None where that takes more
+    than ``max_blocks`` blocks or the target's lighting is clamped or summed by a light tree (not a sum over
+    its lights)."""
+    fn = target.fn
+    if getattr(fn, "clamp", None) is not None or getattr(fn, "tree", None) is not None:
+        return None
+    env = fn.env
+    visible = max_visible(env)
+    straddlers = light_geometry(env.directions, env.solid_angle, light_corners(env), texel_resolution(env),
+                                moments=light_moments(env)).max_straddlers
+    size = visible
+    while True:
+        blocks = difference_blocks(env, fine, texels, size)
+        if len(blocks) > max_blocks:
+            return None
+        if all(_within(b, grouped.normals, visible, straddlers) for b in blocks):
+            break
+        size //= 2
+    out = np.asarray(y, np.float64)
+    for b in blocks:
+        out = out + np.asarray(evaluate_grouped(Target(target.kind, dataclasses.replace(fn, env=b), target.quantity,
+                                                       target.context), grouped), np.float64)
+    return out
 
 
 def remember(target: Target, grouped: Grouped, refined: bool, y: np.ndarray) -> None:
@@ -76,4 +138,4 @@ def values(target: Target, grouped: Grouped, refined: bool) -> np.ndarray:
     return np.concatenate([y, evaluate(target, rest, refined)])
 
 
-__all__ = ["KEEP", "evaluate", "remember", "values"]
+__all__ = ["KEEP", "MAX_BLOCKS", "evaluate", "refined", "remember", "values"]

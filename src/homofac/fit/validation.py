@@ -219,19 +219,26 @@ def _decide(target: Target, env, count: int, seed: int, log) -> ValidationLight:
     how = route(env)
     pairs = decision_pairs(count, seed)
     r, changes = start, []
-    y = levels.evaluate(target, pairs, refined=False)
+    y = y0 = levels.evaluate(target, pairs, refined=False)
+    own = True  # y evaluated as the validation values at r are (levels.evaluate of lighting_at)
+    bright = bright_texels(env, SHARE)
     limit = min(MAX_RESOLUTION, start << MAX_DOUBLINGS)
     while 2 * r <= limit:
-        y2 = levels.evaluate(lighting_at(target, 2 * r), pairs, refined=True)
+        # the fit's own program on the refined texels' difference where few blocks hold it, else the level's own
+        y2 = levels.refined(target, at_resolution(env, 2 * r), bright, pairs, y0)
+        own2 = y2 is None
+        if own2:
+            y2 = levels.evaluate(lighting_at(target, 2 * r), pairs, refined=True)
         change = float(metrics(y, y2)["nrmse"])
         changes.append((r, change))
         log(f"validation lighting: resolution {r} -> {2 * r} changes the values by {change:.4f} nrmse")
         if change < TOLERANCE:
             break
-        r, y = 2 * r, y2
+        r, y, own = 2 * r, y2, own2
     converged = bool(changes) and changes[-1][1] < TOLERANCE
     at = lighting_at(target, r)
-    levels.remember(at, pairs, r != start, y)  # the validation values at r reuse these pairs' (levels.values)
+    if own:  # the validation values at r reuse these pairs' (levels.values)
+        levels.remember(at, pairs, r != start, y)
     fine = at.fn.env
     return ValidationLight(resolution=r, start=start, route=how, changes=tuple(changes), converged=converged,
                            tolerance=TOLERANCE, lights=int(fine.num_lights), light_sum=light_sum(start, r, max_visible(fine)))
