@@ -46,18 +46,36 @@ def _key(target: Target) -> str | None:
     return cache.key(target, {"levels": 1}, "")
 
 
-def evaluate(target: Target, grouped: Grouped, refined: bool) -> np.ndarray:
+def evaluate(target: Target, grouped: Grouped, refined: bool, start: Target | None = None) -> np.ndarray:
     """``target``'s values at the valid pairs of ``grouped`` (flattened order, float64): grouped at the
-    fit's own light level, in light blocks at a ``refined`` one (module docstring)."""
+    fit's own light level; at a ``refined`` one summed over every light, as the fit's lighting ``start``
+    plus the refined texels' difference in its program where :data:`VALUE_BLOCKS` blocks hold it
+    (:func:`refined`), else in light blocks (module docstring), or by its light tree."""
     if refined:
+        if start is not None and getattr(target.fn, "tree", None) is None:
+            y = refined_values(start, target, grouped, VALUE_BLOCKS)
+            if y is not None:
+                return y
         return evaluate_blocked(target, grouped)
     return np.asarray(evaluate_grouped(target, grouped), np.float64)
+
+
+def refined_values(start: Target, fine: Target, grouped: Grouped, max_blocks: int) -> np.ndarray | None:
+    """:func:`refined` from ``start``'s own values (evaluated here), None where it does not apply."""
+    if getattr(fine.fn, "tree", None) is not None or getattr(fine.fn, "clamp", None) is not None:
+        return None
+    if len(difference_blocks(start.fn.env, fine.fn.env, max_visible(start.fn.env))) > max_blocks:
+        return None
+    return refined(start, fine, grouped, np.asarray(evaluate_grouped(start, grouped), np.float64), max_blocks)
 
 
 #: The most blocks :func:`refined` evaluates: each costs about one evaluation at the fit's own lights, and
 #: a refined level's own lighting program about 4.6 s CPU to compile (the light tree at 64 on forest 32,
 #: against 0.14-0.3 s per block on the decision's 2048 pairs; docs/notes/speed.md, "fast, sixteenth session").
 MAX_BLOCKS = 12
+#: The most blocks of :func:`refined` for the validation values (20 000 pairs: about 1.4 s CPU per block,
+#: against the light blocks' own program, about 3 s to compile and 5 s per 4096 lights on them).
+VALUE_BLOCKS = 4
 
 
 def _within(block: Environment, normals: np.ndarray, visible: int, straddlers: int) -> bool:
@@ -73,17 +91,16 @@ def _within(block: Environment, normals: np.ndarray, visible: int, straddlers: i
     return bool((near.sum(axis=1) <= straddlers).all() and ((up | near).sum(axis=1) <= visible).all())
 
 
-def refined(target: Target, fine: Environment, texels: np.ndarray, grouped: Grouped, y: np.ndarray,
-            max_blocks: int = MAX_BLOCKS) -> np.ndarray | None:
-    """``target``'s values at ``grouped`` with its cube ``texels`` refined to those of ``fine`` (the mixture of
-    :func:`homofac.fit.validation.lighting_at`, summed over every light), from ``y``, its values at its own
-    lights (:func:`evaluate`): ``y`` plus the lighting of :func:`homofac.light.refine.difference_blocks`,
+def refined(target: Target, fine: Target, grouped: Grouped, y: np.ndarray, max_blocks: int = MAX_BLOCKS
+            ) -> np.ndarray | None:
+    """``fine``'s values at ``grouped``, where ``fine`` is ``target`` with its brightest texels refined (the
+    mixture of :func:`homofac.fit.validation.lighting_at`, summed over every light), from ``y``, ``target``'s
+    values there (:func:`evaluate`): ``y`` plus the lighting of :func:`homofac.light.refine.difference_blocks`,
     each block evaluated by ``target``'s own compiled program. The blocks are made small enough that every
     normal of ``grouped`` finds its lights within that program's static bounds; None where that takes more
-    than ``max_blocks`` blocks or the target's lighting is clamped or summed by a light tree (not a sum over
-    its lights)."""
+    than ``max_blocks`` blocks, or the lighting is clamped or summed by a light tree (not a sum over lights)."""
     fn = target.fn
-    if getattr(fn, "clamp", None) is not None or getattr(fn, "tree", None) is not None:
+    if any(getattr(f, "clamp", None) is not None or getattr(f, "tree", None) is not None for f in (fn, fine.fn)):
         return None
     env = fn.env
     visible = max_visible(env)
@@ -91,7 +108,7 @@ def refined(target: Target, fine: Environment, texels: np.ndarray, grouped: Grou
                                 moments=light_moments(env)).max_straddlers
     size = visible
     while True:
-        blocks = difference_blocks(env, fine, texels, size)
+        blocks = difference_blocks(env, fine.fn.env, size)
         if len(blocks) > max_blocks:
             return None
         if all(_within(b, grouped.normals, visible, straddlers) for b in blocks):
@@ -115,7 +132,7 @@ def remember(target: Target, grouped: Grouped, refined: bool, y: np.ndarray) -> 
                                np.asarray(y))
 
 
-def values(target: Target, grouped: Grouped, refined: bool) -> np.ndarray:
+def values(target: Target, grouped: Grouped, refined: bool, start: Target | None = None) -> np.ndarray:
     """:func:`evaluate` of ``target`` at ``grouped``, the leading normals whose values :func:`remember`
     kept (the same normals, views and mask) taken from there, only the others evaluated."""
     k = _key(target)
@@ -129,13 +146,13 @@ def values(target: Target, grouped: Grouped, refined: bool) -> np.ndarray:
                 and np.array_equal(mask, np.asarray(grouped.mask)[:n])):
             rows = n
     if rows == 0:
-        return evaluate(target, grouped, refined)
+        return evaluate(target, grouped, refined, start)
     rest = Grouped(np.asarray(grouped.normals)[rows:], np.asarray(grouped.views)[rows:],
                    np.asarray(grouped.mask)[rows:])
     y = hit[3]
     if not rest.mask.any():
         return y
-    return np.concatenate([y, evaluate(target, rest, refined)])
+    return np.concatenate([y, evaluate(target, rest, refined, start)])
 
 
-__all__ = ["KEEP", "MAX_BLOCKS", "evaluate", "refined", "remember", "values"]
+__all__ = ["KEEP", "MAX_BLOCKS", "VALUE_BLOCKS", "evaluate", "refined", "refined_values", "remember", "values"]

@@ -220,25 +220,25 @@ def _decide(target: Target, env, count: int, seed: int, log) -> ValidationLight:
     pairs = decision_pairs(count, seed)
     r, changes = start, []
     y = y0 = levels.evaluate(target, pairs, refined=False)
-    own = True  # y evaluated as the validation values at r are (levels.evaluate of lighting_at)
-    bright = bright_texels(env, SHARE)
+    summed = False  # y is the sum over every light (not a light tree's)
     limit = min(MAX_RESOLUTION, start << MAX_DOUBLINGS)
     while 2 * r <= limit:
-        # the fit's own program on the refined texels' difference where few blocks hold it, else the level's own
-        y2 = levels.refined(target, at_resolution(env, 2 * r), bright, pairs, y0)
-        own2 = y2 is None
-        if own2:
+        # every light: the fit's program on the refined texels' difference where few blocks hold it (no
+        # program of the level's own), else the level's lighting as the validation values read it
+        y2 = levels.refined(target, lighting_at(target, 2 * r, None), pairs, y0)
+        summed2 = y2 is not None
+        if not summed2:
             y2 = levels.evaluate(lighting_at(target, 2 * r), pairs, refined=True)
         change = float(metrics(y, y2)["nrmse"])
         changes.append((r, change))
         log(f"validation lighting: resolution {r} -> {2 * r} changes the values by {change:.4f} nrmse")
         if change < TOLERANCE:
             break
-        r, y, own = 2 * r, y2, own2
+        r, y, summed = 2 * r, y2, summed2
     converged = bool(changes) and changes[-1][1] < TOLERANCE
     at = lighting_at(target, r)
-    if own:  # the validation values at r reuse these pairs' (levels.values)
-        levels.remember(at, pairs, r != start, y)
+    if r == start or not (summed and at.fn.tree is not None):  # the values as the validation values read them:
+        levels.remember(at, pairs, r != start, y)  # those at r reuse these pairs' (levels.values)
     fine = at.fn.env
     return ValidationLight(resolution=r, start=start, route=how, changes=tuple(changes), converged=converged,
                            tolerance=TOLERANCE, lights=int(fine.num_lights), light_sum=light_sum(start, r, max_visible(fine)))
