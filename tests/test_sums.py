@@ -375,6 +375,32 @@ def test_prefiltered_keeps_the_split_sum_and_corrects_it(plastic):
     assert _nrmse(m.evaluate(s.a, s.b), s.y) < _nrmse(base.evaluate(s.a, s.b), s.y)
 
 
+def test_the_candidates_share_one_split_sum_start_equal_to_each_ones_own(plastic, monkeypatch):
+    """The split sum's (A, B) line of a lighting is computed once for every candidate that starts from it
+    (sums._dfg through sums._memo), and each candidate's start is the one it computes alone."""
+    target, s = plastic
+    cands = [Structure("NRO", 1, "fitted", True), Structure("RO", 1, "fitted", True, reflection=True)]
+    calls, real = [], sums.ss.dfg
+    monkeypatch.setattr(sums.ss, "dfg", lambda *a: calls.append(1) or real(*a))
+
+    def start(structure):
+        specs, terms = structures.skeleton(structure, "lighting", "lighting", "dual_paraboloid", S, 32)
+        layouts = {t.name: texture_layout(t.name, t.mapper, t.size) for t in specs if t.role not in sums.FIXED_ROLES}
+        return sums.start(target, structure, terms, layouts, s, s.y, np.ones(3), "split_sum", "dual_paraboloid", S,
+                          None)[0]
+
+    monkeypatch.setattr(sums, "_MEMO", {})
+    shared = [start(c) for c in cands]
+    assert len(calls) == 1
+    for c, got in zip(cands, shared):
+        monkeypatch.setattr(sums, "_MEMO", {})  # alone: nothing computed before
+        own = start(c)
+        assert got.keys() == own.keys()
+        for name in own:
+            np.testing.assert_array_equal(got[name], own[name])
+    assert len(calls) == 1 + len(cands)
+
+
 def test_spd_solve_equals_lapack():
     rng = np.random.default_rng(3)
     for K in (1, 2, 5):

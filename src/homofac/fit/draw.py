@@ -148,7 +148,8 @@ def _draw(target: Target, parametrization: str, s: SamplingOptions, log: Callabl
         env = getattr(target.fn, "env", None)
         own = int((env.info.get("resolution") if env is not None else 0) or 0)
         val_y = (np.zeros((0, 3), np.float32) if not len(val) else np.asarray(evaluate_grouped(target, vgroups))
-                 if not level and vtarget is target else levels.values(vtarget, vgroups, refined=int(level or 0) != own))
+                 if not level and vtarget is target else levels.values(vtarget, vgroups, refined=int(level or 0) != own,
+                                                                      start=target))
         return Samples(pairs.a, pairs.b, y, val.a, val.b, val_y)
     log(f"sampling {len(pairs)} training pairs")
     y = np.asarray(evaluate(target, pairs.a, pairs.b))

@@ -219,19 +219,26 @@ def _decide(target: Target, env, count: int, seed: int, log) -> ValidationLight:
     how = route(env)
     pairs = decision_pairs(count, seed)
     r, changes = start, []
-    y = levels.evaluate(target, pairs, refined=False)
+    y = y0 = levels.evaluate(target, pairs, refined=False)
+    summed = False  # y is the sum over every light (not a light tree's)
     limit = min(MAX_RESOLUTION, start << MAX_DOUBLINGS)
     while 2 * r <= limit:
-        y2 = levels.evaluate(lighting_at(target, 2 * r), pairs, refined=True)
+        # every light: the fit's program on the refined texels' difference where few blocks hold it (no
+        # program of the level's own), else the level's lighting as the validation values read it
+        y2 = levels.refined(target, lighting_at(target, 2 * r, None), pairs, y0)
+        summed2 = y2 is not None
+        if not summed2:
+            y2 = levels.evaluate(lighting_at(target, 2 * r), pairs, refined=True)
         change = float(metrics(y, y2)["nrmse"])
         changes.append((r, change))
         log(f"validation lighting: resolution {r} -> {2 * r} changes the values by {change:.4f} nrmse")
         if change < TOLERANCE:
             break
-        r, y = 2 * r, y2
+        r, y, summed = 2 * r, y2, summed2
     converged = bool(changes) and changes[-1][1] < TOLERANCE
     at = lighting_at(target, r)
-    levels.remember(at, pairs, r != start, y)  # the validation values at r reuse these pairs' (levels.values)
+    if r == start or not (summed and at.fn.tree is not None):  # the values as the validation values read them:
+        levels.remember(at, pairs, r != start, y)  # those at r reuse these pairs' (levels.values)
     fine = at.fn.env
     return ValidationLight(resolution=r, start=start, route=how, changes=tuple(changes), converged=converged,
                            tolerance=TOLERANCE, lights=int(fine.num_lights), light_sum=light_sum(start, r, max_visible(fine)))

@@ -35,7 +35,7 @@ from .lights import light_corners, light_moments, moments_of
 from .sky import preetham_sky
 from .sources import load_environment
 from .synthetic import gradient_sky, painted_lights, sun_sky, uniform
-from .tree import texel_resolution
+from .tree import cube_texel, texel_resolution
 
 #: How :func:`at_resolution` refines, in order of faithfulness (``info["refined"]``).
 ROUTES = ("source", "synthetic", "texels")
@@ -118,6 +118,42 @@ def mixture(coarse: Environment, fine: Environment, texels: np.ndarray) -> Envir
                        tuple(cat(c, f) for c, f in zip(moments_c, moments_f)))
 
 
+def difference_blocks(coarse: Environment, refined: Environment, size: int) -> list[Environment]:
+    """The lights whose sum is the lighting of ``refined`` (a :func:`mixture` of ``coarse``) minus that of
+    ``coarse``: the mixture's fine texels and the coarse texels they replace with their radiance negated
+    (the pinned light sum is linear in the lights; the kept texels and extra directional lights cancel). In
+    blocks of at most ``size`` lights, each padded with dark lights of zero solid angle (no weight: never
+    above a horizon) to ``coarse``'s light count and given ``coarse``'s ``info``, so that the compiled
+    lighting program of ``coarse`` evaluates every block. That program's static bounds (its visible lights
+    and horizon straddlers per normal) are ``coarse``'s: a caller checks that each block keeps within them
+    (:func:`homofac.fit.levels.refined`)."""
+    r = int(coarse.info["resolution"])
+    f = int(refined.info["mixture"]["fine_texels"])  # the mixture's first lights (mixture)
+    coarse_idx = np.unique(cube_texel(np.asarray(refined.directions[:f], np.float64), r))
+    mc, sc = light_moments(coarse)
+    mf, sf = light_moments(refined)
+
+    def cat(c, m, sign=1.0):  # on the host: the fine texels, then the coarse ones they replace
+        return np.concatenate([np.asarray(m, np.float32)[:f], sign * np.asarray(c, np.float32)[coarse_idx]])
+
+    d, rad = cat(coarse.directions, refined.directions), cat(coarse.radiance, refined.radiance, -1.0)
+    w, corners = cat(coarse.solid_angle, refined.solid_angle), cat(light_corners(coarse), light_corners(refined))
+    m, sr = cat(mc, mf), cat(sc, sf)
+    n, total = len(d), coarse.num_lights
+    size = int(min(size, total))
+    out = []
+    for i in range(0, n, size):
+        k = min(size, n - i)
+
+        def padded(a, fill):
+            pad = np.broadcast_to(np.asarray(fill, np.float32), (total - k,) + a.shape[1:])
+            return jnp.asarray(np.concatenate([a[i:i + k], pad]))
+
+        out.append(Environment(padded(d, [0.0, 0.0, 1.0]), padded(rad, 0.0), padded(w, 0.0), dict(coarse.info),
+                               padded(corners, 0.0), (padded(m, 0.0), padded(sr, -1.0))))
+    return out
+
+
 #: Lights per block of :func:`blocks` (one compiled lighting program serves every environment).
 LIGHT_BLOCK = 4096
 #: The ``info`` of every block (the same static data, so the compiled program is shared).
@@ -193,5 +229,5 @@ def at_resolution(env: Environment, resolution: int) -> Environment:
                        {**out.info, "refined": how, "refined_from": r}, out.corners, out.moments)
 
 
-__all__ = ["BLOCK_INFO", "LIGHT_BLOCK", "ROUTES", "at_resolution", "blocks", "bright_texels", "mixture", "parents", "route",
+__all__ = ["BLOCK_INFO", "LIGHT_BLOCK", "ROUTES", "at_resolution", "blocks", "bright_texels", "difference_blocks", "mixture", "parents", "route",
            "split_texels"]
