@@ -65,6 +65,14 @@ MATERIALS = ((1.0, 1.0), (0.04, 1.0))
 #: Smallest light resolution a layer's data and map are computed from (and of the far parts' lights).
 MIN_LIGHTS = 16
 
+#: The sharp block's lights per face texel side (:func:`block_lights`): 4 x the bundled maps' 64 face is 256,
+#: a light texel a quarter of the source's lat-long pixel (city below 0.15: 1x 0.0402, 2x 0.0244, 4x 0.0218).
+BLOCK_OVERSAMPLE = 4
+
+#: Largest light resolution of the sharp block (a 256 face is 393 216 lights; the block reads a few thousand
+#: of them per 8 x 8 texels).
+BLOCK_LIGHTS_MAX = 256
+
 
 def fibonacci(count: int) -> np.ndarray:
     """``count`` near-uniform unit directions (the Fibonacci sphere), (count, 3)."""
@@ -158,6 +166,16 @@ def sharp(rho: float, max_size: int) -> bool:
     one block (only their weights, the lobes' albedos, differ). (A lobe up to a whole texel measured worse: the
     three.js test's sphere read 0.075 nrmse against 0.032 with each layer's own map at max_size 32.)"""
     return math.pi / (rho * rho) >= 4 * max_size
+
+
+def block_lights(size: int) -> int:
+    """Light resolution the sharp layers' shared block of face ``size`` is filtered from: BLOCK_OVERSAMPLE x its
+    face (at most max(BLOCK_LIGHTS_MAX, size)). Its lobes are narrower than half a texel, so the block should
+    hold the source read at its texel centres (what the reference integrates: the source read bilinearly);
+    lights at the face's own size box-average a texel and the kernel's smoothing by a light texel blurs by
+    another, before the shader's bilinear read blurs by a third (docs/notes/bake.md, "Accuracy, sixteenth
+    session": city below 0.15, 0.0402 -> 0.0218 nrmse)."""
+    return int(max(size, min(BLOCK_OVERSAMPLE * size, BLOCK_LIGHTS_MAX)))
 
 
 def compress(kernels: np.ndarray, tolerance: float = 1e-2) -> tuple[np.ndarray, np.ndarray]:
@@ -350,8 +368,13 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
                    harmonic=opts.harmonic, mixed=opts.mixed)
     original = _Lights(environment)
     lights = _Lights(environment)
-    # the brightest compact source leaves the map before every filter and is shaded as a point light
-    found, share = lights.take_source(max(max_size, opts.data_resolution, MIN_LIGHTS)) if opts.analytic_source else (None, None)
+    roughness = pl.roughnesses()
+    sizes = [layer_size(rho, max_size) for rho in roughness]
+    shared = [sharp(rho, max_size) for rho in roughness]
+    finest = block_lights(max_size) if any(shared) else max_size
+    # the brightest compact source leaves the map (at the finest lights the bake reads) before every filter and
+    # is shaded as a point light
+    found, share = lights.take_source(max(finest, opts.data_resolution, MIN_LIGHTS)) if opts.analytic_source else (None, None)
     sources = (found,) if found is not None else ()
     x = kn.nv_centres(pl.nv_size)
     data_env = lights(opts.data_resolution)
@@ -373,9 +396,6 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
     timings["diffuse_s"] = time.perf_counter() - t
 
     # specular layers
-    roughness = pl.roughnesses()
-    sizes = [layer_size(rho, max_size) for rho in roughness]
-    shared = [sharp(rho, max_size) for rho in roughness]
     P, W, shifts, previous = [None] * pl.layers, [None] * pl.layers, [0.0] * pl.layers, None
     H, Hw, previous_h = [None] * pl.layers, [np.zeros(2 * len(x))] * pl.layers, None
     timings["kernels_s"] = timings["weights_s"] = timings["maps_s"] = 0.0
@@ -385,7 +405,7 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
     kept = pl.layer_terms()  # K, or K - 1 in a mixed plan's harmonic layers and the crossing
     for j in order:
         rho, s = roughness[j], sizes[j]
-        env_j = lights(max(s, MIN_LIGHTS))
+        env_j = lights(block_lights(s) if shared[j] else max(s, MIN_LIGHTS))
         t = time.perf_counter()
         exact = kn.albedos(rho, x)
         timings["kernels_s"] += time.perf_counter() - t
@@ -396,7 +416,8 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
             timings["kernels_s"] += time.perf_counter() - t
             t = time.perf_counter()
             fit = layer_fit(kn.smooth(k_c, texel_radius(env_j)), s, env_j, kept[j], DATA_SIZE,
-                            np.concatenate([exact[0], exact[1]]) if shared[j] else None, coarse=lights(MIN_LIGHTS))
+                            np.concatenate([exact[0], exact[1]]) if shared[j] else None,
+                            coarse=None if shared[j] else lights(MIN_LIGHTS))
             timings["maps_s"] += time.perf_counter() - t
             if best is None or fit[3] > best[2][3]:
                 best = (cand, k_c, fit)
