@@ -120,18 +120,24 @@ class _Lights:
         self.source = source
         self.cache: dict[int, Environment] = {}
         self.strip: np.ndarray | None = None
+        self.fine: dict[int, Environment] = {}
 
     def __call__(self, resolution: int) -> Environment:
         if isinstance(self.source, Environment):
             return self.source
+        if resolution in self.fine:
+            return self.fine[resolution]
         if resolution not in self.cache:
             self.cache[resolution] = (load_environment(self.source, resolution) if self.strip is None
                                       else from_cube(self.strip, resolution, source=str(self.source)))
         return self.cache[resolution]
 
-    def take_source(self, resolution: int) -> tuple[Source | None, float]:
+    def take_source(self, resolution: int, finer: int | None = None) -> tuple[Source | None, float]:
         """Find the brightest compact source at light ``resolution`` (:func:`~homofac.bake.sources.brightest_source`)
-        and remove it from every resolution served afterwards; ``(source or None, its power share)``."""
+        and remove it from every resolution served afterwards; ``(source or None, its power share)``. ``finer``
+        (a multiple of ``resolution``): that resolution is loaded from the source itself and the same core
+        removed from it (its texels under the core's texels clipped to the same fill), so it keeps the source's
+        detail instead of being resampled from the coarser map (the sharp block's lights, :func:`block_lights`)."""
         env = self(resolution)
         rest, found, share = brightest_source(env)
         if found is None:
@@ -140,8 +146,18 @@ class _Lights:
             self.source = rest
         else:
             r = int(env.info["resolution"]) if "resolution" in env.info else resolution
+            before = np.asarray(env.radiance, np.float32)[: 6 * r * r].reshape(r, 6 * r, 3)
             self.strip = np.asarray(rest.radiance, np.float32)[: 6 * r * r].reshape(r, 6 * r, 3)
             self.cache = {resolution: rest}
+            if finer is not None and finer > r and finer % r == 0:
+                core = np.any(self.strip != before, axis=-1)  # (r, 6r): the texels the core took out
+                fill = self.strip[core].max(0)  # their values are min(L, fill); the seed's is the fill
+                k = finer // r
+                fine = load_environment(self.source, finer)
+                rad = np.array(np.asarray(fine.radiance, np.float32)[: 6 * finer * finer].reshape(finer, 6 * finer, 3))
+                under = np.repeat(np.repeat(core, k, 0), k, 1)  # the strip's rows and columns scale with the face
+                rad[under] = np.minimum(rad[under], fill)
+                self.fine[finer] = from_cube(rad, finer, source=str(self.source))
         return found, share
 
 
@@ -174,7 +190,7 @@ def block_lights(size: int) -> int:
     hold the source read at its texel centres (what the reference integrates: the source read bilinearly);
     lights at the face's own size box-average a texel and the kernel's smoothing by a light texel blurs by
     another, before the shader's bilinear read blurs by a third (docs/notes/bake.md, "Accuracy, sixteenth
-    session": city below 0.15, 0.0402 -> 0.0218 nrmse)."""
+    session": city below 0.15, 0.0402 -> 0.0220 nrmse)."""
     return int(max(size, min(BLOCK_OVERSAMPLE * size, BLOCK_LIGHTS_MAX)))
 
 
@@ -371,10 +387,11 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
     roughness = pl.roughnesses()
     sizes = [layer_size(rho, max_size) for rho in roughness]
     shared = [sharp(rho, max_size) for rho in roughness]
-    finest = block_lights(max_size) if any(shared) else max_size
-    # the brightest compact source leaves the map (at the finest lights the bake reads) before every filter and
-    # is shaded as a point light
-    found, share = lights.take_source(max(finest, opts.data_resolution, MIN_LIGHTS)) if opts.analytic_source else (None, None)
+    # the brightest compact source leaves the map before every filter (the sharp block's finer lights included)
+    # and is shaded as a point light
+    found, share = (lights.take_source(max(max_size, opts.data_resolution, MIN_LIGHTS),
+                                       block_lights(max_size) if any(shared) else None)
+                    if opts.analytic_source else (None, None))
     sources = (found,) if found is not None else ()
     x = kn.nv_centres(pl.nv_size)
     data_env = lights(opts.data_resolution)
