@@ -5,8 +5,10 @@ from __future__ import annotations
 import numpy as np
 
 import homofac as hf
-from homofac.bake.build import block_lights
+from homofac.bake.build import _Lights, block_lights
 from homofac.io.exr import write_exr
+from homofac.light import load_environment
+from homofac.light.sources import bundled
 from homofac.light.latlong import latlong_directions
 from homofac.param import mappers
 
@@ -40,3 +42,17 @@ def test_the_sharp_block_reads_the_source_at_its_texel_centres(tmp_path):
     got = np.asarray(b.terms(r, r, b.roughness[0]), np.float64)[:, 1:, 0].sum(1)  # I_A + I_B at n = v = r
     ratio = got / _radiance(r)  # the albedo (one number) wherever the block holds the source
     assert np.max(ratio) / np.min(ratio) - 1 < 0.06, (np.min(ratio), np.max(ratio))
+
+
+def test_the_block_lights_lose_the_same_core_as_the_map_the_source_was_found_in():
+    """``take_source(64, finer=256)``: the 256 lights, loaded from the source itself, lose the core found at 64
+    (the removed power is the point light's within 5 %) and nothing farther than 0.15 rad from it."""
+    lights = _Lights(bundled("city"))
+    found, _ = lights.take_source(64, 256)
+    fine, orig = lights(256), load_environment(bundled("city"), 256)
+    d = np.asarray(orig.directions, np.float64)
+    dw = np.asarray(orig.solid_angle, np.float64)[:, None]
+    removed = np.sum((np.asarray(orig.radiance, np.float64) - np.asarray(fine.radiance, np.float64)) * dw, 0)
+    np.testing.assert_allclose(removed, found.power, rtol=0.05)
+    far = d @ np.asarray(found.direction) < np.cos(0.15)
+    np.testing.assert_array_equal(np.asarray(fine.radiance)[far], np.asarray(orig.radiance)[far])
