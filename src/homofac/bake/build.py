@@ -66,7 +66,7 @@ MATERIALS = ((1.0, 1.0), (0.04, 1.0))
 MIN_LIGHTS = 16
 
 #: The sharp block's lights per face texel side (:func:`block_lights`): 4 x the bundled maps' 64 face is 256,
-#: a light texel a quarter of the source's lat-long pixel (city below 0.15: 1x 0.0402, 2x 0.0244, 4x 0.0218).
+#: a light texel a quarter of the source's lat-long pixel (city below 0.15, balanced: 1x 0.0402, 2x 0.0244, 4x 0.022).
 BLOCK_OVERSAMPLE = 4
 
 #: Largest light resolution of the sharp block (a 256 face is 393 216 lights; the block reads a few thousand
