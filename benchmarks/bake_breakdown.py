@@ -12,7 +12,9 @@ vector of term t in L = (1 - m) 0.96 c I_d + f0_eff I_A + I_B:
 * ``layers``: the same azimuth means blended between the two layers around the pair's roughness with the bake's
   hat weights (the error of interpolating along roughness alone);
 * ``ideal``: idealized split-sum (the benchmark's);
-* ``--snap``: the bake at the drawn roughness, at the nearest layer's and midway between two layers (in u).
+* ``--snap``: the bake at the drawn roughness, at the nearest layer's and midway between two layers (in u);
+* ``--top N``: the N pairs carrying most of the bake's squared error: share, roughness, n.v, angle of r from the
+  bake's analytic source (degrees), and I_A, I_B (luminance) of the reference, the bake and the idealized split-sum.
 
     PYTHONPATH=src python benchmarks/bake_breakdown.py forest [--preset balanced] [--pairs 150] [--bands 1 2]
 """
@@ -33,6 +35,7 @@ from homofac.bake import kernels as kn
 from homofac.bake.build import texel_radius
 from homofac.bake.filter import normalized, prefilter
 from homofac.io.exr import read_exr
+from homofac.light.environment import LUMINANCE
 from homofac.light.integrals import material_radiance
 from homofac.light.reference import reference_integrals, source_map
 
@@ -77,6 +80,7 @@ def main(argv=None):
     ap.add_argument("--options", default="{}", help="JSON bake options")
     ap.add_argument("--shifts", nargs="+", type=float, default=[0.0], help="axis shifts of the floor (in units of alpha)")
     ap.add_argument("--no-bake", action="store_true", help="only the floor and idealized split-sum (the bake's I_d: the reference's)")
+    ap.add_argument("--top", type=int, default=0, help="print the pairs carrying most of the bake's squared error")
     ap.add_argument("--snap", action="store_true", help="only the bake at the drawn roughness, snapped to the nearest layer and "
                                                         "midway between layers (reference recomputed at each)")
     args = ap.parse_args(argv)
@@ -141,6 +145,15 @@ def main(argv=None):
         row["err_share_nv<0.3"] = round(float(e2[x < 0.3].sum() / e2.sum()), 3)
         row["err_top5_share"] = round(float(np.sort(e2)[-5:].sum() / e2.sum()), 3)
         print(json.dumps(row), flush=True)
+        if args.top and b is not None:
+            lum = np.asarray(LUMINANCE, np.float64)
+            sun = np.asarray(b.sources[0].direction) if b.sources else None
+            for i in np.argsort(e2)[::-1][:args.top]:
+                print(json.dumps({"pair": int(i), "share": round(float(e2[i] / e2.sum()), 3), "rho": round(float(rho[i]), 3),
+                                  "nv": round(float(x[i]), 3),
+                                  "deg_from_source": None if sun is None else round(float(np.degrees(np.arccos(np.clip(r[i] @ sun, -1, 1)))), 1),
+                                  **{f"{k}_AB": [round(float(p[i, t] @ lum), 4) for t in (1, 2)]
+                                     for k, p in (("ref", ref), ("bake", parts), ("ideal", ideal))}}), flush=True)
 
 
 if __name__ == "__main__":

@@ -65,6 +65,14 @@ MATERIALS = ((1.0, 1.0), (0.04, 1.0))
 #: Smallest light resolution a layer's data and map are computed from (and of the far parts' lights).
 MIN_LIGHTS = 16
 
+#: The sharp block's lights per face texel side (:func:`block_lights`): 4 x the bundled maps' 64 face is 256,
+#: a light texel a quarter of the source's lat-long pixel (city below 0.15, balanced: 1x 0.0402, 2x 0.0244, 4x 0.022).
+BLOCK_OVERSAMPLE = 4
+
+#: Largest light resolution of the sharp block (a 256 face is 393 216 lights; the block reads a few thousand
+#: of them per 8 x 8 texels).
+BLOCK_LIGHTS_MAX = 256
+
 
 def fibonacci(count: int) -> np.ndarray:
     """``count`` near-uniform unit directions (the Fibonacci sphere), (count, 3)."""
@@ -112,18 +120,24 @@ class _Lights:
         self.source = source
         self.cache: dict[int, Environment] = {}
         self.strip: np.ndarray | None = None
+        self.fine: dict[int, Environment] = {}
 
     def __call__(self, resolution: int) -> Environment:
         if isinstance(self.source, Environment):
             return self.source
+        if resolution in self.fine:
+            return self.fine[resolution]
         if resolution not in self.cache:
             self.cache[resolution] = (load_environment(self.source, resolution) if self.strip is None
                                       else from_cube(self.strip, resolution, source=str(self.source)))
         return self.cache[resolution]
 
-    def take_source(self, resolution: int) -> tuple[Source | None, float]:
+    def take_source(self, resolution: int, finer: int | None = None) -> tuple[Source | None, float]:
         """Find the brightest compact source at light ``resolution`` (:func:`~homofac.bake.sources.brightest_source`)
-        and remove it from every resolution served afterwards; ``(source or None, its power share)``."""
+        and remove it from every resolution served afterwards; ``(source or None, its power share)``. ``finer``
+        (a multiple of ``resolution``): that resolution is loaded from the source itself and the same core
+        removed from it (its texels under the core's texels clipped to the same fill), so it keeps the source's
+        detail instead of being resampled from the coarser map (the sharp block's lights, :func:`block_lights`)."""
         env = self(resolution)
         rest, found, share = brightest_source(env)
         if found is None:
@@ -132,8 +146,18 @@ class _Lights:
             self.source = rest
         else:
             r = int(env.info["resolution"]) if "resolution" in env.info else resolution
+            before = np.asarray(env.radiance, np.float32)[: 6 * r * r].reshape(r, 6 * r, 3)
             self.strip = np.asarray(rest.radiance, np.float32)[: 6 * r * r].reshape(r, 6 * r, 3)
             self.cache = {resolution: rest}
+            if finer is not None and finer > r and finer % r == 0:
+                core = np.any(self.strip != before, axis=-1)  # (r, 6r): the texels the core took out
+                fill = self.strip[core].max(0)  # their values are min(L, fill); the seed's is the fill
+                k = finer // r
+                fine = load_environment(self.source, finer)
+                rad = np.array(np.asarray(fine.radiance, np.float32)[: 6 * finer * finer].reshape(finer, 6 * finer, 3))
+                under = np.repeat(np.repeat(core, k, 0), k, 1)  # the strip's rows and columns scale with the face
+                rad[under] = np.minimum(rad[under], fill)
+                self.fine[finer] = from_cube(rad, finer, source=str(self.source))
         return found, share
 
 
@@ -158,6 +182,16 @@ def sharp(rho: float, max_size: int) -> bool:
     one block (only their weights, the lobes' albedos, differ). (A lobe up to a whole texel measured worse: the
     three.js test's sphere read 0.075 nrmse against 0.032 with each layer's own map at max_size 32.)"""
     return math.pi / (rho * rho) >= 4 * max_size
+
+
+def block_lights(size: int) -> int:
+    """Light resolution the sharp layers' shared block of face ``size`` is filtered from: BLOCK_OVERSAMPLE x its
+    face (at most max(BLOCK_LIGHTS_MAX, size)). Its lobes are narrower than half a texel, so the block should
+    hold the source read at its texel centres (what the reference integrates: the source read bilinearly);
+    lights at the face's own size box-average a texel and the kernel's smoothing by a light texel blurs by
+    another, before the shader's bilinear read blurs by a third (docs/notes/bake.md, "Accuracy, sixteenth
+    session": city below 0.15, 0.0402 -> 0.0220 nrmse)."""
+    return int(max(size, min(BLOCK_OVERSAMPLE * size, BLOCK_LIGHTS_MAX)))
 
 
 def compress(kernels: np.ndarray, tolerance: float = 1e-2) -> tuple[np.ndarray, np.ndarray]:
@@ -350,8 +384,14 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
                    harmonic=opts.harmonic, mixed=opts.mixed)
     original = _Lights(environment)
     lights = _Lights(environment)
-    # the brightest compact source leaves the map before every filter and is shaded as a point light
-    found, share = lights.take_source(max(max_size, opts.data_resolution, MIN_LIGHTS)) if opts.analytic_source else (None, None)
+    roughness = pl.roughnesses()
+    sizes = [layer_size(rho, max_size) for rho in roughness]
+    shared = [sharp(rho, max_size) for rho in roughness]
+    # the brightest compact source leaves the map before every filter (the sharp block's finer lights included)
+    # and is shaded as a point light
+    found, share = (lights.take_source(max(max_size, opts.data_resolution, MIN_LIGHTS),
+                                       block_lights(max_size) if any(shared) else None)
+                    if opts.analytic_source else (None, None))
     sources = (found,) if found is not None else ()
     x = kn.nv_centres(pl.nv_size)
     data_env = lights(opts.data_resolution)
@@ -373,9 +413,6 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
     timings["diffuse_s"] = time.perf_counter() - t
 
     # specular layers
-    roughness = pl.roughnesses()
-    sizes = [layer_size(rho, max_size) for rho in roughness]
-    shared = [sharp(rho, max_size) for rho in roughness]
     P, W, shifts, previous = [None] * pl.layers, [None] * pl.layers, [0.0] * pl.layers, None
     H, Hw, previous_h = [None] * pl.layers, [np.zeros(2 * len(x))] * pl.layers, None
     timings["kernels_s"] = timings["weights_s"] = timings["maps_s"] = 0.0
@@ -385,7 +422,7 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
     kept = pl.layer_terms()  # K, or K - 1 in a mixed plan's harmonic layers and the crossing
     for j in order:
         rho, s = roughness[j], sizes[j]
-        env_j = lights(max(s, MIN_LIGHTS))
+        env_j = lights(block_lights(s) if shared[j] else max(s, MIN_LIGHTS))
         t = time.perf_counter()
         exact = kn.albedos(rho, x)
         timings["kernels_s"] += time.perf_counter() - t
@@ -396,7 +433,8 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
             timings["kernels_s"] += time.perf_counter() - t
             t = time.perf_counter()
             fit = layer_fit(kn.smooth(k_c, texel_radius(env_j)), s, env_j, kept[j], DATA_SIZE,
-                            np.concatenate([exact[0], exact[1]]) if shared[j] else None, coarse=lights(MIN_LIGHTS))
+                            np.concatenate([exact[0], exact[1]]) if shared[j] else None,
+                            coarse=None if shared[j] else lights(MIN_LIGHTS))
             timings["maps_s"] += time.perf_counter() - t
             if best is None or fit[3] > best[2][3]:
                 best = (cand, k_c, fit)
