@@ -7,6 +7,8 @@ cells are the benchmark's) against the same converged reference:
 
 * ``p2/F``: the second product P_2 stored at 1/F of its layer's face (the layer's map box-filtered F x F per
   face, then read bilinearly at its own size: what a per-map atlas with P_2 at the smaller face reads);
+* ``p2f/2``: P_2 filtered at half its layer's face from its own kernel (what a bake would store: the layer fitted
+  as the bake fits it, its maps filtered again at half the face, the bake's alignment rotation applied);
 * ``h/F``: likewise the harmonic's tensor maps (no smaller than 8);
 * ``e/F``: the diffuse maps E_d at 1/F of their face;
 * ``p1L/F``: P_1 (and P_2) of layer L at 1/F of its face;
@@ -40,6 +42,7 @@ import numpy as np
 
 import bake_accuracy as ba
 import homofac as hf
+from homofac.bake import build
 from homofac.bake.atlas import pack
 from homofac.bake.model import _cube, _line, harmonic_colour, tensor_read
 from homofac.bake.sources import source_terms
@@ -90,6 +93,45 @@ def gauge_read(m3, a, t):
     tu = jnp.where(fx, t[:, 1], t[:, 0])
     tv = jnp.where(fx | fy, t[:, 2], t[:, 1])
     return tu * tu * m3[:, 0] + tv * tv * m3[:, 1] + 2 * tu * tv * m3[:, 2]
+
+
+def bake_with_half_maps(name, preset):
+    """``(bake, {layer: P_2 filtered at half the face})``: the bake, with every layer fit of rank >= 2 filtered
+    a second time at half its face (:func:`homofac.bake.build.layer_fit` at size / 2 reads the same data, since
+    the data are at min(size, 32), so its weights equal the full fit's). Each layer's final P_2 is then matched
+    to its fit through the alignment rotation (least squares of the bake's P[j] on that fit's maps)."""
+    original, seen = build.layer_fit, []
+
+    def fit(kernels, size, env, rank, data_size=32, masses=None, coarse=None):
+        out = original(kernels, size, env, rank, data_size, masses, coarse)
+        if rank >= 2 and masses is None and size >= 16:
+            half = original(kernels, size // 2, env, rank, data_size, masses, coarse)
+            seen.append((size, out[2], half[2]))
+        return out
+
+    build.layer_fit = fit
+    try:
+        b = hf.bake(name, preset=preset)
+    finally:
+        build.layer_fit = original
+    halves = {}
+    for j, p in enumerate(b.P):
+        if b.blocks and b.blocks[j] != j or p.shape[2] < 2 or not np.any(p[:, :, 1]):
+            continue
+        s = p.shape[0]
+        target = np.asarray(p, np.float64).reshape(6 * s * s, -1, 3)
+        best = None
+        for size, full, half in seen:
+            if size != s:
+                continue
+            a = np.moveaxis(full, 2, 1).reshape(-1, full.shape[1])
+            rot, *_ = np.linalg.lstsq(a, np.moveaxis(target, 2, 1).reshape(-1, target.shape[1]), rcond=None)
+            res = np.linalg.norm(a @ rot - np.moveaxis(target, 2, 1).reshape(-1, target.shape[1])) / np.linalg.norm(target)
+            if best is None or res < best[0]:
+                best = (res, np.einsum("tic,i->tc", half, rot[:, 1]))
+        assert best is not None and best[0] < 1e-4, (j, best and best[0])
+        halves[j] = best[1].reshape(s // 2, 3 * s, 3).astype(np.float32)
+    return b, halves
 
 
 def check_gauge(s: int = 8, seed: int = 0) -> float:
@@ -146,6 +188,21 @@ def terms(b, n, v, rho, P1, P2, H, gauged=False, E=None):
     return out + source_terms(b.sources, n, v, jnp.asarray(rho, jnp.float32)) if b.sources else out
 
 
+def bottom_left(sizes) -> tuple[int, int]:
+    """(width, height) of an atlas of (S, 6 S) blocks, sizes non-increasing, width 6 max(S), each block at the
+    lowest free position (then the leftmost) above the blocks placed before it (a skyline packer: a block may
+    sit in the gap beside a shorter block of a full shelf, which ``homofac.bake.atlas.pack`` leaves empty)."""
+    sizes = sorted((int(x) for x in sizes), reverse=True)
+    unit = 6 * min(sizes)
+    cols = 6 * sizes[0] // unit
+    sky = np.zeros(cols, int)
+    for s in sizes:
+        w = 6 * s // unit
+        x = min(range(cols - w + 1), key=lambda i: (sky[i:i + w].max(), i))
+        sky[x:x + w] = sky[x:x + w].max() + s
+    return 6 * sizes[0], int(sky.max())
+
+
 def layout_bytes(b, sizes_a, sizes_b, channels_a: int, channels_b: int, e_size: int) -> dict:
     """Half bytes of a two-map layout: map A's layer sizes (blocks shared as the bake shares them), map B's
     (None: the layer stores nothing there; read as a shared 8-face block of zeros), E_d and the tables."""
@@ -158,11 +215,15 @@ def layout_bytes(b, sizes_a, sizes_b, channels_a: int, channels_b: int, e_size: 
     w = b.plan.tables * b.plan.layers * b.plan.nv_size * 3 * 2
     pa = at.width * at.height * channels_a * 2
     pb = bt.width * bt.height * channels_b * 2 if bt else 0
+    wa, ha = bottom_left([sizes_a[j] for j in sorted(set(blocks))])
+    wb, hb = bottom_left(sorted(kept, reverse=True) + ([8] if len(kept) < len(sizes_b) else [])) if kept else (0, 0)
+    bl = (wa * ha * channels_a + wb * hb * channels_b) * 2
     return {"A": pa, "B": pb, "A_atlas": [at.width, at.height], "B_atlas": [bt.width, bt.height] if bt else None,
-            "E": e, "W": w, "total": pa + pb + e + w, "ratio": (pa + pb + e + w) / GOAL}
+            "E": e, "W": w, "total": pa + pb + e + w, "ratio": (pa + pb + e + w) / GOAL,
+            "bottom_left": {"A_atlas": [wa, ha], "B_atlas": [wb, hb], "total": bl + e + w, "ratio": (bl + e + w) / GOAL}}
 
 
-def variant(b, spec: str):
+def variant(b, spec: str, halves=None):
     """(P1, P2, H, gauged, E, bytes) of a variant spec: ``base`` or '+'-joined ``p2/F``, ``h/F``, ``p1L/F``, ``gauge``."""
     L = b.plan.layers
     P1 = [np.asarray(p[:, :, 0]) for p in b.P]
@@ -182,6 +243,8 @@ def variant(b, spec: str):
             P2 = [None if p is None else down(p, min(f, p.shape[0] // 8)) for p in P2]
         elif what == "h":
             H = [None if h is None else down(h, max(1, min(f, h.shape[0] // 8))) for h in H]
+        elif what == "p2f":
+            P2 = [None if p is None else halves[j] for j, p in enumerate(P2)]
         elif what == "e":
             E = down(E, f)
         elif what.startswith("p1"):
@@ -258,9 +321,9 @@ def main(argv=None):
         todo = name in args.envs
         if todo:
             t = time.perf_counter()
-            b = hf.bake(name, preset=args.preset)
+            b, halves = bake_with_half_maps(name, args.preset)
             print(f"{name}: baked in {time.perf_counter() - t:.1f} s; {b.describe()}", flush=True)
-            specs = {s: variant(b, s) for s in args.variants}
+            specs = {s: variant(b, s, halves) for s in args.variants}
             for s, (P1, P2, H, g, E, mem) in specs.items():
                 print(f"  {s}: P1 {[p.shape[0] for p in P1]} P2 {[None if p is None else p.shape[0] for p in P2]} "
                       f"H {[None if h is None else h.shape[0] for h in H]} -> {json.dumps(mem)}", flush=True)
