@@ -15,7 +15,7 @@ from homofac.bake.model import Bake, tensor_read
 from homofac.bake.plan import plan as make_plan
 from homofac.light.environment import LUMINANCE
 from homofac.param import mappers
-from test_bake import check_glsl_terms, check_glslang, check_msl, check_wgsl
+from test_bake import as_schema_4, check_glsl_terms, check_glslang, check_msl, check_wgsl
 
 
 def test_tensor_maps_read_the_second_harmonic_of_the_light_sum():
@@ -140,7 +140,7 @@ def test_save_load_round_trip_and_schema_2(harmonic_bake, tmp_path):
     b = harmonic_bake
     out = b.save(tmp_path / "h", exr="float32")
     doc = json.loads((out / "bake.json").read_text())
-    assert doc["schema_version"] == 4 and doc["plan"]["harmonic"] == 0.3
+    assert doc["schema_version"] == 5 and doc["plan"]["harmonic"] == 0.3
     assert [t["channels"] for t in doc["textures"] if t["kind"] == "prefiltered"] == [
         ["P0.r", "P0.g", "P0.b", "M.xx"], ["M.yy", "M.xy", "M.xz", "M.yz"]]
     back = hf.load(out)
@@ -148,8 +148,7 @@ def test_save_load_round_trip_and_schema_2(harmonic_bake, tmp_path):
     for rho in (0.2, 0.5, 0.9):
         np.testing.assert_allclose(np.asarray(back.terms(n, v, rho)), np.asarray(b.terms(n, v, rho)), rtol=1e-5, atol=1e-7)
     plain = _synthetic(0.0, np.random.default_rng(2)).save(tmp_path / "p", exr="float32")
-    doc = json.loads((plain / "bake.json").read_text())
-    doc["schema_version"] = 2
+    doc = as_schema_4(json.loads((plain / "bake.json").read_text()), 2)
     del doc["plan"]["harmonic"]
     (plain / "bake.json").write_text(json.dumps(doc))
     old = hf.load(plain)

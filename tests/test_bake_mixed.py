@@ -11,7 +11,7 @@ import pytest
 
 import homofac as hf
 import test_bake_harmonic as th
-from test_bake import check_glsl_terms, check_glslang, check_msl, check_wgsl
+from test_bake import as_schema_4, check_glsl_terms, check_glslang, check_msl, check_wgsl
 from homofac.bake import shader
 from homofac.bake.model import Bake
 from homofac.errors import HomofacError
@@ -94,7 +94,7 @@ def test_save_load_round_trip_schema_4_and_3(mixed_bake, tmp_path):
     b = mixed_bake
     out = b.save(tmp_path / "m", exr="float32")
     doc = json.loads((out / "bake.json").read_text())
-    assert doc["schema_version"] == 4 and doc["plan"]["mixed"] is True and doc["lookups"] == 7
+    assert doc["schema_version"] == 5 and doc["plan"]["mixed"] is True and doc["lookups"] == 7
     assert [t["channels"] for t in doc["textures"] if t["kind"] != "diffuse"] == [
         ["P0.r", "P0.g", "P0.b", "P1.r/M.xx"], ["P1.g/M.yy", "P1.b/M.xy", "-/M.xz", "-/M.yz"],
         ["a0", "b0", "a1/hA"], ["b1/hB", "w0", "-"]]
@@ -102,11 +102,13 @@ def test_save_load_round_trip_schema_4_and_3(mixed_bake, tmp_path):
     n, v = th._pairs(300, 4)
     for rho in (0.35, 0.43, 0.55, 0.9):
         np.testing.assert_allclose(np.asarray(back.terms(n, v, rho)), np.asarray(b.terms(n, v, rho)), rtol=1e-5, atol=1e-7)
+    # a schema-4 directory (the layers' x, y, one layout for every map) loads as the same bake
+    (out / "bake.json").write_text(json.dumps(as_schema_4(doc)))
+    np.testing.assert_allclose(np.asarray(hf.load(out).terms(n, v, 0.55)), np.asarray(b.terms(n, v, 0.55)), rtol=1e-5, atol=1e-7)
     # a schema-3 directory (no plan.mixed) still loads, as an unpacked bake
     u = _unpacked(b)
     old = u.save(tmp_path / "u", exr="float32")
-    doc = json.loads((old / "bake.json").read_text())
-    doc["schema_version"] = 3
+    doc = as_schema_4(json.loads((old / "bake.json").read_text()), 3)
     del doc["plan"]["mixed"]
     (old / "bake.json").write_text(json.dumps(doc))
     got = hf.load(old)

@@ -66,7 +66,9 @@ class Bake:
     ``sh9`` (then ``E`` is not read and may be None); ``sources`` the analytic lights taken out of the map
     (:mod:`.sources`), whose exact glTF lobes the integrals add; ``H[j]`` (S_j, 6 S_j, 5) layer j's tensor map
     (M_xx, M_yy, M_xy, M_xz, M_yz) of the luminance's second harmonic, or None (the plan's ``harmonic``; empty
-    without it; the tables' last two channels are then h_A, h_B).
+    without it; the tables' last two channels are then h_A, h_B); ``layouts[i]`` the blocks of specular map
+    ``P<i>`` in its own atlas (:class:`~.atlas.Atlas`, one per map, read from bake.json's schema 5; empty: every
+    map in :func:`~.atlas.pack`'s layout).
     """
 
     plan: BakePlan
@@ -80,6 +82,7 @@ class Bake:
     blocks: tuple[int, ...] = ()
     sources: tuple[Source, ...] = ()
     H: tuple[Any, ...] = ()
+    layouts: tuple[Atlas, ...] = ()
 
     # --- structure -------------------------------------------------------------------------------------
     @property
@@ -88,14 +91,21 @@ class Bake:
         return self.plan.lookups
 
     @property
+    def atlases(self) -> tuple[Atlas, ...]:
+        """The layout of each specular map ``P<i>``'s layers in its own 2D texture (:mod:`.atlas`), one per map."""
+        if self.layouts:
+            return tuple(self.layouts)
+        return (pack([int(p.shape[0]) for p in self.P], self.blocks or None),) * self.plan.maps
+
+    @property
     def atlas(self) -> Atlas:
-        """The layout of each P_k's layers in its 2D texture (:mod:`.atlas`)."""
-        return pack([int(p.shape[0]) for p in self.P], self.blocks or None)
+        """The first specular map's layout (``atlases[0]``)."""
+        return self.atlases[0]
 
     def texture_bytes(self, bytes_per_channel: int = 2) -> int:
-        """GPU memory of the textures in half floats (RGB): P_k atlases, E_d maps, weight tables."""
-        a = self.atlas
-        p = self.plan.maps * a.width * a.height * (4 if self.plan.harmonic else 3)
+        """GPU memory of the textures in half floats (RGB, RGBA with the harmonic): each P map's atlas, the E_d
+        maps, the weight tables."""
+        p = sum(a.width * a.height for a in self.atlases) * (4 if self.plan.harmonic else 3)
         e = self.plan.diffuse * 6 * self.plan.diffuse_size ** 2 * 3 if self.plan.diffuse_basis == "texture" else 0
         w = self.plan.tables * self.plan.layers * self.plan.nv_size * 3
         return (p + e + w) * bytes_per_channel

@@ -41,7 +41,7 @@ def source(bake: Bake, language: str = "glsl", *, y_up: bool = False, flip_v: bo
         return _metal_or_wgsl(bake, language, y_up=y_up, flip_v=flip_v)
     lang = L.get("glsl" if language == "hlsl" else language)
     pl = bake.plan
-    atlas = bake.atlas
+    atlases = bake.atlases
     K, D, layers, X = pl.terms, pl.diffuse, pl.layers, pl.nv_size
     se = pl.diffuse_size
     cube_src, tables = generate.mapper_function(L.get(language), "cube")
@@ -62,33 +62,32 @@ def source(bake: Bake, language: str = "glsl", *, y_up: bool = False, flip_v: bo
     harm = bool(pl.harmonic)
     for k in range(pl.maps):
         what = f" (RGBA: {', '.join(specular_channels(bake)[k])})" if harm else ""
-        lines.append(f"uniform {prec}sampler2D hf_P{k};  // P{k}.exr: {layers} layers in a {atlas.width} x {atlas.height} atlas{what}")
+        lines.append(f"uniform {prec}sampler2D hf_P{k};  // P{k}.exr: {layers} layers in a {atlases[k].width} x {atlases[k].height} atlas{what}")
     sh9 = pl.diffuse_basis == "sh9"
     for d in range(D if not sh9 else 0):
         lines.append(f"uniform {prec}sampler2D hf_E{d};  // E{d}.exr: cube {se}")
     for t in range(pl.tables):
         lines.append(f"uniform {prec}sampler2D hf_W{t};  // W{t}.exr: {layers} x {X} weight table")
-    rows = ", ".join(f"vec4({_f(x)}, {_f(y)}, {_f(s)}, {_f(sh)})"
-                     for (x, y), s, sh in zip(atlas.offsets, atlas.sizes, bake.shift))
     lines += [
         f"const int HF_LAYERS = {layers};",
         *([f"const int HF_H0 = {min(pl.harmonic_layers())};  // the first layer storing the harmonic (mixed)"] if mixed else []),
         f"const float HF_RHO0 = {_f(bake.roughness[0])};",
         f"const float HF_RHO1 = {_f(bake.roughness[-1])};",
-        f"const vec2 HF_ATLAS = vec2({_f(atlas.width)}, {_f(atlas.height)});",
-        f"const vec4 HF_LAYER[{layers}] = vec4[{layers}]({rows});  // x0, y0, face size, axis shift",
+        *(line for i, a in enumerate(atlases) for line in (
+            f"const vec2 HF_ATLAS{i} = vec2({_f(a.width)}, {_f(a.height)});  // P{i}'s atlas",
+            f"const vec4 HF_LAYER{i}[{layers}] = vec4[{layers}]({_layer_rows(a, bake.shift, 'vec4', _f)});  // x0, y0, face size, axis shift")),
         "#ifdef HOMOFAC_FLIP_V",
         "float hf_flip_v(float v) { return 1.0 - v; }",
         "#else",
         "float hf_flip_v(float v) { return v; }",
         "#endif",
         cube_src,
-        "vec3 hf_layer(sampler2D t, vec4 layer, vec3 d) {  // layer (x0, y0, S, shift) of an atlas at direction d",
+        "vec3 hf_layer(sampler2D t, vec4 layer, vec2 atlas, vec3 d) {  // layer (x0, y0, S, shift) of an atlas at direction d",
         "    vec3 fuv = hf_map_cube(d);",
         "    float s = layer.z;",
         "    float cu = clamp(fuv.y * s - 0.5, 0.0, s - 1.0);",
         "    float cv = clamp(fuv.z * s - 0.5, 0.0, s - 1.0);",
-        "    vec2 uv = vec2(layer.x + floor(fuv.x + 0.5) * s + cu + 0.5, layer.y + cv + 0.5) / HF_ATLAS;",
+        "    vec2 uv = vec2(layer.x + floor(fuv.x + 0.5) * s + cu + 0.5, layer.y + cv + 0.5) / atlas;",
         "    return textureLod(t, vec2(uv.x, hf_flip_v(uv.y)), 0.0).rgb;",
         "}",
         "vec3 hf_cube(sampler2D t, float s, vec3 d) {  // a cube-layout texture of face size s at direction d",
@@ -101,12 +100,12 @@ def source(bake: Bake, language: str = "glsl", *, y_up: bool = False, flip_v: bo
     ]
     if harm:
         lines += [
-            "vec4 hf_layer4(sampler2D t, vec4 layer, vec3 d) {  // hf_layer's RGBA",
+            "vec4 hf_layer4(sampler2D t, vec4 layer, vec2 atlas, vec3 d) {  // hf_layer's RGBA",
             "    vec3 fuv = hf_map_cube(d);",
             "    float s = layer.z;",
             "    float cu = clamp(fuv.y * s - 0.5, 0.0, s - 1.0);",
             "    float cv = clamp(fuv.z * s - 0.5, 0.0, s - 1.0);",
-            "    vec2 uv = vec2(layer.x + floor(fuv.x + 0.5) * s + cu + 0.5, layer.y + cv + 0.5) / HF_ATLAS;",
+            "    vec2 uv = vec2(layer.x + floor(fuv.x + 0.5) * s + cu + 0.5, layer.y + cv + 0.5) / atlas;",
             "    return textureLod(t, vec2(uv.x, hf_flip_v(uv.y)), 0.0);",
             "}",
         ]
@@ -129,8 +128,8 @@ def source(bake: Bake, language: str = "glsl", *, y_up: bool = False, flip_v: bo
         "    float u = clamp(float(HF_LAYERS - 1) * log(rho / HF_RHO0) / log(HF_RHO1 / HF_RHO0), 0.0, float(HF_LAYERS - 1));",
         "    int j = min(int(floor(u)), HF_LAYERS - 2);",
         "    float t = u - float(j);",
-        "    vec4 l0 = HF_LAYER[j];",
-        "    vec4 l1 = HF_LAYER[j + 1];",
+        "    vec4 l0 = HF_LAYER0[j];",
+        "    vec4 l1 = HF_LAYER0[j + 1];",
         "    vec3 a0 = normalize(mix(r, n, l0.w));",
         "    vec3 a1 = normalize(mix(r, n, l1.w));",
         f"    vec2 wuv = vec2((clamp(x * {_f(X)} - 0.5, 0.0, {_f(X - 1)}) + 0.5) / {_f(X)}, (u + 0.5) / {_f(layers)});",
@@ -143,8 +142,8 @@ def source(bake: Bake, language: str = "glsl", *, y_up: bool = False, flip_v: bo
     if harm:
         c0, c1 = [], []
         for i in range(pl.maps):
-            body.append(f"    vec4 q0_{i} = hf_layer4(hf_P{i}, l0, a0);")
-            body.append(f"    vec4 q1_{i} = hf_layer4(hf_P{i}, l1, a1);")
+            body.append(f"    vec4 q0_{i} = hf_layer4(hf_P{i}, HF_LAYER{i}[j], HF_ATLAS{i}, a0);")
+            body.append(f"    vec4 q1_{i} = hf_layer4(hf_P{i}, HF_LAYER{i}[j + 1], HF_ATLAS{i}, a1);")
             c0 += [f"q0_{i}.{c}" for c in "xyzw"]
             c1 += [f"q1_{i}.{c}" for c in "xyzw"]
     if mixed:  # hg0, hg1: whether each layer stores the harmonic (then its channels after K - 1 products are M's)
@@ -158,7 +157,8 @@ def source(bake: Bake, language: str = "glsl", *, y_up: bool = False, flip_v: bo
         elif harm:
             body.append(f"    vec3 p{k} = mix(vec3({', '.join(c0[3 * k:3 * k + 3])}), vec3({', '.join(c1[3 * k:3 * k + 3])}), t);")
         else:
-            body.append(f"    vec3 p{k} = mix(hf_layer(hf_P{k}, l0, a0), hf_layer(hf_P{k}, l1, a1), t);")
+            body.append(f"    vec3 p{k} = mix(hf_layer(hf_P{k}, HF_LAYER{k}[j], HF_ATLAS{k}, a0), "
+                        f"hf_layer(hf_P{k}, HF_LAYER{k}[j + 1], HF_ATLAS{k}, a1), t);")
         body.append(f"    I_A += p{k} * {chans[2 * k]};")
         body.append(f"    I_B += p{k} * {chans[2 * k + 1]};")
     if harm:
@@ -182,6 +182,11 @@ def source(bake: Bake, language: str = "glsl", *, y_up: bool = False, flip_v: bo
     ]
     text = "\n".join(lines + body + entry) + "\n"
     return _to_hlsl(text, bake) if language == "hlsl" else text
+
+
+def _layer_rows(atlas, shift, vec4: str, f) -> str:
+    """The constants (x0, y0, face size, axis shift) of every layer's block in one map's atlas."""
+    return ", ".join(f"{vec4}({f(x)}, {f(y)}, {f(s)}, {f(sh)})" for (x, y), s, sh in zip(atlas.offsets, atlas.sizes, shift))
 
 
 def _harmonic_functions(language: str) -> list[str]:
@@ -317,8 +322,8 @@ def _to_hlsl(text: str, bake: Bake) -> str:
 
 def _names(bake: Bake) -> list[tuple[str, str]]:
     """``(texture name, comment)`` of every texture, in binding order (P<k>, E<d>, W<t>)."""
-    pl, atlas = bake.plan, bake.atlas
-    return ([(f"hf_P{k}", f"P{k}: {pl.layers} layers in a {atlas.width} x {atlas.height} atlas") for k in range(pl.maps)]
+    pl, atlases = bake.plan, bake.atlases
+    return ([(f"hf_P{k}", f"P{k}: {pl.layers} layers in a {a.width} x {a.height} atlas") for k, a in enumerate(atlases)]
             + [(f"hf_E{d}", f"E{d}: cube {pl.diffuse_size}") for d in range(pl.diffuse)]
             + [(f"hf_W{t}", f"W{t}: {pl.layers} x {pl.nv_size} weight table") for t in range(pl.tables)])
 
@@ -329,7 +334,7 @@ def _metal_or_wgsl(bake: Bake, language: str, *, y_up: bool, flip_v: bool) -> st
     ``HomofacIblTerms`` struct; ``HOMOFAC_Y_UP`` / ``HOMOFAC_FLIP_V`` constants): the same model as the GLSL."""
     msl = language == "msl"
     lang = L.get(language)
-    pl, atlas = bake.plan, bake.atlas
+    pl, atlases = bake.plan, bake.atlases
     K, D, layers, X, se = pl.terms, pl.diffuse, pl.layers, pl.nv_size, pl.diffuse_size
     f = (lambda x: L.float_literal(float(x), "f")) if msl else _f
     v2, v3, v4 = ("float2", "float3", "float4") if msl else ("vec2<f32>", "vec3<f32>", "vec4<f32>")
@@ -342,7 +347,6 @@ def _metal_or_wgsl(bake: Bake, language: str, *, y_up: bool, flip_v: bool) -> st
         f"// {lang.title}. Generated from the bake's records; the interface is pinned (docs/format.md).",
         "// Frame: homofac world, +z up; n, v point away from the surface (v towards the viewer).",
     ]
-    rows = [f"{v4}({f(x)}, {f(y)}, {f(sz)}, {f(sh)})" for (x, y), sz, sh in zip(atlas.offsets, atlas.sizes, bake.shift)]
     if msl:
         lines.append(lang.header)
         lines += ["#define HOMOFAC_Y_UP"] if y_up else []
@@ -354,8 +358,9 @@ def _metal_or_wgsl(bake: Bake, language: str, *, y_up: bool, flip_v: bool) -> st
                   f"constant int HF_LAYERS = {layers};", *([f"constant int HF_H0 = {h0};  // the first layer storing the harmonic (mixed)"] if mixed else []),
                   f"constant float HF_RHO0 = {f(bake.roughness[0])};",
                   f"constant float HF_RHO1 = {f(bake.roughness[-1])};",
-                  f"constant float2 HF_ATLAS = float2({f(atlas.width)}, {f(atlas.height)});",
-                  f"constant float4 HF_LAYER[{layers}] = {{{', '.join(rows)}}};  // x0, y0, face size, axis shift",
+                  *(line for i, a in enumerate(atlases) for line in (
+                      f"constant float2 HF_ATLAS{i} = float2({f(a.width)}, {f(a.height)});  // P{i}'s atlas",
+                      f"constant float4 HF_LAYER{i}[{layers}] = {{{_layer_rows(a, bake.shift, v4, f)}}};  // x0, y0, face size, axis shift")),
                   "#ifdef HOMOFAC_FLIP_V", "float hf_flip_v(float v) { return 1.0f - v; }", "#else",
                   "float hf_flip_v(float v) { return v; }", "#endif", cube_src,
                   "float3 hf_read(texture2d<float> t, float2 uv) { return t.sample(hf_sampler, float2(uv.x, hf_flip_v(uv.y)), level(0.0f)).rgb; }"]
@@ -370,8 +375,10 @@ def _metal_or_wgsl(bake: Bake, language: str, *, y_up: bool, flip_v: bool) -> st
         lines += [f"const HF_LAYERS: i32 = {layers};", *([f"const HF_H0: i32 = {h0};  // the first layer storing the harmonic (mixed)"] if mixed else []),
                   f"const HF_RHO0: f32 = {f(bake.roughness[0])};",
                   f"const HF_RHO1: f32 = {f(bake.roughness[-1])};",
-                  f"const HF_ATLAS: vec2<f32> = vec2<f32>({f(atlas.width)}, {f(atlas.height)});",
-                  f"var<private> HF_LAYER: array<vec4<f32>, {layers}> = array<vec4<f32>, {layers}>({', '.join(rows)});  // x0, y0, face size, axis shift",
+                  *(line for i, a in enumerate(atlases) for line in (
+                      f"const HF_ATLAS{i}: vec2<f32> = vec2<f32>({f(a.width)}, {f(a.height)});  // P{i}'s atlas",
+                      f"var<private> HF_LAYER{i}: array<vec4<f32>, {layers}> = array<vec4<f32>, {layers}>({_layer_rows(a, bake.shift, v4, f)});"
+                      "  // x0, y0, face size, axis shift")),
                   "fn hf_flip_v(v: f32) -> f32 { return select(v, 1.0 - v, HOMOFAC_FLIP_V); }", cube_src,
                   "struct HomofacIblTerms { I_d: vec3<f32>, I_A: vec3<f32>, I_B: vec3<f32> }"]
     one, half, zero = f(1.0), f(0.5), f(0.0)
@@ -396,7 +403,7 @@ def _metal_or_wgsl(bake: Bake, language: str, *, y_up: bool, flip_v: bool) -> st
     # layer and cube reads: one helper each (the GLSL's), per texture in WGSL (textures are not function arguments there)
     def layer_body(tname):
         return ([let("s", ft, "layer.z")] + coords +
-                [let("uv", v2, f"{v2}(layer.x + floor(fuv.x + {half}) * s + cu + {half}, layer.y + cv + {half}) / HF_ATLAS"),
+                [let("uv", v2, f"{v2}(layer.x + floor(fuv.x + {half}) * s + cu + {half}, layer.y + cv + {half}) / atlas"),
                  f"return {read(tname, 'uv')};"])
 
     def cube_body(tname):
@@ -410,18 +417,18 @@ def _metal_or_wgsl(bake: Bake, language: str, *, y_up: bool, flip_v: bool) -> st
         return body[:-1] + [body[-1].replace(".rgb;", ";")]
 
     if msl:
-        lines += fn("hf_layer", [("t", "texture2d<float>"), ("layer", v4), ("d", v3)], v3, layer_body("t"))
+        lines += fn("hf_layer", [("t", "texture2d<float>"), ("layer", v4), ("atlas", v2), ("d", v3)], v3, layer_body("t"))
         lines += fn("hf_cube", [("t", "texture2d<float>"), ("s", ft), ("d", v3)], v3, cube_body("t"))
         if harm:
-            lines += fn("hf_layer4", [("t", "texture2d<float>"), ("layer", v4), ("d", v3)], v4,
+            lines += fn("hf_layer4", [("t", "texture2d<float>"), ("layer", v4), ("atlas", v2), ("d", v3)], v4,
                         [b.replace(f"return {read('t', 'uv')};", "return t.sample(hf_sampler, float2(uv.x, hf_flip_v(uv.y)), level(0.0f));")
                          for b in layer_body("t")])
     else:
         for k in range(pl.maps):
             if harm:
-                lines += fn(f"hf_layer4_P{k}", [("layer", v4), ("d", v3)], v4, layer4_body(f"hf_P{k}"))
+                lines += fn(f"hf_layer4_P{k}", [("layer", v4), ("atlas", v2), ("d", v3)], v4, layer4_body(f"hf_P{k}"))
             else:
-                lines += fn(f"hf_layer_P{k}", [("layer", v4), ("d", v3)], v3, layer_body(f"hf_P{k}"))
+                lines += fn(f"hf_layer_P{k}", [("layer", v4), ("atlas", v2), ("d", v3)], v3, layer_body(f"hf_P{k}"))
         for d in range(D):
             lines += fn(f"hf_cube_E{d}", [("s", ft), ("d", v3)], v3, cube_body(f"hf_E{d}"))
     if harm:
@@ -444,7 +451,7 @@ def _metal_or_wgsl(bake: Bake, language: str, *, y_up: bool, flip_v: bool) -> st
              let("rho", ft, "clamp(roughness, HF_RHO0, HF_RHO1)"),
              let("u", ft, f"clamp({ft}(HF_LAYERS - 1) * log(rho / HF_RHO0) / log(HF_RHO1 / HF_RHO0), {zero}, {ft}(HF_LAYERS - 1))"),
              let("j", it, f"min({it}(floor(u)), HF_LAYERS - 2)"), let("t", ft, f"u - {ft}(j)"),
-             let("l0", v4, "HF_LAYER[j]"), let("l1", v4, "HF_LAYER[j + 1]"),
+             let("l0", v4, "HF_LAYER0[j]"), let("l1", v4, "HF_LAYER0[j + 1]"),
              let("a0", v3, f"normalize(mix(r, n, {bl('l0.w')}))"), let("a1", v3, f"normalize(mix(r, n, {bl('l1.w')}))"),
              let("wuv", v2, f"{v2}((clamp(x * {f(X)} - {half}, {zero}, {f(X - 1)}) + {half}) / {f(X)}, (u + {half}) / {f(layers)})")]
     chans = []
@@ -455,9 +462,10 @@ def _metal_or_wgsl(bake: Bake, language: str, *, y_up: bool, flip_v: bool) -> st
     if harm:
         c0, c1 = [], []
         for i in range(pl.maps):
-            for lay, a, cs in (("l0", "a0", c0), ("l1", "a1", c1)):
-                q = f"q{lay[1]}_{i}"
-                body.append(let(q, v4, f"hf_layer4(hf.hf_P{i}, {lay}, {a})" if msl else f"hf_layer4_P{i}({lay}, {a})"))
+            for jj, a, cs in (("j", "a0", c0), ("j + 1", "a1", c1)):
+                q = f"q{a[1]}_{i}"
+                args = f"HF_LAYER{i}[{jj}], HF_ATLAS{i}, {a}"
+                body.append(let(q, v4, f"hf_layer4(hf.hf_P{i}, {args})" if msl else f"hf_layer4_P{i}({args})"))
                 cs += [f"{q}.{c}" for c in "xyzw"]
     if mixed:  # hg0, hg1: whether each layer stores the harmonic (then its channels after K - 1 products are M's)
         for g, jj in (("hg0", "j"), ("hg1", "j + 1")):
@@ -472,9 +480,11 @@ def _metal_or_wgsl(bake: Bake, language: str, *, y_up: bool, flip_v: bool) -> st
             blend = f"mix({v3}({', '.join(c0[3 * k:3 * k + 3])}), {v3}({', '.join(c1[3 * k:3 * k + 3])}), {bl('t')})"
             body.append(let(f"p{k}", v3, blend))
         elif msl:
-            body.append(let(f"p{k}", v3, f"mix(hf_layer(hf.hf_P{k}, l0, a0), hf_layer(hf.hf_P{k}, l1, a1), float3(t))"))
+            body.append(let(f"p{k}", v3, f"mix(hf_layer(hf.hf_P{k}, HF_LAYER{k}[j], HF_ATLAS{k}, a0), "
+                                         f"hf_layer(hf.hf_P{k}, HF_LAYER{k}[j + 1], HF_ATLAS{k}, a1), float3(t))"))
         else:
-            body.append(let(f"p{k}", v3, f"mix(hf_layer_P{k}(l0, a0), hf_layer_P{k}(l1, a1), t)"))
+            body.append(let(f"p{k}", v3, f"mix(hf_layer_P{k}(HF_LAYER{k}[j], HF_ATLAS{k}, a0), "
+                                         f"hf_layer_P{k}(HF_LAYER{k}[j + 1], HF_ATLAS{k}, a1), t)"))
         body.append(f"{out[1]} = {out[1]} + p{k} * {chans[2 * k]};")
         body.append(f"{out[2]} = {out[2]} + p{k} * {chans[2 * k + 1]};")
     if harm:
@@ -548,9 +558,9 @@ def texture_arrays(bake: Bake) -> list[tuple[str, object]]:
     pl = bake.plan
     if pl.harmonic:
         layers = [_specular_layer(bake, j) for j in range(pl.layers)]
-        out = [(f"hf_P{i}", assemble(bake.atlas, [layer[:, :, 4 * i:4 * i + 4] for layer in layers], 4)) for i in range(pl.maps)]
+        out = [(f"hf_P{i}", assemble(a, [layer[:, :, 4 * i:4 * i + 4] for layer in layers], 4)) for i, a in enumerate(bake.atlases)]
     else:
-        out = [(f"hf_P{k}", assemble(bake.atlas, [np.asarray(p)[:, :, k] for p in bake.P], 3)) for k in range(pl.terms)]
+        out = [(f"hf_P{k}", assemble(a, [np.asarray(p)[:, :, k] for p in bake.P], 3)) for k, a in enumerate(bake.atlases)]
     e = np.asarray(bake.E, np.float32) if pl.diffuse_basis == "texture" else None
     out += [(f"hf_E{d}", np.ascontiguousarray(e[:, :, d])) for d in range(pl.diffuse if pl.diffuse_basis == "texture" else 0)]
     w = np.asarray(bake.W, np.float32)
