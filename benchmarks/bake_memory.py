@@ -12,10 +12,9 @@ cells are the benchmark's) against the same converged reference:
 * ``h/F``: likewise the harmonic's tensor maps (no smaller than 8);
 * ``e/F``: the diffuse maps E_d at 1/F of their face;
 * ``p1L/F``: P_1 (and P_2) of layer L at 1/F of its face;
-* ``gauge``: the tensor stored as 3 channels: M' = M + a w^T + w a^T with w chosen so that M''s row and column
-  of the texel's cube-face major axis vanish (t^T M' t = t^T M t for every t orthogonal to a), the other
-  2 x 2 block stored (M'_uu, M'_vv, M'_uv) and read as t_u^2 M'_uu + t_v^2 M'_vv + 2 t_u t_v M'_uv with the
-  read direction's face. Then P_1's RGB and the tensor or P_2's RGB fit in two RGB maps.
+* ``gauge``: the memory of the layout with the tensor in 3 channels (homofac.bake.gauge, what a bake stores from
+  schema 5 on: every variant reads the bake's tensors in that gauge) and P_1's RGB and the tensor or P_2's RGB in
+  two RGB maps, each its own atlas; without it, the memory of the one-atlas RGBA layout of schema 4.
 
 Every variant is the bake's own read (homofac.bake.model) with those maps swapped: ``base`` equals
 ``Bake.evaluate`` (checked). The memory of each layout (half floats, RGB per map, shelf-packed atlases, E_d and
@@ -44,7 +43,8 @@ import bake_accuracy as ba
 import homofac as hf
 from homofac.bake import build
 from homofac.bake.atlas import pack
-from homofac.bake.model import _cube, _line, harmonic_colour, tensor_read
+from homofac.bake.gauge import face_gauge, gauge_read
+from homofac.bake.model import TANGENT_FLOOR, _cube, _line, harmonic_colour, tensor_read
 from homofac.bake.sources import source_terms
 from homofac.io.exr import read_exr
 from homofac.light.integrals import material_radiance
@@ -63,36 +63,6 @@ def down(t, f: int):
     s = t.shape[0]
     c = t.shape[2:]
     return t.reshape(s // f, f, 6 * s // f, f, *c).mean(axis=(1, 3))
-
-
-def gauge(m5, s: int) -> np.ndarray:
-    """(S, 6S, 3): the tensor maps (M_xx, M_yy, M_xy, M_xz, M_yz) in the face gauge of the module docstring."""
-    a = np.asarray(mappers.texel_directions("cube", s), np.float64).reshape(-1, 3)
-    m5 = np.asarray(m5, np.float64).reshape(-1, 5)
-    xx, yy, xy, xz, yz = m5.T
-    M = np.stack([np.stack([xx, xy, xz], -1), np.stack([xy, yy, yz], -1), np.stack([xz, yz, -xx - yy], -1)], 1)
-    major = np.argmax(np.abs(a), 1)
-    idx = np.arange(len(a))
-    am = a[idx, major]
-    w = np.zeros_like(a)
-    w[idx, major] = -M[idx, major, major] / (2 * am)
-    for j in range(3):
-        o = major != j
-        w[o, j] = -(M[o, major[o], j] + w[o, major[o]] * a[o, j]) / am[o]
-    Mp = M + a[:, :, None] * w[:, None, :] + w[:, :, None] * a[:, None, :]
-    minor = np.array([[1, 2], [0, 2], [0, 1]])[major]
-    u, v = minor[:, 0], minor[:, 1]
-    return np.stack([Mp[idx, u, u], Mp[idx, v, v], Mp[idx, u, v]], -1).reshape(s, 6 * s, 3).astype(np.float32)
-
-
-def gauge_read(m3, a, t):
-    """t_u^2 M'_uu + t_v^2 M'_vv + 2 t_u t_v M'_uv with (u, v) the minor axes of a's cube face (ties to x, y, z)."""
-    ab = jnp.abs(a)
-    fx = (ab[:, 0] >= ab[:, 1]) & (ab[:, 0] >= ab[:, 2])
-    fy = ~fx & (ab[:, 1] >= ab[:, 2])
-    tu = jnp.where(fx, t[:, 1], t[:, 0])
-    tv = jnp.where(fx | fy, t[:, 2], t[:, 1])
-    return tu * tu * m3[:, 0] + tv * tv * m3[:, 1] + 2 * tu * tv * m3[:, 2]
 
 
 def bake_with_half_maps(name, preset):
@@ -148,7 +118,7 @@ def check_gauge(s: int = 8, seed: int = 0) -> float:
     t /= np.linalg.norm(t, axis=1, keepdims=True)
     m5 = np.stack([M[:, 0, 0], M[:, 1, 1], M[:, 0, 1], M[:, 0, 2], M[:, 1, 2]], -1)
     exact = np.einsum("ni,nij,nj->n", t, M, t)
-    got = np.asarray(gauge_read(jnp.asarray(gauge(m5, s).reshape(-1, 3), jnp.float32), jnp.asarray(a, jnp.float32),
+    got = np.asarray(gauge_read(jnp.asarray(face_gauge(m5, s).reshape(-1, 3), jnp.float32), jnp.asarray(a, jnp.float32),
                                 jnp.asarray(t, jnp.float32)))
     return float(np.max(np.abs(got - exact)) / np.max(np.abs(exact)))
 
@@ -170,7 +140,7 @@ def terms(b, n, v, rho, P1, P2, H, gauged=False, E=None):
             p2 = p2 + hat * _cube(jnp.asarray(P2[j]), a).reshape(-1, 3)
         if H[j] is not None:
             tg = n - jnp.sum(n * a, -1, keepdims=True) * a
-            tg = tg / jnp.maximum(jnp.linalg.norm(tg, axis=-1, keepdims=True), 1e-6)
+            tg = tg / jnp.maximum(jnp.linalg.norm(tg, axis=-1, keepdims=True), TANGENT_FLOOR)
             m = _cube(jnp.asarray(H[j]), a).reshape(len(a), -1)
             hb = hb + hat[:, 0] * (gauge_read(m, a, tg) if gauged else tensor_read(m, tg))
     W = jnp.asarray(b.W, jnp.float32)
@@ -253,8 +223,9 @@ def variant(b, spec: str, halves=None):
             P2[j] = None if P2[j] is None else down(P2[j], f)
         else:
             raise SystemExit(f"unknown variant part {part!r}")
-    if gauged:
-        H = [None if h is None else gauge(h, h.shape[0]) for h in H]
+    if H and any(h is not None and h.shape[-1] == 5 for h in H):  # a bake of the 5-channel tensor (schema <= 4)
+        H = [None if h is None else face_gauge(h, h.shape[0]) for h in H]
+    read_gauge = any(h is not None for h in H)  # the tensors are in the face gauge (homofac.bake.gauge)
     sizes_a = [p.shape[0] for p in P1]
     sizes_b = [max(p.shape[0] if p is not None else 0, h.shape[0] if h is not None else 0) or None for p, h in zip(P2, H)]
     if gauged:  # two RGB maps: A = P_1, B = P_2 or the 3-channel tensor, each map its own layer sizes
@@ -264,14 +235,14 @@ def variant(b, spec: str, halves=None):
         mem["B"] = mem["A"]
         mem["total"] += mem["A"]
         mem["ratio"] = mem["total"] / GOAL
-    return P1, P2, H, gauged, E, mem
+    return P1, P2, H, read_gauge, E, mem
 
 
 def breakdown(preset: str = "balanced", max_size: int = 64) -> list[dict]:
-    """Per own block of the current layout (every map one atlas, RGBA with the harmonic): the layers it serves,
-    roughness, face, texels, the channels it stores over all maps and the ones that hold data (P_k's RGB in the
-    layers that keep k products, the tensor's 5 in the harmonic layers), its half bytes; then the packing's unused
-    texels, E_d and the tables."""
+    """Per own block of the current layout (RGB maps, every map in the shelf packer's layout): the layers it
+    serves, roughness, face, texels, the channels it stores over all maps and the ones that hold data (P_k's RGB
+    in the layers that keep k products, the tensor's 3 in the harmonic layers), its half bytes; then the
+    packing's unused texels, E_d and the tables."""
     from homofac.bake.build import layer_size, sharp
     from homofac.bake.plan import plan as make_plan
     pl = make_plan(preset, max_size=max_size)
@@ -280,12 +251,12 @@ def breakdown(preset: str = "balanced", max_size: int = 64) -> list[dict]:
     shared = [sharp(x, max_size) for x in r]
     blocks = tuple(int(np.argmax(shared)) if shared[j] else j for j in range(pl.layers))
     at = pack(sizes, blocks)
-    ch = pl.maps * (4 if pl.harmonic else 3)
+    ch = pl.maps * 3  # RGB maps (the tensor in its 3 face-gauge channels), one atlas layout for every map
     kept, harm = pl.layer_terms(), pl.harmonic_layers()
     rows, used_texels = [], 0
     for j in sorted(set(blocks)):
         serves = [i for i in range(pl.layers) if blocks[i] == j]
-        data = 3 if shared[j] else 3 * kept[j] + (5 if j in harm else 0)
+        data = 3 if shared[j] else 3 * kept[j] + (3 if j in harm else 0)
         t = 6 * sizes[j] ** 2
         used_texels += t
         rows.append({"layers": serves, "roughness": [round(r[i], 3) for i in serves], "face": sizes[j], "texels": t,

@@ -45,6 +45,7 @@ from .bake import Bake, BakePlan
 from .bake import register_writer as register_bake_writer
 from .bake import shader as bake_shader
 from .bake.atlas import Atlas, assemble, blocks_of, check_layout, pack, split
+from .bake.gauge import face_gauge
 from .bake.sources import Source
 from .fit.result import Result, register_writer
 from .io.exr import read_exr, write_exr
@@ -1037,16 +1038,19 @@ def load_bake(d, *, max_bytes: int = 1 << 28) -> Bake:
     raw = read_document(d, BAKE_JSON, BAKE_FORMAT, "a homofac bake")
     doc = validate(BakeDocument, raw, str(f))
     pl = BakePlan(**doc.plan.model_dump())
-    if len(doc.layers) != pl.layers or doc.lookups != pl.lookups:
+    rgba = doc.schema_version < 5 and pl.harmonic > 0  # schemas 3-4: the tensor's 5 channels in RGBA maps
+    maps = _rgba_maps(pl) if rgba else pl.maps
+    if len(doc.layers) != pl.layers or doc.lookups != pl.lookups + 2 * (maps - pl.maps):
         raise HomofacError(f"{f}: the layers or lookups do not match the plan")
     by_kind = {k: [t for t in doc.textures if t.kind == k] for k in ("prefiltered", "diffuse", "weights")}
     atlases, blocks = _bake_layouts(doc, by_kind["prefiltered"], f)
     sh9 = pl.diffuse_basis == "sh9"
     if (len(by_kind["prefiltered"]), len(by_kind["diffuse"]), len(by_kind["weights"])) != (
-            pl.maps, 0 if sh9 else pl.diffuse, pl.tables):
+            maps, 0 if sh9 else pl.diffuse, pl.tables):
         raise HomofacError(f"{f}: texture count does not match the plan")
-    if any(len(t.channels) != (4 if pl.harmonic else 3) for t in by_kind["prefiltered"]):
-        raise HomofacError(f"{f}: the specular maps' channels do not match the plan (RGBA with the harmonic, else RGB)")
+    if any(len(t.channels) != (4 if rgba else 3) for t in by_kind["prefiltered"]):
+        raise HomofacError(f"{f}: the specular maps' channels do not match the plan "
+                           f"({'RGBA: schema 3-4 with the harmonic' if rgba else 'RGB'})")
     sh = None
     if sh9:
         sh = np.asarray(doc.diffuse_sh9 if doc.diffuse_sh9 is not None else [], np.float64)
@@ -1054,7 +1058,7 @@ def load_bake(d, *, max_bytes: int = 1 << 28) -> Bake:
             raise HomofacError(f"{f}: diffuse_sh9 must hold {pl.diffuse} x 9 x 3 finite coefficients (plan diffuse_basis sh9)")
 
     def read(t: BakeTextureEntry, shape) -> np.ndarray:
-        a = read_exr(_confined(d, t.file, "texture"), max_bytes=max_bytes, alpha=t.kind == "prefiltered" and pl.harmonic > 0)
+        a = read_exr(_confined(d, t.file, "texture"), max_bytes=max_bytes, alpha=t.kind == "prefiltered" and rgba)
         if a.shape[:2] != tuple(shape):
             raise HomofacError(f"{d / t.file}: shape {list(a.shape[:2])} does not match {BAKE_JSON} ({list(shape)})")
         if not np.all(np.isfinite(a)):
@@ -1063,7 +1067,13 @@ def load_bake(d, *, max_bytes: int = 1 << 28) -> Bake:
 
     ps = [split(a, read(t, (a.height, a.width))) for a, t in zip(atlases, by_kind["prefiltered"])]
     H: tuple = ()
-    if pl.harmonic and pl.mixed:  # RGBA maps: K - 1 products' RGB, then P_K's RGB or (harmonic layers) the tensor
+    harm = set(pl.harmonic_layers())
+    if pl.harmonic and not rgba:  # RGB maps: P_k's RGB; the tensor's face gauge in map K (mixed: K - 1, harmonic layers)
+        g = pl.terms - 1 if pl.mixed else pl.terms
+        P = tuple(np.stack([ps[k][j][..., :3] if k < g or j not in harm or not pl.mixed else np.zeros_like(ps[k][j][..., :3])
+                            for k in range(pl.terms)], axis=2) for j in range(pl.layers))
+        H = tuple(np.ascontiguousarray(ps[g][j][..., :3]) if j in harm else None for j in range(pl.layers))
+    elif pl.harmonic and pl.mixed:  # RGBA maps: K - 1 products' RGB, then P_K's RGB or (harmonic layers) the tensor
         flat = [np.concatenate([p[j][..., :4] for p in ps], axis=-1) for j in range(pl.layers)]
         harm, k1 = set(pl.harmonic_layers()), 3 * pl.terms - 3
         P = tuple(np.concatenate([a[..., :k1], np.zeros_like(a[..., :3]) if j in harm else a[..., k1:k1 + 3]], -1)
@@ -1076,6 +1086,8 @@ def load_bake(d, *, max_bytes: int = 1 << 28) -> Bake:
                   for a, rho in zip(flat, (layer.roughness for layer in doc.layers)))
     else:
         P = tuple(np.stack([p[j][..., :3] for p in ps], axis=2) for j in range(pl.layers))
+    if rgba:  # schemas 3-4 store (M_xx, M_yy, M_xy, M_xz, M_yz): read in the face gauge, as a bake stores it now
+        H = tuple(None if h is None else face_gauge(h, h.shape[0]) for h in H)
     s = doc.diffuse_size
     E = None if sh9 else np.stack([read(t, (s, 6 * s))[..., :3] for t in by_kind["diffuse"]], axis=2)
     W = np.concatenate([read(t, (pl.layers, doc.nv_size))[..., :3] for t in by_kind["weights"]], axis=-1)[:, :, :pl.channels]
@@ -1083,6 +1095,12 @@ def load_bake(d, *, max_bytes: int = 1 << 28) -> Bake:
                 dict(raw.get("info") or {}), sh=None if sh is None else sh.astype(np.float32), blocks=blocks,
                 sources=tuple(Source(tuple(e.direction), tuple(e.power), e.radius) for e in doc.sources), H=H,
                 layouts=atlases)
+
+
+def _rgba_maps(pl: BakePlan) -> int:
+    """The specular map count of a bake.json of schema 3-4 with the harmonic: RGBA maps holding the products' RGB
+    and the tensor's 5 channels, ceil((3 K + 5) / 4) (mixed: ceil((3 K + 2) / 4))."""
+    return math.ceil((3 * pl.terms + (2 if pl.mixed else 5)) / 4)
 
 
 def _bake_layouts(doc: BakeDocument, maps: list, f: Path) -> tuple[tuple[Atlas, ...], tuple[int, ...]]:

@@ -23,7 +23,7 @@ from ..light.sh import SH9_NORM
 from ..shader import generate
 from ..shader import languages as L
 from .atlas import assemble
-from .model import Bake
+from .model import TANGENT_FLOOR, Bake
 
 LANGUAGES = ("glsl", "glsl_es", "hlsl", "msl", "wgsl")
 
@@ -61,7 +61,7 @@ def source(bake: Bake, language: str = "glsl", *, y_up: bool = False, flip_v: bo
     lines += [L.table_source(L.get(language), n, v) for n, v in tables.items()]
     harm = bool(pl.harmonic)
     for k in range(pl.maps):
-        what = f" (RGBA: {', '.join(specular_channels(bake)[k])})" if harm else ""
+        what = f" ({', '.join(specular_channels(bake)[k])})" if harm else ""
         lines.append(f"uniform {prec}sampler2D hf_P{k};  // P{k}.exr: {layers} layers in a {atlases[k].width} x {atlases[k].height} atlas{what}")
     sh9 = pl.diffuse_basis == "sh9"
     for d in range(D if not sh9 else 0):
@@ -99,16 +99,6 @@ def source(bake: Bake, language: str = "glsl", *, y_up: bool = False, flip_v: bo
         "}",
     ]
     if harm:
-        lines += [
-            "vec4 hf_layer4(sampler2D t, vec4 layer, vec2 atlas, vec3 d) {  // hf_layer's RGBA",
-            "    vec3 fuv = hf_map_cube(d);",
-            "    float s = layer.z;",
-            "    float cu = clamp(fuv.y * s - 0.5, 0.0, s - 1.0);",
-            "    float cv = clamp(fuv.z * s - 0.5, 0.0, s - 1.0);",
-            "    vec2 uv = vec2(layer.x + floor(fuv.x + 0.5) * s + cu + 0.5, layer.y + cv + 0.5) / atlas;",
-            "    return textureLod(t, vec2(uv.x, hf_flip_v(uv.y)), 0.0);",
-            "}",
-        ]
         lines += _harmonic_functions(language)
     if sh9:
         lines += [_sh9_function(d, np.asarray(bake.sh)[d]) for d in range(D)]
@@ -139,32 +129,24 @@ def source(bake: Bake, language: str = "glsl", *, y_up: bool = False, flip_v: bo
     for t in range(pl.tables):
         body.append(f"    vec3 w{t} = textureLod(hf_W{t}, wuv, 0.0).rgb;")
         chans += [f"w{t}.{c}" for c in "rgb"]
-    if harm:
-        c0, c1 = [], []
-        for i in range(pl.maps):
-            body.append(f"    vec4 q0_{i} = hf_layer4(hf_P{i}, HF_LAYER{i}[j], HF_ATLAS{i}, a0);")
-            body.append(f"    vec4 q1_{i} = hf_layer4(hf_P{i}, HF_LAYER{i}[j + 1], HF_ATLAS{i}, a1);")
-            c0 += [f"q0_{i}.{c}" for c in "xyzw"]
-            c1 += [f"q1_{i}.{c}" for c in "xyzw"]
+    for i in range(pl.maps):  # each map at both layers (P_k's RGB, or the tensor's face-gauge channels)
+        body.append(f"    vec3 q0_{i} = hf_layer(hf_P{i}, HF_LAYER{i}[j], HF_ATLAS{i}, a0);")
+        body.append(f"    vec3 q1_{i} = hf_layer(hf_P{i}, HF_LAYER{i}[j + 1], HF_ATLAS{i}, a1);")
     if mixed:  # hg0, hg1: whether each layer stores the harmonic (then its channels after K - 1 products are M's)
         body.append("    float hg0 = j >= HF_H0 ? 1.0 : 0.0;")
         body.append("    float hg1 = j + 1 >= HF_H0 ? 1.0 : 0.0;")
-    m0 = 3 * K - 3 if mixed else 3 * K  # the tensor's first channel
+    g = K - 1 if mixed else K  # the map holding the tensor
     for k in range(K):
-        if harm and mixed and k == K - 1:  # each layer's own meaning: P_K below the harmonic layers, 0 in them
-            body.append(f"    vec3 p{k} = mix((1.0 - hg0) * vec3({', '.join(c0[3 * k:3 * k + 3])}), "
-                        f"(1.0 - hg1) * vec3({', '.join(c1[3 * k:3 * k + 3])}), t);")
-        elif harm:
-            body.append(f"    vec3 p{k} = mix(vec3({', '.join(c0[3 * k:3 * k + 3])}), vec3({', '.join(c1[3 * k:3 * k + 3])}), t);")
+        if mixed and k == K - 1:  # each layer's own meaning: P_K below the harmonic layers, 0 in them
+            body.append(f"    vec3 p{k} = mix((1.0 - hg0) * q0_{k}, (1.0 - hg1) * q1_{k}, t);")
         else:
-            body.append(f"    vec3 p{k} = mix(hf_layer(hf_P{k}, HF_LAYER{k}[j], HF_ATLAS{k}, a0), "
-                        f"hf_layer(hf_P{k}, HF_LAYER{k}[j + 1], HF_ATLAS{k}, a1), t);")
+            body.append(f"    vec3 p{k} = mix(q0_{k}, q1_{k}, t);")
         body.append(f"    I_A += p{k} * {chans[2 * k]};")
         body.append(f"    I_B += p{k} * {chans[2 * k + 1]};")
     if harm:
         gs = ("hg0 * ", "hg1 * ") if mixed else ("", "")
-        body.append(f"    float hh = mix({gs[0]}hf_tensor({', '.join(c0[m0:m0 + 5])}, hf_tangent(n, a0)), "
-                    f"{gs[1]}hf_tensor({', '.join(c1[m0:m0 + 5])}, hf_tangent(n, a1)), t);")
+        body.append(f"    float hh = mix({gs[0]}hf_gauge(q0_{g}, a0, hf_tangent(n, a0)), "
+                    f"{gs[1]}hf_gauge(q1_{g}, a1, hf_tangent(n, a1)), t);")
         body.append(f"    I_A = hf_harmonic(I_A, hh * {chans[pl.harmonic_channel]});")
         body.append(f"    I_B = hf_harmonic(I_B, hh * {chans[pl.harmonic_channel + 1]});")
     for d in range(D):
@@ -190,9 +172,10 @@ def _layer_rows(atlas, shift, vec4: str, f) -> str:
 
 
 def _harmonic_functions(language: str) -> list[str]:
-    """``hf_tangent(n, a)`` (the unit tangent from the axis a towards n), ``hf_tensor(xx, yy, xy, xz, yz, t)``
-    (t^T M t, M_zz = -M_xx - M_yy) and ``hf_harmonic(i0, h)`` (i0 max(0, 1 + h / Y(i0)): the harmonic's
-    luminance coloured as the isotropic part): :func:`homofac.bake.model.tensor_read`, ``harmonic_colour``."""
+    """``hf_tangent(n, a)`` (the unit tangent from the axis a towards n), ``hf_gauge(m, a, t)`` (t^T M t from the
+    face-gauge channels m = (M'_uu, M'_vv, M'_uv), (u, v) the minor axes of a's cube face) and ``hf_harmonic(i0,
+    h)`` (i0 max(0, 1 + h / Y(i0)): the harmonic's luminance coloured as the isotropic part):
+    :func:`homofac.bake.gauge.gauge_read`, :func:`homofac.bake.model.harmonic_colour`."""
     msl, wgsl = language == "msl", language == "wgsl"
     v3, ft = ("float3", "float") if msl else (("vec3<f32>", "f32") if wgsl else ("vec3", "float"))
     f = (lambda x: L.float_literal(float(x), "f")) if msl else _f
@@ -209,10 +192,15 @@ def _harmonic_functions(language: str) -> list[str]:
     return [
         head("hf_tangent", [("n", v3), ("a", v3)], v3) + "  // unit tangent from the axis a towards n",
         "    " + let("g", v3, "n - dot(n, a) * a"),
-        f"    return g / max(sqrt(dot(g, g)), {f(1e-6)});",
+        f"    return g / max(sqrt(dot(g, g)), {f(TANGENT_FLOOR)});",
         "}",
-        head("hf_tensor", [(c, ft) for c in ("xx", "yy", "xy", "xz", "yz")] + [("t", v3)], ft) + "  // t^T M t, M_zz = -M_xx - M_yy",
-        f"    return xx * (t.x * t.x - t.z * t.z) + yy * (t.y * t.y - t.z * t.z) + {f(2.0)} * (xy * t.x * t.y + xz * t.x * t.z + yz * t.y * t.z);",
+        head("hf_gauge", [("m", v3), ("a", v3), ("t", v3)], ft) + "  // t^T M t from the face gauge (M'_uu, M'_vv, M'_uv)",
+        "    " + let("b", v3, "abs(a)"),
+        "    " + let("fx", "bool", "b.x >= b.y && b.x >= b.z"),
+        "    " + let("fy", "bool", "!fx && b.y >= b.z"),
+        "    " + let("tu", ft, "select(t.x, t.y, fx)" if wgsl else "fx ? t.y : t.x"),
+        "    " + let("tv", ft, "select(t.y, t.z, fx || fy)" if wgsl else "(fx || fy) ? t.z : t.y"),
+        f"    return tu * tu * m.x + tv * tv * m.y + {f(2.0)} * tu * tv * m.z;",
         "}",
         head("hf_harmonic", [("i0", v3), ("h", ft)], v3) + "  // i0 max(0, 1 + h / Y(i0))",
         "    " + let("y", ft, f"dot(i0, {lum})"),
@@ -307,7 +295,6 @@ def _to_hlsl(text: str, bake: Bake) -> str:
         line = line.replace("textureLod(t, vec2(uv.x, hf_flip_v(uv.y)), 0.0)", "t.SampleLevel(ts, vec2(uv.x, hf_flip_v(uv.y)), 0)")
         for k in range(bake.plan.maps):
             line = line.replace(f"hf_layer(hf_P{k}, ", f"hf_layer(hf_P{k}, sampler_hf_P{k}, ")
-            line = line.replace(f"hf_layer4(hf_P{k}, ", f"hf_layer4(hf_P{k}, sampler_hf_P{k}, ")
         for d in range(bake.plan.diffuse):
             line = line.replace(f"hf_cube(hf_E{d}, ", f"hf_cube(hf_E{d}, sampler_hf_E{d}, ")
         for t in range(bake.plan.tables):
@@ -412,23 +399,12 @@ def _metal_or_wgsl(bake: Bake, language: str, *, y_up: bool, flip_v: bool) -> st
 
     harm = bool(pl.harmonic)
 
-    def layer4_body(tname):  # the RGBA read of a specular map with the harmonic
-        body = layer_body(tname)
-        return body[:-1] + [body[-1].replace(".rgb;", ";")]
-
     if msl:
         lines += fn("hf_layer", [("t", "texture2d<float>"), ("layer", v4), ("atlas", v2), ("d", v3)], v3, layer_body("t"))
         lines += fn("hf_cube", [("t", "texture2d<float>"), ("s", ft), ("d", v3)], v3, cube_body("t"))
-        if harm:
-            lines += fn("hf_layer4", [("t", "texture2d<float>"), ("layer", v4), ("atlas", v2), ("d", v3)], v4,
-                        [b.replace(f"return {read('t', 'uv')};", "return t.sample(hf_sampler, float2(uv.x, hf_flip_v(uv.y)), level(0.0f));")
-                         for b in layer_body("t")])
     else:
         for k in range(pl.maps):
-            if harm:
-                lines += fn(f"hf_layer4_P{k}", [("layer", v4), ("atlas", v2), ("d", v3)], v4, layer4_body(f"hf_P{k}"))
-            else:
-                lines += fn(f"hf_layer_P{k}", [("layer", v4), ("atlas", v2), ("d", v3)], v3, layer_body(f"hf_P{k}"))
+            lines += fn(f"hf_layer_P{k}", [("layer", v4), ("atlas", v2), ("d", v3)], v3, layer_body(f"hf_P{k}"))
         for d in range(D):
             lines += fn(f"hf_cube_E{d}", [("s", ft), ("d", v3)], v3, cube_body(f"hf_E{d}"))
     if harm:
@@ -459,38 +435,25 @@ def _metal_or_wgsl(bake: Bake, language: str, *, y_up: bool, flip_v: bool) -> st
         body.append(let(f"w{t}", v3, read(f"hf.hf_W{t}" if msl else f"hf_W{t}", "wuv")))
         chans += [f"w{t}.{c}" for c in "xyz"]
     out = ("I_d", "I_A", "I_B") if msl else ("o.I_d", "o.I_A", "o.I_B")
-    if harm:
-        c0, c1 = [], []
-        for i in range(pl.maps):
-            for jj, a, cs in (("j", "a0", c0), ("j + 1", "a1", c1)):
-                q = f"q{a[1]}_{i}"
-                args = f"HF_LAYER{i}[{jj}], HF_ATLAS{i}, {a}"
-                body.append(let(q, v4, f"hf_layer4(hf.hf_P{i}, {args})" if msl else f"hf_layer4_P{i}({args})"))
-                cs += [f"{q}.{c}" for c in "xyzw"]
+    for i in range(pl.maps):  # each map at both layers (P_k's RGB, or the tensor's face-gauge channels)
+        for jj, a in (("j", "a0"), ("j + 1", "a1")):
+            args = f"HF_LAYER{i}[{jj}], HF_ATLAS{i}, {a}"
+            body.append(let(f"q{a[1]}_{i}", v3, f"hf_layer(hf.hf_P{i}, {args})" if msl else f"hf_layer_P{i}({args})"))
     if mixed:  # hg0, hg1: whether each layer stores the harmonic (then its channels after K - 1 products are M's)
         for g, jj in (("hg0", "j"), ("hg1", "j + 1")):
             body.append(let(g, ft, f"({jj} >= HF_H0 ? {one} : {zero})" if msl else f"select({zero}, {one}, {jj} >= HF_H0)"))
-    m0 = 3 * K - 3 if mixed else 3 * K  # the tensor's first channel
+    g = K - 1 if mixed else K  # the map holding the tensor
     for k in range(K):
-        if harm and mixed and k == K - 1:  # each layer's own meaning: P_K below the harmonic layers, 0 in them
-            blend = (f"mix(({one} - hg0) * {v3}({', '.join(c0[3 * k:3 * k + 3])}), ({one} - hg1) * {v3}({', '.join(c1[3 * k:3 * k + 3])}), "
-                     f"{bl('t')})")
-            body.append(let(f"p{k}", v3, blend))
-        elif harm:
-            blend = f"mix({v3}({', '.join(c0[3 * k:3 * k + 3])}), {v3}({', '.join(c1[3 * k:3 * k + 3])}), {bl('t')})"
-            body.append(let(f"p{k}", v3, blend))
-        elif msl:
-            body.append(let(f"p{k}", v3, f"mix(hf_layer(hf.hf_P{k}, HF_LAYER{k}[j], HF_ATLAS{k}, a0), "
-                                         f"hf_layer(hf.hf_P{k}, HF_LAYER{k}[j + 1], HF_ATLAS{k}, a1), float3(t))"))
+        if mixed and k == K - 1:  # each layer's own meaning: P_K below the harmonic layers, 0 in them
+            body.append(let(f"p{k}", v3, f"mix(({one} - hg0) * q0_{k}, ({one} - hg1) * q1_{k}, {bl('t')})"))
         else:
-            body.append(let(f"p{k}", v3, f"mix(hf_layer_P{k}(HF_LAYER{k}[j], HF_ATLAS{k}, a0), "
-                                         f"hf_layer_P{k}(HF_LAYER{k}[j + 1], HF_ATLAS{k}, a1), t)"))
+            body.append(let(f"p{k}", v3, f"mix(q0_{k}, q1_{k}, {bl('t')})"))
         body.append(f"{out[1]} = {out[1]} + p{k} * {chans[2 * k]};")
         body.append(f"{out[2]} = {out[2]} + p{k} * {chans[2 * k + 1]};")
     if harm:
         gs = ("hg0 * ", "hg1 * ") if mixed else ("", "")
-        body.append(let("h0", ft, f"{gs[0]}hf_tensor({', '.join(c0[m0:m0 + 5])}, hf_tangent(n, a0))"))
-        body.append(let("h1", ft, f"{gs[1]}hf_tensor({', '.join(c1[m0:m0 + 5])}, hf_tangent(n, a1))"))
+        body.append(let("h0", ft, f"{gs[0]}hf_gauge(q0_{g}, a0, hf_tangent(n, a0))"))
+        body.append(let("h1", ft, f"{gs[1]}hf_gauge(q1_{g}, a1, hf_tangent(n, a1))"))
         body.append(let("hh", ft, "h0 + (h1 - h0) * t"))
         body.append(f"{out[1]} = hf_harmonic({out[1]}, hh * {chans[pl.harmonic_channel]});")
         body.append(f"{out[2]} = hf_harmonic({out[2]}, hh * {chans[pl.harmonic_channel + 1]});")
@@ -518,49 +481,38 @@ def _metal_or_wgsl(bake: Bake, language: str, *, y_up: bool, flip_v: bool) -> st
     return "\n".join(x for x in lines if x != "") + "\n"
 
 
+#: The tensor's channels in a specular map: the face gauge's (M'_uu, M'_vv, M'_uv) (:mod:`.gauge`).
+TENSOR_CHANNELS = ("M.uu", "M.vv", "M.uv")
+
+
 def specular_channels(bake: Bake) -> list[list[str]]:
-    """The channels of each specular map ``P<i>``: ``P<k>.r/g/b`` of the K products; with the plan's ``harmonic``
-    followed by the tensor's ``M.xx, M.yy, M.xy, M.xz, M.yz``, four to a map (RGBA, the last padded with ``-``)."""
+    """The channels of each specular RGB map ``P<i>``: ``P<k>.r/g/b`` of the K products; with the plan's
+    ``harmonic`` one more map, the tensor's face-gauge channels ``M.uu, M.vv, M.uv``; ``mixed``: the last
+    product's map holds them in the harmonic layers (``P1.r/M.uu``, ...)."""
     pl = bake.plan
-    flat = [f"P{k}.{c}" for k in range(pl.terms) for c in "rgb"]
-    if not pl.harmonic:
-        return [flat[3 * k:3 * k + 3] for k in range(pl.terms)]
-    if pl.mixed:  # after K - 1 products: P_K's RGB below the harmonic layers, the tensor in them
-        tensor = ["M.xx", "M.yy", "M.xy", "M.xz", "M.yz"]
-        flat = flat[:3 * pl.terms - 3] + [f"{p}/{m}" for p, m in zip(flat[3 * pl.terms - 3:] + ["-", "-"], tensor)]
-        flat += ["-"] * (4 * pl.maps - len(flat))
-        return [flat[4 * i:4 * i + 4] for i in range(pl.maps)]
-    flat += ["M.xx", "M.yy", "M.xy", "M.xz", "M.yz"]
-    flat += ["-"] * (4 * pl.maps - len(flat))
-    return [flat[4 * i:4 * i + 4] for i in range(pl.maps)]
+    maps = [[f"P{k}.{c}" for c in "rgb"] for k in range(pl.terms)]
+    if pl.harmonic and pl.mixed:
+        maps[-1] = [f"{p}/{m}" for p, m in zip(maps[-1], TENSOR_CHANNELS)]
+    elif pl.harmonic:
+        maps.append(list(TENSOR_CHANNELS))
+    return maps
 
 
-def _specular_layer(bake: Bake, j: int) -> np.ndarray:
-    """Layer j's specular channels (S, 6 S, C) in :func:`specular_channels`' order (a tensor of 0 below the
-    harmonic's roughness)."""
+def _specular_layer(bake: Bake, j: int, i: int) -> np.ndarray:
+    """Layer j's block (S, 6 S, 3) of specular map i (:func:`specular_channels`): P_i's RGB, or the tensor's
+    channels (0 in a layer without the harmonic); mixed: the last map holds the tensor in the harmonic layers."""
     p = np.asarray(bake.P[j], np.float32)
-    flat = p.reshape(p.shape[0], p.shape[1], -1)
-    if not bake.plan.harmonic:
-        return flat
-    h = bake.H[j] if bake.H and bake.H[j] is not None else np.zeros(p.shape[:2] + (5,), np.float32)
-    if bake.plan.mixed:  # P_K's RGB (then 2 zeros), or in a harmonic layer the tensor, after the first K - 1 products
-        k1 = 3 * bake.plan.terms - 3
-        tail = h if bake.H and bake.H[j] is not None else np.concatenate([flat[..., k1:], np.zeros(p.shape[:2] + (2,), np.float32)], -1)
-        flat = np.concatenate([flat[..., :k1], tail], -1)
-        pad = np.zeros(p.shape[:2] + (4 * bake.plan.maps - flat.shape[2],), np.float32)
-        return np.concatenate([flat, pad], axis=-1)
-    pad = np.zeros(p.shape[:2] + (4 * bake.plan.maps - flat.shape[2] - 5,), np.float32)
-    return np.concatenate([flat, np.asarray(h, np.float32), pad], axis=-1)
+    h = bake.H[j] if bake.H and bake.H[j] is not None else None
+    pl = bake.plan
+    if pl.harmonic and i == pl.terms - (1 if pl.mixed else 0) and (h is not None or not pl.mixed):
+        return np.zeros(p.shape[:2] + (3,), np.float32) if h is None else np.asarray(h, np.float32)
+    return p[:, :, i]
 
 
 def texture_arrays(bake: Bake) -> list[tuple[str, object]]:
-    """``(uniform name, (H, W, 3 or 4) float32 array)`` of every texture, as the files hold them."""
+    """``(uniform name, (H, W, 3) float32 array)`` of every texture, as the files hold them."""
     pl = bake.plan
-    if pl.harmonic:
-        layers = [_specular_layer(bake, j) for j in range(pl.layers)]
-        out = [(f"hf_P{i}", assemble(a, [layer[:, :, 4 * i:4 * i + 4] for layer in layers], 4)) for i, a in enumerate(bake.atlases)]
-    else:
-        out = [(f"hf_P{k}", assemble(a, [np.asarray(p)[:, :, k] for p in bake.P], 3)) for k, a in enumerate(bake.atlases)]
+    out = [(f"hf_P{i}", assemble(a, [_specular_layer(bake, j, i) for j in range(pl.layers)], 3)) for i, a in enumerate(bake.atlases)]
     e = np.asarray(bake.E, np.float32) if pl.diffuse_basis == "texture" else None
     out += [(f"hf_E{d}", np.ascontiguousarray(e[:, :, d])) for d in range(pl.diffuse if pl.diffuse_basis == "texture" else 0)]
     w = np.asarray(bake.W, np.float32)
