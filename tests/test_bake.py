@@ -28,6 +28,19 @@ JS = Path(__file__).resolve().parents[1] / "js"
 TINY = dict(layers=3, max_size=8, nv_size=8, samples=64, data_resolution=4, diffuse_size=8)
 
 
+def as_schema_4(doc: dict, version: int = 4) -> dict:
+    """A schema-5 bake.json written as schema ``version`` (<= 4) would hold it: every map in the first map's
+    layout, given by the layers' x, y; no per-map blocks."""
+    old = json.loads(json.dumps(doc))
+    old["schema_version"] = version
+    first = [t for t in old["textures"] if t["kind"] == "prefiltered"][0]["blocks"]
+    for layer, block in zip(old["layers"], first):
+        layer.update(x=block["x"], y=block["y"])
+    for t in old["textures"]:
+        t.pop("blocks", None)
+    return old
+
+
 def nrmse(a, e):
     return float(np.linalg.norm(np.asarray(a) - np.asarray(e)) / np.linalg.norm(np.asarray(e)))
 
@@ -277,7 +290,9 @@ def test_ktx2_files_read_by_ktx_parse_name_their_layout(forest_bake, tmp_path):
         assert key["ktx2"] == {"kind": "2d", "format": "half", "levels": 1, "mip_filter": None}
         assert key["frame"] == "homofac world, +z up" and key["rows"].startswith("file order")
         if t["kind"] == "prefiltered":
-            assert key["mapper"] == "cube" and key["layers"] == doc["layers"]
+            # this map's own blocks (bake.json schema 5), with the layers' roughness and shift
+            assert key["mapper"] == "cube" and len(key["layers"]) == len(doc["layers"]) == len(t["blocks"])
+            assert key["layers"] == [{**layer, **block} for layer, block in zip(doc["layers"], t["blocks"])]
             # every block lies inside the image the key describes
             assert all(b["x"] + 6 * b["size"] <= key["width"] and b["y"] + b["size"] <= key["height"] for b in key["layers"])
         elif t["kind"] == "diffuse":

@@ -75,10 +75,10 @@ def test_each_layer_stores_its_own_channels(mixed_bake):
         assert np.all(np.asarray(b.P[j])[..., 1, :] == 0)
     assert np.all(w[2, :, 2:4] == 0) and all(np.abs(w[j, :, 2:4]).max() > 0 for j in (3, 4, 5))
     assert [h is not None for h in b.H] == [False, False, False, True, True, True]
-    for j in range(6):  # the texels after the first product: P_2's RGB then 0, 0, or the tensor
-        tail = shader._specular_layer(b, j)[..., 3:8]
-        expect = b.H[j] if b.H[j] is not None else np.concatenate([np.asarray(b.P[j])[..., 1, :], np.zeros(tail.shape[:2] + (2,))], -1)
-        np.testing.assert_array_equal(tail, expect)
+    for j in range(6):  # the second map: P_2's RGB, or the tensor's face gauge
+        expect = b.H[j] if b.H[j] is not None else np.asarray(b.P[j])[..., 1, :]
+        np.testing.assert_array_equal(shader._specular_layer(b, j, 1), expect)
+        np.testing.assert_array_equal(shader._specular_layer(b, j, 0), np.asarray(b.P[j])[..., 0, :])
 
 
 def test_mixed_terms_equal_the_unpacked_layout(mixed_bake):
@@ -94,19 +94,22 @@ def test_save_load_round_trip_schema_4_and_3(mixed_bake, tmp_path):
     b = mixed_bake
     out = b.save(tmp_path / "m", exr="float32")
     doc = json.loads((out / "bake.json").read_text())
-    assert doc["schema_version"] == 4 and doc["plan"]["mixed"] is True and doc["lookups"] == 7
+    assert doc["schema_version"] == 5 and doc["plan"]["mixed"] is True and doc["lookups"] == 7
     assert [t["channels"] for t in doc["textures"] if t["kind"] != "diffuse"] == [
-        ["P0.r", "P0.g", "P0.b", "P1.r/M.xx"], ["P1.g/M.yy", "P1.b/M.xy", "-/M.xz", "-/M.yz"],
+        ["P0.r", "P0.g", "P0.b"], ["P1.r/M.uu", "P1.g/M.vv", "P1.b/M.uv"],
         ["a0", "b0", "a1/hA"], ["b1/hB", "w0", "-"]]
     back = hf.load(out)
     n, v = th._pairs(300, 4)
     for rho in (0.35, 0.43, 0.55, 0.9):
         np.testing.assert_allclose(np.asarray(back.terms(n, v, rho)), np.asarray(b.terms(n, v, rho)), rtol=1e-5, atol=1e-7)
+    # a schema-4 directory (RGBA maps with the tensor's 5 channels, the layers' x, y) loads as the same bake
+    th.write_rgba_schema(b, out, 4)
+    np.testing.assert_allclose(np.asarray(hf.load(out).terms(n, v, 0.55)), np.asarray(b.terms(n, v, 0.55)), rtol=1e-4, atol=1e-6)
     # a schema-3 directory (no plan.mixed) still loads, as an unpacked bake
     u = _unpacked(b)
     old = u.save(tmp_path / "u", exr="float32")
+    th.write_rgba_schema(u, old, 3)
     doc = json.loads((old / "bake.json").read_text())
-    doc["schema_version"] = 3
     del doc["plan"]["mixed"]
     (old / "bake.json").write_text(json.dumps(doc))
     got = hf.load(old)

@@ -44,7 +44,8 @@ from .factorization import (Factor, Factorization, Quantized, Term, Texture, che
 from .bake import Bake, BakePlan
 from .bake import register_writer as register_bake_writer
 from .bake import shader as bake_shader
-from .bake.atlas import assemble, blocks_of, pack, split
+from .bake.atlas import Atlas, assemble, blocks_of, check_layout, pack, split
+from .bake.gauge import face_gauge
 from .bake.sources import Source
 from .fit.result import Result, register_writer
 from .io.exr import read_exr, write_exr
@@ -73,7 +74,7 @@ LIBRARY_FORMAT = "homofac.library"
 LIBRARY_VERSION = 1
 INDEX_NAME = "index.json"
 BAKE_FORMAT = "homofac.bake"
-BAKE_SCHEMA = 4
+BAKE_SCHEMA = 5
 BAKE_JSON = "bake.json"
 #: The shader files of a bake directory (homofac_ibl, homofac_ibl_terms).
 BAKE_SHADERS = {"glsl": "shader.glsl", "glsl_es": "shader_es.glsl", "hlsl": "shader.hlsl", "msl": "shader.metal",
@@ -841,6 +842,14 @@ __all__ = ["Document", "EXR_TYPES", "FACE_NAMES", "FORMAT", "INDEX_NAME", "JSON_
 # The bake directory (docs/format.md "The bake directory")
 
 
+class BakeBlockEntry(Options):
+    """One layer's block in a specular map's atlas (schema 5): first texel (x, y), face size (an (S, 6 S) block)."""
+
+    x: int = Field(ge=0, le=MAX_SIZE * 6)
+    y: int = Field(ge=0, le=MAX_SIZE * 6)
+    size: int = Field(ge=1, le=MAX_SIZE)
+
+
 class BakeTextureEntry(Options):
     name: str = Field(pattern=r"^[PEW][0-9]{1,2}$", description="P<k>, E<d> or W<t>: the shader reads hf_<name>")
     file: str = Field(pattern=r"^[PEW][0-9]{1,2}\.exr$")
@@ -849,14 +858,17 @@ class BakeTextureEntry(Options):
     width: int = Field(ge=1, le=MAX_SIZE * 6)
     height: int = Field(ge=1, le=MAX_SIZE * 6)
     channels: list[str]
+    #: schema 5, a prefiltered map: each layer's block in this map's atlas (width x height)
+    blocks: Optional[list[BakeBlockEntry]] = Field(None, max_length=32)
 
 
 class BakeLayerEntry(Options):
     roughness: float = Field(gt=0, le=1)
     shift: float = Field(ge=0, le=1)
     size: int = Field(ge=2, le=MAX_SIZE)
-    x: int = Field(ge=0)
-    y: int = Field(ge=0)
+    #: schemas 1-4: the layer's block in every map's atlas (schema 5: each map's ``blocks``)
+    x: Optional[int] = Field(None, ge=0)
+    y: Optional[int] = Field(None, ge=0)
 
 
 class BakePlanEntry(Options):
@@ -901,11 +913,12 @@ class BakeSourceEntry(Options):
 
 
 class BakeDocument(Options):
-    """bake.json (schema 4; schema 3 is read as a bake without ``plan.mixed``, schema 2 as one without the harmonic, schema 1, without ``sources``, as a
+    """bake.json (schema 5: each specular map's blocks in its own atlas; schema 4 is read with every map in the
+    shelf packer's layout of ``layers``' x, y; schema 3 is read as a bake without ``plan.mixed``, schema 2 as one without the harmonic, schema 1, without ``sources``, as a
     bake without sources either): see docs/format.md."""
 
     format: Literal["homofac.bake"]
-    schema_version: Literal[1, 2, 3, 4]
+    schema_version: Literal[1, 2, 3, 4, 5]
     brdf: Literal["gltf"]
     plan: BakePlanEntry
     lookups: int
@@ -929,13 +942,15 @@ class BakeDocument(Options):
 def bake_document(bake: Bake, exr: str = "half") -> dict:
     """The bake.json of ``bake`` (see docs/format.md)."""
     pl = bake.plan
-    atlas = bake.atlas
+    atlases = bake.atlases
     chans = ([f"{c}{k}" for k in range(pl.terms) for c in ("a", "b")] + [f"w{d}" for d in range(pl.diffuse)]
              + (["hA", "hB"] if pl.harmonic and not pl.mixed else []))
     if pl.mixed and pl.harmonic:  # a_K, b_K's channels carry h_A, h_B in the harmonic layers
         chans[2 * pl.terms - 2:2 * pl.terms] = [f"a{pl.terms - 1}/hA", f"b{pl.terms - 1}/hB"]
-    tex = [{"name": f"P{i}", "file": f"P{i}.exr", "kind": "prefiltered", "width": atlas.width, "height": atlas.height,
-            "channels": c if pl.harmonic else ["r", "g", "b"]} for i, c in enumerate(bake_shader.specular_channels(bake))]
+    tex = [{"name": f"P{i}", "file": f"P{i}.exr", "kind": "prefiltered", "width": a.width, "height": a.height,
+            "channels": c if pl.harmonic else ["r", "g", "b"],
+            "blocks": [{"x": x, "y": y, "size": sz} for (x, y), sz in zip(a.offsets, a.sizes)]}
+           for i, (a, c) in enumerate(zip(atlases, bake_shader.specular_channels(bake)))]
     s = pl.diffuse_size
     tex += [{"name": f"E{d}", "file": f"E{d}.exr", "kind": "diffuse", "width": 6 * s, "height": s,
              "channels": ["r", "g", "b"]} for d in range(pl.diffuse if pl.diffuse_basis == "texture" else 0)]
@@ -946,8 +961,7 @@ def bake_document(bake: Bake, exr: str = "half") -> dict:
         "format": BAKE_FORMAT, "schema_version": BAKE_SCHEMA, "homofac": __version__, "brdf": "gltf",
         "plan": pl._asdict(), "lookups": bake.lookups,
         "layer_coordinate": "u = (layers - 1) log(rho / rho_0) / log(rho_last / rho_0), clamped to [0, layers - 1]",
-        "layers": [{"roughness": r, "shift": sh, "size": sz, "x": x, "y": y}
-                   for r, sh, sz, (x, y) in zip(bake.roughness, bake.shift, atlas.sizes, atlas.offsets)],
+        "layers": [{"roughness": r, "shift": sh, "size": sz} for r, sh, sz in zip(bake.roughness, bake.shift, atlases[0].sizes)],
         "diffuse_size": s, "nv_size": pl.nv_size, "textures": tex, "exr": exr, "shaders": dict(BAKE_SHADERS),
         "texture_bytes_half": bake.texture_bytes(),
         **({"diffuse_sh9": np.asarray(bake.sh, np.float64).tolist()} if pl.diffuse_basis == "sh9" else {}),
@@ -960,8 +974,8 @@ def bake_ktx2_layout(doc: dict, entry: dict) -> dict:
     """The ``homofac`` key of a bake texture's KTX2 file (docs/format.md "The bake directory"): what the texels
     mean and where each part of the 2D image lies, so that an engine can read the file without bake.json.
 
-    ``P<k>`` is an atlas of cube-layout blocks, one per roughness layer (``layers``: roughness, block size S
-    and the block's first texel x, y; a block is (S, 6 S), faces +X -X +Y -Y +Z -Z left to right); ``E<d>``
+    ``P<k>`` is an atlas of cube-layout blocks, one per roughness layer (``layers``: roughness, shift, and this
+    map's block: size S and first texel x, y; a block is (S, 6 S), faces +X -X +Y -Y +Z -Z left to right); ``E<d>``
     one cube layout (S, 6 S); ``sources`` the analytic lights the maps exclude (bake.json's); ``W<t>`` a table with one row per layer and one column per n.v (texel centres
     (i + 0.5) / X), its channels named by ``channels``. Rows are in file order (row 0 read at v = 0), the
     frame is homofac's +z up, the values linear; alpha is 1.
@@ -975,7 +989,8 @@ def bake_ktx2_layout(doc: dict, entry: dict) -> dict:
     if entry["kind"] == "prefiltered":
         return {**common, "mapper": "cube", "layout": f"atlas: layer j is an (S, 6 S) cube-layout block at texel (x, y), {faces}",
                 "layer_coordinate": doc["layer_coordinate"],
-                "layers": [{k: layer[k] for k in ("roughness", "shift", "size", "x", "y")} for layer in doc["layers"]]}
+                "layers": [{"roughness": layer["roughness"], "shift": layer["shift"], **block}
+                           for layer, block in zip(doc["layers"], entry["blocks"])]}
     if entry["kind"] == "diffuse":
         return {**common, "mapper": "cube", "size": doc["diffuse_size"], "layout": f"one (S, 6 S) cube layout, {faces}"}
     return {**common, "mapper": "line x line", "layout": "rows: roughness layers u = 0 .. L - 1 (layer_coordinate); "
@@ -1023,23 +1038,19 @@ def load_bake(d, *, max_bytes: int = 1 << 28) -> Bake:
     raw = read_document(d, BAKE_JSON, BAKE_FORMAT, "a homofac bake")
     doc = validate(BakeDocument, raw, str(f))
     pl = BakePlan(**doc.plan.model_dump())
-    if len(doc.layers) != pl.layers or doc.lookups != pl.lookups:
+    rgba = doc.schema_version < 5 and pl.harmonic > 0  # schemas 3-4: the tensor's 5 channels in RGBA maps
+    maps = _rgba_maps(pl) if rgba else pl.maps
+    if len(doc.layers) != pl.layers or doc.lookups != pl.lookups + 2 * (maps - pl.maps):
         raise HomofacError(f"{f}: the layers or lookups do not match the plan")
-    offsets, sizes = [(layer.x, layer.y) for layer in doc.layers], [layer.size for layer in doc.layers]
-    blocks = blocks_of(offsets, sizes)
-    try:
-        atlas = pack(sizes, blocks)
-    except ValueError as e:
-        raise HomofacError(f"{f}: layers: {e}") from None
-    if offsets != list(atlas.offsets):
-        raise HomofacError(f"{f}: layer offsets do not match the atlas layout")
     by_kind = {k: [t for t in doc.textures if t.kind == k] for k in ("prefiltered", "diffuse", "weights")}
+    atlases, blocks = _bake_layouts(doc, by_kind["prefiltered"], f)
     sh9 = pl.diffuse_basis == "sh9"
     if (len(by_kind["prefiltered"]), len(by_kind["diffuse"]), len(by_kind["weights"])) != (
-            pl.maps, 0 if sh9 else pl.diffuse, pl.tables):
+            maps, 0 if sh9 else pl.diffuse, pl.tables):
         raise HomofacError(f"{f}: texture count does not match the plan")
-    if any(len(t.channels) != (4 if pl.harmonic else 3) for t in by_kind["prefiltered"]):
-        raise HomofacError(f"{f}: the specular maps' channels do not match the plan (RGBA with the harmonic, else RGB)")
+    if any(len(t.channels) != (4 if rgba else 3) for t in by_kind["prefiltered"]):
+        raise HomofacError(f"{f}: the specular maps' channels do not match the plan "
+                           f"({'RGBA: schema 3-4 with the harmonic' if rgba else 'RGB'})")
     sh = None
     if sh9:
         sh = np.asarray(doc.diffuse_sh9 if doc.diffuse_sh9 is not None else [], np.float64)
@@ -1047,16 +1058,22 @@ def load_bake(d, *, max_bytes: int = 1 << 28) -> Bake:
             raise HomofacError(f"{f}: diffuse_sh9 must hold {pl.diffuse} x 9 x 3 finite coefficients (plan diffuse_basis sh9)")
 
     def read(t: BakeTextureEntry, shape) -> np.ndarray:
-        a = read_exr(_confined(d, t.file, "texture"), max_bytes=max_bytes, alpha=t.kind == "prefiltered" and pl.harmonic > 0)
+        a = read_exr(_confined(d, t.file, "texture"), max_bytes=max_bytes, alpha=t.kind == "prefiltered" and rgba)
         if a.shape[:2] != tuple(shape):
             raise HomofacError(f"{d / t.file}: shape {list(a.shape[:2])} does not match {BAKE_JSON} ({list(shape)})")
         if not np.all(np.isfinite(a)):
             raise HomofacError(f"{d / t.file}: non-finite texels")
         return np.asarray(a, np.float32)
 
-    ps = [split(atlas, read(t, (atlas.height, atlas.width))) for t in by_kind["prefiltered"]]
+    ps = [split(a, read(t, (a.height, a.width))) for a, t in zip(atlases, by_kind["prefiltered"])]
     H: tuple = ()
-    if pl.harmonic and pl.mixed:  # RGBA maps: K - 1 products' RGB, then P_K's RGB or (harmonic layers) the tensor
+    harm = set(pl.harmonic_layers())
+    if pl.harmonic and not rgba:  # RGB maps: P_k's RGB; the tensor's face gauge in map K (mixed: K - 1, harmonic layers)
+        g = pl.terms - 1 if pl.mixed else pl.terms
+        P = tuple(np.stack([ps[k][j][..., :3] if k < g or j not in harm or not pl.mixed else np.zeros_like(ps[k][j][..., :3])
+                            for k in range(pl.terms)], axis=2) for j in range(pl.layers))
+        H = tuple(np.ascontiguousarray(ps[g][j][..., :3]) if j in harm else None for j in range(pl.layers))
+    elif pl.harmonic and pl.mixed:  # RGBA maps: K - 1 products' RGB, then P_K's RGB or (harmonic layers) the tensor
         flat = [np.concatenate([p[j][..., :4] for p in ps], axis=-1) for j in range(pl.layers)]
         harm, k1 = set(pl.harmonic_layers()), 3 * pl.terms - 3
         P = tuple(np.concatenate([a[..., :k1], np.zeros_like(a[..., :3]) if j in harm else a[..., k1:k1 + 3]], -1)
@@ -1069,12 +1086,56 @@ def load_bake(d, *, max_bytes: int = 1 << 28) -> Bake:
                   for a, rho in zip(flat, (layer.roughness for layer in doc.layers)))
     else:
         P = tuple(np.stack([p[j][..., :3] for p in ps], axis=2) for j in range(pl.layers))
+    if rgba:  # schemas 3-4 store (M_xx, M_yy, M_xy, M_xz, M_yz): read in the face gauge, as a bake stores it now
+        H = tuple(None if h is None else face_gauge(h, h.shape[0]) for h in H)
     s = doc.diffuse_size
     E = None if sh9 else np.stack([read(t, (s, 6 * s))[..., :3] for t in by_kind["diffuse"]], axis=2)
     W = np.concatenate([read(t, (pl.layers, doc.nv_size))[..., :3] for t in by_kind["weights"]], axis=-1)[:, :, :pl.channels]
     return Bake(pl, tuple(layer.roughness for layer in doc.layers), tuple(layer.shift for layer in doc.layers), P, E, W,
                 dict(raw.get("info") or {}), sh=None if sh is None else sh.astype(np.float32), blocks=blocks,
-                sources=tuple(Source(tuple(e.direction), tuple(e.power), e.radius) for e in doc.sources), H=H)
+                sources=tuple(Source(tuple(e.direction), tuple(e.power), e.radius) for e in doc.sources), H=H,
+                layouts=atlases)
+
+
+def _rgba_maps(pl: BakePlan) -> int:
+    """The specular map count of a bake.json of schema 3-4 with the harmonic: RGBA maps holding the products' RGB
+    and the tensor's 5 channels, ceil((3 K + 5) / 4) (mixed: ceil((3 K + 2) / 4))."""
+    return math.ceil((3 * pl.terms + (2 if pl.mixed else 5)) / 4)
+
+
+def _bake_layouts(doc: BakeDocument, maps: list, f: Path) -> tuple[tuple[Atlas, ...], tuple[int, ...]]:
+    """Each specular map's layout and the layers' shared blocks, checked: schema 5 reads each map's ``blocks``
+    (every block inside its map's width x height, blocks disjoint unless shared, each layer's block of the
+    layer's size, the same layers sharing in every map); schemas 1-4 the ``layers``' x, y, which must be the
+    shelf packer's layout (:func:`homofac.bake.atlas.pack`), shared by every map."""
+    sizes = [layer.size for layer in doc.layers]
+    if doc.schema_version < 5:
+        offsets = [(layer.x, layer.y) for layer in doc.layers]
+        if any(x is None or y is None for x, y in offsets):
+            raise HomofacError(f"{f}: layers: schema {doc.schema_version} gives each layer's x and y")
+        blocks = blocks_of(offsets, sizes)
+        try:
+            atlas = pack(sizes, blocks)
+        except ValueError as e:
+            raise HomofacError(f"{f}: layers: {e}") from None
+        if offsets != list(atlas.offsets):
+            raise HomofacError(f"{f}: layer offsets do not match the atlas layout")
+        return (atlas,) * len(maps), blocks
+    atlases, shared = [], set()
+    for t in maps:
+        if t.blocks is None or len(t.blocks) != len(doc.layers):
+            raise HomofacError(f"{f}: texture {t.name}: schema 5 gives one block per layer ({len(doc.layers)})")
+        a = Atlas(t.width, t.height, tuple((b.x, b.y) for b in t.blocks), tuple(b.size for b in t.blocks))
+        if list(a.sizes) != sizes:
+            raise HomofacError(f"{f}: texture {t.name}: block sizes {list(a.sizes)} do not match the layers' sizes {sizes}")
+        try:
+            shared.add(check_layout(a))
+        except ValueError as e:
+            raise HomofacError(f"{f}: texture {t.name}: {e}") from None
+        atlases.append(a)
+    if len(shared) > 1:
+        raise HomofacError(f"{f}: the specular maps share blocks between different layers")
+    return tuple(atlases), (shared.pop() if shared else tuple(range(len(sizes))))
 
 
 register_bake_writer(save_bake)

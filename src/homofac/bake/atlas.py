@@ -50,6 +50,27 @@ def blocks_of(offsets, sizes) -> tuple[int, ...]:
     return tuple(first.setdefault((tuple(o), int(s)), j) for j, (o, s) in enumerate(zip(offsets, sizes)))
 
 
+def check_layout(atlas: Atlas) -> tuple[int, ...]:
+    """Check a layout read from a file (any packer's): every block (S_j, 6 S_j) inside the ``width`` x ``height``
+    image, two blocks either the same (x, y, S) (shared: the later layer reads the earlier one's block) or
+    disjoint. Returns the layers' ``blocks`` (:func:`blocks_of`); raises ValueError naming the first bad layer."""
+    if len(atlas.offsets) != len(atlas.sizes):
+        raise ValueError("one block per layer")
+    boxes = np.array([(x, y, x + 6 * s, y + s) for (x, y), s in zip(atlas.offsets, atlas.sizes)], np.int64).reshape(-1, 4)
+    for j, (x0, y0, x1, y1) in enumerate(boxes):
+        if min(x0, y0) < 0 or x1 > atlas.width or y1 > atlas.height or atlas.sizes[j] < 1:
+            raise ValueError(f"layer {j}'s block ({x0}, {y0}, size {atlas.sizes[j]}) lies outside the "
+                             f"{atlas.width} x {atlas.height} atlas")
+    same = np.all(boxes[:, None] == boxes[None], axis=-1)
+    apart = ((boxes[:, None, 2] <= boxes[None, :, 0]) | (boxes[None, :, 2] <= boxes[:, None, 0])
+             | (boxes[:, None, 3] <= boxes[None, :, 1]) | (boxes[None, :, 3] <= boxes[:, None, 1]))
+    bad = np.argwhere(~same & ~apart)
+    if len(bad):
+        i, j = sorted(bad[0])
+        raise ValueError(f"the blocks of layers {i} and {j} overlap")
+    return blocks_of(atlas.offsets, atlas.sizes)
+
+
 def assemble(atlas: Atlas, layers, channels: int) -> np.ndarray:
     """The (height, width, channels) atlas image of ``layers`` (each (S_j, 6 S_j, channels)); unused texels 0."""
     out = np.zeros((atlas.height, atlas.width, channels), np.float32)
@@ -63,4 +84,4 @@ def split(atlas: Atlas, image: np.ndarray) -> list[np.ndarray]:
     return [np.asarray(image[y0:y0 + s, x0:x0 + 6 * s]) for (x0, y0), s in zip(atlas.offsets, atlas.sizes)]
 
 
-__all__ = ["Atlas", "assemble", "blocks_of", "pack", "split"]
+__all__ = ["Atlas", "assemble", "blocks_of", "check_layout", "pack", "split"]

@@ -23,6 +23,7 @@ azimuthal harmonic about the axis, from the luminance: a tensor map M(a) read as
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import time
@@ -42,6 +43,7 @@ from ..options import validate
 from ..param import mappers
 from . import kernels as kn
 from .filter import normalized, prefilter, two_scale
+from .gauge import face_gauge
 from .model import Bake, diffuse_sh9
 from .options import BakeOptions
 from .plan import BakePlan, plan as make_plan
@@ -489,9 +491,16 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
             "data_resolution": int(data_env.info.get("resolution", 0)), "timings": timings,
             "analytic_source": {"share": share, "found": found is not None}}
     blocks = tuple(int(np.argmax(shared)) if shared[j] else j for j in range(pl.layers))
-    return Bake(pl, roughness, tuple(shifts), tuple(P), E, table, info,
-                sh=diffuse_sh9(E) if pl.diffuse_basis == "sh9" else None, blocks=blocks, sources=sources,
-                H=tuple(H) if pl.harmonic else ())
+    return stored(Bake(pl, roughness, tuple(shifts), tuple(P), E, table, info,
+                       sh=diffuse_sh9(E) if pl.diffuse_basis == "sh9" else None, blocks=blocks, sources=sources,
+                       H=tuple(H) if pl.harmonic else ()))
 
 
-__all__ = ["bake", "compress", "fibonacci", "harmonic_fit", "harmonic_maps", "layer_fit", "layer_size", "sharp", "source_size"]
+def stored(fitted: Bake) -> Bake:
+    """The fitted bake in the layout it is stored and read in (after the fit): each layer's tensor map
+    (S, 6 S, 5) in the 3 channels of the face gauge (:func:`homofac.bake.gauge.face_gauge`)."""
+    H = tuple(None if h is None else face_gauge(h, h.shape[0]) for h in fitted.H)
+    return dataclasses.replace(fitted, H=H)
+
+
+__all__ = ["bake", "compress", "stored", "fibonacci", "harmonic_fit", "harmonic_maps", "layer_fit", "layer_size", "sharp", "source_size"]

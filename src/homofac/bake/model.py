@@ -10,9 +10,10 @@ With the plan's ``diffuse_basis`` ``sh9``, E_d(n) is ``sum_i c_di Y_i(n)`` inste
 :func:`diffuse_sh9`): no texture fetch, the weights w_d unchanged.
 
 With the plan's ``harmonic`` (the layers from that roughness up), the luminance's second azimuthal harmonic about
-each layer's axis is added, coloured as the products (:func:`tensor_read`, :func:`harmonic_colour`):
+each layer's axis is added, coloured as the products (:func:`homofac.bake.gauge.gauge_read`, :func:`harmonic_colour`):
 
     H = sum_j hat(u - j) t_j^T M_j(a_j) t_j,   t_j = normalize(n - (n.a_j) a_j)
+      (M_j stored in 3 channels, the face gauge of :mod:`.gauge`: t^T M t = t_u^2 M'_uu + t_v^2 M'_vv + 2 t_u t_v M'_uv)
     I_A <- I_A max(0, 1 + h_A H / Y(I_A)),     I_B <- I_B max(0, 1 + h_B H / Y(I_B))   (h_A, h_B: table channels)
 
 With the plan's ``mixed`` (:meth:`~homofac.bake.plan.BakePlan.layer_terms`) the harmonic layers store P_K = 0
@@ -41,6 +42,7 @@ from ..light.environment import LUMINANCE
 from ..light.sh import SH9_NORM
 from ..param import mappers
 from .atlas import Atlas, pack
+from .gauge import gauge_read
 from .plan import BakePlan
 from .sources import Source, source_terms
 
@@ -64,9 +66,11 @@ class Bake:
     axis shift s (P_kj is read at a_j = normalize((1 - s_j) r + s_j n)); ``info`` provenance and timings
     (JSON-friendly); ``sh`` (D, 9, 3) the SH9 coefficients of the E_d maps when the plan's ``diffuse_basis`` is
     ``sh9`` (then ``E`` is not read and may be None); ``sources`` the analytic lights taken out of the map
-    (:mod:`.sources`), whose exact glTF lobes the integrals add; ``H[j]`` (S_j, 6 S_j, 5) layer j's tensor map
-    (M_xx, M_yy, M_xy, M_xz, M_yz) of the luminance's second harmonic, or None (the plan's ``harmonic``; empty
-    without it; the tables' last two channels are then h_A, h_B).
+    (:mod:`.sources`), whose exact glTF lobes the integrals add; ``H[j]`` (S_j, 6 S_j, 3) layer j's tensor map
+    of the luminance's second harmonic in the face gauge (M'_uu, M'_vv, M'_uv; :mod:`.gauge`), or None (the plan's ``harmonic``; empty
+    without it; the tables' last two channels are then h_A, h_B); ``layouts[i]`` the blocks of specular map
+    ``P<i>`` in its own atlas (:class:`~.atlas.Atlas`, one per map, read from bake.json's schema 5; empty: every
+    map in :func:`~.atlas.pack`'s layout).
     """
 
     plan: BakePlan
@@ -80,6 +84,7 @@ class Bake:
     blocks: tuple[int, ...] = ()
     sources: tuple[Source, ...] = ()
     H: tuple[Any, ...] = ()
+    layouts: tuple[Atlas, ...] = ()
 
     # --- structure -------------------------------------------------------------------------------------
     @property
@@ -88,14 +93,21 @@ class Bake:
         return self.plan.lookups
 
     @property
+    def atlases(self) -> tuple[Atlas, ...]:
+        """The layout of each specular map ``P<i>``'s layers in its own 2D texture (:mod:`.atlas`), one per map."""
+        if self.layouts:
+            return tuple(self.layouts)
+        return (pack([int(p.shape[0]) for p in self.P], self.blocks or None),) * self.plan.maps
+
+    @property
     def atlas(self) -> Atlas:
-        """The layout of each P_k's layers in its 2D texture (:mod:`.atlas`)."""
-        return pack([int(p.shape[0]) for p in self.P], self.blocks or None)
+        """The first specular map's layout (``atlases[0]``)."""
+        return self.atlases[0]
 
     def texture_bytes(self, bytes_per_channel: int = 2) -> int:
-        """GPU memory of the textures in half floats (RGB): P_k atlases, E_d maps, weight tables."""
-        a = self.atlas
-        p = self.plan.maps * a.width * a.height * (4 if self.plan.harmonic else 3)
+        """GPU memory of the textures in half floats (RGB, RGBA with the harmonic): each P map's atlas, the E_d
+        maps, the weight tables."""
+        p = sum(a.width * a.height for a in self.atlases) * (4 if self.plan.harmonic else 3)
         e = self.plan.diffuse * 6 * self.plan.diffuse_size ** 2 * 3 if self.plan.diffuse_basis == "texture" else 0
         w = self.plan.tables * self.plan.layers * self.plan.nv_size * 3
         return (p + e + w) * bytes_per_channel
@@ -132,7 +144,7 @@ class Bake:
         if sh9 and self.sh is None:
             raise HomofacError("this bake's plan reads the diffuse term from SH9 coefficients, and it has none")
         diffuse = jnp.asarray(self.sh if sh9 else self.E, jnp.float32)
-        H = tuple(jnp.zeros(p.shape[:2] + (5,), jnp.float32) if h is None else jnp.asarray(h, jnp.float32)
+        H = tuple(jnp.zeros(p.shape[:2] + (3,), jnp.float32) if h is None else jnp.asarray(h, jnp.float32)
                   for p, h in zip(self.P, self.H)) if self.H else None
         maps = _terms(tuple(jnp.asarray(p, jnp.float32) for p in self.P), diffuse,
                       jnp.asarray(self.W, jnp.float32), jnp.asarray(self.shift, jnp.float32),
@@ -210,6 +222,12 @@ def harmonic_colour(i0: Float[Array, "N 3"], h: Float[Array, "N"]) -> Float[Arra
     return i0 * jnp.where(y > 1e-20, jnp.maximum(0.0, 1.0 + h / jnp.where(y > 1e-20, y, 1.0)), 1.0)[:, None]
 
 
+#: |n - (n.a) a| below which the tangent t fades to 0 (t = g / max(|g|, floor)): where the axis is n (a layer of
+#: shift 1) g is float32 rounding, which a smaller floor would magnify into a random t (GPU and CPU then differ,
+#: and the face gauge's read, :mod:`.gauge`, weighs t's component along a).
+TANGENT_FLOOR = 1e-3
+
+
 @jax.jit(static_argnums=(7, 8, 9, 11))
 def _terms(P, E, W, shift, u, n, v, K: int, D: int, sh9: bool = False, H=None, hc: int = 0):
     x = jnp.sum(n * v, axis=-1)
@@ -224,8 +242,8 @@ def _terms(P, E, W, shift, u, n, v, K: int, D: int, sh9: bool = False, H=None, h
         pb = pb + hat * _cube(layer, a).reshape(-1, K, 3)
         if H is not None:  # t: the unit tangent from the axis towards n (the plane of incidence)
             tg = n - jnp.sum(n * a, -1, keepdims=True) * a
-            tg = tg / jnp.maximum(jnp.linalg.norm(tg, axis=-1, keepdims=True), 1e-6)
-            hb = hb + hat[:, 0, 0] * tensor_read(_cube(H[j], a).reshape(-1, 5), tg)
+            tg = tg / jnp.maximum(jnp.linalg.norm(tg, axis=-1, keepdims=True), TANGENT_FLOOR)
+            hb = hb + hat[:, 0, 0] * gauge_read(_cube(H[j], a).reshape(-1, 3), a, tg)
     rows = jnp.arange(W.shape[0], dtype=jnp.float32)
     hats = jnp.maximum(0.0, 1.0 - jnp.abs(u[:, None] - rows[None]))  # (N, L)
     t = jnp.sum(hats[:, :, None] * _line(W, xc), axis=1)  # (N, C)

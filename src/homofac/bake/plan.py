@@ -72,12 +72,10 @@ class BakePlan(NamedTuple):
 
     @property
     def maps(self) -> int:
-        """Specular textures per layer: K RGB maps P_k; with the harmonic, P_k's RGB and the tensor map's 5
-        channels packed into ceil((3 K + 5) / 4) RGBA maps; ``mixed``: ceil(max(3 K, 3 (K - 1) + 5) / 4) RGBA maps
-        (a layer's channels after the first K - 1 products: P_K's RGB below the harmonic, the tensor from it up)."""
-        if self.harmonic and self.mixed:
-            return math.ceil(max(3 * self.terms, 3 * self.terms + 2) / 4)
-        return math.ceil((3 * self.terms + 5) / 4) if self.harmonic else self.terms
+        """Specular RGB textures per layer: the K maps P_k; with the harmonic one more, the tensor map's 3
+        face-gauge channels (:mod:`homofac.bake.gauge`); ``mixed``: K (the last map holds P_K's RGB below the
+        harmonic layers and the tensor's 3 channels in them)."""
+        return self.terms + (1 if self.harmonic and not self.mixed else 0)
 
     @property
     def lookups(self) -> int:

@@ -23,7 +23,7 @@ from ..light.sh import SH9_NORM
 from ..shader import generate
 from ..shader import languages as L
 from .atlas import assemble
-from .model import Bake
+from .model import TANGENT_FLOOR, Bake
 
 LANGUAGES = ("glsl", "glsl_es", "hlsl", "msl", "wgsl")
 
@@ -41,7 +41,7 @@ def source(bake: Bake, language: str = "glsl", *, y_up: bool = False, flip_v: bo
         return _metal_or_wgsl(bake, language, y_up=y_up, flip_v=flip_v)
     lang = L.get("glsl" if language == "hlsl" else language)
     pl = bake.plan
-    atlas = bake.atlas
+    atlases = bake.atlases
     K, D, layers, X = pl.terms, pl.diffuse, pl.layers, pl.nv_size
     se = pl.diffuse_size
     cube_src, tables = generate.mapper_function(L.get(language), "cube")
@@ -61,34 +61,33 @@ def source(bake: Bake, language: str = "glsl", *, y_up: bool = False, flip_v: bo
     lines += [L.table_source(L.get(language), n, v) for n, v in tables.items()]
     harm = bool(pl.harmonic)
     for k in range(pl.maps):
-        what = f" (RGBA: {', '.join(specular_channels(bake)[k])})" if harm else ""
-        lines.append(f"uniform {prec}sampler2D hf_P{k};  // P{k}.exr: {layers} layers in a {atlas.width} x {atlas.height} atlas{what}")
+        what = f" ({', '.join(specular_channels(bake)[k])})" if harm else ""
+        lines.append(f"uniform {prec}sampler2D hf_P{k};  // P{k}.exr: {layers} layers in a {atlases[k].width} x {atlases[k].height} atlas{what}")
     sh9 = pl.diffuse_basis == "sh9"
     for d in range(D if not sh9 else 0):
         lines.append(f"uniform {prec}sampler2D hf_E{d};  // E{d}.exr: cube {se}")
     for t in range(pl.tables):
         lines.append(f"uniform {prec}sampler2D hf_W{t};  // W{t}.exr: {layers} x {X} weight table")
-    rows = ", ".join(f"vec4({_f(x)}, {_f(y)}, {_f(s)}, {_f(sh)})"
-                     for (x, y), s, sh in zip(atlas.offsets, atlas.sizes, bake.shift))
     lines += [
         f"const int HF_LAYERS = {layers};",
         *([f"const int HF_H0 = {min(pl.harmonic_layers())};  // the first layer storing the harmonic (mixed)"] if mixed else []),
         f"const float HF_RHO0 = {_f(bake.roughness[0])};",
         f"const float HF_RHO1 = {_f(bake.roughness[-1])};",
-        f"const vec2 HF_ATLAS = vec2({_f(atlas.width)}, {_f(atlas.height)});",
-        f"const vec4 HF_LAYER[{layers}] = vec4[{layers}]({rows});  // x0, y0, face size, axis shift",
+        *(line for i, a in enumerate(atlases) for line in (
+            f"const vec2 HF_ATLAS{i} = vec2({_f(a.width)}, {_f(a.height)});  // P{i}'s atlas",
+            f"const vec4 HF_LAYER{i}[{layers}] = vec4[{layers}]({_layer_rows(a, bake.shift, 'vec4', _f)});  // x0, y0, face size, axis shift")),
         "#ifdef HOMOFAC_FLIP_V",
         "float hf_flip_v(float v) { return 1.0 - v; }",
         "#else",
         "float hf_flip_v(float v) { return v; }",
         "#endif",
         cube_src,
-        "vec3 hf_layer(sampler2D t, vec4 layer, vec3 d) {  // layer (x0, y0, S, shift) of an atlas at direction d",
+        "vec3 hf_layer(sampler2D t, vec4 layer, vec2 atlas, vec3 d) {  // layer (x0, y0, S, shift) of an atlas at direction d",
         "    vec3 fuv = hf_map_cube(d);",
         "    float s = layer.z;",
         "    float cu = clamp(fuv.y * s - 0.5, 0.0, s - 1.0);",
         "    float cv = clamp(fuv.z * s - 0.5, 0.0, s - 1.0);",
-        "    vec2 uv = vec2(layer.x + floor(fuv.x + 0.5) * s + cu + 0.5, layer.y + cv + 0.5) / HF_ATLAS;",
+        "    vec2 uv = vec2(layer.x + floor(fuv.x + 0.5) * s + cu + 0.5, layer.y + cv + 0.5) / atlas;",
         "    return textureLod(t, vec2(uv.x, hf_flip_v(uv.y)), 0.0).rgb;",
         "}",
         "vec3 hf_cube(sampler2D t, float s, vec3 d) {  // a cube-layout texture of face size s at direction d",
@@ -100,16 +99,6 @@ def source(bake: Bake, language: str = "glsl", *, y_up: bool = False, flip_v: bo
         "}",
     ]
     if harm:
-        lines += [
-            "vec4 hf_layer4(sampler2D t, vec4 layer, vec3 d) {  // hf_layer's RGBA",
-            "    vec3 fuv = hf_map_cube(d);",
-            "    float s = layer.z;",
-            "    float cu = clamp(fuv.y * s - 0.5, 0.0, s - 1.0);",
-            "    float cv = clamp(fuv.z * s - 0.5, 0.0, s - 1.0);",
-            "    vec2 uv = vec2(layer.x + floor(fuv.x + 0.5) * s + cu + 0.5, layer.y + cv + 0.5) / HF_ATLAS;",
-            "    return textureLod(t, vec2(uv.x, hf_flip_v(uv.y)), 0.0);",
-            "}",
-        ]
         lines += _harmonic_functions(language)
     if sh9:
         lines += [_sh9_function(d, np.asarray(bake.sh)[d]) for d in range(D)]
@@ -129,8 +118,8 @@ def source(bake: Bake, language: str = "glsl", *, y_up: bool = False, flip_v: bo
         "    float u = clamp(float(HF_LAYERS - 1) * log(rho / HF_RHO0) / log(HF_RHO1 / HF_RHO0), 0.0, float(HF_LAYERS - 1));",
         "    int j = min(int(floor(u)), HF_LAYERS - 2);",
         "    float t = u - float(j);",
-        "    vec4 l0 = HF_LAYER[j];",
-        "    vec4 l1 = HF_LAYER[j + 1];",
+        "    vec4 l0 = HF_LAYER0[j];",
+        "    vec4 l1 = HF_LAYER0[j + 1];",
         "    vec3 a0 = normalize(mix(r, n, l0.w));",
         "    vec3 a1 = normalize(mix(r, n, l1.w));",
         f"    vec2 wuv = vec2((clamp(x * {_f(X)} - 0.5, 0.0, {_f(X - 1)}) + 0.5) / {_f(X)}, (u + 0.5) / {_f(layers)});",
@@ -140,31 +129,24 @@ def source(bake: Bake, language: str = "glsl", *, y_up: bool = False, flip_v: bo
     for t in range(pl.tables):
         body.append(f"    vec3 w{t} = textureLod(hf_W{t}, wuv, 0.0).rgb;")
         chans += [f"w{t}.{c}" for c in "rgb"]
-    if harm:
-        c0, c1 = [], []
-        for i in range(pl.maps):
-            body.append(f"    vec4 q0_{i} = hf_layer4(hf_P{i}, l0, a0);")
-            body.append(f"    vec4 q1_{i} = hf_layer4(hf_P{i}, l1, a1);")
-            c0 += [f"q0_{i}.{c}" for c in "xyzw"]
-            c1 += [f"q1_{i}.{c}" for c in "xyzw"]
+    for i in range(pl.maps):  # each map at both layers (P_k's RGB, or the tensor's face-gauge channels)
+        body.append(f"    vec3 q0_{i} = hf_layer(hf_P{i}, HF_LAYER{i}[j], HF_ATLAS{i}, a0);")
+        body.append(f"    vec3 q1_{i} = hf_layer(hf_P{i}, HF_LAYER{i}[j + 1], HF_ATLAS{i}, a1);")
     if mixed:  # hg0, hg1: whether each layer stores the harmonic (then its channels after K - 1 products are M's)
         body.append("    float hg0 = j >= HF_H0 ? 1.0 : 0.0;")
         body.append("    float hg1 = j + 1 >= HF_H0 ? 1.0 : 0.0;")
-    m0 = 3 * K - 3 if mixed else 3 * K  # the tensor's first channel
+    g = K - 1 if mixed else K  # the map holding the tensor
     for k in range(K):
-        if harm and mixed and k == K - 1:  # each layer's own meaning: P_K below the harmonic layers, 0 in them
-            body.append(f"    vec3 p{k} = mix((1.0 - hg0) * vec3({', '.join(c0[3 * k:3 * k + 3])}), "
-                        f"(1.0 - hg1) * vec3({', '.join(c1[3 * k:3 * k + 3])}), t);")
-        elif harm:
-            body.append(f"    vec3 p{k} = mix(vec3({', '.join(c0[3 * k:3 * k + 3])}), vec3({', '.join(c1[3 * k:3 * k + 3])}), t);")
+        if mixed and k == K - 1:  # each layer's own meaning: P_K below the harmonic layers, 0 in them
+            body.append(f"    vec3 p{k} = mix((1.0 - hg0) * q0_{k}, (1.0 - hg1) * q1_{k}, t);")
         else:
-            body.append(f"    vec3 p{k} = mix(hf_layer(hf_P{k}, l0, a0), hf_layer(hf_P{k}, l1, a1), t);")
+            body.append(f"    vec3 p{k} = mix(q0_{k}, q1_{k}, t);")
         body.append(f"    I_A += p{k} * {chans[2 * k]};")
         body.append(f"    I_B += p{k} * {chans[2 * k + 1]};")
     if harm:
         gs = ("hg0 * ", "hg1 * ") if mixed else ("", "")
-        body.append(f"    float hh = mix({gs[0]}hf_tensor({', '.join(c0[m0:m0 + 5])}, hf_tangent(n, a0)), "
-                    f"{gs[1]}hf_tensor({', '.join(c1[m0:m0 + 5])}, hf_tangent(n, a1)), t);")
+        body.append(f"    float hh = mix({gs[0]}hf_gauge(q0_{g}, a0, hf_tangent(n, a0)), "
+                    f"{gs[1]}hf_gauge(q1_{g}, a1, hf_tangent(n, a1)), t);")
         body.append(f"    I_A = hf_harmonic(I_A, hh * {chans[pl.harmonic_channel]});")
         body.append(f"    I_B = hf_harmonic(I_B, hh * {chans[pl.harmonic_channel + 1]});")
     for d in range(D):
@@ -184,10 +166,16 @@ def source(bake: Bake, language: str = "glsl", *, y_up: bool = False, flip_v: bo
     return _to_hlsl(text, bake) if language == "hlsl" else text
 
 
+def _layer_rows(atlas, shift, vec4: str, f) -> str:
+    """The constants (x0, y0, face size, axis shift) of every layer's block in one map's atlas."""
+    return ", ".join(f"{vec4}({f(x)}, {f(y)}, {f(s)}, {f(sh)})" for (x, y), s, sh in zip(atlas.offsets, atlas.sizes, shift))
+
+
 def _harmonic_functions(language: str) -> list[str]:
-    """``hf_tangent(n, a)`` (the unit tangent from the axis a towards n), ``hf_tensor(xx, yy, xy, xz, yz, t)``
-    (t^T M t, M_zz = -M_xx - M_yy) and ``hf_harmonic(i0, h)`` (i0 max(0, 1 + h / Y(i0)): the harmonic's
-    luminance coloured as the isotropic part): :func:`homofac.bake.model.tensor_read`, ``harmonic_colour``."""
+    """``hf_tangent(n, a)`` (the unit tangent from the axis a towards n), ``hf_gauge(m, a, t)`` (t^T M t from the
+    face-gauge channels m = (M'_uu, M'_vv, M'_uv), (u, v) the minor axes of a's cube face) and ``hf_harmonic(i0,
+    h)`` (i0 max(0, 1 + h / Y(i0)): the harmonic's luminance coloured as the isotropic part):
+    :func:`homofac.bake.gauge.gauge_read`, :func:`homofac.bake.model.harmonic_colour`."""
     msl, wgsl = language == "msl", language == "wgsl"
     v3, ft = ("float3", "float") if msl else (("vec3<f32>", "f32") if wgsl else ("vec3", "float"))
     f = (lambda x: L.float_literal(float(x), "f")) if msl else _f
@@ -204,10 +192,15 @@ def _harmonic_functions(language: str) -> list[str]:
     return [
         head("hf_tangent", [("n", v3), ("a", v3)], v3) + "  // unit tangent from the axis a towards n",
         "    " + let("g", v3, "n - dot(n, a) * a"),
-        f"    return g / max(sqrt(dot(g, g)), {f(1e-6)});",
+        f"    return g / max(sqrt(dot(g, g)), {f(TANGENT_FLOOR)});",
         "}",
-        head("hf_tensor", [(c, ft) for c in ("xx", "yy", "xy", "xz", "yz")] + [("t", v3)], ft) + "  // t^T M t, M_zz = -M_xx - M_yy",
-        f"    return xx * (t.x * t.x - t.z * t.z) + yy * (t.y * t.y - t.z * t.z) + {f(2.0)} * (xy * t.x * t.y + xz * t.x * t.z + yz * t.y * t.z);",
+        head("hf_gauge", [("m", v3), ("a", v3), ("t", v3)], ft) + "  // t^T M t from the face gauge (M'_uu, M'_vv, M'_uv)",
+        "    " + let("b", v3, "abs(a)"),
+        "    " + let("fx", "bool", "b.x >= b.y && b.x >= b.z"),
+        "    " + let("fy", "bool", "!fx && b.y >= b.z"),
+        "    " + let("tu", ft, "select(t.x, t.y, fx)" if wgsl else "fx ? t.y : t.x"),
+        "    " + let("tv", ft, "select(t.y, t.z, fx || fy)" if wgsl else "(fx || fy) ? t.z : t.y"),
+        f"    return tu * tu * m.x + tv * tv * m.y + {f(2.0)} * tu * tv * m.z;",
         "}",
         head("hf_harmonic", [("i0", v3), ("h", ft)], v3) + "  // i0 max(0, 1 + h / Y(i0))",
         "    " + let("y", ft, f"dot(i0, {lum})"),
@@ -302,7 +295,6 @@ def _to_hlsl(text: str, bake: Bake) -> str:
         line = line.replace("textureLod(t, vec2(uv.x, hf_flip_v(uv.y)), 0.0)", "t.SampleLevel(ts, vec2(uv.x, hf_flip_v(uv.y)), 0)")
         for k in range(bake.plan.maps):
             line = line.replace(f"hf_layer(hf_P{k}, ", f"hf_layer(hf_P{k}, sampler_hf_P{k}, ")
-            line = line.replace(f"hf_layer4(hf_P{k}, ", f"hf_layer4(hf_P{k}, sampler_hf_P{k}, ")
         for d in range(bake.plan.diffuse):
             line = line.replace(f"hf_cube(hf_E{d}, ", f"hf_cube(hf_E{d}, sampler_hf_E{d}, ")
         for t in range(bake.plan.tables):
@@ -317,8 +309,8 @@ def _to_hlsl(text: str, bake: Bake) -> str:
 
 def _names(bake: Bake) -> list[tuple[str, str]]:
     """``(texture name, comment)`` of every texture, in binding order (P<k>, E<d>, W<t>)."""
-    pl, atlas = bake.plan, bake.atlas
-    return ([(f"hf_P{k}", f"P{k}: {pl.layers} layers in a {atlas.width} x {atlas.height} atlas") for k in range(pl.maps)]
+    pl, atlases = bake.plan, bake.atlases
+    return ([(f"hf_P{k}", f"P{k}: {pl.layers} layers in a {a.width} x {a.height} atlas") for k, a in enumerate(atlases)]
             + [(f"hf_E{d}", f"E{d}: cube {pl.diffuse_size}") for d in range(pl.diffuse)]
             + [(f"hf_W{t}", f"W{t}: {pl.layers} x {pl.nv_size} weight table") for t in range(pl.tables)])
 
@@ -329,7 +321,7 @@ def _metal_or_wgsl(bake: Bake, language: str, *, y_up: bool, flip_v: bool) -> st
     ``HomofacIblTerms`` struct; ``HOMOFAC_Y_UP`` / ``HOMOFAC_FLIP_V`` constants): the same model as the GLSL."""
     msl = language == "msl"
     lang = L.get(language)
-    pl, atlas = bake.plan, bake.atlas
+    pl, atlases = bake.plan, bake.atlases
     K, D, layers, X, se = pl.terms, pl.diffuse, pl.layers, pl.nv_size, pl.diffuse_size
     f = (lambda x: L.float_literal(float(x), "f")) if msl else _f
     v2, v3, v4 = ("float2", "float3", "float4") if msl else ("vec2<f32>", "vec3<f32>", "vec4<f32>")
@@ -342,7 +334,6 @@ def _metal_or_wgsl(bake: Bake, language: str, *, y_up: bool, flip_v: bool) -> st
         f"// {lang.title}. Generated from the bake's records; the interface is pinned (docs/format.md).",
         "// Frame: homofac world, +z up; n, v point away from the surface (v towards the viewer).",
     ]
-    rows = [f"{v4}({f(x)}, {f(y)}, {f(sz)}, {f(sh)})" for (x, y), sz, sh in zip(atlas.offsets, atlas.sizes, bake.shift)]
     if msl:
         lines.append(lang.header)
         lines += ["#define HOMOFAC_Y_UP"] if y_up else []
@@ -354,8 +345,9 @@ def _metal_or_wgsl(bake: Bake, language: str, *, y_up: bool, flip_v: bool) -> st
                   f"constant int HF_LAYERS = {layers};", *([f"constant int HF_H0 = {h0};  // the first layer storing the harmonic (mixed)"] if mixed else []),
                   f"constant float HF_RHO0 = {f(bake.roughness[0])};",
                   f"constant float HF_RHO1 = {f(bake.roughness[-1])};",
-                  f"constant float2 HF_ATLAS = float2({f(atlas.width)}, {f(atlas.height)});",
-                  f"constant float4 HF_LAYER[{layers}] = {{{', '.join(rows)}}};  // x0, y0, face size, axis shift",
+                  *(line for i, a in enumerate(atlases) for line in (
+                      f"constant float2 HF_ATLAS{i} = float2({f(a.width)}, {f(a.height)});  // P{i}'s atlas",
+                      f"constant float4 HF_LAYER{i}[{layers}] = {{{_layer_rows(a, bake.shift, v4, f)}}};  // x0, y0, face size, axis shift")),
                   "#ifdef HOMOFAC_FLIP_V", "float hf_flip_v(float v) { return 1.0f - v; }", "#else",
                   "float hf_flip_v(float v) { return v; }", "#endif", cube_src,
                   "float3 hf_read(texture2d<float> t, float2 uv) { return t.sample(hf_sampler, float2(uv.x, hf_flip_v(uv.y)), level(0.0f)).rgb; }"]
@@ -370,8 +362,10 @@ def _metal_or_wgsl(bake: Bake, language: str, *, y_up: bool, flip_v: bool) -> st
         lines += [f"const HF_LAYERS: i32 = {layers};", *([f"const HF_H0: i32 = {h0};  // the first layer storing the harmonic (mixed)"] if mixed else []),
                   f"const HF_RHO0: f32 = {f(bake.roughness[0])};",
                   f"const HF_RHO1: f32 = {f(bake.roughness[-1])};",
-                  f"const HF_ATLAS: vec2<f32> = vec2<f32>({f(atlas.width)}, {f(atlas.height)});",
-                  f"var<private> HF_LAYER: array<vec4<f32>, {layers}> = array<vec4<f32>, {layers}>({', '.join(rows)});  // x0, y0, face size, axis shift",
+                  *(line for i, a in enumerate(atlases) for line in (
+                      f"const HF_ATLAS{i}: vec2<f32> = vec2<f32>({f(a.width)}, {f(a.height)});  // P{i}'s atlas",
+                      f"var<private> HF_LAYER{i}: array<vec4<f32>, {layers}> = array<vec4<f32>, {layers}>({_layer_rows(a, bake.shift, v4, f)});"
+                      "  // x0, y0, face size, axis shift")),
                   "fn hf_flip_v(v: f32) -> f32 { return select(v, 1.0 - v, HOMOFAC_FLIP_V); }", cube_src,
                   "struct HomofacIblTerms { I_d: vec3<f32>, I_A: vec3<f32>, I_B: vec3<f32> }"]
     one, half, zero = f(1.0), f(0.5), f(0.0)
@@ -396,7 +390,7 @@ def _metal_or_wgsl(bake: Bake, language: str, *, y_up: bool, flip_v: bool) -> st
     # layer and cube reads: one helper each (the GLSL's), per texture in WGSL (textures are not function arguments there)
     def layer_body(tname):
         return ([let("s", ft, "layer.z")] + coords +
-                [let("uv", v2, f"{v2}(layer.x + floor(fuv.x + {half}) * s + cu + {half}, layer.y + cv + {half}) / HF_ATLAS"),
+                [let("uv", v2, f"{v2}(layer.x + floor(fuv.x + {half}) * s + cu + {half}, layer.y + cv + {half}) / atlas"),
                  f"return {read(tname, 'uv')};"])
 
     def cube_body(tname):
@@ -405,23 +399,12 @@ def _metal_or_wgsl(bake: Bake, language: str, *, y_up: bool, flip_v: bool) -> st
 
     harm = bool(pl.harmonic)
 
-    def layer4_body(tname):  # the RGBA read of a specular map with the harmonic
-        body = layer_body(tname)
-        return body[:-1] + [body[-1].replace(".rgb;", ";")]
-
     if msl:
-        lines += fn("hf_layer", [("t", "texture2d<float>"), ("layer", v4), ("d", v3)], v3, layer_body("t"))
+        lines += fn("hf_layer", [("t", "texture2d<float>"), ("layer", v4), ("atlas", v2), ("d", v3)], v3, layer_body("t"))
         lines += fn("hf_cube", [("t", "texture2d<float>"), ("s", ft), ("d", v3)], v3, cube_body("t"))
-        if harm:
-            lines += fn("hf_layer4", [("t", "texture2d<float>"), ("layer", v4), ("d", v3)], v4,
-                        [b.replace(f"return {read('t', 'uv')};", "return t.sample(hf_sampler, float2(uv.x, hf_flip_v(uv.y)), level(0.0f));")
-                         for b in layer_body("t")])
     else:
         for k in range(pl.maps):
-            if harm:
-                lines += fn(f"hf_layer4_P{k}", [("layer", v4), ("d", v3)], v4, layer4_body(f"hf_P{k}"))
-            else:
-                lines += fn(f"hf_layer_P{k}", [("layer", v4), ("d", v3)], v3, layer_body(f"hf_P{k}"))
+            lines += fn(f"hf_layer_P{k}", [("layer", v4), ("atlas", v2), ("d", v3)], v3, layer_body(f"hf_P{k}"))
         for d in range(D):
             lines += fn(f"hf_cube_E{d}", [("s", ft), ("d", v3)], v3, cube_body(f"hf_E{d}"))
     if harm:
@@ -444,7 +427,7 @@ def _metal_or_wgsl(bake: Bake, language: str, *, y_up: bool, flip_v: bool) -> st
              let("rho", ft, "clamp(roughness, HF_RHO0, HF_RHO1)"),
              let("u", ft, f"clamp({ft}(HF_LAYERS - 1) * log(rho / HF_RHO0) / log(HF_RHO1 / HF_RHO0), {zero}, {ft}(HF_LAYERS - 1))"),
              let("j", it, f"min({it}(floor(u)), HF_LAYERS - 2)"), let("t", ft, f"u - {ft}(j)"),
-             let("l0", v4, "HF_LAYER[j]"), let("l1", v4, "HF_LAYER[j + 1]"),
+             let("l0", v4, "HF_LAYER0[j]"), let("l1", v4, "HF_LAYER0[j + 1]"),
              let("a0", v3, f"normalize(mix(r, n, {bl('l0.w')}))"), let("a1", v3, f"normalize(mix(r, n, {bl('l1.w')}))"),
              let("wuv", v2, f"{v2}((clamp(x * {f(X)} - {half}, {zero}, {f(X - 1)}) + {half}) / {f(X)}, (u + {half}) / {f(layers)})")]
     chans = []
@@ -452,35 +435,25 @@ def _metal_or_wgsl(bake: Bake, language: str, *, y_up: bool, flip_v: bool) -> st
         body.append(let(f"w{t}", v3, read(f"hf.hf_W{t}" if msl else f"hf_W{t}", "wuv")))
         chans += [f"w{t}.{c}" for c in "xyz"]
     out = ("I_d", "I_A", "I_B") if msl else ("o.I_d", "o.I_A", "o.I_B")
-    if harm:
-        c0, c1 = [], []
-        for i in range(pl.maps):
-            for lay, a, cs in (("l0", "a0", c0), ("l1", "a1", c1)):
-                q = f"q{lay[1]}_{i}"
-                body.append(let(q, v4, f"hf_layer4(hf.hf_P{i}, {lay}, {a})" if msl else f"hf_layer4_P{i}({lay}, {a})"))
-                cs += [f"{q}.{c}" for c in "xyzw"]
+    for i in range(pl.maps):  # each map at both layers (P_k's RGB, or the tensor's face-gauge channels)
+        for jj, a in (("j", "a0"), ("j + 1", "a1")):
+            args = f"HF_LAYER{i}[{jj}], HF_ATLAS{i}, {a}"
+            body.append(let(f"q{a[1]}_{i}", v3, f"hf_layer(hf.hf_P{i}, {args})" if msl else f"hf_layer_P{i}({args})"))
     if mixed:  # hg0, hg1: whether each layer stores the harmonic (then its channels after K - 1 products are M's)
         for g, jj in (("hg0", "j"), ("hg1", "j + 1")):
             body.append(let(g, ft, f"({jj} >= HF_H0 ? {one} : {zero})" if msl else f"select({zero}, {one}, {jj} >= HF_H0)"))
-    m0 = 3 * K - 3 if mixed else 3 * K  # the tensor's first channel
+    g = K - 1 if mixed else K  # the map holding the tensor
     for k in range(K):
-        if harm and mixed and k == K - 1:  # each layer's own meaning: P_K below the harmonic layers, 0 in them
-            blend = (f"mix(({one} - hg0) * {v3}({', '.join(c0[3 * k:3 * k + 3])}), ({one} - hg1) * {v3}({', '.join(c1[3 * k:3 * k + 3])}), "
-                     f"{bl('t')})")
-            body.append(let(f"p{k}", v3, blend))
-        elif harm:
-            blend = f"mix({v3}({', '.join(c0[3 * k:3 * k + 3])}), {v3}({', '.join(c1[3 * k:3 * k + 3])}), {bl('t')})"
-            body.append(let(f"p{k}", v3, blend))
-        elif msl:
-            body.append(let(f"p{k}", v3, f"mix(hf_layer(hf.hf_P{k}, l0, a0), hf_layer(hf.hf_P{k}, l1, a1), float3(t))"))
+        if mixed and k == K - 1:  # each layer's own meaning: P_K below the harmonic layers, 0 in them
+            body.append(let(f"p{k}", v3, f"mix(({one} - hg0) * q0_{k}, ({one} - hg1) * q1_{k}, {bl('t')})"))
         else:
-            body.append(let(f"p{k}", v3, f"mix(hf_layer_P{k}(l0, a0), hf_layer_P{k}(l1, a1), t)"))
+            body.append(let(f"p{k}", v3, f"mix(q0_{k}, q1_{k}, {bl('t')})"))
         body.append(f"{out[1]} = {out[1]} + p{k} * {chans[2 * k]};")
         body.append(f"{out[2]} = {out[2]} + p{k} * {chans[2 * k + 1]};")
     if harm:
         gs = ("hg0 * ", "hg1 * ") if mixed else ("", "")
-        body.append(let("h0", ft, f"{gs[0]}hf_tensor({', '.join(c0[m0:m0 + 5])}, hf_tangent(n, a0))"))
-        body.append(let("h1", ft, f"{gs[1]}hf_tensor({', '.join(c1[m0:m0 + 5])}, hf_tangent(n, a1))"))
+        body.append(let("h0", ft, f"{gs[0]}hf_gauge(q0_{g}, a0, hf_tangent(n, a0))"))
+        body.append(let("h1", ft, f"{gs[1]}hf_gauge(q1_{g}, a1, hf_tangent(n, a1))"))
         body.append(let("hh", ft, "h0 + (h1 - h0) * t"))
         body.append(f"{out[1]} = hf_harmonic({out[1]}, hh * {chans[pl.harmonic_channel]});")
         body.append(f"{out[2]} = hf_harmonic({out[2]}, hh * {chans[pl.harmonic_channel + 1]});")
@@ -508,49 +481,38 @@ def _metal_or_wgsl(bake: Bake, language: str, *, y_up: bool, flip_v: bool) -> st
     return "\n".join(x for x in lines if x != "") + "\n"
 
 
+#: The tensor's channels in a specular map: the face gauge's (M'_uu, M'_vv, M'_uv) (:mod:`.gauge`).
+TENSOR_CHANNELS = ("M.uu", "M.vv", "M.uv")
+
+
 def specular_channels(bake: Bake) -> list[list[str]]:
-    """The channels of each specular map ``P<i>``: ``P<k>.r/g/b`` of the K products; with the plan's ``harmonic``
-    followed by the tensor's ``M.xx, M.yy, M.xy, M.xz, M.yz``, four to a map (RGBA, the last padded with ``-``)."""
+    """The channels of each specular RGB map ``P<i>``: ``P<k>.r/g/b`` of the K products; with the plan's
+    ``harmonic`` one more map, the tensor's face-gauge channels ``M.uu, M.vv, M.uv``; ``mixed``: the last
+    product's map holds them in the harmonic layers (``P1.r/M.uu``, ...)."""
     pl = bake.plan
-    flat = [f"P{k}.{c}" for k in range(pl.terms) for c in "rgb"]
-    if not pl.harmonic:
-        return [flat[3 * k:3 * k + 3] for k in range(pl.terms)]
-    if pl.mixed:  # after K - 1 products: P_K's RGB below the harmonic layers, the tensor in them
-        tensor = ["M.xx", "M.yy", "M.xy", "M.xz", "M.yz"]
-        flat = flat[:3 * pl.terms - 3] + [f"{p}/{m}" for p, m in zip(flat[3 * pl.terms - 3:] + ["-", "-"], tensor)]
-        flat += ["-"] * (4 * pl.maps - len(flat))
-        return [flat[4 * i:4 * i + 4] for i in range(pl.maps)]
-    flat += ["M.xx", "M.yy", "M.xy", "M.xz", "M.yz"]
-    flat += ["-"] * (4 * pl.maps - len(flat))
-    return [flat[4 * i:4 * i + 4] for i in range(pl.maps)]
+    maps = [[f"P{k}.{c}" for c in "rgb"] for k in range(pl.terms)]
+    if pl.harmonic and pl.mixed:
+        maps[-1] = [f"{p}/{m}" for p, m in zip(maps[-1], TENSOR_CHANNELS)]
+    elif pl.harmonic:
+        maps.append(list(TENSOR_CHANNELS))
+    return maps
 
 
-def _specular_layer(bake: Bake, j: int) -> np.ndarray:
-    """Layer j's specular channels (S, 6 S, C) in :func:`specular_channels`' order (a tensor of 0 below the
-    harmonic's roughness)."""
+def _specular_layer(bake: Bake, j: int, i: int) -> np.ndarray:
+    """Layer j's block (S, 6 S, 3) of specular map i (:func:`specular_channels`): P_i's RGB, or the tensor's
+    channels (0 in a layer without the harmonic); mixed: the last map holds the tensor in the harmonic layers."""
     p = np.asarray(bake.P[j], np.float32)
-    flat = p.reshape(p.shape[0], p.shape[1], -1)
-    if not bake.plan.harmonic:
-        return flat
-    h = bake.H[j] if bake.H and bake.H[j] is not None else np.zeros(p.shape[:2] + (5,), np.float32)
-    if bake.plan.mixed:  # P_K's RGB (then 2 zeros), or in a harmonic layer the tensor, after the first K - 1 products
-        k1 = 3 * bake.plan.terms - 3
-        tail = h if bake.H and bake.H[j] is not None else np.concatenate([flat[..., k1:], np.zeros(p.shape[:2] + (2,), np.float32)], -1)
-        flat = np.concatenate([flat[..., :k1], tail], -1)
-        pad = np.zeros(p.shape[:2] + (4 * bake.plan.maps - flat.shape[2],), np.float32)
-        return np.concatenate([flat, pad], axis=-1)
-    pad = np.zeros(p.shape[:2] + (4 * bake.plan.maps - flat.shape[2] - 5,), np.float32)
-    return np.concatenate([flat, np.asarray(h, np.float32), pad], axis=-1)
+    h = bake.H[j] if bake.H and bake.H[j] is not None else None
+    pl = bake.plan
+    if pl.harmonic and i == pl.terms - (1 if pl.mixed else 0) and (h is not None or not pl.mixed):
+        return np.zeros(p.shape[:2] + (3,), np.float32) if h is None else np.asarray(h, np.float32)
+    return p[:, :, i]
 
 
 def texture_arrays(bake: Bake) -> list[tuple[str, object]]:
-    """``(uniform name, (H, W, 3 or 4) float32 array)`` of every texture, as the files hold them."""
+    """``(uniform name, (H, W, 3) float32 array)`` of every texture, as the files hold them."""
     pl = bake.plan
-    if pl.harmonic:
-        layers = [_specular_layer(bake, j) for j in range(pl.layers)]
-        out = [(f"hf_P{i}", assemble(bake.atlas, [layer[:, :, 4 * i:4 * i + 4] for layer in layers], 4)) for i in range(pl.maps)]
-    else:
-        out = [(f"hf_P{k}", assemble(bake.atlas, [np.asarray(p)[:, :, k] for p in bake.P], 3)) for k in range(pl.terms)]
+    out = [(f"hf_P{i}", assemble(a, [_specular_layer(bake, j, i) for j in range(pl.layers)], 3)) for i, a in enumerate(bake.atlases)]
     e = np.asarray(bake.E, np.float32) if pl.diffuse_basis == "texture" else None
     out += [(f"hf_E{d}", np.ascontiguousarray(e[:, :, d])) for d in range(pl.diffuse if pl.diffuse_basis == "texture" else 0)]
     w = np.asarray(bake.W, np.float32)

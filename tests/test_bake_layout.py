@@ -1,0 +1,137 @@
+"""Each specular map's own atlas (bake.json schema 5): explicit blocks per map, checked on load, read by every
+shader language and by ``Bake.terms`` whatever packer placed them."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+import homofac as hf
+import test_bake_harmonic as th
+from homofac.bake import shader
+from homofac.bake.atlas import Atlas, check_layout
+from homofac.errors import HomofacError
+from test_bake import TINY, as_schema_4, check_glsl_terms, check_glslang, check_msl, check_wgsl
+
+
+def _row_layout(atlas: Atlas, blocks) -> Atlas:
+    """The same blocks in one row, last layer's first (another packer's layout: offsets unlike the shelf's)."""
+    own = sorted(set(blocks), reverse=True)
+    x, at = 0, {}
+    for j in own:
+        at[j] = (x, 3)
+        x += 6 * atlas.sizes[j]
+    return Atlas(x, 3 + max(atlas.sizes), tuple(at[b] for b in blocks), atlas.sizes)
+
+
+def _moved(b):
+    """``b`` with every map after the first in :func:`_row_layout` (the first keeps the shelf packer's)."""
+    a = b.atlas
+    blocks = b.blocks or tuple(range(len(b.P)))
+    return dataclasses.replace(b, layouts=(a,) + (_row_layout(a, blocks),) * (b.plan.maps - 1))
+
+
+@pytest.fixture(scope="module")
+def moved():
+    """A plain (RGB, K = 2) and a mixed (RGBA, harmonic) bake, each with its second map in its own layout."""
+    plain = hf.bake("forest", preset="balanced", harmonic=0.0, **TINY)
+    mixed = hf.bake("forest", preset="balanced", harmonic=0.55, mixed=True, **th.TINY)
+    return {"plain": (plain, _moved(plain)), "mixed": (mixed, _moved(mixed))}
+
+
+def test_check_layout_finds_overlaps_and_blocks_outside():
+    assert check_layout(Atlas(96, 16, ((0, 0), (0, 0), (48, 8)), (8, 8, 8))) == (0, 0, 2)
+    with pytest.raises(ValueError, match="layers 0 and 1 overlap"):
+        check_layout(Atlas(96, 16, ((0, 0), (47, 0)), (8, 8)))
+    with pytest.raises(ValueError, match="layers 1 and 2 overlap"):
+        check_layout(Atlas(192, 16, ((96, 0), (0, 0), (0, 0)), (8, 16, 8)))  # same corner, another size
+    with pytest.raises(ValueError, match="layer 1's block .* outside"):
+        check_layout(Atlas(96, 16, ((0, 0), (49, 0)), (8, 8)))
+
+
+@pytest.mark.parametrize("kind", ["plain", "mixed"])
+def test_own_layouts_change_nothing_but_the_files(moved, kind, tmp_path):
+    """The maps' texels and the terms are the bake's whatever layout each map has; bake.json lists each map's
+    blocks and the directory reads back to the same layouts and terms."""
+    b, m = moved[kind]
+    assert m.atlases[1] != m.atlases[0] and m.atlases[0] == b.atlas
+    n, v = th._pairs(200, 3)
+    for rho in (0.05, 0.4, 0.9):
+        np.testing.assert_array_equal(np.asarray(m.terms(n, v, rho)), np.asarray(b.terms(n, v, rho)))
+    arrays = dict(shader.texture_arrays(m))
+    a1 = m.atlases[1]
+    assert arrays["hf_P1"].shape[:2] == (a1.height, a1.width)
+    assert m.texture_bytes() != b.texture_bytes()
+    out = m.save(tmp_path / "b", exr="float32")
+    doc = json.loads((out / "bake.json").read_text())
+    maps = [t for t in doc["textures"] if t["kind"] == "prefiltered"]
+    assert doc["schema_version"] == 5 and doc["texture_bytes_half"] == m.texture_bytes()
+    assert [[(k["x"], k["y"], k["size"]) for k in t["blocks"]] for t in maps] == [
+        [(x, y, s) for (x, y), s in zip(a.offsets, a.sizes)] for a in m.atlases]
+    assert [(t["width"], t["height"]) for t in maps] == [(a.width, a.height) for a in m.atlases]
+    back = hf.load(out)
+    assert back.atlases == m.atlases and back.blocks == b.blocks
+    np.testing.assert_allclose(np.asarray(back.terms(n, v, 0.4)), np.asarray(b.terms(n, v, 0.4)), rtol=1e-6, atol=1e-8)
+
+
+@pytest.mark.parametrize("kind", ["plain", "mixed"])
+def test_gpu_reads_each_map_in_its_own_atlas(moved, kind):
+    b, m = moved[kind]
+    n, v = th._pairs(300, 5)
+    src = check_glsl_terms(m, n, v, (0.05, 0.45, 0.9), 1e-4 if kind == "plain" else 1e-3)
+    assert "HF_LAYER1[j]" in src and "HF_ATLAS1" in src
+
+
+def test_own_layouts_compile_and_run_in_every_language(moved, tmp_path):
+    m = moved["mixed"][1]
+    for language in ("glsl_es", "hlsl"):
+        check_glslang(m, language, tmp_path, y_ups=(False,))
+    check_msl(m, tmp_path, y_ups=(False,))
+    check_wgsl(m, 300, (1e-3, 3e-3))
+    check_wgsl(moved["plain"][1], 300, (1e-4, 2e-3))
+
+
+def _edit(doc: dict, texture: int, layer: int, **block) -> dict:
+    bad = json.loads(json.dumps(doc))
+    [t for t in bad["textures"] if t["kind"] == "prefiltered"][texture]["blocks"][layer].update(block)
+    return bad
+
+
+def test_loader_checks_each_maps_blocks(moved, tmp_path):
+    """A schema-5 bake.json whose blocks overlap, leave the atlas, differ from the layers' sizes, are missing or
+    share differently from map to map is refused with one line naming it; schema 4 (x, y of the shelf layout)
+    still loads."""
+    b = moved["plain"][0]
+    out = b.save(tmp_path / "b", exr="float32")
+    f = out / "bake.json"
+    doc = json.loads(f.read_text())
+    blocks = doc["textures"][0]["blocks"]
+    assert blocks[0] == blocks[1] != blocks[2]  # the sharp layers share one block
+    height = doc["textures"][1]["height"]
+    assert blocks[2]["y"] >= blocks[2]["size"] // 2 and blocks[0]["y"] == 0
+    no_blocks = json.loads(json.dumps(doc))
+    del no_blocks["textures"][1]["blocks"]
+    own = _edit(doc, 1, 1, x=0, y=doc["textures"][1]["height"])  # map 1: layer 1 its own block, in a taller atlas
+    own["textures"][1]["height"] += blocks[1]["size"]
+    cases = [
+        (_edit(doc, 1, 2, y=blocks[2]["y"] - blocks[2]["size"] // 2), "layers 0 and 2 overlap"),
+        (_edit(doc, 1, 2, y=height - blocks[2]["size"] + 1), "outside"),
+        (_edit(doc, 0, 2, size=blocks[2]["size"] // 2), "do not match the layers' sizes"),
+        (no_blocks, "one block per layer"),
+        (own, "share blocks"),
+    ]
+    for bad, message in cases:
+        f.write_text(json.dumps(bad))
+        with pytest.raises(HomofacError, match=message) as e:
+            hf.load(out)
+        assert "\n" not in str(e.value)
+    f.write_text(json.dumps(as_schema_4(doc)))
+    np.testing.assert_array_equal(np.asarray(hf.load(out).P[2]), np.asarray(b.P[2]))
+    moved_offsets = as_schema_4(doc)
+    moved_offsets["layers"][2]["y"] += 1
+    f.write_text(json.dumps(moved_offsets))
+    with pytest.raises(HomofacError, match="do not match the atlas layout"):
+        hf.load(out)
