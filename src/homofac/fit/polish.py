@@ -55,8 +55,8 @@ from .sums import SumFit, fit_sum, line_size_of, with_highlight_context
 def polish_pairs(target: Target, parametrization: str, lin: LinearOptions, seed: int, cache: bool,
                  log: Callable[[str], None], stride: int = 1) -> Samples:
     """The off-grid training pairs of the polish (texel sampling at ``lin.polish_size``, no validation);
-    with ``stride`` k > 1 every k-th view of each normal of them (about 1/k of the pairs, the polish
-    trial's: :func:`homofac.fit.plan.build_plan`), only those evaluated."""
+    with ``stride`` k > 1 every k-th view of each normal of them (about 1/k of the pairs: a strided polish,
+    the plan's ``polish_stride``), only those evaluated."""
     settings = {"kind": "texels", "size": int(lin.polish_size), "validation": 0, "seed": int(seed),
                 "cache": bool(cache)}
     if stride <= 1 or target.kind != "lighting":
@@ -200,7 +200,7 @@ def ridge_samples(target: Target, structure: Structure, count: int, seed: int) -
 
 
 #: Levenberg-Marquardt steps per compiled call of a polish stage (:func:`homofac.fit.refine.solve`'s
-#: ``chunk``): the plan's 2-step trial and the 8-step polish on the same pairs share one program.
+#: ``chunk``): a polish of any even number of steps on the same pairs runs one program.
 POLISH_CHUNK = 2
 
 
