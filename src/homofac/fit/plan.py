@@ -104,19 +104,20 @@ RACE = {"race": (10,), "race_keep": (2,), "race_margin": 0.03, "race_stride": 4}
 
 #: ``balanced``'s race and ALS stop: ``best``'s first round (10 sweeps on every 4th pair), then only the lowest
 #: is fitted in full, and a fit stops where a sweep lowers its objective by less than 1e-3 of it (``fast``'s
-#: stop). On the accuracy benchmark's four speed cases the first round's lowest was the full fits' lowest
-#: wherever a runner-up within 3 % was fitted too, and each full fit is about a quarter of the preset's CPU time
-#: (docs/notes/speed.md, "balanced, sixteenth session").
+#: stop). On the accuracy benchmark's four speed cases a runner-up within 3 % was fitted in full on gold / forest
+#: only, and the first round's lowest was the full fits' lowest there (0.1291 against 0.1298); each full fit is
+#: about a quarter of the preset's CPU time (docs/notes/speed.md, "balanced, sixteenth session").
 BALANCED_RACE = {**RACE, "race_keep": (1,), "race_margin": 0.0, "tolerance": 1e-3}
 
-#: ``fast`` has no polish: on the accuracy benchmark's four speed cases a 2-step polish lowered the figure on
-#: one (mirror / studio, 0.3514 unpolished against 0.3454 polished on the converged truth, +1.7 %), and the
+#: ``fast`` has no polish: on the accuracy benchmark's four speed cases the polish then (a 2-step trial, then 8
+#: steps on every pair) lowered the figure on one (mirror / studio, 0.3514 unpolished against 0.3454 polished on the converged truth, +1.7 %), and the
 #: polish's off-grid pairs and Levenberg-Marquardt program were a third of the preset's time
 #: (docs/notes/speed.md, "The third speed work"). ``balanced``'s polish is 2 steps on every 4th grid pair and
-#: off-grid view, kept where it lowers the validation figure: on the four speed cases it took the figure as far
-#: as 8 steps on every pair did where that was kept (mirror / studio 0.2303 -> 0.2264 against 0.2260), lower
-#: where 8 steps were not kept (plastic / city 0.0545 -> 0.0519 against 0.0591), for a quarter of the pairs'
-#: lighting and a quarter of the steps (docs/notes/speed.md, "balanced, sixteenth session").
+#: off-grid view, kept where it lowers the validation figure: on the four speed cases it came within 0.5 % of 8
+#: steps on every pair where those were kept (mirror / studio 0.2303 -> 0.2264 against 0.2260, metal / interior
+#: 0.2895 -> 0.2888 against 0.2873) and below them where they were not (plastic / city 0.0545 -> 0.0519 against
+#: 0.0591), for a quarter of the pairs' lighting and a quarter of the steps; the preset's nrmse on the converged
+#: truth moved by +0.1, -5.5, +0.4 and +1.6 % (docs/notes/speed.md, "balanced, sixteenth session").
 POLISH_STRIDE = 4
 
 #: The presets (names pinned). ``fast`` and ``balanced`` are the 4- and 8-lookup settings measured on
