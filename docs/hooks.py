@@ -989,7 +989,8 @@ def presets_table() -> str:
         lines = "32" if not p.line_ratio else f"vote 32 / {p.line_ratio} x texture_size"
         rows.append([code(name), p.lookups, f"{p.grid_count:,}", f"{p.validation:,}", lines, "yes" if p.table else "no",
                      "vote" if p.disc_vote else "no", p.nv_balance,
-                     f"{p.polish} steps, kept by vote" + (f", after a {p.polish_trial}-step trial" if p.polish_trial else ""),
+                     f"{p.polish} steps" + (f" on every {p.polish_stride}th pair" if p.polish_stride > 1 else "") + ", kept by vote"
+                     if p.polish else "none",
                      f"{p.ridge:,}" if p.ridge else "0", ", ".join(p.directions) or "all"])
     return table(["preset", "lookups", "grid pairs", "validation pairs", "line texels", "highlight tables",
                   "light disc", "nv_balance (kd > 0)", "polish", "ridge pairs", "grid directions"], rows)

@@ -276,21 +276,21 @@ def test_a_string_that_is_no_label_is_refused_in_one_line():
         assert "\n" not in str(e.value)
 
 
-def test_the_presets_try_the_candidates_of_their_grid_directions_and_trial_the_polish_without_ridge_pairs(envs):
+def test_the_presets_try_the_candidates_of_their_grid_directions_and_say_how_they_polish(envs):
     """A preset's candidates lie on its grid directions (one grid of training pairs to draw); a named
-    parametrization's samples given decide the direction instead. The polish trial is planned where the
-    polish has no ridge stage (whose benefit a short polish without ridge pairs cannot show)."""
+    parametrization's samples given decide the direction instead. The plan says on which pairs the kept
+    structure is polished (every k-th), and a polish of every candidate (given) plans none."""
     t = _gold(envs["interior"])
     grid = FitOptions().sampling.model_copy(update={"kind": "grid"})
     for name, p in plan.PRESETS.items():
         got = _plan(t, name)
         dirs = {hf.fit.draw.grid_projection("lighting", c.parametrization, grid) for c in got.candidates}
         assert dirs <= set(p.directions or dirs)
-        assert got.polish_trial == (p.polish_trial if got.polish and not got.ridge else 0)
-        assert got.polish_trial_stride == (p.trial_stride if got.polish_trial else 1)
-        assert ("trial" in str(got)) == bool(got.polish_trial)
-        assert (f"every {got.polish_trial_stride}th pair" in str(got)) == (got.polish_trial_stride > 1)
-    assert _plan(t, "fast", {"advanced": {"linear": {"polish": 4}}}).polish_trial == 0  # every candidate polished
+        assert got.polish == p.polish and got.polish_stride == (p.polish_stride if got.polish else 1)
+        assert got.to_dict()["polish_stride"] == got.polish_stride
+        assert (f"every {got.polish_stride}th grid pair" in str(got)) == (got.polish_stride > 1)
+    given = _plan(t, "balanced", {"advanced": {"linear": {"polish": 4}}})  # every candidate polished
+    assert (given.polish, given.polish_stride) == (0, 1) and given.linear.polish == 4
     given_r = _plan(t, "fast", samples_given="r")
     assert {hf.fit.draw.grid_projection("lighting", c.parametrization, grid) for c in given_r.candidates} == {"r"}
 
@@ -390,8 +390,8 @@ def test_the_race_keeps_the_structure_that_full_fits_of_every_candidate_keep():
     assert [r["label"] for r in fac.selection["tried"]] == rec["kept"]
 
 
-def test_the_polish_trial_pairs_are_every_kth_view_of_the_polish_pairs_with_the_same_values(envs):
-    """The trial's off-grid pairs (``polish_pairs(stride=k)``) are a subset of the polish's own, about 1/k of
+def test_the_strided_polish_pairs_are_every_kth_view_of_the_polish_pairs_with_the_same_values(envs):
+    """A strided polish's off-grid pairs (``polish_pairs(stride=k)``) are a subset of the full one's, about 1/k of
     them, each with the value the polish's draw gives it (only the subset is evaluated)."""
     t = hf.light.with_context(_gold(envs["sun"]), "NRO")
     lin = hf.fit.options.LinearOptions(polish_size=6)

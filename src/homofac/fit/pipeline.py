@@ -272,7 +272,7 @@ def _sums(target: Target, the_plan: Plan, samples: Samples, record: dict, sample
         _, smp, s_s = pools[proj]
         return tgt, smp, s_s
 
-    def pairs(stride: int = 1) -> Samples:  # the polish's off-grid pairs (every stride-th: its trial's), drawn once
+    def pairs(stride: int = 1) -> Samples:  # the polish's off-grid pairs (every stride-th view), drawn once
         if ("pairs", stride) not in polished:
             t0 = time.perf_counter()
             polished["pairs", stride] = polish.polish_pairs(target, opts.parametrization, lin, opts.sampling.seed,
@@ -398,23 +398,12 @@ def _sums(target: Target, the_plan: Plan, samples: Samples, record: dict, sample
     steps = the_plan.polish
     if steps and result.solver.get("method") == "als":
         tgt, smp, _ = pool(structure)
-        trial = None
-        if the_plan.polish_trial:  # a short polish first: where it does not lower the figure, none runs
-            tlin = lin.model_copy(update={"polish": the_plan.polish_trial, "ridge": 0})
-            k = the_plan.polish_trial_stride  # on every k-th grid and off-grid pair
-            short = as_result(structure, polish.polish_stage(tgt, structure, mapper, opts.texture_size,
-                                                             fits[structure, line],
-                                                             smp._replace(a=smp.a[::k], b=smp.b[::k], y=smp.y[::k]),
-                                                             pairs(k), tlin, log, seed=opts.sampling.seed))
-            trial = {**_trial(result, short, score, the_plan.polish_trial, structure.label(), log), "stride": k}
-        if trial is None or trial["falls"]:
-            plin = lin.model_copy(update={"polish": steps, "ridge": ridge})
-            stages = [as_result(structure, sf) for sf in polish.polish_stages(
-                tgt, structure, mapper, opts.texture_size, fits[structure, line], smp, pairs(), plin, log,
-                seed=opts.sampling.seed, direct=True)]
-            result = _polish_vote(result, stages, score, steps, ridge, structure.label(), log, trial)
-        else:
-            result = result.replace(selection={**result.selection, "polish": _unpolished(trial, steps)})
+        k = the_plan.polish_stride  # on every k-th grid pair and every k-th view of the off-grid pairs
+        plin = lin.model_copy(update={"polish": steps, "ridge": ridge})
+        stages = [as_result(structure, sf) for sf in polish.polish_stages(
+            tgt, structure, mapper, opts.texture_size, fits[structure, line], smp, pairs(k), plin, log,
+            seed=opts.sampling.seed, direct=True, stride=k)]
+        result = _polish_vote(result, stages, score, steps, ridge, structure.label(), log, k)
     return kept(result if analysis is None else result.replace(analysis=analysis))
 
 
@@ -453,28 +442,8 @@ def _figures(res: Result, score: Callable | None) -> dict:
     return plain if score is None else {**plain, sums.RIDGE_METRIC: float(score(res))}
 
 
-def _trial(result: Result, short: Result, score: Callable | None, steps: int, label: str, log) -> dict:
-    """The polish's trial: ``short`` (``steps`` Levenberg-Marquardt steps from the ALS fit ``result``,
-    without ridge pairs) against ``result`` on the figure the votes read; ``falls``: whether it is lower
-    (then the whole polish runs and votes, else none does: the plan's ``polish_trial``)."""
-    key, what = sums.scored_by(score is not None)
-    before, after = _figures(result, score), _figures(short, score)
-    falls = bool(after[key] < before[key])
-    log(f"polish trial of {label}: {steps} steps, {what} {before[key]:.4g} -> {after[key]:.4g}"
-        + ("" if falls else ": no polish (the validation error did not fall)"))
-    return {"steps": steps, "falls": falls, "before": before, "after": after}
-
-
-def _unpolished(trial: dict, steps: int) -> dict:
-    """``selection.polish`` where the trial (:func:`_trial`) did not lower the figure: nothing kept, the
-    trial's errors as the after figures, no stages."""
-    return {"steps": steps, **{f"{k}_before": v for k, v in trial["before"].items()},
-            **{f"{k}_after": v for k, v in trial["after"].items()}, "stages": [], "rule": "vote", "kept": False,
-            "stage": None, "ridge": 0, "start": None, "trial": trial}
-
-
 def _polish_vote(result: Result, stages: list[Result], score: Callable | None, steps: int, ridge: int,
-                 label: str, log, trial: dict | None = None) -> Result:
+                 label: str, log, stride: int = 1) -> Result:
     """The kept structure's ALS fit (``result``) or one of its polish ``stages`` (:func:`polish.polish_stages`
     with ``direct``: without the ridge pairs, then with them, then with them from the ALS fit): the stage
     of lowest validation error (``score``, the ridge stratum's, where given), kept only where its error is
@@ -493,7 +462,7 @@ def _polish_vote(result: Result, stages: list[Result], score: Callable | None, s
     note = {"steps": steps, **{f"{k}_before": v for k, v in before.items()},
             **{f"{k}_after": v for k, v in figures[best].items()}, "stages": described, "rule": "vote", "kept": keep,
             "stage": best if keep else None, "ridge": described[best]["ridge"] if keep else 0,
-            "start": described[best]["start"] if keep else None, **({"trial": trial} if trial else {})}
+            "start": described[best]["start"] if keep else None, "stride": int(stride)}
     return (stages[best] if keep else result).replace(selection={**result.selection, "polish": note})
 
 

@@ -46,9 +46,8 @@ class Preset(NamedTuple):
     polish and of the validation estimate (``advanced.linear.ridge``); ``analysis``: record Mahajan's in-out
     analysis (``advanced.analysis``); ``directions``: the grid directions
     (:func:`~homofac.fit.draw.grid_projection`) whose candidates a lighting fit tries (empty: all);
-    ``polish_trial``: steps of a short polish (no ridge pairs) run first, the polish running only where it
-    lowers the validation figure (0: no trial); ``trial_stride``: the trial fits every k-th grid pair and
-    every k-th view of the polish's off-grid pairs (only those evaluated); ``race``: the ALS sweep counts
+    ``polish_stride``: the polish fits every k-th grid pair and every k-th view of its off-grid pairs (only
+    those evaluated); ``race``: the ALS sweep counts
     (increasing) after which the candidates still in the race are ranked on the validation figure (every
     candidate runs its first sweeps on the training pairs with the programs of its full fit; after each
     round only the lowest and those within ``race_margin`` (relative) of it, at most ``race_keep`` of the
@@ -71,8 +70,7 @@ class Preset(NamedTuple):
     ridge: int
     analysis: bool
     directions: tuple[str, ...] = ()
-    polish_trial: int = 0
-    trial_stride: int = 1
+    polish_stride: int = 1
     race: tuple[int, ...] = ()
     race_keep: tuple[int, ...] = ()
     race_margin: float = 0.0
@@ -96,19 +94,31 @@ PRESET_DIRECTIONS = ("r_off",)
 #: less than 13 % from 3 sweeps to 30; stopping at 1e-3 moved the kept structures' figures by at most 0.3 %.
 FAST_RACE = {"race": (3,), "race_keep": (2,), "race_margin": 0.08, "tolerance": 1e-3}
 
-#: The race of ``balanced`` and ``best``: a first round of 10 ALS sweeps on every 4th training pair (fits of
-#: their own), the lowest and those within 3 % of it (at most 2) fitted in full (the screen of the second speed
-#: work: gold / forest 192 s CPU against 348-374 s for the 9 full fits, the kept structure 0.4 % above the full
-#: fits' lowest on the validation pairs). A first round on every pair, from which the kept would continue, costs
-#: more there: each of the 9 candidates' start (its highlight terms' own 15 sweeps) runs on every pair, and their
-#: figures cross between 6 and 8 sweeps (docs/notes/speed.md, "The race").
+#: The race of ``best``: a first round of 10 ALS sweeps on every 4th training pair (fits of their own), the
+#: lowest and those within 3 % of it (at most 2) fitted in full (the screen of the second speed work: gold /
+#: forest 192 s CPU against 348-374 s for the 9 full fits, the kept structure 0.4 % above the full fits' lowest
+#: on the validation pairs). A first round on every pair, from which the kept would continue, costs more there:
+#: each of the candidates' start (its highlight terms' own 15 sweeps) runs on every pair, and their figures
+#: cross between 6 and 8 sweeps (docs/notes/speed.md, "The race").
 RACE = {"race": (10,), "race_keep": (2,), "race_margin": 0.03, "race_stride": 4}
 
-#: ``fast`` has no polish: on the accuracy benchmark's four speed cases its 2-step trial lowered the figure on
-#: one (mirror / studio, 0.3514 unpolished against 0.3454 polished on the converged truth, +1.7 %), and the
+#: ``balanced``'s race and ALS stop: ``best``'s first round (10 sweeps on every 4th pair), then only the lowest
+#: is fitted in full, and a fit stops where a sweep lowers its objective by less than 1e-3 of it (``fast``'s
+#: stop). On the accuracy benchmark's four speed cases a runner-up within 3 % was fitted in full on gold / forest
+#: only, and the first round's lowest was the full fits' lowest there (0.1291 against 0.1298); each full fit is
+#: about a quarter of the preset's CPU time (docs/notes/speed.md, "balanced, sixteenth session").
+BALANCED_RACE = {**RACE, "race_keep": (1,), "race_margin": 0.0, "tolerance": 1e-3}
+
+#: ``fast`` has no polish: on the accuracy benchmark's four speed cases the polish then (a 2-step trial, then 8
+#: steps on every pair) lowered the figure on one (mirror / studio, 0.3514 unpolished against 0.3454 polished on the converged truth, +1.7 %), and the
 #: polish's off-grid pairs and Levenberg-Marquardt program were a third of the preset's time
-#: (docs/notes/speed.md, "The third speed work"). ``balanced``'s trial fits every 4th pair (TRIAL_STRIDE).
-TRIAL_STRIDE = 4
+#: (docs/notes/speed.md, "The third speed work"). ``balanced``'s polish is 2 steps on every 4th grid pair and
+#: off-grid view, kept where it lowers the validation figure: on the four speed cases it came within 0.5 % of 8
+#: steps on every pair where those were kept (mirror / studio 0.2303 -> 0.2264 against 0.2260, metal / interior
+#: 0.2895 -> 0.2888 against 0.2873) and below them where they were not (plastic / city 0.0545 -> 0.0519 against
+#: 0.0591), for a quarter of the pairs' lighting and a quarter of the steps; the preset's nrmse on the converged
+#: truth moved by +0.1, -5.5, +0.4 and +1.6 % (docs/notes/speed.md, "balanced, sixteenth session").
+POLISH_STRIDE = 4
 
 #: The presets (names pinned). ``fast`` and ``balanced`` are the 4- and 8-lookup settings measured on
 #: the accuracy benchmark (docs/notes/sums-research.md); ``best`` the 16-lookup ones ("the quality mode" of the notes):
@@ -120,8 +130,8 @@ PRESETS: dict[str, Preset] = {
                    disc_vote=False, nv_balance=1.0, polish=0, ridge=0, analysis=False, directions=PRESET_DIRECTIONS,
                    **FAST_RACE),
     "balanced": Preset(lookups=8, grid_count=GRID_COUNT, validation=DEFAULT_VALIDATION, line_ratio=0, table=False,
-                       disc_vote=False, nv_balance=1.0, polish=8, ridge=0, analysis=False,
-                       directions=PRESET_DIRECTIONS, polish_trial=2, trial_stride=TRIAL_STRIDE, **RACE),
+                       disc_vote=False, nv_balance=1.0, polish=2, ridge=0, analysis=False,
+                       directions=PRESET_DIRECTIONS, polish_stride=POLISH_STRIDE, **BALANCED_RACE),
     "best": Preset(lookups=16, grid_count=600_000, validation=80_000, line_ratio=4, table=True, disc_vote=True,
                    nv_balance=0.0, polish=8, ridge=20_000, analysis=False, directions=PRESET_DIRECTIONS,
                    vote_screen=RACE["race"][0], **RACE),
@@ -165,8 +175,7 @@ class Plan:
     candidates: tuple[Structure, ...]
     linear: LinearOptions | None
     polish: int  # steps of the kept structure's polish (0: none, or every candidate polished by linear.polish)
-    polish_trial: int  # steps of the short polish that decides whether the polish runs (0: it runs)
-    polish_trial_stride: int  # ... fitted on every k-th grid pair and polish pair
+    polish_stride: int  # the polish fits every k-th grid pair and every k-th view of its off-grid pairs
     race: tuple[int, ...]  # ALS sweeps after which the candidates still in are ranked (empty: no race)
     race_keep: tuple[int, ...]  # at most this many continue after each round
     race_margin: float  # ... the lowest and those within this relative margin of its figure
@@ -190,8 +199,7 @@ class Plan:
                 "max_lookups": self.max_lookups,
                 "candidates": [{"label": c.label(), "structure": c.record()} for c in self.candidates],
                 "linear": None if self.linear is None else self.linear.model_dump(),
-                "polish": self.polish, "polish_trial": self.polish_trial,
-                "polish_trial_stride": self.polish_trial_stride, "ridge": self.ridge,
+                "polish": self.polish, "polish_stride": self.polish_stride, "ridge": self.ridge,
                 "race": {"sweeps": list(self.race), "keep": list(self.race_keep), "margin": self.race_margin,
                          "stride": self.race_stride},
                 "line_sizes": list(self.line_sizes),
@@ -226,9 +234,8 @@ class Plan:
             if self.polish:
                 lines.append(f"  polish: {self.polish} Levenberg-Marquardt steps"
                              + (f", {self.ridge} ridge pairs" if self.ridge else "")
-                             + (f"; runs where a {self.polish_trial}-step trial"
-                                + (f" on every {self.polish_trial_stride}th pair" if self.polish_trial_stride > 1 else "")
-                                + " lowers the validation figure" if self.polish_trial else ""))
+                             + (f" on every {self.polish_stride}th grid pair and off-grid view"
+                                if self.polish_stride > 1 else ""))
         if len(self.line_sizes) > 1 or self.mode in ("sum", "choose"):
             lines.append("  line textures: " + " or ".join(str(n) for n in self.line_sizes) + " texels")
         if self.analysis:
@@ -261,7 +268,8 @@ def describe_race(race: tuple[int, ...], keep: tuple[int, ...], margin: float, s
     return "; ".join(f"after {n} ALS sweeps" + (f" on every {stride}th training pair" if stride > 1 and not j else "")
                      + " the lowest validation figure"
                      + (f" and those within {100 * margin:g} % of it (at most {k})" if k > 1 else "")
-                     + (" start over on every pair" if stride > 1 and not j else " continue from where they stopped")
+                     + ((" start over on every pair" if k > 1 else " starts over on every pair") if stride > 1 and not j
+                        else (" continue from where they stopped" if k > 1 else " continues from where it stopped"))
                      for j, (n, k) in enumerate(zip(race, keep)))
 
 
@@ -388,12 +396,11 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
         als_fit = lin.method in ("auto", "als") and (kind == "grid" or samples_given is not None)
         steps = 0 if given.polish is not None or target.kind != "lighting" or not als_fit else p.polish
         ridge = given.ridge if given.ridge is not None else (p.ridge if lit and steps else 0)
-        trial = p.polish_trial if steps and not ridge and p.polish_trial < steps else 0
         if given.polish is not None and ridge and not lin.polish:
             raise HomofacError(RIDGE_NEEDS_POLISH)
     else:
         lin = given.resolved() if opts.is_sum else None
-        steps, ridge, trial = 0, 0, 0
+        steps, ridge = 0, 0
         if lin is not None and lin.ridge and not lin.polish:
             raise HomofacError(RIDGE_NEEDS_POLISH)
     if lin is not None and lin.nv_balance and target.kind != "lighting":
@@ -445,8 +452,7 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
         if steps:
             stages = ("ALS fit", "polish") + (("polish + ridge pairs", "polish + ridge pairs from the ALS fit")
                                               if ridge else ())
-            votes.append(Vote("polish", stages, figure + "; the polish is kept only where it falls"
-                              + (f" (it runs where {trial} steps lower it)" if trial else "")))
+            votes.append(Vote("polish", stages, figure + "; the polish is kept only where it falls"))
     env = getattr(target.fn, "env", None)
     res = (getattr(env, "info", None) or {}).get("resolution") if env is not None else None
     vlight = validation_light(target, opts, mode, validation_count(opts))
@@ -456,8 +462,8 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
     return Plan(mode=mode, preset=name, parametrization=base, mapper=mapper, texture_size=int(opts.texture_size),
                 sampling=kind, grid_count=grid_count(opts), validation=validation_count(opts),
                 light_resolution=int(res) if res else None, validation_light=vlight, max_lookups=budget if choosing else None,
-                candidates=cands, linear=lin, polish=int(steps or 0), polish_trial=int(trial),
-                polish_trial_stride=int(p.trial_stride) if trial else 1, ridge=int(ridge or 0),
+                candidates=cands, linear=lin, polish=int(steps or 0),
+                polish_stride=int(p.polish_stride) if steps else 1, ridge=int(ridge or 0),
                 race=race, race_keep=race_keep, race_margin=float(p.race_margin) if race else 0.0,
                 race_stride=int(p.race_stride) if race else 1,
                 vote_screen=int(vote_screen), vote_stride=vote_stride,

@@ -55,8 +55,8 @@ from .sums import SumFit, fit_sum, line_size_of, with_highlight_context
 def polish_pairs(target: Target, parametrization: str, lin: LinearOptions, seed: int, cache: bool,
                  log: Callable[[str], None], stride: int = 1) -> Samples:
     """The off-grid training pairs of the polish (texel sampling at ``lin.polish_size``, no validation);
-    with ``stride`` k > 1 every k-th view of each normal of them (about 1/k of the pairs, the polish
-    trial's: :func:`homofac.fit.plan.build_plan`), only those evaluated."""
+    with ``stride`` k > 1 every k-th view of each normal of them (about 1/k of the pairs: a strided polish,
+    the plan's ``polish_stride``), only those evaluated."""
     settings = {"kind": "texels", "size": int(lin.polish_size), "validation": 0, "seed": int(seed),
                 "cache": bool(cache)}
     if stride <= 1 or target.kind != "lighting":
@@ -137,20 +137,21 @@ STAGE_STARTS = ("als", "polish", "als")
 
 def polish(target: Target, structure: Structure, mapper: str, size: int, fit: SumFit, samples: Samples,
            pairs: Samples, lin: LinearOptions, log: Callable[[str], None], seed: int = 0,
-           direct: bool = False) -> SumFit:
+           direct: bool = False, stride: int = 1) -> SumFit:
     """The polished fit: the last stage of :func:`polish_stages` without ``direct``; with it (and
     ``lin.ridge`` > 0) the ridge stage straight from ``fit``, the third candidate of the chooser's vote.
-    A refit passes :func:`recorded_direct` of the record it repeats."""
+    A refit passes :func:`recorded_direct` and :func:`recorded_stride` of the record it repeats."""
     lin = lin.resolved()
     if direct and lin.ridge > 0:
-        return polish_stage(target, structure, mapper, size, fit, samples, pairs, lin, log, seed)
-    return polish_stages(target, structure, mapper, size, fit, samples, pairs, lin, log, seed)[-1]
+        return polish_stage(target, structure, mapper, size, fit, samples, pairs, lin, log, seed, stride=stride)
+    return polish_stages(target, structure, mapper, size, fit, samples, pairs, lin, log, seed, stride=stride)[-1]
 
 
 def polish_stages(target: Target, structure: Structure, mapper: str, size: int, fit: SumFit, samples: Samples,
                   pairs: Samples, lin: LinearOptions, log: Callable[[str], None], seed: int = 0,
-                  direct: bool = False) -> list[SumFit]:
-    """``lin.polish`` Levenberg-Marquardt steps on the grid ``samples`` and the off-grid ``pairs`` together,
+                  direct: bool = False, stride: int = 1) -> list[SumFit]:
+    """``lin.polish`` Levenberg-Marquardt steps on the grid ``samples`` (every ``stride``-th, whose off-grid
+    ``pairs`` are then :func:`polish_pairs` with the same stride) and the off-grid ``pairs`` together,
     from the textures of ``fit`` (see the module doc); with ``lin.ridge`` > 0, ``lin.polish`` more from
     there with ``lin.ridge`` ridge pairs added (seeded by ``seed``), and with ``direct`` a third stage of
     ``lin.polish`` steps with the ridge pairs straight from ``fit``. Returns each stage's fit.
@@ -169,15 +170,16 @@ def polish_stages(target: Target, structure: Structure, mapper: str, size: int, 
     second stage ``first``: the first stage's record, which the direct stage lacks)."""
     lin = lin.resolved()
     first = polish_stage(target, structure, mapper, size, fit, samples, pairs, lin.model_copy(update={"ridge": 0}),
-                         log, seed)
+                         log, seed, stride=stride)
     if lin.ridge <= 0:
         return [first]
     ridge = ridge_samples(target, structure, int(lin.ridge), int(seed))  # the same pairs in both ridge stages
-    second = polish_stage(target, structure, mapper, size, first, samples, pairs, lin, log, seed, ridge=ridge)
+    second = polish_stage(target, structure, mapper, size, first, samples, pairs, lin, log, seed, ridge=ridge,
+                          stride=stride)
     if not direct:
         return [first, second]
     return [first, second, polish_stage(target, structure, mapper, size, fit, samples, pairs, lin, log, seed,
-                                        ridge=ridge)]
+                                        ridge=ridge, stride=stride)]
 
 
 class RidgeSamples(NamedTuple):
@@ -198,20 +200,22 @@ def ridge_samples(target: Target, structure: Structure, count: int, seed: int) -
 
 
 #: Levenberg-Marquardt steps per compiled call of a polish stage (:func:`homofac.fit.refine.solve`'s
-#: ``chunk``): the plan's 2-step trial and the 8-step polish on the same pairs share one program.
+#: ``chunk``): a polish of any even number of steps on the same pairs runs one program.
 POLISH_CHUNK = 2
 
 
 def polish_stage(target: Target, structure: Structure, mapper: str, size: int, fit: SumFit, samples: Samples,
                  pairs: Samples, lin: LinearOptions, log: Callable[[str], None], seed: int = 0,
-                 ridge: RidgeSamples | None = None) -> SumFit:
-    """One stage of :func:`polish_stages`: ``lin.polish`` Levenberg-Marquardt steps from ``fit`` on the
-    grid ``samples`` and the off-grid ``pairs`` (in calls of :data:`POLISH_CHUNK` steps), with ``lin.ridge``
+                 ridge: RidgeSamples | None = None, stride: int = 1) -> SumFit:
+    """One stage of :func:`polish_stages`: ``lin.polish`` Levenberg-Marquardt steps from ``fit`` on every
+    ``stride``-th grid pair of ``samples`` (``stride`` recorded, for a refit: :func:`recorded_stride`) and the
+    off-grid ``pairs`` (in calls of :data:`POLISH_CHUNK` steps), with ``lin.ridge``
     ridge pairs (seeded by ``seed``; ``ridge``: those already drawn and evaluated, :func:`ridge_samples`)
     where it is above 0. ``fit``'s own polish record, if any, becomes the new one's ``first``."""
     lin = lin.resolved()
     t0 = time.perf_counter()
-    a, b, y = (np.concatenate([np.asarray(u), np.asarray(v)]) for u, v in
+    k = max(1, int(stride))
+    a, b, y = (np.concatenate([np.asarray(u)[::k], np.asarray(v)]) for u, v in
                ((samples.a, pairs.a), (samples.b, pairs.b), (samples.y, pairs.y)))
     weights, ridge_note = None, None
     if lin.ridge > 0:
@@ -233,7 +237,7 @@ def polish_stage(target: Target, structure: Structure, mapper: str, size: int, f
     record = {**fit.solver, "polish": {"steps": int(lin.polish), "method": out.solver["method"],
                                        "backend": out.solver["backend"],
                                        "iterations": out.solver["iterations"], "converged": out.solver["converged"],
-                                       "samples": int(len(a)), "size": int(lin.polish_size),
+                                       "samples": int(len(a)), "size": int(lin.polish_size), "stride": k,
                                        "objective_start": out.solver["objective_start"],
                                        "objective": out.solver["objective"], "seconds": time.perf_counter() - t0,
                                        **({"ridge": ridge_note} if ridge_note else {}),
@@ -248,6 +252,13 @@ def recorded_direct(solver: dict | None) -> bool:
     ``polish(..., direct=True)``."""
     pol = (solver or {}).get("polish")
     return isinstance(pol, dict) and isinstance(pol.get("ridge"), dict) and "first" not in pol
+
+
+def recorded_stride(solver: dict | None) -> int:
+    """The stride of a sum's recorded polish (its grid pairs and off-grid views every k-th:
+    :func:`polish_stage`), which a refit repeats; 1 where none is recorded."""
+    pol = (solver or {}).get("polish")
+    return int(pol.get("stride", 1)) if isinstance(pol, dict) else 1
 
 
 def recorded_linear(lin: LinearOptions, solver: dict | None) -> LinearOptions:
@@ -272,5 +283,5 @@ def recorded_linear(lin: LinearOptions, solver: dict | None) -> LinearOptions:
 
 
 __all__ = ["POLISH_CHUNK", "RIDGE_NEEDS_ENVIRONMENT", "RidgeSamples", "RidgeValidation", "STAGE_STARTS", "VALIDATION_RIDGE_LIGHTS", "polish",
-           "polish_pairs", "polish_stage", "polish_stages", "recorded_direct", "recorded_linear", "ridge_lights",
+           "polish_pairs", "polish_stage", "polish_stages", "recorded_direct", "recorded_linear", "recorded_stride", "ridge_lights",
            "ridge_nrmse", "ridge_samples", "ridge_validation"]

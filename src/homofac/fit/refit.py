@@ -49,7 +49,7 @@ from . import footprints, precision, programs, solvers, sums, transport, validat
 from .draw import default_mapper
 from .options import FitOptions, LinearOptions, recorded_fit_options
 from .pipeline import quality_warnings, resolve_sampling
-from .polish import polish, polish_pairs, recorded_direct, recorded_linear
+from .polish import polish, polish_pairs, recorded_direct, recorded_linear, recorded_stride
 from .product import unpack, zeros_rule
 from .result import Result
 from .samples import check_values, evaluate_grouped
@@ -464,9 +464,11 @@ def refit(fac: Result, environment: Environment | None = None, brdf: BRDF | None
         sf = sums.fit_sum(tgt, state.structure, state.mapper, state.texture_size, samples, lin, log,
                           previous=fac.model if start == "previous" else None, line_size=sums.line_size_of(fac.model))
         if lin.polish > 0:  # the same off-grid pairs as the full run (deterministic), the new target's values
-            pairs = polish_pairs(tgt, opts.parametrization, lin, opts.sampling.seed, opts.sampling.cache, log)
+            k = recorded_stride(fac.solver)
+            pairs = polish_pairs(tgt, opts.parametrization, lin, opts.sampling.seed, opts.sampling.cache, log,
+                                 stride=k)
             sf = polish(tgt, state.structure, state.mapper, state.texture_size, sf, samples, pairs, lin, log,
-                        seed=opts.sampling.seed, direct=recorded_direct(fac.solver))
+                        seed=opts.sampling.seed, direct=recorded_direct(fac.solver), stride=k)
         model, record, solve_s, warnings = sf.model, {**sf.solver, "refit": True}, sf.solve_s, sf.warnings
     else:
         t1 = time.perf_counter()
