@@ -65,6 +65,7 @@ def test_own_layouts_change_nothing_but_the_files(moved, kind, tmp_path):
     a1 = m.atlases[1]
     assert arrays["hf_P1"].shape[:2] == (a1.height, a1.width)
     assert m.texture_bytes() != b.texture_bytes()
+    assert m.texture_bytes() == 2 * sum(np.asarray(x).size for x in arrays.values())  # every texture it binds, in halves
     out = m.save(tmp_path / "b", exr="float32")
     doc = json.loads((out / "bake.json").read_text())
     maps = [t for t in doc["textures"] if t["kind"] == "prefiltered"]

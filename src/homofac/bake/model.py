@@ -105,9 +105,9 @@ class Bake:
         return self.atlases[0]
 
     def texture_bytes(self, bytes_per_channel: int = 2) -> int:
-        """GPU memory of the textures in half floats (RGB, RGBA with the harmonic): each P map's atlas, the E_d
-        maps, the weight tables."""
-        p = sum(a.width * a.height for a in self.atlases) * (4 if self.plan.harmonic else 3)
+        """GPU memory of the textures in half floats, all RGB (the harmonic's tensor in its 3 face-gauge channels):
+        each P map's atlas, the E_d maps, the weight tables."""
+        p = sum(a.width * a.height for a in self.atlases) * 3
         e = self.plan.diffuse * 6 * self.plan.diffuse_size ** 2 * 3 if self.plan.diffuse_basis == "texture" else 0
         w = self.plan.tables * self.plan.layers * self.plan.nv_size * 3
         return (p + e + w) * bytes_per_channel
