@@ -139,8 +139,8 @@ def test_mixed_wgsl_runs_on_wgpu_and_equals_cpu(mixed_bake):
 
 
 @pytest.mark.parametrize("material", [(0.8, 0.3, 0.2, 0.0, 0.45), (0.95, 0.64, 0.54, 1.0, 0.7)], ids=["dielectric", "metal"])
-def test_opengl_recipe_reads_the_rgba_maps(mixed_bake, material, tmp_path):
-    """docs/recipes/opengl.md's bake program, run as written on a mixed bake (RGBA P maps), equals its evaluation."""
+def test_opengl_recipe_reads_the_mixed_maps(mixed_bake, material, tmp_path):
+    """docs/recipes/opengl.md's bake program, run as written on a mixed bake (RGB P maps, the tensor in face-gauge channels), equals its evaluation."""
     import test_recipes_bake as tr
     d = mixed_bake.save(tmp_path / "bake")
     tr.test_opengl_bake_recipe_renders_homofac_ibl((d, hf.load(d)), material, tmp_path)
