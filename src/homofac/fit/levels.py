@@ -20,6 +20,7 @@ lights (the light sum is linear in the lights), evaluated in blocks by the fit's
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 
 import numpy as np
 
@@ -52,7 +53,7 @@ def evaluate(target: Target, grouped: Grouped, refined: bool, start: Target | No
     plus the refined texels' difference in its program where :data:`VALUE_BLOCKS` blocks hold it
     (:func:`refined`), else in light blocks (module docstring), or by its light tree."""
     if refined:
-        if start is not None and getattr(target.fn, "tree", None) is None:
+        if start is not None:
             y = refined_values(start, target, grouped, VALUE_BLOCKS)
             if y is not None:
                 return y
@@ -61,12 +62,8 @@ def evaluate(target: Target, grouped: Grouped, refined: bool, start: Target | No
 
 
 def refined_values(start: Target, fine: Target, grouped: Grouped, max_blocks: int) -> np.ndarray | None:
-    """:func:`refined` from ``start``'s own values (evaluated here), None where it does not apply."""
-    if getattr(fine.fn, "tree", None) is not None or getattr(fine.fn, "clamp", None) is not None:
-        return None
-    if len(difference_blocks(start.fn.env, fine.fn.env, max_visible(start.fn.env))) > max_blocks:
-        return None
-    return refined(start, fine, grouped, np.asarray(evaluate_grouped(start, grouped), np.float64), max_blocks)
+    """:func:`refined` from ``start``'s own values (evaluated only where it applies), None where it does not."""
+    return refined(start, fine, grouped, lambda: np.asarray(evaluate_grouped(start, grouped), np.float64), max_blocks)
 
 
 #: The most blocks :func:`refined` evaluates: each costs about one evaluation at the fit's own lights, and
@@ -91,12 +88,13 @@ def _within(block: Environment, normals: np.ndarray, visible: int, straddlers: i
     return bool((near.sum(axis=1) <= straddlers).all() and ((up | near).sum(axis=1) <= visible).all())
 
 
-def refined(target: Target, fine: Target, grouped: Grouped, y: np.ndarray, max_blocks: int = MAX_BLOCKS
-            ) -> np.ndarray | None:
+def refined(target: Target, fine: Target, grouped: Grouped, y: np.ndarray | Callable[[], np.ndarray],
+            max_blocks: int = MAX_BLOCKS) -> np.ndarray | None:
     """``fine``'s values at ``grouped``, where ``fine`` is ``target`` with its brightest texels refined (the
     mixture of :func:`homofac.fit.validation.lighting_at`, summed over every light), from ``y``, ``target``'s
-    values there (:func:`evaluate`): ``y`` plus the lighting of :func:`homofac.light.refine.difference_blocks`,
-    each block evaluated by ``target``'s own compiled program. The blocks are made small enough that every
+    values there (:func:`evaluate`; or a function giving them, called only where this applies): ``y`` plus
+    the lighting of :func:`homofac.light.refine.difference_blocks`, each block evaluated by ``target``'s own
+    compiled program. The blocks are made small enough that every
     normal of ``grouped`` finds its lights within that program's static bounds; None where that takes more
     than ``max_blocks`` blocks, or the lighting is clamped or summed by a light tree (not a sum over lights)."""
     fn = target.fn
@@ -114,7 +112,7 @@ def refined(target: Target, fine: Target, grouped: Grouped, y: np.ndarray, max_b
         if all(_within(b, grouped.normals, visible, straddlers) for b in blocks):
             break
         size //= 2
-    out = np.asarray(y, np.float64)
+    out = np.asarray(y() if callable(y) else y, np.float64)
     for b in blocks:
         out = out + np.asarray(evaluate_grouped(Target(target.kind, dataclasses.replace(fn, env=b), target.quantity,
                                                        target.context), grouped), np.float64)
