@@ -12,7 +12,7 @@ import pytest
 import homofac as hf
 import test_bake_harmonic as th
 from homofac.bake import shader
-from homofac.bake.atlas import Atlas, check_layout
+from homofac.bake.atlas import Atlas, bottom_left, check_layout, down, pack, up
 from homofac.errors import HomofacError
 from test_bake import TINY, as_schema_4, check_glsl_terms, check_glslang, check_msl, check_wgsl
 
@@ -102,9 +102,9 @@ def _edit(doc: dict, texture: int, layer: int, **block) -> dict:
 
 
 def test_loader_checks_each_maps_blocks(moved, tmp_path):
-    """A schema-5 bake.json whose blocks overlap, leave the atlas, differ from the layers' sizes, are missing or
-    share differently from map to map is refused with one line naming it; schema 4 (x, y of the shelf layout)
-    still loads."""
+    """A schema-5 bake.json whose blocks overlap, leave the atlas, are neither the layers' sizes nor power-of-two
+    fractions of them, or are missing is refused with one line naming it; a map that shares blocks between
+    other layers than the first map loads (each map's own rule); schema 4 (x, y of the shelf layout) still loads."""
     b = moved["plain"][0]
     out = b.save(tmp_path / "b", exr="float32")
     f = out / "bake.json"
@@ -115,20 +115,22 @@ def test_loader_checks_each_maps_blocks(moved, tmp_path):
     assert blocks[2]["y"] >= blocks[2]["size"] // 2 and blocks[0]["y"] == 0
     no_blocks = json.loads(json.dumps(doc))
     del no_blocks["textures"][1]["blocks"]
-    own = _edit(doc, 1, 1, x=0, y=doc["textures"][1]["height"])  # map 1: layer 1 its own block, in a taller atlas
-    own["textures"][1]["height"] += blocks[1]["size"]
     cases = [
         (_edit(doc, 1, 2, y=blocks[2]["y"] - blocks[2]["size"] // 2), "layers 0 and 2 overlap"),
         (_edit(doc, 1, 2, y=height - blocks[2]["size"] + 1), "outside"),
-        (_edit(doc, 0, 2, size=blocks[2]["size"] // 2), "do not match the layers' sizes"),
+        (_edit(doc, 0, 2, size=2 * blocks[2]["size"]), "not the layers' sizes"),
+        (_edit(doc, 0, 2, size=3 * blocks[2]["size"] // 4), "not the layers' sizes"),
         (no_blocks, "one block per layer"),
-        (own, "share blocks"),
     ]
     for bad, message in cases:
         f.write_text(json.dumps(bad))
         with pytest.raises(HomofacError, match=message) as e:
             hf.load(out)
         assert "\n" not in str(e.value)
+    own = dataclasses.replace(b, layouts=(b.atlas, bottom_left(b.atlas.sizes)))  # map 1: every layer its own block
+    back = hf.load(own.save(tmp_path / "own", exr="float32"))
+    assert back.blocks == b.blocks and back.atlases[1].offsets[1] != back.atlases[1].offsets[0]
+    np.testing.assert_array_equal(np.asarray(back.P[1]), np.asarray(b.P[1]))
     f.write_text(json.dumps(as_schema_4(doc)))
     np.testing.assert_array_equal(np.asarray(hf.load(out).P[2]), np.asarray(b.P[2]))
     moved_offsets = as_schema_4(doc)
@@ -136,3 +138,77 @@ def test_loader_checks_each_maps_blocks(moved, tmp_path):
     f.write_text(json.dumps(moved_offsets))
     with pytest.raises(HomofacError, match="do not match the atlas layout"):
         hf.load(out)
+
+
+def test_bottom_left_packs_beside_shorter_blocks():
+    """The skyline packer puts a block at the lowest free position: the last small block beside a shorter one of
+    a full row (the shelf packer opens a row for it), blocks disjoint and inside, shared blocks once."""
+    sizes, blocks = (64, 64, 64, 32, 16, 8, 8, 8), (0, 0, 2, 3, 4, 5, 6, 7)
+    a = bottom_left(sizes, blocks)
+    assert (a.width, a.height) == (384, 64 + 64 + 32) and check_layout(a) == blocks
+    assert a.offsets[7] == (192 + 96, 128 + 8)  # on the 8 beside the 16, not on a new row
+    assert pack(sizes, blocks).height == 64 + 64 + 32 + 8
+    z = bottom_left((8, 8, 32, 32, 8, 16), (0, 0, 2, 3, 0, 5))  # one 8 block shared by layers 0, 1, 4
+    assert (z.width, z.height) == (192, 32 + 32 + 16) and check_layout(z) == (0, 0, 2, 3, 0, 5)
+
+
+def test_down_and_up_per_face():
+    t = np.random.default_rng(0).normal(size=(8, 48, 3)).astype(np.float32)
+    h = down(t, 2)
+    assert h.shape == (4, 24, 3)
+    np.testing.assert_allclose(h[1, 7], t[2:4, 14:16].mean(axis=(0, 1)), rtol=1e-6)  # within face 1
+    np.testing.assert_array_equal(down(up(h, 2), 2), h)
+
+
+@pytest.fixture(scope="module")
+def halved():
+    """``(b, h)``: a balanced (mixed) bake in every map's full-face layout, and the same bake as it is stored
+    (P_2 at half its layers' face, one shared block of zeros in the crossing, the tensors at their faces,
+    skyline-packed: :func:`homofac.bake.build.map_layouts`)."""
+    h = hf.bake("forest", preset="balanced", layers=6, min_roughness=0.3, max_size=16, nv_size=8, samples=64,
+                data_resolution=4, harmonic=0.55)
+    return dataclasses.replace(h, layouts=()), h
+
+
+def test_stored_layout_halves_p2_and_shares_one_zero_block(halved):
+    b, h = halved
+    kept, harm = h.plan.layer_terms(), h.plan.harmonic_layers()
+    a0, a1 = h.atlases
+    assert h.plan.later_face == 2 and h.plan.diffuse_size == 16 and a0.sizes == b.atlas.sizes
+    for j, s in enumerate(a0.sizes):
+        if j in harm:
+            assert a1.sizes[j] == s  # the tensor at its face
+        elif kept[j] == 2:
+            assert a1.sizes[j] == s // 2 and np.any(np.asarray(h.P[j])[:, :, 1])
+        else:  # the crossing: P_2 = 0, the shared zero block
+            assert a1.sizes[j] == 8 and not np.any(np.asarray(h.P[j])[:, :, 1])
+    zero = [j for j in range(h.plan.layers) if j not in harm and kept[j] < 2]
+    assert zero and len({a1.offsets[j] for j in zero}) == 1
+    assert h.texture_bytes() < b.texture_bytes()
+
+
+def test_smaller_blocks_are_read_at_their_size(halved, tmp_path):
+    """A block at half its layer's face holds the layer's map box-averaged per face and is read there (not the
+    full map): the terms change, the files hold exactly those blocks, and the directory reads back to the same
+    terms (the loader replicates the block; its box average is the block)."""
+    b, m = halved
+    n, v = th._pairs(200, 3)
+    assert m.texture_bytes() < b.texture_bytes()
+    arrays = dict(shader.texture_arrays(m))
+    a = m.atlases[1]
+    j = next(j for j in range(m.plan.layers) if 8 <= a.sizes[j] < b.atlas.sizes[j])
+    (x, y), s = a.offsets[j], a.sizes[j]
+    np.testing.assert_allclose(arrays["hf_P1"][y:y + s, x:x + 6 * s], down(shader._specular_layer(m, j, 1), 2), rtol=1e-6)
+    assert not np.allclose(np.asarray(m.terms(n, v, 0.33)), np.asarray(b.terms(n, v, 0.33)))
+    back = hf.load(m.save(tmp_path / "h", exr="float32"))
+    assert back.atlases == m.atlases
+    for rho in (0.3, 0.35, 0.45, 0.9):
+        np.testing.assert_allclose(np.asarray(back.terms(n, v, rho)), np.asarray(m.terms(n, v, rho)), rtol=1e-5, atol=1e-7)
+
+
+def test_gpu_reads_smaller_blocks_as_the_cpu(halved, tmp_path):
+    m = halved[1]
+    n, v = th._pairs(300, 5)
+    check_glsl_terms(m, n, v, (0.3, 0.35, 0.45, 0.9), 1e-3)
+    check_wgsl(m, 300, (1e-3, 3e-3))
+    check_glslang(m, "glsl_es", tmp_path, y_ups=(False,))

@@ -44,7 +44,7 @@ from .factorization import (Factor, Factorization, Quantized, Term, Texture, che
 from .bake import Bake, BakePlan
 from .bake import register_writer as register_bake_writer
 from .bake import shader as bake_shader
-from .bake.atlas import Atlas, assemble, blocks_of, check_layout, pack, split
+from .bake.atlas import Atlas, assemble, blocks_of, check_layout, pack, split, up
 from .bake.gauge import face_gauge
 from .bake.sources import Source
 from .fit.result import Result, register_writer
@@ -887,6 +887,8 @@ class BakePlanEntry(Options):
     harmonic: float = Field(0.0, ge=0, le=1)
     #: schema 4: the harmonic layers store K - 1 products and the harmonic in the K-th's channels (schemas 1-3: no)
     mixed: bool = False
+    #: P_2..P_K's face divisor (schema 5; informative: each map's blocks give the sizes the maps are read at)
+    later_face: int = Field(1, ge=1, le=64)
 
 
 class BakeSourceEntry(Options):
@@ -1044,6 +1046,7 @@ def load_bake(d, *, max_bytes: int = 1 << 28) -> Bake:
         raise HomofacError(f"{f}: the layers or lookups do not match the plan")
     by_kind = {k: [t for t in doc.textures if t.kind == k] for k in ("prefiltered", "diffuse", "weights")}
     atlases, blocks = _bake_layouts(doc, by_kind["prefiltered"], f)
+    sizes = [layer.size for layer in doc.layers]
     sh9 = pl.diffuse_basis == "sh9"
     if (len(by_kind["prefiltered"]), len(by_kind["diffuse"]), len(by_kind["weights"])) != (
             maps, 0 if sh9 else pl.diffuse, pl.tables):
@@ -1065,7 +1068,9 @@ def load_bake(d, *, max_bytes: int = 1 << 28) -> Bake:
             raise HomofacError(f"{d / t.file}: non-finite texels")
         return np.asarray(a, np.float32)
 
-    ps = [split(a, read(t, (a.height, a.width))) for a, t in zip(atlases, by_kind["prefiltered"])]
+    # each block back at its layer's face (a smaller block replicated: its box average is the stored block)
+    ps = [[up(blk, s // a.sizes[j]) for j, (blk, s) in enumerate(zip(split(a, read(t, (a.height, a.width))), sizes))]
+          for a, t in zip(atlases, by_kind["prefiltered"])]
     H: tuple = ()
     harm = set(pl.harmonic_layers())
     if pl.harmonic and not rgba:  # RGB maps: P_k's RGB; the tensor's face gauge in map K (mixed: K - 1, harmonic layers)
@@ -1104,10 +1109,12 @@ def _rgba_maps(pl: BakePlan) -> int:
 
 
 def _bake_layouts(doc: BakeDocument, maps: list, f: Path) -> tuple[tuple[Atlas, ...], tuple[int, ...]]:
-    """Each specular map's layout and the layers' shared blocks, checked: schema 5 reads each map's ``blocks``
-    (every block inside its map's width x height, blocks disjoint unless shared, each layer's block of the
-    layer's size, the same layers sharing in every map); schemas 1-4 the ``layers``' x, y, which must be the
-    shelf packer's layout (:func:`homofac.bake.atlas.pack`), shared by every map."""
+    """Each specular map's layout and the layers' shared blocks (the first map's), checked: schema 5 reads each
+    map's ``blocks`` (every block inside its map's width x height, blocks disjoint unless shared, each layer's
+    block of the layer's size or a power-of-two fraction of it: that map's layer box-averaged per face; each map
+    shares blocks between its own layers, e.g. one block of zeros for every layer without that map's content);
+    schemas 1-4 the ``layers``' x, y, which must be the shelf packer's layout (:func:`homofac.bake.atlas.pack`),
+    shared by every map."""
     sizes = [layer.size for layer in doc.layers]
     if doc.schema_version < 5:
         offsets = [(layer.x, layer.y) for layer in doc.layers]
@@ -1121,21 +1128,20 @@ def _bake_layouts(doc: BakeDocument, maps: list, f: Path) -> tuple[tuple[Atlas, 
         if offsets != list(atlas.offsets):
             raise HomofacError(f"{f}: layer offsets do not match the atlas layout")
         return (atlas,) * len(maps), blocks
-    atlases, shared = [], set()
+    atlases, shared = [], []
     for t in maps:
         if t.blocks is None or len(t.blocks) != len(doc.layers):
             raise HomofacError(f"{f}: texture {t.name}: schema 5 gives one block per layer ({len(doc.layers)})")
         a = Atlas(t.width, t.height, tuple((b.x, b.y) for b in t.blocks), tuple(b.size for b in t.blocks))
-        if list(a.sizes) != sizes:
-            raise HomofacError(f"{f}: texture {t.name}: block sizes {list(a.sizes)} do not match the layers' sizes {sizes}")
+        if any(s < 1 or size % s or (size // s) & (size // s - 1) for s, size in zip(a.sizes, sizes)):
+            raise HomofacError(f"{f}: texture {t.name}: block sizes {list(a.sizes)} are not the layers' sizes {sizes} "
+                               "or power-of-two fractions of them")
         try:
-            shared.add(check_layout(a))
+            shared.append(check_layout(a))
         except ValueError as e:
             raise HomofacError(f"{f}: texture {t.name}: {e}") from None
         atlases.append(a)
-    if len(shared) > 1:
-        raise HomofacError(f"{f}: the specular maps share blocks between different layers")
-    return tuple(atlases), (shared.pop() if shared else tuple(range(len(sizes))))
+    return tuple(atlases), (shared[0] if shared else tuple(range(len(sizes))))
 
 
 register_bake_writer(save_bake)

@@ -43,6 +43,7 @@ from ..options import validate
 from ..param import mappers
 from . import kernels as kn
 from .filter import normalized, prefilter, two_scale
+from .atlas import Atlas, bottom_left
 from .gauge import face_gauge
 from .model import Bake, diffuse_sh9
 from .options import BakeOptions
@@ -383,7 +384,7 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
     max_size = int(opts.max_size or source_size(environment))
     pl = make_plan(opts.preset, max_size=max_size, min_roughness=opts.min_roughness, nv_size=opts.nv_size,
                    diffuse_size=opts.diffuse_size, layers=opts.layers, terms=opts.terms, diffuse_basis=opts.diffuse,
-                   harmonic=opts.harmonic, mixed=opts.mixed)
+                   harmonic=opts.harmonic, mixed=opts.mixed, later_face=opts.later_face)
     original = _Lights(environment)
     lights = _Lights(environment)
     roughness = pl.roughnesses()
@@ -498,9 +499,44 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
 
 def stored(fitted: Bake) -> Bake:
     """The fitted bake in the layout it is stored and read in (after the fit): each layer's tensor map
-    (S, 6 S, 5) in the 3 channels of the face gauge (:func:`homofac.bake.gauge.face_gauge`)."""
+    (S, 6 S, 5) in the 3 channels of the face gauge (:func:`homofac.bake.gauge.face_gauge`), each specular map
+    in its own atlas (:func:`map_layouts`)."""
     H = tuple(None if h is None else face_gauge(h, h.shape[0]) for h in fitted.H)
-    return dataclasses.replace(fitted, H=H)
+    layouts = map_layouts(fitted.plan, [int(p.shape[0]) for p in fitted.P], fitted.blocks or tuple(range(len(fitted.P))),
+                          [sharp(r, fitted.plan.max_size) for r in fitted.roughness],
+                          [h is not None for h in H] if H else [False] * len(fitted.P))
+    return dataclasses.replace(fitted, H=H, layouts=layouts)
 
 
-__all__ = ["bake", "compress", "stored", "fibonacci", "harmonic_fit", "harmonic_maps", "layer_fit", "layer_size", "sharp", "source_size"]
+def map_layouts(pl: BakePlan, sizes, blocks, shared, harmonic) -> tuple[Atlas, ...]:
+    """Each specular RGB map's atlas (:func:`homofac.bake.atlas.bottom_left`), its blocks sized by what the map
+    holds in each layer (``sizes`` the layers' faces, ``blocks`` the layers' shared blocks, ``shared[j]`` whether
+    layer j is in the sharp block, :func:`sharp`; ``harmonic[j]`` whether it has a tensor map):
+
+    * map 0, P_1: the layer's face, the sharp layers one shared block;
+    * map k >= 1, P_(k+1), in the layers that keep k + 1 products (:meth:`~homofac.bake.plan.BakePlan.layer_terms`;
+      not the sharp block, whose further products are 0): the layer's face / ``pl.later_face``, at least
+      :data:`MIN_SIZE` (the map box-averaged per face: docs/notes/bake.md, "Memory, sixteenth session");
+    * the map holding the tensor (K, or K - 1 with ``mixed``), in the layers with one: the layer's face;
+    * every other layer of a map reads 0 (the sharp layers' P_2.., the crossing, the layers without the
+      harmonic): one block of zeros of face :data:`MIN_SIZE`, shared by all of them."""
+    kept = pl.layer_terms()
+    g = pl.terms - 1 if pl.mixed else pl.terms  # the map holding the tensor
+    out = []
+    for i in range(pl.maps):
+        own, zero = [], None
+        for j, s in enumerate(sizes):
+            if i == 0:
+                own.append((s, blocks[j]))
+            elif i == g and harmonic[j]:
+                own.append((s, j))
+            elif i < pl.terms and kept[j] > i and not shared[j] and not (pl.mixed and harmonic[j]):
+                own.append((min(s, max(MIN_SIZE, s // pl.later_face)), j))
+            else:
+                zero = j if zero is None else zero
+                own.append((min(s, MIN_SIZE), zero))
+        out.append(bottom_left([s for s, _ in own], [b for _, b in own]))
+    return tuple(out)
+
+
+__all__ = ["bake", "compress", "map_layouts", "stored", "fibonacci", "harmonic_fit", "harmonic_maps", "layer_fit", "layer_size", "sharp", "source_size"]

@@ -41,7 +41,7 @@ from ..light.integrals import material_radiance
 from ..light.environment import LUMINANCE
 from ..light.sh import SH9_NORM
 from ..param import mappers
-from .atlas import Atlas, pack
+from .atlas import Atlas, down, pack
 from .gauge import gauge_read
 from .plan import BakePlan
 from .sources import Source, source_terms
@@ -144,13 +144,29 @@ class Bake:
         if sh9 and self.sh is None:
             raise HomofacError("this bake's plan reads the diffuse term from SH9 coefficients, and it has none")
         diffuse = jnp.asarray(self.sh if sh9 else self.E, jnp.float32)
-        H = tuple(jnp.zeros(p.shape[:2] + (3,), jnp.float32) if h is None else jnp.asarray(h, jnp.float32)
-                  for p, h in zip(self.P, self.H)) if self.H else None
-        maps = _terms(tuple(jnp.asarray(p, jnp.float32) for p in self.P), diffuse,
+        P, H = self.read_maps()
+        maps = _terms(P, diffuse,
                       jnp.asarray(self.W, jnp.float32), jnp.asarray(self.shift, jnp.float32),
                       self.layer_coordinate(rho), n, v, self.plan.terms,
                       self.plan.diffuse, sh9, H, self.plan.harmonic_channel)
         return maps + source_terms(self.sources, n, v, rho) if self.sources else maps
+
+    def read_maps(self) -> tuple[tuple, tuple | None]:
+        """``(P, H)`` as the shaders read them: ``P[j][k]`` (s, 6 s, 3) layer j of P_k and ``H[j]`` (s, 6 s, 3) its
+        tensor (zeros without one; None without the harmonic), each at its block's size s in its map's atlas
+        (:attr:`atlases`; the layer's map box-averaged per face, :func:`~.atlas.down`, where the block is smaller
+        than the layer's face)."""
+        atlases, pl = self.atlases, self.plan
+        g = pl.terms - 1 if pl.mixed else pl.terms  # the map holding the tensor
+
+        def at(m, i, j):
+            return jnp.asarray(down(m, int(m.shape[0]) // atlases[i].sizes[j]), jnp.float32)
+
+        P = tuple(tuple(at(np.asarray(p)[:, :, k], k, j) for k in range(pl.terms)) for j, p in enumerate(self.P))
+        if not self.H:
+            return P, None
+        return P, tuple(at(np.zeros(np.shape(p)[:2] + (3,), np.float32) if h is None else h, g, j)
+                        for j, (p, h) in enumerate(zip(self.P, self.H)))
 
     def evaluate(self, n, v, base_color, metallic, roughness) -> Float[Array, "N 3"]:
         """L(n, v; c, m, rho) = (1 - m) 0.96 c I_d + f0_eff I_A + I_B (pinned) from the bake's integrals:
@@ -239,7 +255,7 @@ def _terms(P, E, W, shift, u, n, v, K: int, D: int, sh9: bool = False, H=None, h
         hat = jnp.maximum(0.0, 1.0 - jnp.abs(u - j))[:, None, None]
         a = (1.0 - shift[j]) * r + shift[j] * n
         a = a / jnp.maximum(jnp.linalg.norm(a, axis=-1, keepdims=True), 1e-12)
-        pb = pb + hat * _cube(layer, a).reshape(-1, K, 3)
+        pb = pb + hat * jnp.stack([_cube(m, a).reshape(-1, 3) for m in layer], axis=1)  # each map at its own size
         if H is not None:  # t: the unit tangent from the axis towards n (the plane of incidence)
             tg = n - jnp.sum(n * a, -1, keepdims=True) * a
             tg = tg / jnp.maximum(jnp.linalg.norm(tg, axis=-1, keepdims=True), TANGENT_FLOOR)

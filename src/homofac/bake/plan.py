@@ -26,7 +26,8 @@ class BakePlan(NamedTuple):
     (``diffuse_basis``: E_d as cube textures, ``texture``, or as their 9 SH coefficients, ``sh9``);
     ``layers`` roughness layers spaced geometrically from ``min_roughness`` to 1; ``nv_size`` columns of
     the weight tables; ``max_size`` the largest P face size (the sharpest layers'); ``diffuse_size`` the
-    face size of the E_d maps."""
+    face size of the E_d maps; ``later_face``: P_2..P_K are stored at 1 / later_face of their layer's face (at
+    least 8; the layer's map box-averaged per face, :func:`homofac.bake.build.map_layouts`)."""
 
     preset: str
     terms: int
@@ -39,6 +40,7 @@ class BakePlan(NamedTuple):
     diffuse_basis: str = "texture"
     harmonic: float = 0.0
     mixed: bool = False
+    later_face: int = 1
 
     @property
     def channels(self) -> int:
@@ -87,6 +89,11 @@ class BakePlan(NamedTuple):
     def _span(js) -> str:
         return f"{js[0]}-{js[-1]}" if len(js) > 1 else str(js[0])
 
+    def _later(self) -> str:
+        if self.terms < 2 or self.later_face < 2:
+            return ""
+        return f"P_2{f'..P_{self.terms}' if self.terms > 2 else ''} at 1/{self.later_face} of the face; "
+
     def roughnesses(self) -> tuple[float, ...]:
         """The layers' roughnesses: min_roughness (1/min_roughness)^(j/(layers-1)) (lobe width alpha = rho^2
         grows by the same factor from layer to layer)."""
@@ -100,6 +107,7 @@ class BakePlan(NamedTuple):
                 f"{self.nv_size} n.v columns; P up to {self.max_size}^2 x 6, E {self.diffuse_size}^2 x 6"
                 f"{' as SH9 constants' if self.diffuse_basis == 'sh9' else ''}; "
                 f"{f'second harmonic from roughness {self.harmonic:g}; ' if self.harmonic else ''}"
+                f"{self._later()}"
                 f"{f'mixed: {self.terms - 1} term(s) + the harmonic in layers {self._span(self.harmonic_layers())}, {self.terms - 1} term(s) in the crossing layer {min(self.harmonic_layers()) - 1}; ' if self.mixed and self.harmonic_layers() else ''}"
                 f"{self.lookups} lookups per pixel")
 
@@ -113,11 +121,19 @@ _HARMONIC = {"fast": 0.0, "balanced": 0.35, "best": 0.0}
 #: preset -> whether the harmonic layers replace the K-th product (``mixed``, :meth:`BakePlan.layer_terms`).
 _MIXED = {"fast": False, "balanced": True, "best": False}
 
+#: preset -> the face size of the E_d maps (balanced: 16, every accuracy cell within 0.0001 of 32's;
+#: docs/notes/bake.md, "Memory, sixteenth session").
+_DIFFUSE_SIZE = {"fast": 32, "balanced": 16, "best": 32}
+
+#: preset -> P_2..P_K's face divisor (balanced: P_2 at half its layer's face, docs/notes/bake.md "Memory,
+#: seventeenth session"; best: not measured, 1).
+_LATER_FACE = {"fast": 1, "balanced": 2, "best": 1}
+
 
 def plan(preset: str = "balanced", *, max_size: int = 256, min_roughness: float = 0.045, nv_size: int = 32,
-         diffuse_size: int = 32, layers: int | None = None, terms: int | None = None,
+         diffuse_size: int | None = None, layers: int | None = None, terms: int | None = None,
          diffuse_basis: str = "texture", harmonic: float | None = None,
-         mixed: bool | None = None) -> BakePlan:
+         mixed: bool | None = None, later_face: int | None = None) -> BakePlan:
     """The plan of a preset, with the given overrides (validated by :class:`homofac.bake.BakeOptions`)."""
     k, d, n = _STRUCTURE[preset]
     if mixed and int(terms or k) < 2:
@@ -125,8 +141,9 @@ def plan(preset: str = "balanced", *, max_size: int = 256, min_roughness: float 
     h = float(_HARMONIC[preset] if harmonic is None else harmonic)
     mixed = bool(_MIXED[preset] and int(terms or k) >= 2) if mixed is None else mixed
     mixed = bool(mixed and h > 0)  # without a harmonic nothing is mixed
-    return BakePlan(preset, int(terms or k), d, int(layers or n), int(nv_size), int(max_size), int(diffuse_size),
-                    float(min_roughness), str(diffuse_basis), h, mixed)
+    return BakePlan(preset, int(terms or k), d, int(layers or n), int(nv_size), int(max_size),
+                    int(diffuse_size or _DIFFUSE_SIZE[preset]), float(min_roughness), str(diffuse_basis), h, mixed,
+                    int(later_face or _LATER_FACE[preset]))
 
 
 __all__ = ["BakePlan", "PRESETS", "Preset", "plan"]

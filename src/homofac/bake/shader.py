@@ -22,7 +22,7 @@ from ..errors import HomofacError
 from ..light.sh import SH9_NORM
 from ..shader import generate
 from ..shader import languages as L
-from .atlas import assemble
+from .atlas import assemble, down
 from .model import TANGENT_FLOOR, Bake
 
 LANGUAGES = ("glsl", "glsl_es", "hlsl", "msl", "wgsl")
@@ -512,7 +512,9 @@ def _specular_layer(bake: Bake, j: int, i: int) -> np.ndarray:
 def texture_arrays(bake: Bake) -> list[tuple[str, object]]:
     """``(uniform name, (H, W, 3) float32 array)`` of every texture, as the files hold them."""
     pl = bake.plan
-    out = [(f"hf_P{i}", assemble(a, [_specular_layer(bake, j, i) for j in range(pl.layers)], 3)) for i, a in enumerate(bake.atlases)]
+    out = [(f"hf_P{i}", assemble(a, [down(layer, layer.shape[0] // a.sizes[j]) for j, layer in
+                                     enumerate(_specular_layer(bake, j, i) for j in range(pl.layers))], 3))
+           for i, a in enumerate(bake.atlases)]  # each block at its size in its map (a smaller one box-averaged)
     e = np.asarray(bake.E, np.float32) if pl.diffuse_basis == "texture" else None
     out += [(f"hf_E{d}", np.ascontiguousarray(e[:, :, d])) for d in range(pl.diffuse if pl.diffuse_basis == "texture" else 0)]
     w = np.asarray(bake.W, np.float32)
