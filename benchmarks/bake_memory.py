@@ -42,7 +42,9 @@ import numpy as np
 import bake_accuracy as ba
 import homofac as hf
 from homofac.bake import build
-from homofac.bake.atlas import pack
+from homofac.bake.atlas import blocks_of, bottom_left, down, pack
+from homofac.bake.build import layer_size, map_layouts, sharp
+from homofac.bake.plan import plan as make_plan
 from homofac.bake.gauge import face_gauge, gauge_read
 from homofac.bake.model import TANGENT_FLOOR, _cube, _line, harmonic_colour, tensor_read
 from homofac.bake.sources import source_terms
@@ -52,16 +54,6 @@ from homofac.light.reference import source_map
 
 #: half bytes of split-sum at the same sharpness (128 chain + 32^2 x 6 irradiance + 32 x 32 DFG)
 GOAL = ba.chain_bytes(128) + ba.SPLIT_SUM_EXTRA
-
-
-def down(t, f: int):
-    """A (S, 6S, C) cube texture box-filtered f x f within each face: (S/f, 6S/f, C)."""
-    t = np.asarray(t, np.float32)
-    if f == 1:
-        return t
-    s = t.shape[0]
-    c = t.shape[2:]
-    return t.reshape(s // f, f, 6 * s // f, f, *c).mean(axis=(1, 3))
 
 
 def bake_with_half_maps(name, preset):
@@ -138,21 +130,6 @@ def terms(b, n, v, rho, P1, P2, H, gauged=False, E=None):
     return out + source_terms(b.sources, n, v, jnp.asarray(rho, jnp.float32)) if b.sources else out
 
 
-def bottom_left(sizes) -> tuple[int, int]:
-    """(width, height) of an atlas of (S, 6 S) blocks, sizes non-increasing, width 6 max(S), each block at the
-    lowest free position (then the leftmost) above the blocks placed before it (a skyline packer: a block may
-    sit in the gap beside a shorter block of a full shelf, which ``homofac.bake.atlas.pack`` leaves empty)."""
-    sizes = sorted((int(x) for x in sizes), reverse=True)
-    unit = 6 * min(sizes)
-    cols = 6 * sizes[0] // unit
-    sky = np.zeros(cols, int)
-    for s in sizes:
-        w = 6 * s // unit
-        x = min(range(cols - w + 1), key=lambda i: (sky[i:i + w].max(), i))
-        sky[x:x + w] = sky[x:x + w].max() + s
-    return 6 * sizes[0], int(sky.max())
-
-
 def layout_bytes(b, sizes_a, sizes_b, channels_a: int, channels_b: int, e_size: int) -> dict:
     """Half bytes of a two-map layout: map A's layer sizes (blocks shared as the bake shares them), map B's
     (None: the layer stores nothing there; read as a shared 8-face block of zeros), E_d and the tables."""
@@ -165,8 +142,8 @@ def layout_bytes(b, sizes_a, sizes_b, channels_a: int, channels_b: int, e_size: 
     w = b.plan.tables * b.plan.layers * b.plan.nv_size * 3 * 2
     pa = at.width * at.height * channels_a * 2
     pb = bt.width * bt.height * channels_b * 2 if bt else 0
-    wa, ha = bottom_left([sizes_a[j] for j in sorted(set(blocks))])
-    wb, hb = bottom_left(sorted(kept, reverse=True) + ([8] if len(kept) < len(sizes_b) else [])) if kept else (0, 0)
+    wa, ha = bottom_left([sizes_a[j] for j in sorted(set(blocks))])[:2]
+    wb, hb = bottom_left(sorted(kept, reverse=True) + ([8] if len(kept) < len(sizes_b) else []))[:2] if kept else (0, 0)
     bl = (wa * ha * channels_a + wb * hb * channels_b) * 2
     return {"A": pa, "B": pb, "A_atlas": [at.width, at.height], "B_atlas": [bt.width, bt.height] if bt else None,
             "E": e, "W": w, "total": pa + pb + e + w, "ratio": (pa + pb + e + w) / GOAL,
@@ -176,9 +153,10 @@ def layout_bytes(b, sizes_a, sizes_b, channels_a: int, channels_b: int, e_size: 
 def variant(b, spec: str, halves=None):
     """(P1, P2, H, gauged, E, bytes) of a variant spec: ``base`` or '+'-joined ``p2/F``, ``h/F``, ``p1L/F``, ``gauge``."""
     L = b.plan.layers
-    P1 = [np.asarray(p[:, :, 0]) for p in b.P]
-    P2 = [np.asarray(p[:, :, 1]) if b.plan.terms > 1 and np.any(p[:, :, 1]) else None for p in b.P]
-    H = [None if (not b.H or h is None) else np.asarray(h) for h in (b.H or [None] * L)]
+    read, read_h = b.read_maps()  # each map at its block's size, as the bake reads it (``base`` is the bake)
+    P1 = [np.asarray(p[0]) for p in read]
+    P2 = [np.asarray(p[1]) if b.plan.terms > 1 and np.any(np.asarray(p[1])) else None for p in read]
+    H = [None if (not b.H or h is None) else np.asarray(read_h[j]) for j, h in enumerate(b.H or [None] * L)]
     gauged = False
     E = np.asarray(b.E)
     for part in spec.split("+"):
@@ -219,30 +197,27 @@ def variant(b, spec: str, halves=None):
 
 
 def breakdown(preset: str = "balanced", max_size: int = 64) -> list[dict]:
-    """Per own block of the current layout (RGB maps, every map in the shelf packer's layout): the layers it
-    serves, roughness, face, texels, the channels it stores over all maps and the ones that hold data (P_k's RGB
-    in the layers that keep k products, the tensor's 3 in the harmonic layers), its half bytes; then the
-    packing's unused texels, E_d and the tables."""
-    from homofac.bake.build import layer_size, sharp
-    from homofac.bake.plan import plan as make_plan
+    """The layout a bake of ``preset`` stores (:func:`homofac.bake.build.map_layouts`, from the plan; no bake): per
+    map and own block, the layers it serves, their roughness, its face, texels and half bytes (RGB); then each
+    map's unused texels, E_d and the tables. The sum is ``Bake.texture_bytes`` of such a bake."""
     pl = make_plan(preset, max_size=max_size)
     r = pl.roughnesses()
     sizes = [layer_size(x, max_size) for x in r]
     shared = [sharp(x, max_size) for x in r]
     blocks = tuple(int(np.argmax(shared)) if shared[j] else j for j in range(pl.layers))
-    at = pack(sizes, blocks)
-    ch = pl.maps * 3  # RGB maps (the tensor in its 3 face-gauge channels), one atlas layout for every map
-    kept, harm = pl.layer_terms(), pl.harmonic_layers()
-    rows, used_texels = [], 0
-    for j in sorted(set(blocks)):
-        serves = [i for i in range(pl.layers) if blocks[i] == j]
-        data = 3 if shared[j] else 3 * kept[j] + (3 if j in harm else 0)
-        t = 6 * sizes[j] ** 2
-        used_texels += t
-        rows.append({"layers": serves, "roughness": [round(r[i], 3) for i in serves], "face": sizes[j], "texels": t,
-                     "channels": ch, "data_channels": data, "bytes": t * ch * 2, "zero_bytes": t * (ch - data) * 2})
-    rows.append({"layers": "packing", "texels": at.width * at.height - used_texels,
-                 "bytes": (at.width * at.height - used_texels) * ch * 2, "atlas": [at.width, at.height]})
+    harm = [j in pl.harmonic_layers() and not shared[j] for j in range(pl.layers)]
+    rows = []
+    for i, a in enumerate(map_layouts(pl, sizes, blocks, shared, harm)):
+        firsts = blocks_of(a.offsets, a.sizes)
+        used = 0
+        for j in sorted(set(firsts)):
+            serves = [k for k in range(pl.layers) if firsts[k] == j]
+            t = 6 * a.sizes[j] ** 2
+            used += t
+            rows.append({"map": i, "layers": serves, "roughness": [round(r[k], 3) for k in serves], "face": a.sizes[j],
+                         "layer_face": sizes[j], "texels": t, "bytes": t * 3 * 2})
+        rows.append({"map": i, "layers": "packing", "texels": a.width * a.height - used,
+                     "bytes": (a.width * a.height - used) * 3 * 2, "atlas": [a.width, a.height]})
     rows.append({"layers": "E_d", "bytes": pl.diffuse * 6 * pl.diffuse_size ** 2 * 3 * 2})
     rows.append({"layers": "tables", "bytes": pl.tables * pl.layers * pl.nv_size * 3 * 2})
     return rows
@@ -262,7 +237,8 @@ def main(argv=None):
         rows = breakdown(args.preset)
         for row in rows:
             print(json.dumps(row))
-        print(f"total {sum(r['bytes'] for r in rows)} bytes; goal {GOAL}")
+        total = sum(r['bytes'] for r in rows)
+        print(f"total {total} bytes; goal {GOAL}; {total / GOAL:.3f}x")
         return
     rng = np.random.default_rng(0)
     for name in hf.light.BUNDLED:  # the benchmark's draw order

@@ -212,3 +212,14 @@ def test_gpu_reads_smaller_blocks_as_the_cpu(halved, tmp_path):
     check_glsl_terms(m, n, v, (0.3, 0.35, 0.45, 0.9), 1e-3)
     check_wgsl(m, 300, (1e-3, 3e-3))
     check_glslang(m, "glsl_es", tmp_path, y_ups=(False,))
+
+
+def test_presets_layout_and_the_later_face_option():
+    """balanced stores P_2 at half its face and E_d at 16 (0.97x split-sum's memory at the bundled maps' 64),
+    fast and best keep their faces; ``later_face`` overrides it (a power of two, at most 8)."""
+    from homofac.bake.plan import plan
+    assert (plan("balanced").later_face, plan("balanced").diffuse_size) == (2, 16)
+    assert (plan("best").later_face, plan("fast").diffuse_size) == (1, 32)
+    assert plan("balanced", later_face=1, diffuse_size=32).later_face == 1
+    with pytest.raises(HomofacError, match="later_face must be a power of two"):
+        hf.bake("forest", later_face=3)

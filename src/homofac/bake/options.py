@@ -19,8 +19,8 @@ class BakeOptions(Options):
     max_size: Optional[int] = Field(None, ge=8, le=512, description="largest P face size; default: the source's detail (lat-long width / 4), at most 256")
     nv_size: int = Field(32, ge=4, le=256, description="n.v columns of the weight tables")
     diffuse_size: Optional[int] = Field(None, ge=8, le=256, description="face size of the diffuse maps E_d (default: the preset's, 16 for balanced, 32 for fast and best)")
-    later_face: Optional[Literal[1, 2, 4]] = Field(
-        None, description="P_2..P_K stored at 1 / later_face of their layer's face (at least 8; the layer's map "
+    later_face: Optional[int] = Field(
+        None, ge=1, le=8, description="P_2..P_K stored at 1 / later_face of their layer's face (at least 8; the layer's map "
                           "box-averaged per face); default: the preset's, 2 for balanced, 1 for best")
     layers: Optional[int] = Field(None, ge=3, le=32, description="roughness layers (default: the preset's)")
     terms: Optional[int] = Field(None, ge=1, le=8, description="specular products (default: the preset's)")
@@ -44,7 +44,7 @@ class BakeOptions(Options):
 
     @model_validator(mode="after")
     def _pow2(self):
-        for name in ("max_size", "diffuse_size"):
+        for name in ("max_size", "diffuse_size", "later_face"):
             v = getattr(self, name)
             if v is not None and v & (v - 1):
                 raise ValueError(f"{name} must be a power of two, got {v}")
