@@ -16,13 +16,15 @@ cells are the benchmark's) against the same converged reference:
   schema 5 on: every variant reads the bake's tensors in that gauge) and P_1's RGB and the tensor or P_2's RGB in
   two RGB maps, each its own atlas; without it, the memory of the one-atlas RGBA layout of schema 4.
 
-Every variant is the bake's own read (homofac.bake.model) with those maps swapped: ``base`` equals
-``Bake.evaluate`` (checked). The memory of each layout (half floats, RGB per map, shelf-packed atlases, E_d and
+Every variant is the bake's own read (homofac.bake.model) with those maps swapped, starting from the maps as
+the bake stores them (``Bake.read_maps``: since step 3 of schema 5, P_2 at half its layer's face in
+``balanced``, so ``p2/2`` reads it at a quarter): ``base`` equals ``Bake.evaluate`` (checked). The memory of each layout (half floats, RGB per map, shelf-packed atlases, E_d and
 the tables) is printed beside; the goal is split-sum at the same sharpness (0.829 MB: a 128 chain).
 
     PYTHONPATH=src python benchmarks/bake_memory.py [--envs studio forest] [--bands 1 2] [--variants base p2/2 ...]
         [--json ROWS.jsonl]
-    PYTHONPATH=src python benchmarks/bake_memory.py --breakdown [--preset balanced]   (memory per block, no bake)
+    PYTHONPATH=src python benchmarks/bake_memory.py --breakdown [--preset balanced]   (the stored layout's memory
+        per map and block, homofac.bake.build.map_layouts; no bake)
 
 All four environments and bands with seven variants took 6 minutes here (load 6-8; one in-process bake per
 environment, the reference as the benchmark's). Rows: benchmarks/bake_memory.jsonl (``V MB``: the layout's memory;

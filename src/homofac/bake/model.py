@@ -1,7 +1,8 @@
 """A bake: the textures of one environment and how they give I_d, I_A, I_B (hence L of any glTF material).
 
     u(rho)   = (layers - 1) log(rho / rho_0) / log(rho_last / rho_0), clamped to [0, layers - 1]
-    P_k      = sum_j hat(u - j) P_kj(a_j),  a_j = normalize((1 - s_j) r + s_j n)   (two layers, blended by hand)
+    P_k      = sum_j hat(u - j) P_kj(a_j),  a_j = normalize((1 - s_j) r + s_j n)   (two layers, blended by hand;
+               P_kj read at its block's face in map k's atlas, e.g. P_2 at half the layer's face in balanced)
     T_c      = sum_j hat(u - j) line(T_jc, n.v)                 (the RGB weight tables, bilinear in (n.v, u))
     I_A = sum_k P_k a_k,   I_B = sum_k P_k b_k,   I_d = sum_d E_d(n) w_d          (a_k = T_2k, b_k = T_2k+1)
 
@@ -70,7 +71,9 @@ class Bake:
     of the luminance's second harmonic in the face gauge (M'_uu, M'_vv, M'_uv; :mod:`.gauge`), or None (the plan's ``harmonic``; empty
     without it; the tables' last two channels are then h_A, h_B); ``layouts[i]`` the blocks of specular map
     ``P<i>`` in its own atlas (:class:`~.atlas.Atlas`, one per map, read from bake.json's schema 5; empty: every
-    map in :func:`~.atlas.pack`'s layout).
+    map in :func:`~.atlas.pack`'s layout). ``P`` and ``H`` hold every layer at its face S_j; map i of layer j is
+    read at its block's size ``layouts[i].sizes[j]`` (S_j or S_j / 2^m: the layer box-averaged per face,
+    :meth:`read_maps`), as the shaders read it.
     """
 
     plan: BakePlan
