@@ -77,41 +77,47 @@ def _angle3(a, b):
 def _clipped(n: Float[Array, "B 3"], p: Float[Array, "4 3 B K"], moment: bool = False):
     """Exact integral of max(n . l, 0) over spherical quads (corners CCW from outside), per row.
 
-    Corners come as structure of arrays ``p[i][c]`` of shape (B, K); the four edges are computed at once
-    along a leading edge axis (arrays (4, B, K)), and each edge's visible arc angle is one ``atan2`` of the
-    arc's two end points (the edge's corners, or a corner and its horizon crossing), so the program holds
-    two ``atan2`` (the edges', the horizon arc's), not thirteen. With ``moment`` also the vector moment of
-    the visible part, ``m = 1/2 sum_i theta_i u_i + 1/2 phi n`` (Arvo; the horizon arc's axis is n), whose
-    direction is the centroid of the visible part of the texel: returns ``(w, (mx, my, mz))``.
+    Corners come as structure of arrays ``p[i][c]`` of shape (B, K), so every operation below is an
+    elementwise op on contiguous (B, K) arrays. Each edge's visible arc is one ``atan2`` of its two end
+    points (the edge's corners, or a corner and the edge's horizon crossing), so the program holds five
+    ``atan2`` (one per edge, the horizon arc's), not one per edge and case. With ``moment`` also the vector
+    moment of the visible part, ``m = 1/2 sum_i theta_i u_i + 1/2 phi n`` (Arvo; the horizon arc's axis is
+    n), whose direction is the centroid of the visible part of the texel: returns ``(w, (mx, my, mz))``.
     """
     nv = tuple(n[:, c][:, None] for c in range(3))  # (B, 1) each
-    a = tuple(p[:, c] for c in range(3))  # edge i starts at corner i: (4, B, K) each
-    b = tuple(jnp.roll(ac, -1, axis=0) for ac in a)  # and ends at corner i + 1
-    sa = _dot3(nv, a)
-    sb = jnp.roll(sa, -1, axis=0)
-    cr = _cross(a, b)
-    inv = 1.0 / jnp.maximum(jnp.sqrt(_dot3(cr, cr)), 1e-30)
-    nu = _dot3(nv, cr) * inv  # n . u_i
-    va, vb = sa >= 0, sb >= 0
-    ex, en = va & ~vb, ~va & vb
-    # horizon crossing on edge i: +-normalize(s_a b - s_b a)
-    c = tuple(sa * bk - sb * ak for ak, bk in zip(a, b))
-    cinv = 1.0 / jnp.maximum(jnp.sqrt(_dot3(c, c)), 1e-30)
-    c = tuple(ck * cinv for ck in c)
-    # the visible arc: (a, b) both above, (a, c) leaving, (-c, b) entering
-    x = tuple(jnp.where(en, -ck, ak) for ck, ak in zip(c, a))
-    y = tuple(jnp.where(ex, ck, bk) for ck, bk in zip(c, b))
-    theta_vis = jnp.where(va | vb, _angle3(x, y), 0.0)
-    part = 0.5 * theta_vis * nu
-    total = part[0] + part[1] + part[2] + part[3]
-    x_out = tuple(jnp.sum(jnp.where(ex, ck, 0.0), axis=0) for ck in c)  # one exit and one entry per texel at most
-    x_in = tuple(jnp.sum(jnp.where(en, -ck, 0.0), axis=0) for ck in c)
-    mixed = jnp.any(ex, axis=0)
+    pts = [tuple(p[i, c] for c in range(3)) for i in range(4)]
+    s = [_dot3(nv, q) for q in pts]
+    total = 0.0
+    mom = (0.0, 0.0, 0.0)
+    x_out = (0.0, 0.0, 0.0)
+    x_in = (0.0, 0.0, 0.0)
+    mixed = False
+    for i in range(4):
+        a, b = pts[i], pts[(i + 1) % 4]
+        sa, sb = s[i], s[(i + 1) % 4]
+        cr = _cross(a, b)
+        inv = 1.0 / jnp.maximum(jnp.sqrt(_dot3(cr, cr)), 1e-30)
+        nu = _dot3(nv, cr) * inv  # n . u_i
+        va, vb = sa >= 0, sb >= 0
+        ex, en = va & ~vb, ~va & vb
+        # horizon crossing on edge i: +-normalize(s_a b - s_b a)
+        c = tuple(sa * b[k] - sb * a[k] for k in range(3))
+        cinv = 1.0 / jnp.maximum(jnp.sqrt(_dot3(c, c)), 1e-30)
+        c = tuple(ck * cinv for ck in c)
+        # the visible arc: (a, b) both above, (a, c) leaving, (-c, b) entering
+        start = tuple(jnp.where(en, -ck, ak) for ck, ak in zip(c, a))
+        end = tuple(jnp.where(ex, ck, bk) for ck, bk in zip(c, b))
+        theta_vis = jnp.where(va | vb, _angle3(start, end), 0.0)
+        total = total + 0.5 * theta_vis * nu
+        if moment:
+            mom = tuple(mk + 0.5 * theta_vis * ck * inv for mk, ck in zip(mom, cr))
+        x_out = tuple(xo + jnp.where(ex, ck, 0.0) for xo, ck in zip(x_out, c))
+        x_in = tuple(xi + jnp.where(en, -ck, 0.0) for xi, ck in zip(x_in, c))
+        mixed = mixed | ex
     horizon = jnp.where(mixed, 0.5 * jnp.arctan2(_dot3(nv, _cross(x_out, x_in)), _dot3(x_out, x_in)), 0.0)
     w = jnp.maximum(total + horizon, 0.0)
     if not moment:
         return w
-    mom = tuple(t[0] + t[1] + t[2] + t[3] for t in (0.5 * theta_vis * crk * inv for crk in cr))
     return w, tuple(mk + horizon * nk for mk, nk in zip(mom, nv))
 
 
