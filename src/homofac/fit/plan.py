@@ -122,10 +122,10 @@ POLISH_STRIDE = 4
 
 #: ``fast``'s training pairs: 32 per unknown of its largest candidate (``E'+NROW x1`` and ``E'+ROW x1+R``: 5456 texels
 #: per channel at texture size 32), about what ``balanced``'s 300 000 give its largest ones (``E'+NROW x2+R`` 10 912
-#: unknowns: 27, ``E'+ROW x3+R`` 9136: 33). The grid's
-#: lighting integrals were the largest fixed stage of ``fast`` (10 s CPU of 28 on gold / forest); on the four speed cases
-#: 175 000 pairs moved the nrmse on the converged truth by -0.6 to -2.5 % (docs/notes/speed.md, "The fixed work,
-#: seventeenth session"; 150 000 had flipped plastic / city's vote before the race, +5.6 %).
+#: unknowns: 27, ``E'+ROW x3+R`` 9136: 33). The grid's lighting integrals were the largest fixed stage of ``fast``
+#: (10 s CPU of 28 on gold / forest); on the four speed cases 175 000 pairs moved the nrmse on the converged truth by
+#: -0.6 to -2.5 % (docs/notes/speed.md, "The fixed work, seventeenth session"; 150 000 had flipped plastic / city's
+#: vote before the race, +5.6 %).
 FAST_GRID_COUNT = 175_000
 
 #: The presets (names pinned). ``fast`` and ``balanced`` are the 4- and 8-lookup settings measured on
