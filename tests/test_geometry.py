@@ -61,3 +61,30 @@ def test_delta_lights_use_the_point_form():
     geom = light_geometry(dirs, jnp.asarray([2.0, 1.0]), jnp.zeros((2, 4, 3)), 0)
     n = jnp.asarray([[0.0, 0.6, 0.8]])
     np.testing.assert_allclose(np.asarray(cosine_weights(n, geom)), [[1.6, 0.0]], atol=1e-6)
+
+
+def test_float32_straddler_weights_and_centroids_match_float64_with_one_atan2_per_arc(x64):
+    """The selected straddlers' exact clip in float32 (the lighting programs' precision) equals the float64
+    clip of the same texels to 1e-6 of a weight (texels at r = 32 are about 4e-3 sr), every row still sums
+    to pi, the centroids are the float64 ones where the visible part is not a sliver, and the clip is
+    traced with five atan2 (one per edge's visible arc, the horizon arc's), not one per edge and case."""
+    import jax
+
+    r = 32
+    d, w = _cube_texels(r)
+    n = normals(200, seed=3)[:200]  # random normals (an exact axis-diagonal horizon through texel corners is degenerate)
+    out = {}
+    for dt in (jnp.float32, jnp.float64):
+        geom = light_geometry(jnp.asarray(d, dt), jnp.asarray(w, dt), jnp.asarray(cube_corners(r), dt), r)
+        out[dt] = jax.jit(lambda x, g=geom: cosine_weights(x, g, select=True, centroids=True))(jnp.asarray(n, dt))
+    (w32, (i32, c32)), (w64, (i64, c64)) = out[jnp.float32], out[jnp.float64]
+    w32, w64 = np.asarray(w32, np.float64), np.asarray(w64)
+    assert np.abs(w32 - w64).max() < 1e-6
+    np.testing.assert_allclose(w32.sum(axis=1), np.pi, atol=2e-6)
+    i32, i64 = np.asarray(i32), np.asarray(i64)  # slots of straddlers with a visible part (L: none)
+    big = (i32 == i64) & (i64 < w64.shape[1]) & (np.take_along_axis(w64, np.minimum(i64, w64.shape[1] - 1), 1) > 1e-4)
+    assert big.sum() > 1000
+    assert np.abs(np.asarray(c32, np.float64) - np.asarray(c64))[big].max() < 2e-4
+    geom = light_geometry(jnp.asarray(d, jnp.float32), jnp.asarray(w, jnp.float32), jnp.asarray(cube_corners(r), jnp.float32), r)
+    jaxpr = str(jax.make_jaxpr(lambda x: cosine_weights(x, geom, select=True, centroids=True))(jnp.asarray(n[:4], jnp.float32)))
+    assert jaxpr.count("atan2") == 5

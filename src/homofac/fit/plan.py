@@ -120,13 +120,21 @@ BALANCED_RACE = {**RACE, "race_keep": (1,), "race_margin": 0.0, "tolerance": 1e-
 #: truth moved by +0.1, -5.5, +0.4 and +1.6 % (docs/notes/speed.md, "balanced, sixteenth session").
 POLISH_STRIDE = 4
 
+#: ``fast``'s training pairs: 32 per unknown of its largest candidate (``E'+NROW x1`` and ``E'+ROW x1+R``: 5456 texels
+#: per channel at texture size 32), about what ``balanced``'s 300 000 give its largest ones (``E'+NROW x2+R`` 10 912
+#: unknowns: 27, ``E'+ROW x3+R`` 9136: 33). The grid's lighting integrals were the largest fixed stage of ``fast``
+#: (10 s CPU of 28 on gold / forest); on the four speed cases 175 000 pairs moved the nrmse on the converged truth by
+#: -0.6 to -2.5 % (docs/notes/speed.md, "The fixed work, seventeenth session"; 150 000 had flipped plastic / city's
+#: vote before the race, +5.6 %).
+FAST_GRID_COUNT = 175_000
+
 #: The presets (names pinned). ``fast`` and ``balanced`` are the 4- and 8-lookup settings measured on
 #: the accuracy benchmark (docs/notes/sums-research.md); ``best`` the 16-lookup ones ("the quality mode" of the notes):
 #: 600 000 grid pairs (300 000 left gold / forest at 0.106 against 0.101 nrmse on the converged ground
 #: truth), 80 000 validation pairs (a ranking steadier than the candidates' differences), a line vote
 #: 32 / 4 x texture_size, tables, the disc vote, the plain objective and 20 000 ridge pairs.
 PRESETS: dict[str, Preset] = {
-    "fast": Preset(lookups=4, grid_count=GRID_COUNT, validation=DEFAULT_VALIDATION, line_ratio=0, table=False,
+    "fast": Preset(lookups=4, grid_count=FAST_GRID_COUNT, validation=DEFAULT_VALIDATION, line_ratio=0, table=False,
                    disc_vote=False, nv_balance=1.0, polish=0, ridge=0, analysis=False, directions=PRESET_DIRECTIONS,
                    **FAST_RACE),
     "balanced": Preset(lookups=8, grid_count=GRID_COUNT, validation=DEFAULT_VALIDATION, line_ratio=0, table=False,

@@ -78,9 +78,11 @@ def _clipped(n: Float[Array, "B 3"], p: Float[Array, "4 3 B K"], moment: bool = 
     """Exact integral of max(n . l, 0) over spherical quads (corners CCW from outside), per row.
 
     Corners come as structure of arrays ``p[i][c]`` of shape (B, K), so every operation below is an
-    elementwise op on contiguous (B, K) arrays. With ``moment`` also the vector moment of the visible
-    part, ``m = 1/2 sum_i theta_i u_i + 1/2 phi n`` (Arvo; the horizon arc's axis is n), whose direction
-    is the centroid of the visible part of the texel: returns ``(w, (mx, my, mz))``.
+    elementwise op on contiguous (B, K) arrays. Each edge's visible arc is one ``atan2`` of its two end
+    points (the edge's corners, or a corner and the edge's horizon crossing), so the program holds five
+    ``atan2`` (one per edge, the horizon arc's), not one per edge and case. With ``moment`` also the vector
+    moment of the visible part, ``m = 1/2 sum_i theta_i u_i + 1/2 phi n`` (Arvo; the horizon arc's axis is
+    n), whose direction is the centroid of the visible part of the texel: returns ``(w, (mx, my, mz))``.
     """
     nv = tuple(n[:, c][:, None] for c in range(3))  # (B, 1) each
     pts = [tuple(p[i, c] for c in range(3)) for i in range(4)]
@@ -96,15 +98,16 @@ def _clipped(n: Float[Array, "B 3"], p: Float[Array, "4 3 B K"], moment: bool = 
         cr = _cross(a, b)
         inv = 1.0 / jnp.maximum(jnp.sqrt(_dot3(cr, cr)), 1e-30)
         nu = _dot3(nv, cr) * inv  # n . u_i
-        theta = _angle3(a, b)
         va, vb = sa >= 0, sb >= 0
         ex, en = va & ~vb, ~va & vb
         # horizon crossing on edge i: +-normalize(s_a b - s_b a)
         c = tuple(sa * b[k] - sb * a[k] for k in range(3))
         cinv = 1.0 / jnp.maximum(jnp.sqrt(_dot3(c, c)), 1e-30)
         c = tuple(ck * cinv for ck in c)
-        neg_c = tuple(-ck for ck in c)
-        theta_vis = jnp.where(va & vb, theta, jnp.where(ex, _angle3(a, c), jnp.where(en, _angle3(neg_c, b), 0.0)))
+        # the visible arc: (a, b) both above, (a, c) leaving, (-c, b) entering
+        start = tuple(jnp.where(en, -ck, ak) for ck, ak in zip(c, a))
+        end = tuple(jnp.where(ex, ck, bk) for ck, bk in zip(c, b))
+        theta_vis = jnp.where(va | vb, _angle3(start, end), 0.0)
         total = total + 0.5 * theta_vis * nu
         if moment:
             mom = tuple(mk + 0.5 * theta_vis * ck * inv for mk, ck in zip(mom, cr))
