@@ -74,6 +74,12 @@ def _angle3(a, b):
     return jnp.arctan2(jnp.sqrt(_dot3(c, c)), _dot3(a, b))
 
 
+#: Corners with |n . p| at most this many float epsilons are on the horizon of n (:func:`_clipped`): the sliver
+#: this moves across the horizon holds |n . l| <= 16 eps, so a weight moves by less than 16 eps x the texel's
+#: edge length.
+HORIZON_ULPS = 16
+
+
 def _clipped(n: Float[Array, "B 3"], p: Float[Array, "4 3 B K"], moment: bool = False):
     """Exact integral of max(n . l, 0) over spherical quads (corners CCW from outside), per row.
 
@@ -86,7 +92,12 @@ def _clipped(n: Float[Array, "B 3"], p: Float[Array, "4 3 B K"], moment: bool = 
     """
     nv = tuple(n[:, c][:, None] for c in range(3))  # (B, 1) each
     pts = [tuple(p[i, c] for c in range(3)) for i in range(4)]
-    s = [_dot3(nv, q) for q in pts]
+    # A corner within rounding of the horizon is on it: compiled programs round n . p of a corner on the
+    # horizon to +-1e-8 with signs that need not agree between the corner's classification and its
+    # crossing, which made texel edges lying on the horizon (n = (1, 1, 0) / sqrt(2) at cube edges) sum to
+    # 10x pi. On the horizon exactly, every case below is exact (a crossing at a corner is that corner).
+    tol = HORIZON_ULPS * jnp.finfo(n.dtype).eps
+    s = [jnp.where(jnp.abs(v) <= tol, 0.0, v) for v in (_dot3(nv, q) for q in pts)]
     total = 0.0
     mom = (0.0, 0.0, 0.0)
     x_out = (0.0, 0.0, 0.0)
