@@ -58,7 +58,9 @@ class Preset(NamedTuple):
     stops where a sweep lowers its objective by less than this fraction (``advanced.linear.tolerance``);
     ``vote_screen``: ALS sweeps of the short fits (on every ``race_stride``-th pair, as the race's first round)
     that the line and disc votes read first: the kept structure's other line size, or its disc, is fitted in
-    full only where its short fit's figure is below the kept structure's (0: always fitted in full)."""
+    full only where its short fit's figure is below the kept structure's (0: always fitted in full);
+    ``highlight_start``: ALS sweeps of the highlight terms' own start (``advanced.linear.highlight_start``;
+    None: half the fit's sweeps)."""
 
     lookups: int
     grid_count: int
@@ -79,6 +81,7 @@ class Preset(NamedTuple):
     tolerance: float = DEFAULT_TOLERANCE
     vote_screen: int = 0
     race_continue: bool = False
+    highlight_start: int | None = None
 
 
 #: The grid directions of the presets' candidates: the off-specular reflection ``r_off`` only. On the
@@ -234,7 +237,9 @@ class Plan:
         if self.linear is not None:
             lin = self.linear
             lines.append(f"  linear fit: {lin.method}, {lin.iterations} iterations (stops where one lowers the "
-                         f"objective by < {lin.tolerance:g} of it), laplacian {lin.laplacian:g}, nv_balance {lin.nv_balance:g}")
+                         f"objective by < {lin.tolerance:g} of it), laplacian {lin.laplacian:g}, nv_balance {lin.nv_balance:g}"
+                         + ("" if lin.highlight_start is None else
+                            f", highlight terms started by at most {lin.highlight_start} sweeps of their own"))
             if self.polish:
                 lines.append(f"  polish: {self.polish} Levenberg-Marquardt steps"
                              + (f", {self.ridge} ridge pairs" if self.ridge else "")
@@ -401,7 +406,8 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
         # the candidates: the preset's nv_balance; a polish given explicitly runs on every candidate (as on
         # a named structure), else the preset's polishes the kept one (the polish vote)
         kd = target.kind == "lighting" and sums.has_diffuse(target)
-        lin = given.resolved(nv_balance=p.nv_balance if kd else 0.0, tolerance=p.tolerance)
+        lin = given.resolved(nv_balance=p.nv_balance if kd else 0.0, tolerance=p.tolerance,
+                             highlight_start=p.highlight_start)
         als_fit = lin.method in ("auto", "als") and (kind == "grid" or samples_given is not None)
         steps = 0 if given.polish is not None or target.kind != "lighting" or not als_fit else p.polish
         ridge = given.ridge if given.ridge is not None else (p.ridge if lit and steps else 0)

@@ -789,16 +789,23 @@ def _lm_lookup(a, b, context: dict, unknown_of_texel, *, proj: str, mapper: str,
     return refine.Lookup(jnp.where(unk >= 0, unk, 0).astype(jnp.int32), jnp.where(unk >= 0, w, 0.0))
 
 
+def highlight_sweeps(opts: LinearOptions) -> int:
+    """ALS sweeps of the highlight terms' own start (:func:`_highlight_first`): ``linear.highlight_start``, at
+    most ``iterations // 2`` (its default), at least 1."""
+    half = max(1, int(opts.iterations) // 2)
+    return half if opts.highlight_start is None else max(1, min(int(opts.highlight_start), half))
+
+
 def _highlight_first(p: als.Padded, flags: als.Flags, lam, opts: LinearOptions, log=None) -> als.Padded:
     """Start the highlight terms (and an n-only diffuse texture) on the data alone, the products absent:
     started together, the products' maps of r take the sun's highlight first and the joint ALS stays
     there (near-mirror / city: 0.50 nrmse against 0.2 from this start). The same compiled sweep as the
-    full fit, the other terms' slots masked out. Returns the full start."""
+    full fit, the other terms' slots masked out, :func:`highlight_sweeps` sweeps. Returns the full start."""
     keep = [h or (pp and not q and not w) for pp, q, w, h in zip(flags.p, flags.q, flags.w, flags.h)]
     on = als.pad(np.asarray(keep, np.float32), p.order, 0.0)  # the kept terms' slots
     m = p.masks
     sub = als.Masks(*(np.asarray(x) * on for x in m[:5]), np.asarray(m.c) * on[None])
-    out, *_ = als_sweeps(p._replace(masks=sub), lam, max(1, int(opts.iterations) // 2), float(opts.tolerance), log)
+    out, *_ = als_sweeps(p._replace(masks=sub), lam, highlight_sweeps(opts), float(opts.tolerance), log)
     keep_slot = on > 0
 
     def merged(new, old):  # on the host: no program per array shape
