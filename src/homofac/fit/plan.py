@@ -276,12 +276,12 @@ def describe_race(race: tuple[int, ...], keep: tuple[int, ...], margin: float, s
                   carry: bool = False) -> str:
     """The race in words (``--plan``): after each round's sweeps, who continues (``carry``: the kept continue
     on every pair from their strided first-round fit)."""
-    over = " on every pair from their short fit" if carry else " start over on every pair"
     return "; ".join(f"after {n} ALS sweeps" + (f" on every {stride}th training pair" if stride > 1 and not j else "")
                      + " the lowest validation figure"
                      + (f" and those within {100 * margin:g} % of it (at most {k})" if k > 1 else "")
-                     + (((" continue" if carry else "") + over if k > 1
-                         else (" continues" + over if carry else " starts over on every pair"))
+                     + (((" continue on every pair from their short fits" if carry else " start over on every pair")
+                         if k > 1 else (" continues on every pair from its short fit" if carry
+                                        else " starts over on every pair"))
                         if stride > 1 and not j
                         else (" continue from where they stopped" if k > 1 else " continues from where it stopped"))
                      for j, (n, k) in enumerate(zip(race, keep)))
