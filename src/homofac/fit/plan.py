@@ -97,7 +97,11 @@ PRESET_DIRECTIONS = ("r_off",)
 #: (benchmarks/race_study_fast.json) the candidates' figures after 3 sweeps put the full fits' lowest first
 #: on each; the nearest other one was 4.9 % above it there (interior) and every candidate's figure moved by
 #: less than 13 % from 3 sweeps to 30; stopping at 1e-3 moved the kept structures' figures by at most 0.3 %.
-FAST_RACE = {"race": (3,), "race_keep": (2,), "race_margin": 0.08, "tolerance": 1e-3}
+#: The highlight terms' own start runs 5 sweeps (``highlight_start``; 15 before, half the 30 of a fit): on the four
+#: speed cases the highlight candidate's race figure moved by -1.3 to +0.1 % and the kept fits by 0 to -0.15 %
+#: (mirror / studio keeps it: 0.3517 -> 0.3512 on the converged truth), 10 sweeps on 300 000 pairs less
+#: (benchmarks/presets_fast17.json; docs/notes/speed.md, "The candidate loop, seventeenth session").
+FAST_RACE = {"race": (3,), "race_keep": (2,), "race_margin": 0.08, "tolerance": 1e-3, "highlight_start": 5}
 
 #: The race of ``best``: a first round of 10 ALS sweeps on every 4th training pair (fits of their own), the
 #: lowest and those within 3 % of it (at most 2) fitted in full (the screen of the second speed work: gold /
