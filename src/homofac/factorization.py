@@ -22,6 +22,7 @@ offset 0, scale 1, alpha on).
 
 from __future__ import annotations
 
+import functools
 import re
 from typing import Any, NamedTuple, Sequence
 
@@ -277,6 +278,38 @@ def _evaluate(model: Factorization, a, b):
     return jnp.sum(_term_values_impl(model, a, b), axis=0)
 
 
+def evaluate_by_factor(model: Factorization, a, b) -> np.ndarray:
+    """The model's value at direction pairs (:meth:`Factorization.evaluate`: the sum over terms of the
+    correction times the factors' bilinear lookups), each factor's lookup a program compiled once per
+    projection, mapper and texture shape and shared by every model with such a factor (a chooser's
+    candidates: one program per structure compiled each), the products and the sum on the host in the
+    float type of the textures, in :meth:`~Factorization.evaluate`'s order (the same values to float
+    rounding). Not differentiable: for measuring. Returns (N, 3) as a NumPy array."""
+    dtype = np.asarray(model.textures[0].data).dtype
+    a, b = jnp.asarray(a, dtype), jnp.asarray(b, dtype)
+    by_name = {t.name: t for t in model.textures}
+    seen: dict = {}
+    out = None
+    for term in model.terms:
+        v = np.broadcast_to(np.asarray(term.correction, dtype), a.shape[:-1] + (3,))
+        for f in term.factors:
+            if (f.projection, f.texture) not in seen:
+                tex = by_name[f.texture]
+                ctx = {k: jnp.asarray(model.context[k], dtype) for k in pj.get(f.projection).context
+                       if k in model.context}
+                seen[f.projection, f.texture] = np.asarray(
+                    _factor_lookup(jnp.asarray(tex.data), a, b, ctx, proj=f.projection, mapper=tex.mapper))
+            v = v * seen[f.projection, f.texture]
+        out = v if out is None else out + v
+    return np.zeros(a.shape[:-1] + (3,), dtype) if out is None else np.asarray(out, dtype)
+
+
+@functools.partial(jax.jit, static_argnames=("proj", "mapper"))
+def _factor_lookup(data, a, b, context: dict, *, proj: str, mapper: str):
+    """One factor's bilinear lookup ``mapper(data)`` at the projection ``proj`` of the pairs (a, b)."""
+    return mappers.lookup(mapper, data, pj.apply(proj, a, b, context).astype(data.dtype))
+
+
 # --------------------------------------------------------------------------------------------------
 # 8-bit textures
 
@@ -359,6 +392,6 @@ def tree_arrays(model: Factorization) -> list[jax.Array]:
     return jax.tree_util.tree_leaves(model)
 
 
-__all__ = ["Factor", "Factorization", "IDENTIFIER", "KINDS", "LABEL", "QUANTITIES", "Quantized", "RESERVED_TEXTURE_NAMES",
+__all__ = ["Factor", "Factorization", "IDENTIFIER", "evaluate_by_factor", "KINDS", "LABEL", "QUANTITIES", "Quantized", "RESERVED_TEXTURE_NAMES",
            "RESERVED_TEXTURE_PREFIXES", "RESERVED_TEXTURE_SUFFIXES", "Term", "Texture", "check_identifier", "check_label",
            "check_rgba", "check_texture_name", "decode_texels", "evaluate_quantized", "tree_arrays"]

@@ -19,6 +19,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from ..factorization import evaluate_by_factor
+
 NAMES = ("avg_abs", "max_abs", "avg_rel", "max_rel", "rms", "nrmse", "log_rms")
 
 
@@ -97,7 +99,9 @@ def measure(result, target, samples, eps: float = 1e-5, chunk: int = CHUNK,
     ``result.encoded()`` with their decode rule. Values are compared as the target shows them
     (:meth:`homofac.target.Target.shown`: f cos theta_i for BRDFs). ``splits``, ``kinds``: a subset
     (a chooser's candidates need only the validation float figure their vote reads). The model is
-    evaluated in calls of ``chunk`` pairs (:data:`CHUNK`, the last padded).
+    evaluated in calls of ``chunk`` pairs (:data:`CHUNK`, the last padded), the float textures factor by
+    factor (:func:`homofac.factorization.evaluate_by_factor`: the candidates of a chooser share the lookup
+    programs instead of compiling one evaluation per structure).
     """
     if result.quantized is None and "quantized" in kinds:
         result = result.replace(quantized=result.encoded())  # encode once, not per chunk
@@ -112,6 +116,7 @@ def measure(result, target, samples, eps: float = 1e-5, chunk: int = CHUNK,
         exact = target.shown(a, np.asarray(y))  # on the host, as the metrics (float64) are
         out[split] = {}
         for name, quant in ((k, k == "quantized") for k in kinds):
-            values = _chunks(lambda x, z, q=quant: result.evaluate(x, z, quantized=q), a, b, int(chunk))
+            values = _chunks((lambda x, z: result.evaluate(x, z, quantized=True)) if quant
+                             else (lambda x, z: evaluate_by_factor(result.model, x, z)), a, b, int(chunk))
             out[split][name] = metrics(target.shown(a, values), exact, eps)
     return out

@@ -159,6 +159,9 @@ class LinearOptions(Options):
     the ``best`` preset the chooser's polish draws its ridge pairs when it is
     not given (:data:`homofac.fit.plan.PRESETS`). It needs the plain objective
     (``nv_balance`` 0) and a polish.
+    ``highlight_start``: ALS sweeps of the highlight terms' own start (fitted first on the data alone, the
+    products masked out; :func:`homofac.fit.sums.begin`), at most ``iterations // 2``; None: the preset's,
+    else ``iterations // 2``.
     """
 
     method: Literal["auto", "als", "levenberg_marquardt", "gauss_newton"] = "auto"
@@ -172,6 +175,7 @@ class LinearOptions(Options):
     polish_size: int = Field(24, ge=4, le=256)
     ridge: Optional[int] = Field(None, ge=0, le=1_000_000)
     tolerance: Optional[float] = Field(None, ge=0, le=1, allow_inf_nan=False)
+    highlight_start: Optional[int] = Field(None, ge=1, le=100_000)
 
     @model_validator(mode="after")
     def _ridge_objective(self):
@@ -187,6 +191,8 @@ class LinearOptions(Options):
             update["nv_balance"] = float(update["nv_balance"])
         if self.tolerance is None:
             update["tolerance"] = float(preset.get("tolerance", DEFAULT_TOLERANCE))
+        if self.highlight_start is None and preset.get("highlight_start"):
+            update["highlight_start"] = int(preset["highlight_start"])
         return self.model_copy(update=update) if update else self
 
 

@@ -285,6 +285,7 @@ def _sums(target: Target, the_plan: Plan, samples: Samples, record: dict, sample
     slots = sums.als_slots(target, the_plan.candidates, mapper, opts.texture_size, sizes[0])
 
     running: dict = {}  # structure -> its fit under way (the race's candidates still in it)
+    heads: dict = {}  # structure -> its short fit of the race's strided first round
 
     def start(structure: Structure) -> sums.Running:
         tgt, smp, _ = pool(structure)
@@ -294,6 +295,9 @@ def _sums(target: Target, the_plan: Plan, samples: Samples, record: dict, sample
         tgt, smp, _ = pool(structure)
         if line == sizes[0] and structure in running:  # a candidate of the race continues from where it stopped
             sf = sums.finish(sums.advance(running.pop(structure), None, log))
+        elif line == sizes[0] and the_plan.race_continue and structure in heads:  # ... or from its strided fit
+            sf = sums.continued(tgt, structure, mapper, opts.texture_size, smp, lin, log, stride=the_plan.race_stride,
+                                sweeps=the_plan.race[0], line_size=line, slots=slots, head=heads.pop(structure))
         else:
             sf = sums.fit_sum(tgt, structure, mapper, opts.texture_size, smp, lin, log, line_size=line, slots=slots)
         if lin.polish > 0:
@@ -350,12 +354,13 @@ def _sums(target: Target, the_plan: Plan, samples: Samples, record: dict, sample
     if the_plan.race:  # every candidate's first sweeps; the plan's lowest continue (fit() picks them up)
 
         def to(structure: Structure, sweeps: int, stride: int = 1) -> Result:
-            if stride > 1:  # a short fit of its own on every stride-th pair (those that continue start over)
+            if stride > 1:  # a short fit of its own on every stride-th pair (those kept continue from it on
+                # every pair where the plan says race_continue, else start over)
                 tgt, smp, _ = pool(structure)
-                smp = smp._replace(a=smp.a[::stride], b=smp.b[::stride], y=smp.y[::stride])
-                return as_result(structure, sums.fit_sum(tgt, structure, mapper, opts.texture_size, smp,
-                                                         lin.model_copy(update={"iterations": sweeps}), log,
-                                                         line_size=sizes[0], slots=slots))
+                heads[structure] = sums.fit_sum(tgt, structure, mapper, opts.texture_size, sums.strided(smp, stride),
+                                                lin.model_copy(update={"iterations": sweeps}), log,
+                                                line_size=sizes[0], slots=slots)
+                return as_result(structure, heads[structure])
             run = running[structure] if structure in running else start(structure)
             running[structure] = sums.advance(run, sweeps - run.sweeps, log)
             return as_result(structure, sums.finish(running[structure]))

@@ -53,11 +53,14 @@ class Preset(NamedTuple):
     round only the lowest and those within ``race_margin`` (relative) of it, at most ``race_keep`` of the
     round, continue from where they stopped; empty: every candidate fitted in full); ``race_stride``: the
     first round fits every k-th training pair (k > 1: short fits of their own, those kept start over on
-    every pair; nothing continues from them); ``tolerance``: the ALS
+    every pair, or with ``race_continue`` continue on every pair from their short fit's textures:
+    :func:`homofac.fit.sums.continued`); ``tolerance``: the ALS
     stops where a sweep lowers its objective by less than this fraction (``advanced.linear.tolerance``);
     ``vote_screen``: ALS sweeps of the short fits (on every ``race_stride``-th pair, as the race's first round)
     that the line and disc votes read first: the kept structure's other line size, or its disc, is fitted in
-    full only where its short fit's figure is below the kept structure's (0: always fitted in full)."""
+    full only where its short fit's figure is below the kept structure's (0: always fitted in full);
+    ``highlight_start``: ALS sweeps of the highlight terms' own start (``advanced.linear.highlight_start``;
+    None: half the fit's sweeps)."""
 
     lookups: int
     grid_count: int
@@ -77,6 +80,8 @@ class Preset(NamedTuple):
     race_stride: int = 1
     tolerance: float = DEFAULT_TOLERANCE
     vote_screen: int = 0
+    race_continue: bool = False
+    highlight_start: int | None = None
 
 
 #: The grid directions of the presets' candidates: the off-specular reflection ``r_off`` only. On the
@@ -92,7 +97,11 @@ PRESET_DIRECTIONS = ("r_off",)
 #: (benchmarks/race_study_fast.json) the candidates' figures after 3 sweeps put the full fits' lowest first
 #: on each; the nearest other one was 4.9 % above it there (interior) and every candidate's figure moved by
 #: less than 13 % from 3 sweeps to 30; stopping at 1e-3 moved the kept structures' figures by at most 0.3 %.
-FAST_RACE = {"race": (3,), "race_keep": (2,), "race_margin": 0.08, "tolerance": 1e-3}
+#: The highlight terms' own start runs 5 sweeps (``highlight_start``; 15 before, half the 30 of a fit): on the four
+#: speed cases the highlight candidate's race figure moved by -1.3 to +0.1 % and the kept fits by 0 to -0.15 %
+#: (mirror / studio keeps it: 0.3517 -> 0.3512 on the converged truth), 10 sweeps on 300 000 pairs less
+#: (benchmarks/presets_fast17_cand.json; docs/notes/speed.md, "The candidate loop, seventeenth session").
+FAST_RACE = {"race": (3,), "race_keep": (2,), "race_margin": 0.08, "tolerance": 1e-3, "highlight_start": 5}
 
 #: The race of ``best``: a first round of 10 ALS sweeps on every 4th training pair (fits of their own), the
 #: lowest and those within 3 % of it (at most 2) fitted in full (the screen of the second speed work: gold /
@@ -107,7 +116,7 @@ RACE = {"race": (10,), "race_keep": (2,), "race_margin": 0.03, "race_stride": 4}
 #: stop). On the accuracy benchmark's four speed cases a runner-up within 3 % was fitted in full on gold / forest
 #: only, and the first round's lowest was the full fits' lowest there (0.1291 against 0.1298); each full fit is
 #: about a quarter of the preset's CPU time (docs/notes/speed.md, "balanced, sixteenth session").
-BALANCED_RACE = {**RACE, "race_keep": (1,), "race_margin": 0.0, "tolerance": 1e-3}
+BALANCED_RACE = {**RACE, "race_keep": (1,), "race_margin": 0.0, "tolerance": 1e-3, "race_continue": True}
 
 #: ``fast`` has no polish: on the accuracy benchmark's four speed cases the polish then (a 2-step trial, then 8
 #: steps on every pair) lowered the figure on one (mirror / studio, 0.3514 unpolished against 0.3454 polished on the converged truth, +1.7 %), and the
@@ -188,6 +197,7 @@ class Plan:
     race_keep: tuple[int, ...]  # at most this many continue after each round
     race_margin: float  # ... the lowest and those within this relative margin of its figure
     race_stride: int  # the first round fits every k-th training pair (k > 1: fits of their own)
+    race_continue: bool  # ... from which those kept continue on every pair (else they start over)
     vote_screen: int  # ALS sweeps of the short fits the line and disc votes read first (0: full refits only)
     vote_stride: int  # ... fitted on every k-th training pair
     ridge: int
@@ -209,7 +219,7 @@ class Plan:
                 "linear": None if self.linear is None else self.linear.model_dump(),
                 "polish": self.polish, "polish_stride": self.polish_stride, "ridge": self.ridge,
                 "race": {"sweeps": list(self.race), "keep": list(self.race_keep), "margin": self.race_margin,
-                         "stride": self.race_stride},
+                         "stride": self.race_stride, "continue": self.race_continue},
                 "line_sizes": list(self.line_sizes),
                 "vote_screen": {"sweeps": self.vote_screen, "stride": self.vote_stride},
                 "disc_vote": self.disc_vote, "analysis": self.analysis,
@@ -234,11 +244,14 @@ class Plan:
             lines.append(f"  candidates ({len(self.candidates)}):")
             lines += [f"    {c.label()} ({c.describe()})" for c in self.candidates]
         if self.race:
-            lines.append("  race: " + describe_race(self.race, self.race_keep, self.race_margin, self.race_stride))
+            lines.append("  race: " + describe_race(self.race, self.race_keep, self.race_margin, self.race_stride,
+                                                    self.race_continue))
         if self.linear is not None:
             lin = self.linear
             lines.append(f"  linear fit: {lin.method}, {lin.iterations} iterations (stops where one lowers the "
-                         f"objective by < {lin.tolerance:g} of it), laplacian {lin.laplacian:g}, nv_balance {lin.nv_balance:g}")
+                         f"objective by < {lin.tolerance:g} of it), laplacian {lin.laplacian:g}, nv_balance {lin.nv_balance:g}"
+                         + ("" if lin.highlight_start is None else
+                            f", highlight terms started by at most {lin.highlight_start} sweeps of their own"))
             if self.polish:
                 lines.append(f"  polish: {self.polish} Levenberg-Marquardt steps"
                              + (f", {self.ridge} ridge pairs" if self.ridge else "")
@@ -271,12 +284,17 @@ def race_of(p: Preset | None, lin: LinearOptions | None, candidates: int) -> tup
     return tuple(rounds), tuple(keep)
 
 
-def describe_race(race: tuple[int, ...], keep: tuple[int, ...], margin: float, stride: int = 1) -> str:
-    """The race in words (``--plan``): after each round's sweeps, who continues."""
+def describe_race(race: tuple[int, ...], keep: tuple[int, ...], margin: float, stride: int = 1,
+                  carry: bool = False) -> str:
+    """The race in words (``--plan``): after each round's sweeps, who continues (``carry``: the kept continue
+    on every pair from their strided first-round fit)."""
     return "; ".join(f"after {n} ALS sweeps" + (f" on every {stride}th training pair" if stride > 1 and not j else "")
                      + " the lowest validation figure"
                      + (f" and those within {100 * margin:g} % of it (at most {k})" if k > 1 else "")
-                     + ((" start over on every pair" if k > 1 else " starts over on every pair") if stride > 1 and not j
+                     + (((" continue on every pair from their short fits" if carry else " start over on every pair")
+                         if k > 1 else (" continues on every pair from its short fit" if carry
+                                        else " starts over on every pair"))
+                        if stride > 1 and not j
                         else (" continue from where they stopped" if k > 1 else " continues from where it stopped"))
                      for j, (n, k) in enumerate(zip(race, keep)))
 
@@ -400,7 +418,8 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
         # the candidates: the preset's nv_balance; a polish given explicitly runs on every candidate (as on
         # a named structure), else the preset's polishes the kept one (the polish vote)
         kd = target.kind == "lighting" and sums.has_diffuse(target)
-        lin = given.resolved(nv_balance=p.nv_balance if kd else 0.0, tolerance=p.tolerance)
+        lin = given.resolved(nv_balance=p.nv_balance if kd else 0.0, tolerance=p.tolerance,
+                             highlight_start=p.highlight_start)
         als_fit = lin.method in ("auto", "als") and (kind == "grid" or samples_given is not None)
         steps = 0 if given.polish is not None or target.kind != "lighting" or not als_fit else p.polish
         ridge = given.ridge if given.ridge is not None else (p.ridge if lit and steps else 0)
@@ -474,6 +493,7 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
                 polish_stride=int(p.polish_stride) if steps else 1, ridge=int(ridge or 0),
                 race=race, race_keep=race_keep, race_margin=float(p.race_margin) if race else 0.0,
                 race_stride=int(p.race_stride) if race else 1,
+                race_continue=bool(race and p.race_stride > 1 and p.race_continue),
                 vote_screen=int(vote_screen), vote_stride=vote_stride,
                 line_sizes=sizes,
                 disc_vote=disc, analysis=bool(choosing and target.kind == "lighting"

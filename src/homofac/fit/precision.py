@@ -31,9 +31,11 @@ where ``rgb(d)`` and ``alpha(d)`` are bilinear lookups (thesis eq. 33-34) of the
 
 from __future__ import annotations
 
+import functools
 from typing import Sequence
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, UInt8
@@ -57,23 +59,19 @@ def exponentiate(x_textures: list, alpha, n_factors: int) -> list:
     return [jnp.exp(x) * s for x in x_textures]
 
 
-@eqx.filter_jit
 def normalize(model: Factorization) -> Factorization:
     """Scale each texture channel to a maximum |value| of 1 over its valid texels and move the scale into
     the corrections of the terms that read it (thesis §4.3, step 7): the evaluated sum is unchanged.
 
     Invalid texels (outside :func:`~homofac.param.mappers.valid_mask`) are filled with their nearest valid
     texel ("dilated"), so a GPU's hardware bilinear filter reads the same values as the pinned lookup.
-    One compiled program per model structure (op by op it compiled a program per operation and shape), and
-    traceable: a library's fits call it under ``vmap``.
+    One compiled program per texture mapper and size (:func:`_normalized`), shared by every model with such
+    a texture (a chooser's candidates), and traceable: a library's fits call it under ``vmap``.
     """
     data, scale = [], {}
     for t in model.textures:
-        d = jnp.asarray(t.data)
-        valid = jnp.asarray(mappers.valid_mask(t.mapper, t.size))[..., None]
-        mx = jnp.max(jnp.where(valid, jnp.abs(d), 0.0).reshape(-1, d.shape[-1]), axis=0)
-        mx = jnp.where(mx > 0, mx, 1.0)
-        data.append(mappers.dilate(t.mapper, t.size, d / mx))
+        d, mx = _normalized(jnp.asarray(t.data), mapper=t.mapper, size=t.size)
+        data.append(d)
         scale[t.name] = mx
     terms = []
     for term in model.terms:
@@ -83,6 +81,16 @@ def normalize(model: Factorization) -> Factorization:
         terms.append(Term(term.factors, c, term.kind))
     out = model.replace_data(data)
     return eqx.tree_at(lambda m: m.terms, out, tuple(terms))
+
+
+@functools.partial(jax.jit, static_argnames=("mapper", "size"))
+def _normalized(d, *, mapper: str, size: int):
+    """A texture divided by its largest |value| over the valid texels per channel (1 where that is 0), dilated
+    (:func:`~homofac.param.mappers.dilate`), and that largest value: :func:`normalize`'s step per texture."""
+    valid = jnp.asarray(mappers.valid_mask(mapper, size))[..., None]
+    mx = jnp.max(jnp.where(valid, jnp.abs(d), 0.0).reshape(-1, d.shape[-1]), axis=0)
+    mx = jnp.where(mx > 0, mx, 1.0)
+    return mappers.dilate(mapper, size, d / mx), mx
 
 
 def quantize(textures: list, bits: int = 8) -> list:

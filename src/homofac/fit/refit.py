@@ -416,7 +416,8 @@ def refit(fac: Result, environment: Environment | None = None, brdf: BRDF | None
             again) or ``lsmr`` (the configured solver from the previous solution: best for one refit
             of a fresh state, e.g. the CLI's ``--refit``, where factoring would not pay).
         start: where a sum's refit starts: ``previous`` (the previous terms, a warm start) or ``fresh``
-            (the start rule of a full run, on the new target: the full run's result on the same samples).
+            (the start rule of a full run, on the new target: the full run's result on the same samples; a full run
+            that continued from a strided short fit, ``solver.head``, does so again).
             ALS and Levenberg-Marquardt find local minima, so a warm start may end in another one than
             a full run (often a lower training objective; docs/refit.md).
         config: the configuration to record in the result (default: the previous one).
@@ -461,8 +462,14 @@ def refit(fac: Result, environment: Environment | None = None, brdf: BRDF | None
         lin = recorded_linear(opts.advanced.linear or LinearOptions(), fac.solver)  # what the full run used
         if linear:
             lin = validate(LinearOptions, {**lin.model_dump(), **linear}, "linear")
-        sf = sums.fit_sum(tgt, state.structure, state.mapper, state.texture_size, samples, lin, log,
-                          previous=fac.model if start == "previous" else None, line_size=sums.line_size_of(fac.model))
+        head = sums.recorded_head(fac.solver)
+        if start == "fresh" and head is not None:  # the full run continued from a strided short fit: so does this
+            sf = sums.continued(tgt, state.structure, state.mapper, state.texture_size, samples, lin, log,
+                                stride=head["stride"], sweeps=head["sweeps"], line_size=sums.line_size_of(fac.model))
+        else:
+            sf = sums.fit_sum(tgt, state.structure, state.mapper, state.texture_size, samples, lin, log,
+                              previous=fac.model if start == "previous" else None,
+                              line_size=sums.line_size_of(fac.model))
         if lin.polish > 0:  # the same off-grid pairs as the full run (deterministic), the new target's values
             k = recorded_stride(fac.solver)
             pairs = polish_pairs(tgt, opts.parametrization, lin, opts.sampling.seed, opts.sampling.cache, log,

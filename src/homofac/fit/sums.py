@@ -463,7 +463,7 @@ def begin(target: Target, structure: Structure, mapper: str, size: int, samples:
         return Running(structure, None, np.asarray(hist, np.float32), bool(converged), int(opts.iterations),
                        float(opts.tolerance), float(opts.laplacian), lambda *_: sf)
     p, unpack = _als_start(structure, specs, fitted_terms, layouts, x0, grid, a, b, y_fit / sigma, opts, weights,
-                           target.context, log, slots)
+                           target.context, log, slots, warm=previous is not None)
     assemble_s = time.perf_counter() - t0
 
     def done_als(state, steps, converged, hist, solve_s) -> SumFit:
@@ -503,8 +503,9 @@ def fit_sum(target: Target, structure: Structure, mapper: str, size: int, sample
     ``line_size``: texels of the ``line`` textures (w(n.v), the highlight lines;
     :func:`homofac.fit.plan.line_sizes`).
 
-    ``previous``: a model of the same structure (a refit, :mod:`homofac.fit.refit`): the fitted textures
-    start from its texels (:func:`warm_start`) instead of step 2's start.
+    ``previous``: a model of the same structure (a refit, :mod:`homofac.fit.refit`; a race's short fit,
+    :func:`continued`): the fitted textures start from its texels (:func:`warm_start`) instead of step 2's
+    start, and the highlight terms keep theirs (no start of their own on the data alone).
 
     ``chunk``: Levenberg-Marquardt steps per compiled call (:func:`homofac.fit.refine.solve`; 0: one call).
 
@@ -517,6 +518,39 @@ def fit_sum(target: Target, structure: Structure, mapper: str, size: int, sample
     run = begin(target, structure, mapper, size, samples, options, log, previous, line_size, sample_weights, chunk,
                 slots)
     return finish(advance(run, None, log))
+
+
+def strided(samples: Samples, stride: int) -> Samples:
+    """Every ``stride``-th training pair of ``samples`` (the validation pairs as they are): the race's short fits."""
+    k = max(1, int(stride))
+    return samples._replace(a=samples.a[::k], b=samples.b[::k], y=samples.y[::k])
+
+
+def continued(target: Target, structure: Structure, mapper: str, size: int, samples: Samples,
+              options: LinearOptions, log: Callable[[str], None] | None = None, *, stride: int, sweeps: int,
+              line_size: int = LINE_SIZE, slots: als.Slots | None = None, head: SumFit | None = None) -> SumFit:
+    """A fit on every training pair continued from a short fit on every ``stride``-th pair: ``head`` (default:
+    :func:`fit_sum` of ``structure`` with ``sweeps`` ALS sweeps on :func:`strided` ``(samples, stride)``, the
+    race's first round), then :func:`fit_sum` from its model (``previous``: no start of its own, the highlight
+    terms' included) through ``options.iterations`` sweeps or to convergence. The record is the second fit's
+    with the head's start rule and ``head`` (its stride, sweeps, start and the sweeps it ran), which a fresh
+    refit repeats (:mod:`homofac.fit.refit`)."""
+    log = log or (lambda msg: None)
+    if head is None:
+        head = fit_sum(target, structure, mapper, size, strided(samples, stride),
+                       options.model_copy(update={"iterations": int(sweeps)}), log, line_size=line_size, slots=slots)
+    out = fit_sum(target, structure, mapper, size, samples, options, log, previous=head.model, line_size=line_size,
+                  slots=slots)
+    note = {"stride": int(stride), "sweeps": int(sweeps), "start": head.solver.get("start"),
+            "ran": int(head.solver.get("iterations", 0))}
+    record = {**out.solver, "start": head.solver.get("start"), "head": note}
+    return out._replace(solver=record, assemble_s=head.assemble_s + out.assemble_s, solve_s=head.solve_s + out.solve_s)
+
+
+def recorded_head(solver: dict | None) -> dict | None:
+    """The short fit a sum's recorded ALS fit continued from (:func:`continued`'s ``head`` note), or None."""
+    head = (solver or {}).get("head")
+    return head if isinstance(head, dict) and "stride" in head and "sweeps" in head else None
 
 
 def tabulated(fit: SumFit, structure: Structure, unknowns: int | None = None) -> SumFit:
@@ -664,9 +698,10 @@ def als_slots(target: Target, structures, mapper: str, size: int, line_size: int
 
 
 def _als_start(structure, specs, fitted_terms, layouts, x0, grid, a, b, y, opts: LinearOptions, weights, context=None,
-               log=None, slots: als.Slots | None = None):
-    """The padded ALS state of the start ``x0`` (with the highlight terms' own start, :func:`_highlight_first`)
-    and the function that reads a state back into texels by texture name."""
+               log=None, slots: als.Slots | None = None, warm: bool = False):
+    """The padded ALS state of the start ``x0`` (with the highlight terms' own start, :func:`_highlight_first`,
+    unless ``warm``: ``x0`` is a previous model's fit, :func:`warm_start`, whose highlight terms are kept as
+    they are) and the function that reads a state back into texels by texture name."""
     ia, ib, lay = grid
     n = lay.n_valid
     # padded to slots with extra lines, every kind of extra line has its place (the masks say which are read)
@@ -700,7 +735,7 @@ def _als_start(structure, specs, fitted_terms, layouts, x0, grid, a, b, y, opts:
     has_h = bool(flags.h)
     p = als.padded(P, Q, W, data, flags, D if has_h else None, tuple(C) if flags.c else None, slots)
     lam = jnp.float32(opts.laplacian)
-    if has_h:
+    if has_h and not warm:
         p = _highlight_first(p, flags, lam, opts, log)
 
     def unpack(state: als.Padded) -> dict:
@@ -754,16 +789,23 @@ def _lm_lookup(a, b, context: dict, unknown_of_texel, *, proj: str, mapper: str,
     return refine.Lookup(jnp.where(unk >= 0, unk, 0).astype(jnp.int32), jnp.where(unk >= 0, w, 0.0))
 
 
+def highlight_sweeps(opts: LinearOptions) -> int:
+    """ALS sweeps of the highlight terms' own start (:func:`_highlight_first`): ``linear.highlight_start``, at
+    most ``iterations // 2`` (its default), at least 1."""
+    half = max(1, int(opts.iterations) // 2)
+    return half if opts.highlight_start is None else max(1, min(int(opts.highlight_start), half))
+
+
 def _highlight_first(p: als.Padded, flags: als.Flags, lam, opts: LinearOptions, log=None) -> als.Padded:
     """Start the highlight terms (and an n-only diffuse texture) on the data alone, the products absent:
     started together, the products' maps of r take the sun's highlight first and the joint ALS stays
     there (near-mirror / city: 0.50 nrmse against 0.2 from this start). The same compiled sweep as the
-    full fit, the other terms' slots masked out. Returns the full start."""
+    full fit, the other terms' slots masked out, :func:`highlight_sweeps` sweeps. Returns the full start."""
     keep = [h or (pp and not q and not w) for pp, q, w, h in zip(flags.p, flags.q, flags.w, flags.h)]
     on = als.pad(np.asarray(keep, np.float32), p.order, 0.0)  # the kept terms' slots
     m = p.masks
     sub = als.Masks(*(np.asarray(x) * on for x in m[:5]), np.asarray(m.c) * on[None])
-    out, *_ = als_sweeps(p._replace(masks=sub), lam, max(1, int(opts.iterations) // 2), float(opts.tolerance), log)
+    out, *_ = als_sweeps(p._replace(masks=sub), lam, highlight_sweeps(opts), float(opts.tolerance), log)
     keep_slot = on > 0
 
     def merged(new, old):  # on the host: no program per array shape
@@ -910,5 +952,5 @@ def _selected(res, tried, reason, target_error, max_lookups, met, analysis, ridg
     })
 
 
-__all__ = ["RIDGE_METRIC", "RIDGE_WORDS", "Running", "SumFit", "advance", "begin", "choose", "finish", "diffuse_albedo", "fit_sum", "nv_weights", "has_diffuse",
-           "line_size_of", "scored_by", "start", "tabulated", "warm_start"]
+__all__ = ["RIDGE_METRIC", "RIDGE_WORDS", "Running", "SumFit", "advance", "begin", "choose", "continued", "finish", "diffuse_albedo", "fit_sum", "nv_weights", "has_diffuse",
+           "line_size_of", "recorded_head", "scored_by", "start", "strided", "tabulated", "warm_start"]
