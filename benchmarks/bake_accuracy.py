@@ -41,6 +41,7 @@ into docs/benchmarks/bake.md; both are written after every environment. ``--pres
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import time
 from pathlib import Path
@@ -67,6 +68,8 @@ from homofac.io.exr import read_exr
 from homofac.light.integrals import material_radiance
 from homofac.light.reference import reference_integrals, source_map
 from homofac.param import mappers
+
+from bake_pairs import weighted_nrmse, weighted_pairs
 
 BANDS = ((0.045, 0.15), (0.15, 0.3), (0.3, 0.6), (0.6, 1.0))
 HERE = Path(__file__).parent
@@ -103,44 +106,68 @@ class DFG:
         self.d = kn.mass(kn.diffuse_kernels(self.x))
 
     def __call__(self, x, rho):
+        x, rho = np.asarray(x, np.float64), np.asarray(rho, np.float64)
         fr = np.clip((rho - self.r[0]) / (self.r[1] - self.r[0]), 0, len(self.r) - 1.0001)
         i = np.floor(fr).astype(int)
         t = fr - i
-        def line(table):  # (X,) per row
-            return np.interp(x, self.x, table)
-        a = np.array([(1 - t[k]) * np.interp(x[k], self.x, self.ab[i[k], 0]) + t[k] * np.interp(x[k], self.x, self.ab[i[k] + 1, 0]) for k in range(len(x))])
-        b = np.array([(1 - t[k]) * np.interp(x[k], self.x, self.ab[i[k], 1]) + t[k] * np.interp(x[k], self.x, self.ab[i[k] + 1, 1]) for k in range(len(x))])
-        return a, b, line(self.d)
+        xs = np.clip(x, self.x[0], self.x[-1])
+        fx = (xs - self.x[0]) / (self.x[1] - self.x[0])
+        k = np.clip(np.floor(fx).astype(int), 0, len(self.x) - 2)
+        s = fx - k
+
+        def at(j, lobe):  # linear in n.v on row j (np.interp per pair, vectorized)
+            return (1 - s) * self.ab[j, lobe, k] + s * self.ab[j, lobe, k + 1]
+        a = (1 - t) * at(i, 0) + t * at(i + 1, 0)
+        b = (1 - t) * at(i, 1) + t * at(i + 1, 1)
+        return a, b, np.interp(x, self.x, self.d)
+
+
+@functools.lru_cache(maxsize=32)
+def environment(name, resolution):
+    """``hf.light.load_environment(name, resolution)``, loaded once per run."""
+    return hf.light.load_environment(name, resolution)
+
+
+class EnginesSplitSum:
+    """I_d, I_A, I_B the engines' way (module docstring): the irradiance cube and the prefiltered chain are built
+    once per environment, then read at any pairs."""
+
+    def __init__(self, name, dfg32, source):
+        self.dfg = dfg32
+        self.e = jnp.asarray(irradiance_map(environment(name, 32), "cube", 32), jnp.float32)
+        self.levels = int(np.log2(source)) - 1  # down to 4
+        self.sizes = [source >> j for j in range(self.levels)]
+        q = kn.q_grid()
+        ch2 = 1 - q * q
+        cosg = 1 - 2 * q * q
+        self.chain = []
+        for j, s in enumerate(self.sizes):
+            rj = j / (self.levels - 1)
+            env = environment(name, max(s, 8))
+            dirs = mappers.texel_directions("cube", s).reshape(-1, 3)
+            a2 = max(rj, 0.045) ** 4  # level 0: the sharpest roughness the engines serve (a near mirror)
+            kern = kn.smooth((a2 / (np.pi * (ch2 * (a2 - 1) + 1) ** 2) * np.maximum(cosg, 0))[None], (np.pi / 2) / max(s, 8))
+            num, den = prefilter(kern, dirs, env)
+            self.chain.append(jnp.asarray((num[:, 0] / den[:, :1]).reshape(s, 6 * s, 3), jnp.float32))
+        self.bytes = sum(6 * s * s * 3 * 2 for s in self.sizes)
+
+    def __call__(self, n, v, rho):
+        x = np.sum(n * v, 1)
+        r = 2 * x[:, None] * n - v
+        ev = np.asarray(mappers.lookup("cube", self.e, jnp.asarray(n, jnp.float32)))
+        lod = rho * (self.levels - 1)
+        p = 0.0
+        for j, level in enumerate(self.chain):
+            w = np.maximum(0, 1 - np.abs(lod - j))[:, None]
+            p = p + w * np.asarray(mappers.lookup("cube", level, jnp.asarray(r, jnp.float32)))
+        a, b, d = self.dfg(x, rho)
+        return np.stack([ev / np.pi * d[:, None], p * a[:, None], p * b[:, None]], 1)
 
 
 def engines_split_sum(name, n, v, rho, dfg32, source):
-    """I_d, I_A, I_B the engines' way (see the module docstring)."""
-    env_e = hf.light.load_environment(name, 32)
-    e = irradiance_map(env_e, "cube", 32)
-    x = np.sum(n * v, 1)
-    r = 2 * x[:, None] * n - v
-    ev = np.asarray(mappers.lookup("cube", jnp.asarray(e, jnp.float32), jnp.asarray(n, jnp.float32)))
-    levels = int(np.log2(source)) - 1  # down to 4
-    sizes = [source >> j for j in range(levels)]
-    lod = rho * (levels - 1)
-    q = kn.q_grid()
-    ch2 = 1 - q * q
-    cosg = 1 - 2 * q * q
-    p = 0.0
-    for j, s in enumerate(sizes):
-        rj = j / (levels - 1)
-        env = hf.light.load_environment(name, max(s, 8))
-        dirs = mappers.texel_directions("cube", s).reshape(-1, 3)
-        a2 = max(rj, 0.045) ** 4  # level 0: the sharpest roughness the engines serve (a near mirror)
-        kern = kn.smooth((a2 / (np.pi * (ch2 * (a2 - 1) + 1) ** 2) * np.maximum(cosg, 0))[None], (np.pi / 2) / max(s, 8))
-        num, den = prefilter(kern, dirs, env)
-        level = (num[:, 0] / den[:, :1]).reshape(s, 6 * s, 3)
-        w = np.maximum(0, 1 - np.abs(lod - j))[:, None]
-        p = p + w * np.asarray(mappers.lookup("cube", jnp.asarray(level, jnp.float32), jnp.asarray(r, jnp.float32)))
-    a, b, d = dfg32(x, rho)
-    return np.stack([ev / np.pi * d[:, None], p * a[:, None], p * b[:, None]], 1), sum(6 * s * s * 3 * 2 for s in sizes)
-
-
+    """I_d, I_A, I_B the engines' way (see the module docstring) and the chain's bytes."""
+    e = EnginesSplitSum(name, dfg32, source)
+    return e(n, v, rho), e.bytes
 
 
 #: The per-material fit's settings (beside ``max_lookups``): small, so that a fit takes 30-90 s here.
@@ -153,14 +180,16 @@ FIT_RESOLUTION = 32
 ALBEDO_SAMPLES = 8192
 
 
-def reference(src, n, v, rho, c, m, start=4096, cap=65536):
-    """(parts, samples, converged, last change): the samples doubled until L moves by < 1 % nrmse."""
+def reference(src, n, v, rho, c, m, start=4096, cap=65536, w=None):
+    """(parts, samples, converged, last change): the samples doubled until L moves by < 1 % nrmse (weighted by
+    ``w`` when given, :func:`bake_pairs.weighted_nrmse`)."""
+    w = np.ones(len(n)) if w is None else w
     prev, samples, change = None, start, None
     while True:
         parts = reference_integrals(src, n, v, rho, samples=samples)
         L = np.asarray(material_radiance(jnp.asarray(parts), c, m))
         if prev is not None:
-            change = nrmse(prev, L)
+            change = weighted_nrmse(prev, L, w)
             if change < 0.01:
                 return parts, samples, True, change
         if samples >= cap:
@@ -168,15 +197,16 @@ def reference(src, n, v, rho, c, m, start=4096, cap=65536):
         prev, samples = L, 2 * samples
 
 
-def ideal_split_sum(src, uniform, name, n, v, rho, samples):
+def ideal_split_sum(src, uniform, name, n, v, rho, samples, albedo_samples=None):
     """I_d, I_A, I_B of the idealized split sum (module docstring)."""
+    albedo_samples = albedo_samples or ALBEDO_SAMPLES
     x = np.sum(n * v, 1)
     r = 2 * x[:, None] * n - v
-    alb = reference_integrals(uniform, n, v, rho, samples=ALBEDO_SAMPLES)[:, :, 0]  # (N, 3): d, A, B
+    alb = reference_integrals(uniform, n, v, rho, samples=albedo_samples)[:, :, 0]  # (N, 3): d, A, B
     lobe = reference_integrals(src, r, r, rho, samples=samples)
-    norm = reference_integrals(uniform, r, r, rho, samples=ALBEDO_SAMPLES)[:, :, 0]
+    norm = reference_integrals(uniform, r, r, rho, samples=albedo_samples)[:, :, 0]
     p = (lobe[:, 1] + lobe[:, 2]) / (norm[:, 1] + norm[:, 2])[:, None]
-    e = np.asarray(hf.light.irradiance(hf.light.load_environment(name, 64), jnp.asarray(n, jnp.float32)), np.float64)
+    e = np.asarray(hf.light.irradiance(environment(name, 64), jnp.asarray(n, jnp.float32)), np.float64)
     return np.stack([e / np.pi * alb[:, :1], p * alb[:, 1:2], p * alb[:, 2:3]], 1)
 
 
@@ -241,10 +271,10 @@ def sampler_bytes(b) -> int:
     return sum(a.size * 2 for a in (*b.ggx, b.lambertian)) + b.lut.size * 2
 
 
-def fit_rows(name, band, n, v, rng, count, lookups, src, samples, bakes, presets, uniform):
+def fit_rows(name, band, n, v, rng, count, lookups, src, samples, bakes, presets, uniform, w):
     """Per-material fits (module docstring): one row per material."""
     out = []
-    env = hf.light.load_environment(name, FIT_RESOLUTION)
+    env = environment(name, FIT_RESOLUTION)
     for _ in range(count):
         c, rho = rng.uniform(0, 1, 3), float(rng.uniform(*band))
         m = float((0.0, 1.0, rng.uniform(0, 1))[int(rng.integers(3))])
@@ -258,32 +288,123 @@ def fit_rows(name, band, n, v, rng, count, lookups, src, samples, bakes, presets
         ideal = ideal_split_sum(src, uniform, name, n, v, rr, samples)
         row = {"environment": name, "band": list(band), "base_color": [float(a) for a in c], "metallic": m,
                "roughness": rho, "pairs": len(n), "fit_lookups": int(fac.model.lookups), "fit_max_lookups": lookups,
-               "fit_s": fit_s, "fit": nrmse(np.asarray(fac.evaluate(n.astype(np.float32), v.astype(np.float32))), L),
+               "fit_s": fit_s, "fit": weighted_nrmse(np.asarray(fac.evaluate(n.astype(np.float32), v.astype(np.float32))), L, w),
                "fit_validation": fac.metrics["validation"]["float"]["nrmse"],
-               "split_sum_ideal": nrmse(material_radiance(jnp.asarray(ideal), cc, mm), L)}
+               "split_sum_ideal": weighted_nrmse(material_radiance(jnp.asarray(ideal), cc, mm), L, w)}
         for p in presets:
-            row[f"bake_{p}"] = nrmse(np.asarray(bakes[(name, p)].evaluate(n, v, cc, mm, rr)), L)
+            row[f"bake_{p}"] = weighted_nrmse(np.asarray(bakes[(name, p)].evaluate(n, v, cc, mm, rr)), L, w)
         out.append(row)
         print("fit", json.dumps({k: (round(x, 4) if isinstance(x, float) else x) for k, x in row.items()}), flush=True)
     return out
 
 
+#: A cell's first batch of pairs, its cap, and the largest movement of one more doubling that counts as converged.
+START_PAIRS = 512
+MAX_PAIRS = 8192
+TOLERANCE = 0.05
+#: Pairs per cell whose reference is recomputed at 4x the samples (the per-pair check), and that factor.
+CHECK_PAIRS = 16
+CHECK_FACTOR = 4
+
+
+def cell_seed(name: str, band_index: int) -> int:
+    """The Sobol' seed of a cell: the same pairs for a bundled environment and band in any run."""
+    envs = list(hf.light.BUNDLED)
+    return 1000 * (envs.index(name) + 1 if name in envs else 99) + band_index
+
+
+def methods_at(n, v, c, m, rho, ctx):
+    """Every method's radiance (N, 3) at the pairs, with the reference and its record (:func:`cell`)."""
+    parts, samples, conv, change = reference(ctx["src"], n, v, rho, c, m, start=ctx["ref_start"], cap=ctx["cap"], w=ctx["w"])
+    out = {"reference": np.asarray(material_radiance(jnp.asarray(parts), c, m)),
+           "split_sum_ideal": np.asarray(material_radiance(jnp.asarray(ideal_split_sum(
+               ctx["src"], ctx["uniform"], ctx["name"], n, v, rho, samples, ctx["albedo_samples"])), c, m)),
+           "split_sum_engines": np.asarray(material_radiance(jnp.asarray(ctx["engines"](n, v, rho)), c, m))}
+    if ctx["sampler"] is not None:
+        out["sampler"] = ctx["sampler"].evaluate(n, v, c, m, rho)
+        out["sampler_split_sum"] = ctx["sampler"].evaluate(n, v, c, m, rho, formula="split_sum")
+    for preset, b in ctx["bakes"].items():
+        out[f"bake_{preset}"] = np.asarray(b.evaluate(n, v, c, m, rho), np.float64)
+    return out, {"samples": samples, "converged": conv, "change": change, "pairs": len(n)}
+
+
+def pair_check(ctx, n, v, c, m, rho, w, L, err, samples):
+    """The reference at the pairs that carry a cell: the ``CHECK_PAIRS`` largest ``w |L|^2`` and the
+    ``CHECK_PAIRS`` largest ``w |a - L|^2`` of ``err`` (N,), recomputed at ``CHECK_FACTOR`` times the samples:
+    the largest relative change |dL| / |L| of one pair and the checked pairs' share of the cell's squared error."""
+    top = np.unique(np.concatenate([np.argsort(w * np.sum(L * L, 1))[-CHECK_PAIRS:], np.argsort(w * err)[-CHECK_PAIRS:]]))
+    parts = reference_integrals(ctx["src"], n[top], v[top], rho[top], samples=CHECK_FACTOR * samples)
+    fine = np.asarray(material_radiance(jnp.asarray(parts), c[top], m[top]))
+    rel = np.linalg.norm(fine - L[top], axis=1) / np.maximum(np.linalg.norm(fine, axis=1), 1e-30)
+    return {"pairs": int(len(top)), "samples": CHECK_FACTOR * samples, "max_relative_change": float(rel.max()),
+            "median_relative_change": float(np.median(rel)), "error_share": float(np.sum((w * err)[top]) / np.sum(w * err)),
+            "lowest_nv": float(np.sum(n[top] * v[top], 1).min())}
+
+
+def cell(image, band, band_index, ctx, start, cap, nv):
+    """One cell (environment x band): pairs (:func:`bake_pairs.weighted_pairs`) doubled from ``start`` until one
+    more doubling moves every method's weighted nrmse by < ``TOLERANCE`` (relative), or ``cap``; the reference
+    doubled per batch of new pairs (:func:`reference`). Returns the row and the arrays."""
+    count, have, vals, history, batches = start, 0, {}, [], []
+    arrays = None
+    while True:
+        n, v, c, m, rho, w = weighted_pairs(image, band, count, ctx["seed"], nv)
+        new = slice(have, count)
+        ctx["w"] = w[new]
+        out, rec = methods_at(n[new], v[new], c[new], m[new], rho[new], ctx)
+        batches.append(rec)
+        vals = {k: (np.concatenate([vals[k], x]) if k in vals else x) for k, x in out.items()}
+        L = vals["reference"]
+        cells = {k: weighted_nrmse(x, L, w) for k, x in vals.items() if k != "reference"}
+        history.append({"pairs": count, **{k: round(x, 5) for k, x in cells.items()}})
+        move = None
+        if len(history) > 1:
+            prev = history[-2]
+            move = {k: abs(x - prev[k]) / x for k, x in cells.items()}
+        print(f"  {band}: {count} pairs " + " ".join(f"{k}={x:.4f}" for k, x in cells.items())
+              + (f"; largest move {max(move.values()):.3f} ({max(move, key=move.get)})" if move else ""), flush=True)
+        if (move and max(move.values()) < TOLERANCE) or count >= cap:
+            break
+        have, count = count, 2 * count
+    arrays = (n, v, c, m, rho, w)
+    first = next((k for k in vals if k.startswith("bake_")), "split_sum_ideal")
+    err = np.sum((vals[first] - L) ** 2, 1)
+    check = pair_check(ctx, n, v, c, m, rho, w, L, err, max(r["samples"] for r in batches))
+    x = np.sum(n * v, 1)
+    row = {"environment": ctx["name"], "band": list(band), "pairs": count, "nv": nv, "converged": bool(move and max(move.values()) < TOLERANCE),
+           "movement": {k: round(x_, 4) for k, x_ in (move or {}).items()}, "history": history,
+           "reference_samples": max(r["samples"] for r in batches), "reference_converged": all(r["converged"] for r in batches),
+           "reference_last_change": max(r["change"] or 0 for r in batches), "reference_batches": batches, "reference_check": check,
+           "weights_max": float(w.max()), "error_share_nv<0.3": float(np.sum((w * err)[x < 0.3]) / np.sum(w * err)),
+           "error_share_top5": float(np.sort(w * err)[-5:].sum() / np.sum(w * err)),
+           "split_sum_engines_bytes": chain_bytes(ctx["source"]) + SPLIT_SUM_EXTRA,
+           **cells}
+    for preset, b in ctx["bakes"].items():
+        row[f"bake_{preset}_lookups"] = b.lookups
+    return row, arrays, vals
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--pairs", type=int, default=150, help="random pairs (and materials) per band")
+    ap.add_argument("--pairs", type=int, default=START_PAIRS, help="pairs of a cell's first batch (a power of two)")
+    ap.add_argument("--max-pairs", type=int, default=MAX_PAIRS, help="cap of a cell's pairs")
+    ap.add_argument("--nv", choices=("cosine", "uniform"), default="cosine",
+                    help="n.v as on a rendered object (cosine) or uniform on the hemisphere (the earlier runs)")
     ap.add_argument("--presets", nargs="+", default=["fast", "balanced"],
                     help="presets, or PRESET+hR: the preset with the second harmonic from roughness R, unpacked "
                          "(--harmonic R --no-mixed; +h0: none); PRESET+mR: mixed (--harmonic R --mixed)")
     ap.add_argument("--envs", nargs="+", default=list(hf.light.BUNDLED))
     ap.add_argument("--cap", type=int, default=65536, help="largest reference sample count per strategy")
-    ap.add_argument("--fits", type=int, default=1, help="per-material homofac fits per band (0: none)")
+    ap.add_argument("--ref-start", type=int, default=2048, help="first reference sample count per strategy")
+    ap.add_argument("--albedo-samples", type=int, default=1024, help="samples of the constant-radiance albedos")
+    ap.add_argument("--fits", type=int, default=0, help="per-material homofac fits per band (0: none)")
     ap.add_argument("--fit-envs", nargs="+", default=["forest", "studio"], help="environments with per-material fits")
     ap.add_argument("--fit-lookups", type=int, default=4, help="max_lookups of the per-material fits")
     ap.add_argument("--bands", nargs="+", type=int, default=list(range(len(BANDS))), help="indices into BANDS")
     ap.add_argument("--no-sampler", action="store_true", help="leave glTF-IBL-Sampler out")
+    ap.add_argument("--bake-dir", default=None, help="read the bakes from DIR/NAME-PRESET when there (else bake and keep them there)")
     ap.add_argument("--out", default=str(HERE / "bake_accuracy"), help="stem of the .json and .md written")
     args = ap.parse_args(argv)
-    rng = np.random.default_rng(0)
     fit_rng = np.random.default_rng(1)
     dfg32 = DFG(32)
     uniform = source_map(np.ones((8, 16, 3)))
@@ -292,10 +413,11 @@ def main(argv=None):
     why = why or ibl.available()
     t_run = time.perf_counter()
     load_before = os.getloadavg()
-    tmp = tempfile.mkdtemp(prefix="bake_accuracy-")
+    tmp = args.bake_dir or tempfile.mkdtemp(prefix="bake_accuracy-")
     for name in args.envs:
         source = source_size(name)
-        src = source_map(read_exr(hf.light.bundled(name)), name)
+        image = read_exr(hf.light.bundled(name))
+        src = source_map(image, name)
         sb = sampler_wall = None
         if why is None:
             t = time.perf_counter()
@@ -309,10 +431,16 @@ def main(argv=None):
                          "bytes": sampler_bytes(sb), "files_bytes": sb.files, "mips": sb.mips})
             sampler_wall = wall
             print(f"{name} sampler: {wall:.1f} s", flush=True)
+        env_bakes = {}
         for preset in args.presets:
             load = os.getloadavg()[0]
+            kept = Path(tmp) / f"{name}-{preset}"
+            if args.bake_dir and kept.is_dir():
+                env_bakes[preset] = b = hf.load(kept)
+                print(f"{name} {preset}: read from {kept}", flush=True)
+                continue
             b, wall, cpu = fresh_bake(name, preset, tmp)
-            bakes[(name, preset)] = b
+            env_bakes[preset] = bakes[(name, preset)] = b
             finest = max(int(p.shape[0]) for p in b.P)
             same = same_sharpness_face(b.roughness, [int(p.shape[0]) for p in b.P])
             runs.append({"environment": name, "method": f"homofac bake {preset}", "lookups": b.lookups, "wall_s": wall,
@@ -322,32 +450,26 @@ def main(argv=None):
                          "split_sum_same_sharpness_bytes": chain_bytes(same) + SPLIT_SUM_EXTRA,
                          "sampler_wall_s": sampler_wall})
             print(f"{name} {preset}: {wall:.1f} s wall, {cpu:.1f} s CPU (fresh process); {b.describe()}", flush=True)
-        for band in [BANDS[i] for i in args.bands]:
-            n, v = pairs(args.pairs, rng)
-            c, m, rho = materials(args.pairs, band, rng)
-            parts, samples, conv, change = reference(src, n, v, rho, c, m, cap=args.cap)
-            L = np.asarray(material_radiance(jnp.asarray(parts), c, m))
-            ideal = ideal_split_sum(src, uniform, name, n, v, rho, samples)
-            eng, _ = engines_split_sum(name, n, v, rho, dfg32, source)
-            row = {"environment": name, "band": list(band), "pairs": args.pairs, "reference_samples": samples,
-                   "reference_converged": conv, "reference_last_change": change,
-                   "split_sum_ideal": nrmse(material_radiance(jnp.asarray(ideal), c, m), L),
-                   "split_sum_engines": nrmse(material_radiance(jnp.asarray(eng), c, m), L),
-                   "split_sum_engines_bytes": chain_bytes(source) + SPLIT_SUM_EXTRA}
-            if sb is not None:
-                row["sampler"] = nrmse(sb.evaluate(n, v, c, m, rho), L)
-                row["sampler_split_sum"] = nrmse(sb.evaluate(n, v, c, m, rho, formula="split_sum"), L)
-            for preset in args.presets:
-                b = bakes[(name, preset)]
-                row[f"bake_{preset}"] = nrmse(np.asarray(b.evaluate(n, v, c, m, rho)), L)
-                row[f"bake_{preset}_lookups"] = b.lookups
+        bakes.update({(name, p): b for p, b in env_bakes.items()})
+        ctx = {"name": name, "src": src, "uniform": uniform, "engines": EnginesSplitSum(name, dfg32, source), "source": source,
+               "sampler": sb, "bakes": env_bakes, "cap": args.cap, "ref_start": args.ref_start,
+               "albedo_samples": args.albedo_samples}
+        for bi in args.bands:
+            band = BANDS[bi]
+            ctx["seed"] = cell_seed(name, bi)
+            t_cell = time.process_time()
+            row, (n, v, c, m, rho, w), _ = cell(image, band, bi, ctx, args.pairs, args.max_pairs, args.nv)
+            row["cpu_s"] = time.process_time() - t_cell
             rows.append(row)
-            print(json.dumps({k: (round(x, 4) if isinstance(x, float) else x) for k, x in row.items()}), flush=True)
+            print(json.dumps({k: (round(x, 4) if isinstance(x, float) else x) for k, x in row.items()
+                              if k not in ("history", "reference_batches")}), flush=True)
             if args.fits and name in args.fit_envs:
-                fits += fit_rows(name, band, n, v, fit_rng, args.fits, args.fit_lookups, src, samples, bakes,
-                                 args.presets, uniform)
+                k = min(len(n), START_PAIRS)
+                fits += fit_rows(name, band, n[:k], v[:k], fit_rng, args.fits, args.fit_lookups, src, row["reference_samples"],
+                                 bakes, args.presets, uniform, w[:k])
         save(args, argv, rows, fits, runs, why, load_before, t_run)
-    shutil.rmtree(tmp, ignore_errors=True)
+    if not args.bake_dir:
+        shutil.rmtree(tmp, ignore_errors=True)
     print(save(args, argv, rows, fits, runs, why, load_before, t_run))
 
 
