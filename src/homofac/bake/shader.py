@@ -213,7 +213,7 @@ def _harmonic_functions(language: str) -> list[str]:
 
 def _source_function(language: str) -> list[str]:
     """``hf_source(n, v, x, roughness, l, s2)``: ((1 - s5)/pi, (1 - s5) S', s5 S') (n.l)+ of an analytic light at
-    unit l whose GGX D is widened to alpha^2 + s2 (:func:`homofac.bake.sources.source_terms`; x = n.v > 0;
+    unit l whose GGX D is widened to alpha^2 + s2 / x (:func:`homofac.bake.sources.source_terms`; x = n.v > 0;
     sin^2 theta_h from |n x h|^2, no cancellation at the peak). Returned as a vector (d, A, B); the caller
     multiplies by the light's RGB power."""
     msl, wgsl = language == "msl", language == "wgsl"
@@ -228,7 +228,7 @@ def _source_function(language: str) -> list[str]:
             let("h", v3, "normalize(l + v)"), let("c", v3, "cross(n, h)"),
             let("nh", ft, f"max(dot(n, h), {zero})"), let("vh", ft, f"min(abs(dot(v, h)), {one})"),
             let("a2", ft, "roughness * roughness * roughness * roughness"),
-            let("aw", ft, "a2 + s2"), let("q", ft, "aw * nh * nh + dot(c, c)"), let("dd", ft, f"aw / ({f(np.pi)} * q * q)"),
+            let("aw", ft, "a2 + s2 / x"), let("q", ft, "aw * nh * nh + dot(c, c)"), let("dd", ft, f"aw / ({f(np.pi)} * q * q)"),
             let("lv", ft, f"{f(0.5)} * (sqrt({one} + a2 * ({one} - x * x) / (x * x)) - {one})"),
             let("ll", ft, f"{f(0.5)} * (sqrt({one} + a2 * ({one} - nl * nl) / (nl * nl)) - {one})"),
             let("sv", ft, f"dd / (({one} + ll + lv) * {f(4.0)} * nl * x)"),
@@ -239,7 +239,7 @@ def _source_function(language: str) -> list[str]:
         head = f"fn hf_source({', '.join(f'{a}: {t}' for a, t in params)}) -> {v3}"
     else:
         head = f"{v3} hf_source({', '.join(f'{t} {a}' for a, t in params)})"
-    return [head + " {  // ((1 - s5)/pi, (1 - s5) S, s5 S) (n.l)+ of a light at l, GGX D at alpha^2 + s2",
+    return [head + " {  // ((1 - s5)/pi, (1 - s5) S, s5 S) (n.l)+ of a light at l, GGX D at alpha^2 + s2 / n.v",
             *("    " + b for b in body), "}"]
 
 
@@ -252,7 +252,7 @@ def _source_lines(bake: Bake, language: str, out: tuple[str, str, str]) -> list[
     for i, src in enumerate(bake.sources):
         d = ", ".join(f(c) for c in src.direction)
         p = f"{v3}({', '.join(f(c) for c in src.power)})"
-        g = f"hf_source(n, v, x, roughness, {v3}({d}), {f((SPREAD * src.radius) ** 2)})"
+        g = f"hf_source(n, v, x, roughness, {v3}({d}), {f((SPREAD * src.radius) ** 2 / 4)})"
         lines.append(f"let g{i}: {v3} = {g};" if wgsl else f"{v3} g{i} = {g};")
         lines += [f"{o} = {o} + g{i}.{c} * {p};" for o, c in zip(out, "xyz")]
     return lines

@@ -10,8 +10,13 @@ integral, sum (L - fill) dw) and angular radius sigma,
 
 (the pinned integrals of I_d, I_A, I_B, docs/format.md), at zero texture fetches. S' = V D' is the lobe with the
 GGX distribution widened by the source's extent (the roughness modification of area lights, Karis 2013,
-"Real Shading in Unreal Engine 4", sphere lights): D' is GGX at alpha'^2 = alpha^2 + (SPREAD sigma)^2, V the
-material's own. D' keeps D's normalization, so the source's reflected power is unchanged; only its lobe is
+"Real Shading in Unreal Engine 4"): D' is GGX at
+
+    alpha'^2 = alpha^2 + (SPREAD sigma)^2 / (4 n.v)
+
+with V the material's own: a source of angular radius t seen in reflection covers half vectors within about
+t / 2 of the peak at normal view and t^2 / (4 n.v) in solid angle at any view (dw_l = 4 (v.h) dw_h, v.h = n.v
+at the peak). D' keeps D's normalization, so the source's reflected power is unchanged; only its lobe is about
 as wide as the lobe convolved with the source. A point light (D itself) peaks at 1 / (pi alpha^2): below
 roughness 0.15 that was up to 8x the radiance the reference reads within half a degree of a sun
 (docs/notes/bake.md, "Converged cells, seventeenth session").
@@ -41,11 +46,12 @@ RADIUS = 0.05
 #: A pixel of the core is at least 1/RATIO of the brightest one's luminance (bake_sun.py's rule).
 RATIO = 20.0
 
-#: The source's widening of the GGX lobe in units of its radius: alpha'^2 = alpha^2 + (SPREAD radius)^2 (module
-#: docstring). Measured on the converged cells (benchmarks/bake_accuracy.py's pairs, balanced, nrmse below 0.15 /
-#: 0.15-0.3): point light 2.04 / 0.63 (city), 4.40 / 0.26 (interior), 1.84 / 0.15 (forest); SPREAD 1: 0.58 / 0.39,
-#: 1.04 / 0.24, 0.39 / 0.13; SPREAD 1.5: 0.69 / 0.26, 0.67 / 0.25, 0.46 / 0.14 (docs/notes/bake.md).
-SPREAD = 1.5
+#: The source's widening of the GGX lobe in units of its radius: alpha'^2 = alpha^2 + (SPREAD radius)^2 / (4 n.v)
+#: (module docstring). Measured on the converged cells' pairs (benchmarks/bake_source_shape.py, balanced, nrmse
+#: below 0.15 / 0.15-0.3): point light 0.89 / 0.21 (city), 4.40 / 0.26 (interior), 1.84 / 0.15 (forest);
+#: SPREAD 1.25: 0.50 / 0.13, 0.46 / 0.24, 0.31 / 0.12 (1 and 1.5 within 10 % of it; without the 1 / (4 n.v)
+#: at its best, 1: 0.61 / 0.15, 1.06 / 0.24, 0.39 / 0.13).
+SPREAD = 1.25
 
 #: Smallest share of the environment's luminance power a source must hold to be taken out. The bundled
 #: environments' compact sources hold 6-33 % (city's sun 23.7 %, interior's lamp 20.3 %, forest's sun core 6.1 %);
@@ -135,7 +141,8 @@ def source_terms(sources, n: Float[Array, "N 3"], v: Float[Array, "N 3"], roughn
         d, la, lb = gltf_lobes_at(rho, wi, wo_)
         h = [a + c for a, c in zip(wi, wo_)]
         hn2 = h[0] * h[0] + h[1] * h[1] + h[2] * h[2]
-        k = widened_ratio(a2, (SPREAD * s.radius) ** 2, jnp.maximum(h[2], 0.0) * jax.lax.rsqrt(hn2), (h[0] * h[0] + h[1] * h[1]) / hn2)
+        s2 = (SPREAD * s.radius) ** 2 / 4 / wo_[2]
+        k = widened_ratio(a2, s2, jnp.maximum(h[2], 0.0) * jax.lax.rsqrt(hn2), (h[0] * h[0] + h[1] * h[1]) / hn2)
         lobes = jnp.stack([d, la * k, lb * k], 1)  # (N, 3)
         lobes = jnp.where(above[:, None], lobes * wi[2][:, None], 0.0)
         out = out + lobes[:, :, None] * jnp.asarray(s.power, jnp.float32)[None, None, :]
