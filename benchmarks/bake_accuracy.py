@@ -1,12 +1,21 @@
 """Accuracy of the material-parametric bake against a converged reference, beside split-sum and glTF-IBL-Sampler.
 
-For each bundled environment and roughness band (0.045-0.15, 0.15-0.3, 0.3-0.6, 0.6-1): random visible pairs
-(n, v) with random glTF materials (roughness uniform in the band, base colour uniform, metallic 0 for a
-third, 1 for a third, uniform for the rest); the nrmse of L = (1 - m) 0.96 c I_d + f0_eff I_A + I_B against
+For each bundled environment and roughness band (0.045-0.15, 0.15-0.3, 0.3-0.6, 0.6-1), a cell: the weighted
+nrmse (:func:`bake_pairs.weighted_nrmse`) of L = (1 - m) 0.96 c I_d + f0_eff I_A + I_B over the pairs of
+:func:`bake_pairs.weighted_pairs`: n.v as over the pixels of a rendered object (v cosine-distributed about n),
+random glTF materials (roughness uniform in the band, base colour uniform, metallic 0, 1 or uniform by thirds),
+the reflected directions importance-sampled by the environment's luminance with weights 1 / probability (so
+the cell estimates the population's nrmse; bake_pairs.py's docstring). A cell starts at ``--pairs`` (512) and
+doubles (the first N pairs of 2N are the N) until one more doubling moves every method's figure by < 5 %
+(relative), or ``--max-pairs`` (8192); its row keeps the final count, each method's last movement and the
+history. Every method reads the same pairs; against
 
 * the reference: :func:`homofac.light.reference.reference_integrals` (the glTF BRDF integrated against the
-  source lat-long map read bilinearly, multiple importance sampling, float64) with 4096, 8192, ... samples per
-  strategy, doubled until one more doubling moves the band's L by < 1 % nrmse (or the cap, reported);
+  source lat-long map read bilinearly, multiple importance sampling, float64) with 2048, 4096, ... samples per
+  strategy (``--ref-start``), doubled per batch of new pairs until one more doubling moves the batch's L by < 1 %
+  weighted nrmse (or the cap, reported); then, per cell, the pairs carrying most of |L|^2 and of the first
+  bake's squared error (16 each) recomputed at 4x the samples (:func:`pair_check`: the largest relative change
+  of one pair, which is how converged the reference is where the cell's figure comes from);
 * the bake (per preset), each in a fresh process (``python -m homofac.bake`` with ``HOMOFAC_JAX_CACHE=0``: every
   program compiles, as on a new user's first run; textures written as float32 and read back with ``hf.load``):
   its wall and CPU time beside the sampler's in the same run, fetches, texture memory (half floats, RGB) and the
@@ -21,21 +30,24 @@ third, 1 for a third, uniform for the rest); the nrmse of L = (1 - m) 0.96 c I_d
 * idealized split-sum: I_A ~ P(r) A, I_B ~ P(r) B, I_d ~ E(n)/pi d, with P(r) the environment integrated
   against the glTF specular lobe itself at n = v = r at the pair's roughness (the split sum's own assumption,
   normalized by that lobe's albedo; computed by the same reference), A, B, d the exact directional albedos at
-  the pair's (n.v, rho) (the reference under constant radiance 1), E(n) the exact irradiance (light sum at 64);
+  the pair's (n.v, rho) (the reference under constant radiance 1, ``--albedo-samples`` 1024: within 0.25 % of
+  16384 in d and A), E(n) the exact irradiance (light sum at 64);
 * split-sum the engines' way (emulated here): E(n) from a 32^2 x 6 irradiance map, P from a prefiltered mip
   chain (face size the source's detail down to 4, level lod = rho (levels - 1), each level prefiltered at its
   roughness, read bilinearly per face and blended between levels), A, B, d from 32 x 32 tables (bilinear);
 * a per-material homofac fit (``--fits`` materials per band on the ``--fit-envs``, drawn like the others): ``hf.fit.factorize`` of
   that material's lighting (``hf.brdf.gltf``) at ``max_lookups`` ``--fit-lookups`` with small settings
-  (:data:`FIT_SETTINGS`), on the band's pairs with that material, beside the bake and split-sum on the same.
+  (:data:`FIT_SETTINGS`), on the cell's first 512 pairs (weighted) with that material, beside the bake and
+  split-sum on the same.
 
-    PYTHONPATH=src python benchmarks/bake_accuracy.py [--pairs 150] [--presets fast balanced] [--envs forest ...]
-        [--fits 1] [--fit-envs forest studio] [--fit-lookups 4] [--cap 65536] [--bands 0 1 2 3] [--no-sampler]
+    PYTHONPATH=src python benchmarks/bake_accuracy.py [--pairs 512] [--max-pairs 8192] [--nv cosine|uniform]
+        [--presets fast balanced] [--envs forest ...] [--fits 0] [--bands 0 1 2 3] [--no-sampler] [--bake-dir DIR]
 
 writes benchmarks/bake_accuracy.json and .md (``--out`` another stem); ``python benchmarks/pages.py`` turns the JSON
-into docs/benchmarks/bake.md; both are written after every environment. ``--presets fast balanced best --fits 1
---fit-envs forest`` took 28 minutes on this shared 2-core machine (load 8-11; the four per-material fits 8 of them:
-``--fits 0`` leaves them out; ``--envs forest --bands 0`` is a 3-minute look). ``benchmarks/bake_breakdown.py`` splits a band's error by term and cause.
+into docs/benchmarks/bake.md; both are written after every environment. ``--bake-dir DIR`` keeps the bakes there
+(``DIR/NAME-PRESET``) and reads them back on a later run (then without their timings).
+``benchmarks/bake_breakdown.py`` splits a cell's error by term and cause; ``benchmarks/bake_source_shape.py``
+compares models of the analytic source on a cell's pairs.
 """
 
 from __future__ import annotations
@@ -76,6 +88,8 @@ HERE = Path(__file__).parent
 
 
 def pairs(count, rng):
+    """Uniform pairs (n uniform, v uniform on its hemisphere): the draw of the runs before the weighted cells,
+    kept for the studies that repeat them (bake_memory.py, bake_sizes.py, ...)."""
     n = rng.normal(size=(count, 3))
     n /= np.linalg.norm(n, axis=1, keepdims=True)
     v = rng.normal(size=(count, 3))
@@ -493,27 +507,58 @@ def _band(row) -> str:
     return f"{row['band'][0]}-{row['band'][1]}"
 
 
+def goal(row, preset) -> tuple[bool, bool]:
+    """(met the ideal goal, below the sampler) of a cell for a preset: nrmse <= 0.5x the idealized split-sum from
+    roughness 0.15 up, <= 0.8x below; below glTF-IBL-Sampler's (True when the sampler is not in the row)."""
+    x = row[f"bake_{preset}"]
+    return (x <= (0.5 if row["band"][0] >= 0.15 else 0.8) * row["split_sum_ideal"], x < row.get("sampler", float("inf")))
+
+
+def summary(doc: dict) -> list[str]:
+    """One line per preset: the goal counts, and the cells converged in their pairs."""
+    rows = doc["rows"]
+    out = []
+    conv = sum(bool(r.get("converged")) for r in rows)
+    out.append(f"Cells converged in their pairs (one more doubling moves every column by < {TOLERANCE:.0%}): {conv} of {len(rows)}"
+               + ("" if conv == len(rows) else " (the others at the cap: their largest move is in the pairs column)") + ".")
+    for p in doc["presets"]:
+        hi = [r for r in rows if r["band"][0] >= 0.15]
+        lo = [r for r in rows if r["band"][0] < 0.15]
+        with_sampler = [r for r in rows if "sampler" in r]
+        out.append(f"`{p}`: <= 0.5x ideal in {sum(goal(r, p)[0] for r in hi)} of {len(hi)} cells from 0.15 up, "
+                   f"<= 0.8x in {sum(goal(r, p)[0] for r in lo)} of {len(lo)} below"
+                   + (f"; below the sampler in {sum(goal(r, p)[1] for r in with_sampler)} of {len(with_sampler)}" if with_sampler else "")
+                   + ".")
+    return out
+
+
 def markdown(doc: dict) -> str:
     """The tables of a run (benchmarks/bake_accuracy.md; docs/benchmarks/bake.md adds a heading)."""
     presets, rows = doc["presets"], doc["rows"]
     has_sampler = any("sampler" in r for r in rows)
     lookups = {p: next((r[f"bake_{p}_lookups"] for r in rows), "?") for p in presets}
-    head = (["environment", "band", "reference samples (converged)", "split-sum ideal", "split-sum engines"]
+    head = (["environment", "band", "pairs (largest move)", "reference samples (check)", "split-sum ideal", "split-sum engines"]
             + (["sampler", "sampler split-sum"] if has_sampler else [])
             + [f"bake {p} ({lookups[p]} fetches)" for p in presets]
-            + [f"{p} / ideal" for p in presets] + ([f"{p} / sampler" for p in presets] if has_sampler else []))
+            + [f"{p} / ideal" for p in presets] + ([f"{p} / sampler" for p in presets] if has_sampler else [])
+            + [f"{p} goal" for p in presets])
     lines = ["| " + " | ".join(head) + " |", "|---|---|" + "---:|" * (len(head) - 2)]
     for r in rows:
-        conv = "yes" if r["reference_converged"] else f"no, last {r['reference_last_change'] or 0:.3f}"
-        cells = [r["environment"], _band(r), f"{r['reference_samples']} ({conv})", f"{r['split_sum_ideal']:.4f}",
-                 f"{r['split_sum_engines']:.4f}"]
+        conv = "" if r["reference_converged"] else f", not converged: last {r['reference_last_change'] or 0:.3f}"
+        check = r.get("reference_check")
+        conv += f"; {check['samples']}: {check['max_relative_change']:.1%}" if check else ""
+        move = max(r["movement"].values()) if r.get("movement") else float("nan")
+        cells = [r["environment"], _band(r), f"{r['pairs']} ({move:.1%}{'' if r.get('converged') else ', cap'})",
+                 f"{r['reference_samples']}{conv}", f"{r['split_sum_ideal']:.4f}", f"{r['split_sum_engines']:.4f}"]
         if has_sampler:
             cells += [f"{r.get('sampler', float('nan')):.4f}", f"{r.get('sampler_split_sum', float('nan')):.4f}"]
         cells += [f"{r[f'bake_{p}']:.4f}" for p in presets]
         cells += [f"{r[f'bake_{p}'] / r['split_sum_ideal']:.2f}" for p in presets]
         if has_sampler:
             cells += [f"{r[f'bake_{p}'] / r['sampler']:.2f}" if "sampler" in r else "-" for p in presets]
+        cells += [("met" if goal(r, p)[0] else "missed") + ("" if goal(r, p)[1] else ", above sampler") for p in presets]
         lines.append("| " + " | ".join(cells) + " |")
+    lines += [""] + summary(doc)
     if doc.get("fits"):
         fs = doc["fit_settings"]
         lines += ["", f"Per-material homofac fits (`hf.fit.factorize(lighting_target(gltf(...), env at {fs['light_resolution']}), "
