@@ -1,7 +1,8 @@
 """Where the bake's error comes from: a per-term, per-cause breakdown against the converged reference.
 
-For one environment and the benchmark's bands and pairs (:mod:`bake_accuracy`'s draws), with e_t the error
-vector of term t in L = (1 - m) 0.96 c I_d + f0_eff I_A + I_B:
+For one environment and the benchmark's cells (:mod:`bake_accuracy`'s weighted pairs, :mod:`bake_pairs`: the
+first ``--pairs`` of a cell, every figure weighted as the cell's nrmse), with e_t the error vector of term t in
+L = (1 - m) 0.96 c I_d + f0_eff I_A + I_B:
 
 * ``bake``: nrmse of L; ``d``, ``A``, ``B``: |e_t| / |L| of each term alone (the bake's I_t minus the reference's,
   times its material factor);
@@ -16,7 +17,7 @@ vector of term t in L = (1 - m) 0.96 c I_d + f0_eff I_A + I_B:
 * ``--top N``: the N pairs carrying most of the bake's squared error: share, roughness, n.v, angle of r from the
   bake's analytic source (degrees), and I_A, I_B (luminance) of the reference, the bake and the idealized split-sum.
 
-    PYTHONPATH=src python benchmarks/bake_breakdown.py forest [--preset balanced] [--pairs 150] [--bands 1 2]
+    PYTHONPATH=src python benchmarks/bake_breakdown.py forest [--preset balanced] [--pairs 1024] [--bands 1 2]
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ from homofac.light.reference import reference_integrals, source_map
 
 sys.path.insert(0, str(Path(__file__).parent))
 import bake_accuracy as ba  # noqa: E402
+from bake_pairs import weighted_pairs  # noqa: E402
 
 
 def azimuth_means(env, axis, x, rho, shift=0.0):
@@ -57,14 +59,15 @@ def azimuth_means(env, axis, x, rho, shift=0.0):
     return np.stack([out[i, 2 * i], out[i, 2 * i + 1]], 1)
 
 
-def parts_nrmse(parts, ref, c, m):
-    """nrmse of L and |e_t| / |L| per term (d, A, B)."""
-    L = np.asarray(material_radiance(jnp.asarray(ref), c, m))
-    Lb = np.asarray(material_radiance(jnp.asarray(parts), c, m))
+def parts_nrmse(parts, ref, c, m, w=None):
+    """Weighted nrmse of L and |e_t| / |L| per term (d, A, B), weights ``w`` (N,) (1 when None)."""
+    sw = np.sqrt(np.ones(len(c)) if w is None else w)[:, None]
+    L = np.asarray(material_radiance(jnp.asarray(ref), c, m)) * sw
+    Lb = np.asarray(material_radiance(jnp.asarray(parts), c, m)) * sw
     f0 = (1 - m)[:, None] * 0.04 + m[:, None] * c
     fac = [(1 - m)[:, None] * 0.96 * c, f0, np.ones_like(c)]
     norm = np.linalg.norm(L)
-    terms = [float(np.linalg.norm(fac[t] * (parts[:, t] - ref[:, t])) / norm) for t in range(3)]
+    terms = [float(np.linalg.norm(sw * fac[t] * (parts[:, t] - ref[:, t])) / norm) for t in range(3)]
     return float(np.linalg.norm(Lb - L) / norm), terms
 
 
@@ -72,7 +75,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("env")
     ap.add_argument("--preset", default="balanced")
-    ap.add_argument("--pairs", type=int, default=150)
+    ap.add_argument("--pairs", type=int, default=1024, help="the first PAIRS of each cell's pairs (a power of two)")
     ap.add_argument("--bands", nargs="+", type=int, default=[0, 1, 2, 3])
     ap.add_argument("--lights", type=int, default=64, help="light resolution of the floor's filter")
     ap.add_argument("--samples", type=int, default=8192)
@@ -93,13 +96,10 @@ def main(argv=None):
         b = hf.load(args.bake) if args.bake else hf.bake(name, preset=args.preset, **json.loads(args.options))
         print(f"bake {time.perf_counter() - t:.1f} s: {b.describe()}", flush=True)
     env = hf.light.load_environment(name, args.lights)
-    rng = np.random.default_rng(0)
-    for _ in range(4 * list(hf.light.BUNDLED).index(name)):  # the benchmark's draws: environments in order, 4 bands each
-        ba.pairs(args.pairs, rng), ba.materials(args.pairs, (0.0, 1.0), rng)
-    draws = [(ba.pairs(args.pairs, rng), ba.materials(args.pairs, band, rng)) for band in ba.BANDS]
+    image = read_exr(hf.light.bundled(name))
     for bi in args.bands:
         band = ba.BANDS[bi]
-        (n, v), (c, m, rho) = draws[bi]
+        n, v, c, m, rho, w = weighted_pairs(image, band, args.pairs, ba.cell_seed(name, bi))
         ref = reference_integrals(src, n, v, rho, samples=args.samples)
         if args.snap and b is not None:
             rl = np.asarray(b.roughness)
@@ -108,7 +108,7 @@ def main(argv=None):
             for label, r in (("drawn", rho), ("snapped", rl[np.argmin(np.abs(np.log(rho[:, None] / rl[None])), axis=1)]),
                              ("midway", np.sqrt(rl[hi - 1] * rl[hi]))):
                 ref_r = reference_integrals(src, n, v, r, samples=args.samples)
-                row[label] = round(parts_nrmse(np.asarray(b.terms(n, v, r), np.float64), ref_r, c, m)[0], 4)
+                row[label] = round(parts_nrmse(np.asarray(b.terms(n, v, r), np.float64), ref_r, c, m, w)[0], 4)
             print(json.dumps(row), flush=True)
             continue
         parts = ref.copy() if b is None else np.asarray(b.terms(n, v, rho), np.float64)
@@ -138,10 +138,10 @@ def main(argv=None):
             cases.append(("layers", lay))
         row = {"env": name, "band": band}
         for label, p in cases:
-            tot, terms = parts_nrmse(p, ref, c, m)
+            tot, terms = parts_nrmse(p, ref, c, m, w)
             row[label] = [round(tot, 4)] + [round(e, 4) for e in terms]
         L = np.asarray(material_radiance(jnp.asarray(ref), c, m))
-        e2 = np.sum((np.asarray(material_radiance(jnp.asarray(cases[-1][1] if b is None else parts), c, m)) - L) ** 2, 1)
+        e2 = w * np.sum((np.asarray(material_radiance(jnp.asarray(cases[-1][1] if b is None else parts), c, m)) - L) ** 2, 1)
         row["err_share_nv<0.3"] = round(float(e2[x < 0.3].sum() / e2.sum()), 3)
         row["err_top5_share"] = round(float(np.sort(e2)[-5:].sum() / e2.sum()), 3)
         print(json.dumps(row), flush=True)

@@ -15,8 +15,8 @@
 // and before its ambient-occlusion chunk, so aoMap, lights and everything else in the material keep working.
 // The bake's generated GLSL ES function homofac_ibl_terms (its shader_es.glsl) is compiled into the
 // material with HOMOFAC_Y_UP: three's y-up world frame maps to homofac's +z-up one. It also adds the bake's
-// analytic sources (bake.json `sources`: the brightest compact source, taken out of the maps) with the exact
-// glTF lobes, from constants, so nothing here reads them.
+// analytic sources (bake.json `sources`: the brightest compact source, taken out of the maps) with the
+// glTF lobes widened by each source's radius, from constants, so nothing here reads them.
 
 import {
   DataTexture, EquirectangularReflectionMapping, FloatType, HalfFloatType, LinearFilter, ClampToEdgeWrapping, LinearSRGBColorSpace, RGBAFormat,

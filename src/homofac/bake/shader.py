@@ -24,6 +24,7 @@ from ..shader import generate
 from ..shader import languages as L
 from .atlas import assemble, down
 from .model import TANGENT_FLOOR, Bake
+from .sources import SPREAD
 
 LANGUAGES = ("glsl", "glsl_es", "hlsl", "msl", "wgsl")
 
@@ -211,9 +212,10 @@ def _harmonic_functions(language: str) -> list[str]:
 
 
 def _source_function(language: str) -> list[str]:
-    """``hf_source(n, v, x, roughness, l)``: ((1 - s5)/pi, (1 - s5) S, s5 S) (n.l)+ of a point light at unit l
-    (:func:`homofac.bake.sources.source_terms`; x = n.v > 0; sin^2 theta_h from |n x h|^2, no cancellation at
-    the peak). Returned as a vector (d, A, B); the caller multiplies by the light's RGB power."""
+    """``hf_source(n, v, x, roughness, l, s2)``: ((1 - s5)/pi, (1 - s5) S', s5 S') (n.l)+ of an analytic light at
+    unit l whose GGX D is widened to alpha^2 + s2 / x (:func:`homofac.bake.sources.source_terms`; x = n.v > 0;
+    sin^2 theta_h from |n x h|^2, no cancellation at the peak). Returned as a vector (d, A, B); the caller
+    multiplies by the light's RGB power."""
     msl, wgsl = language == "msl", language == "wgsl"
     v3, ft = ("float3", "float") if msl else (("vec3<f32>", "f32") if wgsl else ("vec3", "float"))
     f = (lambda x: L.float_literal(float(x), "f")) if msl else _f
@@ -226,18 +228,18 @@ def _source_function(language: str) -> list[str]:
             let("h", v3, "normalize(l + v)"), let("c", v3, "cross(n, h)"),
             let("nh", ft, f"max(dot(n, h), {zero})"), let("vh", ft, f"min(abs(dot(v, h)), {one})"),
             let("a2", ft, "roughness * roughness * roughness * roughness"),
-            let("q", ft, "a2 * nh * nh + dot(c, c)"), let("dd", ft, f"a2 / ({f(np.pi)} * q * q)"),
+            let("aw", ft, "a2 + s2 / x"), let("q", ft, "aw * nh * nh + dot(c, c)"), let("dd", ft, f"aw / ({f(np.pi)} * q * q)"),
             let("lv", ft, f"{f(0.5)} * (sqrt({one} + a2 * ({one} - x * x) / (x * x)) - {one})"),
             let("ll", ft, f"{f(0.5)} * (sqrt({one} + a2 * ({one} - nl * nl) / (nl * nl)) - {one})"),
             let("sv", ft, f"dd / (({one} + ll + lv) * {f(4.0)} * nl * x)"),
             let("m", ft, f"{one} - vh"), let("s5", ft, "m * m * m * m * m"),
             f"return {v3}(({one} - s5) / {f(np.pi)}, ({one} - s5) * sv, s5 * sv) * nl;"]
-    params = [("n", v3), ("v", v3), ("x", ft), ("roughness", ft), ("l", v3)]
+    params = [("n", v3), ("v", v3), ("x", ft), ("roughness", ft), ("l", v3), ("s2", ft)]
     if wgsl:
         head = f"fn hf_source({', '.join(f'{a}: {t}' for a, t in params)}) -> {v3}"
     else:
         head = f"{v3} hf_source({', '.join(f'{t} {a}' for a, t in params)})"
-    return [head + " {  // ((1 - s5)/pi, (1 - s5) S, s5 S) (n.l)+ of a point light at l (exact glTF lobes)",
+    return [head + " {  // ((1 - s5)/pi, (1 - s5) S, s5 S) (n.l)+ of a light at l, GGX D at alpha^2 + s2 / n.v",
             *("    " + b for b in body), "}"]
 
 
@@ -250,7 +252,7 @@ def _source_lines(bake: Bake, language: str, out: tuple[str, str, str]) -> list[
     for i, src in enumerate(bake.sources):
         d = ", ".join(f(c) for c in src.direction)
         p = f"{v3}({', '.join(f(c) for c in src.power)})"
-        g = f"hf_source(n, v, x, roughness, {v3}({d}))"
+        g = f"hf_source(n, v, x, roughness, {v3}({d}), {f((SPREAD * src.radius) ** 2 / 4)})"
         lines.append(f"let g{i}: {v3} = {g};" if wgsl else f"{v3} g{i} = {g};")
         lines += [f"{o} = {o} + g{i}.{c} * {p};" for o, c in zip(out, "xyz")]
     return lines

@@ -2,13 +2,24 @@
 
 A bake's prefiltered maps blur a sun into every lobe; at low and middle roughness that blur is most of the
 bake's error (docs/notes/bake.md, "Today's bake with the brightest source as an analytic light"). So the bake
-removes the brightest compact source from the lights before every filter and adds it back as a point light
-with the exact glTF lobes (:func:`source_terms`): per source of direction l and RGB power Phi (its radiance
-integral, sum (L - fill) dw),
+removes the brightest compact source from the lights before every filter and adds it back as a light at its
+direction with the glTF lobes (:func:`source_terms`): per source of direction l, RGB power Phi (its radiance
+integral, sum (L - fill) dw) and angular radius sigma,
 
-    I_d += (1 - s5)/pi (n.l)+ Phi,   I_A += (1 - s5) S (n.l)+ Phi,   I_B += s5 S (n.l)+ Phi
+    I_d += (1 - s5)/pi (n.l)+ Phi,   I_A += (1 - s5) S' (n.l)+ Phi,   I_B += s5 S' (n.l)+ Phi
 
-(the pinned integrals of I_d, I_A, I_B, docs/format.md, of a delta light), at zero texture fetches.
+(the pinned integrals of I_d, I_A, I_B, docs/format.md), at zero texture fetches. S' = V D' is the lobe with the
+GGX distribution widened by the source's extent (the roughness modification of area lights, Karis 2013,
+"Real Shading in Unreal Engine 4"): D' is GGX at
+
+    alpha'^2 = alpha^2 + (SPREAD sigma)^2 / (4 n.v)
+
+with V the material's own: a source of angular radius t seen in reflection covers half vectors within about
+t / 2 of the peak at normal view and t^2 / (4 n.v) in solid angle at any view (dw_l = 4 (v.h) dw_h, v.h = n.v
+at the peak). D' keeps D's normalization, so the source's reflected power is unchanged; only its lobe is about
+as wide as the lobe convolved with the source. A point light (D itself) peaks at 1 / (pi alpha^2): below
+roughness 0.15 that was up to 8x the radiance the reference reads within half a degree of a sun
+(docs/notes/bake.md, "Converged cells, seventeenth session").
 """
 
 from __future__ import annotations
@@ -16,6 +27,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
@@ -34,6 +46,13 @@ RADIUS = 0.05
 #: A pixel of the core is at least 1/RATIO of the brightest one's luminance (bake_sun.py's rule).
 RATIO = 20.0
 
+#: The source's widening of the GGX lobe in units of its radius: alpha'^2 = alpha^2 + (SPREAD radius)^2 / (4 n.v)
+#: (module docstring). Measured on the converged cells' pairs (benchmarks/bake_source_shape.py, balanced, nrmse
+#: below 0.15 / 0.15-0.3): point light 0.89 / 0.21 (city), 4.40 / 0.26 (interior), 1.84 / 0.15 (forest);
+#: SPREAD 1.25: 0.50 / 0.13, 0.46 / 0.24, 0.31 / 0.12 (1 and 1.5 within 10 % of it; without the 1 / (4 n.v)
+#: at its best, 1: 0.61 / 0.15, 1.06 / 0.24, 0.39 / 0.13).
+SPREAD = 1.25
+
 #: Smallest share of the environment's luminance power a source must hold to be taken out. The bundled
 #: environments' compact sources hold 6-33 % (city's sun 23.7 %, interior's lamp 20.3 %, forest's sun core 6.1 %);
 #: a uniform or smooth sky holds ~0 (its fill equals its core) and is left to the maps.
@@ -43,7 +62,7 @@ MIN_SHARE = 0.03
 class Source(NamedTuple):
     """One analytic light: unit ``direction`` (3,), RGB ``power`` (3,) (the radiance integral over the removed
     texels, W sr-free: radiance x solid angle), angular ``radius`` (rad: the power-weighted RMS angle of the
-    removed texels about the direction; shaded as a point)."""
+    removed texels about the direction; it widens the lobe, :data:`SPREAD`)."""
 
     direction: tuple[float, float, float]
     power: tuple[float, float, float]
@@ -94,9 +113,17 @@ def brightest_source(env: Environment, radius: float = RADIUS, ratio: float = RA
     return rest, src, share
 
 
+def widened_ratio(a2, s2, nh, sin2):
+    """D'(h) / D(h): GGX at alpha'^2 = ``a2`` + ``s2`` over GGX at ``a2`` (alpha^2), at cos theta_h ``nh`` and
+    sin^2 theta_h ``sin2`` (the form of :func:`homofac.brdf.gltf.gltf_lobes_at`, no cancellation at the peak)."""
+    a2w = a2 + s2
+    return (a2w / a2) * ((a2 * nh * nh + sin2) / (a2w * nh * nh + sin2)) ** 2
+
+
 def source_terms(sources, n: Float[Array, "N 3"], v: Float[Array, "N 3"], roughness) -> Float[Array, "N 3 3"]:
-    """``(I_d, I_A, I_B)`` (N, 3, 3) of the point lights ``sources`` (a sequence of :class:`Source`) at the
-    pairs: the exact glTF lobes (module docstring) times (n.l)+ times each power; 0 where n.v <= 0."""
+    """``(I_d, I_A, I_B)`` (N, 3, 3) of the analytic lights ``sources`` (a sequence of :class:`Source`) at the
+    pairs: the glTF lobes with D widened by each source's radius (module docstring) times (n.l)+ times each
+    power; 0 where n.v <= 0."""
     n = jnp.asarray(n, jnp.float32)
     v = jnp.asarray(v, jnp.float32)
     rho = jnp.broadcast_to(jnp.asarray(roughness, jnp.float32), n.shape[:1])
@@ -105,14 +132,21 @@ def source_terms(sources, n: Float[Array, "N 3"], v: Float[Array, "N 3"], roughn
         return out
     t, b = _frame(n)
     wo = _local(v, t, b, n)
+    a2 = rho ** 4
     for s in sources:  # a handful of lights, not samples
         wi = _local(jnp.broadcast_to(jnp.asarray(s.direction, jnp.float32), n.shape), t, b, n)
         above = (wi[2] > 0) & (wo[2] > 0)
         wi = tuple(jnp.where(above, c, 0.0 if i < 2 else 1.0) for i, c in enumerate(wi))
-        lobes = jnp.stack(gltf_lobes_at(rho, wi, (wo[0], wo[1], jnp.where(above, wo[2], 1.0))), 1)  # (N, 3)
+        wo_ = (wo[0], wo[1], jnp.where(above, wo[2], 1.0))
+        d, la, lb = gltf_lobes_at(rho, wi, wo_)
+        h = [a + c for a, c in zip(wi, wo_)]
+        hn2 = h[0] * h[0] + h[1] * h[1] + h[2] * h[2]
+        s2 = (SPREAD * s.radius) ** 2 / 4 / wo_[2]
+        k = widened_ratio(a2, s2, jnp.maximum(h[2], 0.0) * jax.lax.rsqrt(hn2), (h[0] * h[0] + h[1] * h[1]) / hn2)
+        lobes = jnp.stack([d, la * k, lb * k], 1)  # (N, 3)
         lobes = jnp.where(above[:, None], lobes * wi[2][:, None], 0.0)
         out = out + lobes[:, :, None] * jnp.asarray(s.power, jnp.float32)[None, None, :]
     return out
 
 
-__all__ = ["MIN_SHARE", "RADIUS", "RATIO", "Source", "brightest_source", "source_terms"]
+__all__ = ["MIN_SHARE", "RADIUS", "RATIO", "SPREAD", "Source", "brightest_source", "source_terms", "widened_ratio"]
