@@ -114,11 +114,11 @@ RACE = {"race": (10,), "race_keep": (2,), "race_margin": 0.03, "race_stride": 4}
 BALANCED_RACE = {**RACE, "race_keep": (1,), "race_margin": 0.0, "tolerance": 1e-3}
 
 #: ``best``'s race: ``balanced``'s, with the first round's fits on every 4th pair run to the full fit's 30 sweeps.
-#: At 16 lookups 10 sweeps rank the candidates backwards: on gold / forest (75 000 pairs) the figures of
-#: ``E'+NROW x4+HFT x1``, ``E'+NROW x4+R+HW x1`` and ``E'+ROW x4+R+HFW x2`` read 0.140 / 0.138 / 0.137 after 10
-#: sweeps, 0.119 / 0.115 / 0.128 after 20 and 0.112 / 0.113 / 0.128 after 30, the order of their full fits on
-#: every pair (0.101 / 0.104 / 0.122; on the converged truth 0.095 / 0.102 / 0.117): the highlight terms with
-#: the cosine line converge slowest (docs/notes/speed.md, "best, seventeenth session").
+#: At 16 lookups 10 sweeps misrank the candidates: on gold / forest (75 000 grid pairs, validation nrmse) the
+#: fits of ``E'+NROW x4+HFT x1``, ``E'+NROW x4+R+HW x1`` and ``E'+ROW x4+R+HFW x2`` read 0.133 / 0.117 / 0.130
+#: after 10 sweeps, 0.119 / 0.115 / 0.128 after 20 and 0.112 / 0.113 / 0.128 after 30, the order of their full
+#: fits on 300 000 pairs (0.101 / 0.104 / 0.122; on the converged truth 0.095 / 0.102 / 0.117); the race of 10
+#: sweeps kept the third (docs/notes/speed.md, "best, seventeenth session").
 BEST_RACE = {**BALANCED_RACE, "race": (30,)}
 
 #: ``fast`` has no polish: on the accuracy benchmark's four speed cases the polish then (a 2-step trial, then 8
@@ -133,10 +133,16 @@ BEST_RACE = {**BALANCED_RACE, "race": (30,)}
 POLISH_STRIDE = 4
 
 #: The presets (names pinned). ``fast`` and ``balanced`` are the 4- and 8-lookup settings measured on
-#: the accuracy benchmark (docs/notes/sums-research.md); ``best`` the 16-lookup ones ("the quality mode" of the notes):
-#: 600 000 grid pairs (300 000 left gold / forest at 0.106 against 0.101 nrmse on the converged ground
-#: truth), 80 000 validation pairs (a ranking steadier than the candidates' differences), a line vote
-#: 32 / 4 x texture_size, tables, the disc vote, the plain objective and 20 000 ridge pairs.
+#: the accuracy benchmark (docs/notes/sums-research.md). ``best`` is ``balanced``'s machinery at 16 lookups
+#: (300 000 grid pairs, 20 000 validation pairs, one candidate fitted in full, the ALS stop at 1e-3, a polish
+#: on every 4th pair) with what the 16-lookup structures measurably need: a first round of 30 sweeps
+#: (:data:`BEST_RACE`), the tables (kept on 3 of the accuracy benchmark's 4 sixteen-lookup rows), the line
+#: vote 32 / 4 x texture_size and the disc vote (each read on a short fit first), the plain objective, and 20 000
+#: ridge pairs in every figure and in its polish: one stage of 8 Levenberg-Marquardt steps with the ridge pairs
+#: straight from the ALS fit (``polish_direct``; the stage kept on every case where three were tried:
+#: docs/notes/sums-research.md, "A third polish stage"). On gold / forest the choice among its 11 candidates is
+#: most of its accuracy: the full fits of the three leading structures on 300 000 pairs read 0.095 / 0.102 /
+#: 0.117 on the converged truth (docs/notes/speed.md, "best, seventeenth session").
 PRESETS: dict[str, Preset] = {
     "fast": Preset(lookups=4, grid_count=GRID_COUNT, validation=DEFAULT_VALIDATION, line_ratio=0, table=False,
                    disc_vote=False, nv_balance=1.0, polish=0, ridge=0, analysis=False, directions=PRESET_DIRECTIONS,
