@@ -92,6 +92,31 @@ def test_best_plans_the_short_fits_of_its_votes_and_balanced_has_no_such_votes()
     assert np.isfinite(best.race_margin)
 
 
+def test_best_plans_one_polish_stage_the_ridge_pairs_from_the_als_fit_and_its_vote_records_it_as_the_third():
+    """``polish_direct``: the plan's polish vote is between the ALS fit and the ridge stage straight from it;
+    ``_polish_vote`` records that stage as the third of ``polish_stages`` (what a refit's ``recorded_direct``
+    reads), kept only where its figure is below the ALS fit's."""
+    env = hf.light.sun_sky((0.3, 0.2, 0.9), sun_radiance=300.0, sun_angle_deg=4.0, sky=(0.3, 0.4, 0.6), resolution=8)
+    t = hf.light.lighting_target(hf.brdf.cook_torrance(kd=(0.05, 0.04, 0.02), ks=1.0, roughness=0.3,
+                                                       f0=(1.0, 0.78, 0.34)), env)
+    over = {"advanced": {"validation_light": int(validation.environment(t).info["resolution"])}}
+    best = plan.build_plan(t, "best", over)
+    assert best.polish_direct and best.ridge > 0 and best.to_dict()["polish_direct"]
+    votes = {v.name: v.choices for v in best.votes}
+    assert votes["polish"] == ("ALS fit", "polish + ridge pairs from the ALS fit") and "from the ALS fit" in str(best)
+    no_ridge = plan.build_plan(t, "best", {**over, "advanced": {**over["advanced"], "linear": {"ridge": 0}}})
+    assert not no_ridge.polish_direct and no_ridge.ridge == 0 and len({v.name: v for v in no_ridge.votes}["polish"].choices) == 2
+    assert not plan.build_plan(t, "balanced", over).polish_direct
+    als = _Voted(0.07, 0.10, {"metric": sums.RIDGE_METRIC})
+    for after, kept in ((0.09, True), (0.11, False)):
+        got = pipeline._polish_vote(als, [_Voted(0.068, after)], lambda r: r.ridge, 8, 20000, "X", lambda m: None,
+                                    4, (2,))
+        note = got.selection["polish"]
+        assert note["kept"] is kept and got.ridge == (after if kept else 0.10)
+        assert [(st["ridge"], st["start"]) for st in note["stages"]] == [(20000, polish.STAGE_STARTS[2])]
+        assert (note["stage"], note["ridge"], note["start"]) == ((2, 20000, "als") if kept else (None, 0, None))
+
+
 if __name__ == "__main__":
     pytest.main([__file__, "-q"])
 

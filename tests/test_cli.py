@@ -286,6 +286,10 @@ def test_the_polish_line_reads_every_record_generation():
     assert polish_line(three) == ("polish: 8 Levenberg-Marquardt steps off the grid, then 8 more with 20000 ridge "
                                   "pairs, or 8 with them from the ALS fit, validation nrmse with the ridge stratum "
                                   "0.128 -> 0.11 / 0.141 / 0.105 (stage 3 kept)")
+    direct = {**three, "stages": three["stages"][2:]}  # a plan's polish_direct: the third stage alone
+    assert polish_line(direct) == ("polish: 8 Levenberg-Marquardt steps off the grid with 20000 ridge pairs, "
+                                   "validation nrmse with the ridge stratum 0.128 -> 0.105 (kept)")
+    assert polish_line({**direct, "kept": False, "stage": None}).endswith("0.128 -> 0.105 (not kept)")
     one = {"steps": 8, "validation_nrmse_before": 0.062, "validation_nrmse_after": 0.118, "rule": "vote",
            "kept": False, "ridge": 20000}
     assert polish_line(one) == ("polish: 8 Levenberg-Marquardt steps off the grid and 20000 ridge pairs, "

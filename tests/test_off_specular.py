@@ -370,17 +370,19 @@ def test_the_quality_mode_polishes_a_kept_highlight_structure_where_the_validati
     entering = ({k: disc[k][1] for k in ("validation_nrmse", key)} if disc and disc["kept"] else sel["chosen"])
     assert note["validation_nrmse_before"] == pytest.approx(entering["validation_nrmse"])
     assert note[key + "_before"] == pytest.approx(entering[key])
-    # three stages: without, then with the quality mode's ridge pairs, and with them from the ALS fit
-    stages = note["stages"]
-    assert [(st["ridge"], st["start"]) for st in stages] == [(0, "als"), (plan.PRESETS["best"].ridge, "polish"),
-                                                             (plan.PRESETS["best"].ridge, "als")]
+    # the stages the plan's polish vote names: with polish_direct the ridge pairs from the ALS fit alone, else
+    # three (without, then with the ridge pairs, and with them from the ALS fit)
+    stages, ridge = note["stages"], plan.PRESETS["best"].ridge
+    three = [(0, "als"), (ridge, "polish"), (ridge, "als")]
+    which = [2] if plan.PRESETS["best"].polish_direct else [0, 1, 2]  # each stage's index among the three
+    assert [(st["ridge"], st["start"]) for st in stages] == [three[i] for i in which]
     best = int(np.argmin([st[key] for st in stages]))
     assert note[key + "_after"] == stages[best][key]
     assert note["kept"] == (note[key + "_after"] < note[key + "_before"])
     kept = note["validation_nrmse_after"] if note["kept"] else note["validation_nrmse_before"]
     assert fac.metrics["validation"]["float"]["nrmse"] == pytest.approx(kept)
     assert ("polish" in fac.solver) == note["kept"]  # a refit repeats what was kept
-    assert note["stage"] == (best if note["kept"] else None)
+    assert note["stage"] == (which[best] if note["kept"] else None)
     assert (note["ridge"], note["start"]) == ((stages[best]["ridge"], stages[best]["start"]) if note["kept"]
                                               else (0, None))
     if note["kept"]:  # the record says which path a refit takes

@@ -329,8 +329,9 @@ def test_the_race_is_planned_where_the_preset_chooses_by_the_lowest_figure(envs)
         assert ("race" in [v.name for v in got.votes]) == bool(got.race) == ("race:" in str(got))
         assert got.to_dict()["race"]["sweeps"] == list(got.race)
         left = len(got.candidates)
-        for sweeps, keep in zip(got.race, got.race_keep):
-            assert 0 < sweeps < got.linear.iterations and 1 <= keep < left
+        for j, (sweeps, keep) in enumerate(zip(got.race, got.race_keep)):
+            # below the full fit's sweeps; a first round on every k-th pair (k > 1: fits of their own) up to them
+            assert 0 < sweeps <= got.linear.iterations - (j > 0 or got.race_stride == 1) and 1 <= keep < left
             left = keep
         if got.race:
             raced.append(name)
@@ -339,6 +340,11 @@ def test_the_race_is_planned_where_the_preset_chooses_by_the_lowest_figure(envs)
     assert raced
     assert plan.race_of(plan.Preset(4, 1, 1, 0, False, False, 0.0, 0, 0, False, race=(2, 5), race_keep=(3, 1)),
                         hf.fit.options.LinearOptions(iterations=30), 3) == ((5,), (1,))  # keeping 3 of 3 is no round
+    # a round of the full fit's sweeps is no round, unless it is a first round on every k-th pair (k > 1)
+    whole = plan.Preset(4, 1, 1, 0, False, False, 0.0, 0, 0, False, race=(30,), race_keep=(1,))
+    assert plan.race_of(whole, hf.fit.options.LinearOptions(iterations=30), 3) == ((), ())
+    assert plan.race_of(whole._replace(race_stride=4), hf.fit.options.LinearOptions(iterations=30), 3) == ((30,), (1,))
+    assert plan.race_of(whole._replace(race_stride=4), hf.fit.options.LinearOptions(iterations=20), 3) == ((), ())
 
 
 def test_the_race_continues_the_lowest_and_those_within_its_margin_round_by_round():

@@ -69,17 +69,20 @@ def polish_line(pol: dict) -> str:
     """The run summary's line for ``selection.polish``: the steps, the errors voted on (with the ridge
     stratum where recorded: before, and after each stage) and what was kept. The quality mode's records
     since 2026-12-06 have three stages (the third with the ridge pairs from the ALS fit), before that two;
+    a plan's ``polish_direct`` polish one (the ridge pairs from the ALS fit);
     records from before 2026-12-05 have no ``kept`` (the polish was always kept then) and older
     quality-mode records one stage."""
     key, words = sums.scored_by(f"{sums.RIDGE_METRIC}_before" in pol)
     stages = pol.get("stages")
     if stages:
         ridge = max(st["ridge"] for st in stages)
-        how = ", ".join([f"{pol['steps']} Levenberg-Marquardt steps off the grid",
-                         f"then {pol['steps']} more with {ridge} ridge pairs",
-                         f"or {pol['steps']} with them from the ALS fit"][:len(stages)])
+        direct = len(stages) == 1 and ridge  # only the ridge stage from the ALS fit (the plan's polish_direct)
+        how = (f"{pol['steps']} Levenberg-Marquardt steps off the grid with {ridge} ridge pairs" if direct else
+               ", ".join([f"{pol['steps']} Levenberg-Marquardt steps off the grid",
+                          f"then {pol['steps']} more with {ridge} ridge pairs",
+                          f"or {pol['steps']} with them from the ALS fit"][:len(stages)]))
         after = " / ".join(f"{st[key]:.4g}" for st in stages)
-        kept = f"stage {pol['stage'] + 1} kept" if pol.get("kept") else "not kept"
+        kept = ("kept" if direct else f"stage {pol['stage'] + 1} kept") if pol.get("kept") else "not kept"
     elif pol.get("trial"):  # the trial did not lower the figure: no polish ran
         how = f"a {pol['trial']['steps']}-step trial of the polish"
         after = f"{pol[key + '_after']:.4g}"

@@ -405,10 +405,15 @@ def _sums(target: Target, the_plan: Plan, samples: Samples, record: dict, sample
         tgt, smp, _ = pool(structure)
         k = the_plan.polish_stride  # on every k-th grid pair and every k-th view of the off-grid pairs
         plin = lin.model_copy(update={"polish": steps, "ridge": ridge})
-        stages = [as_result(structure, sf) for sf in polish.polish_stages(
-            tgt, structure, mapper, opts.texture_size, fits[structure, line], smp, pairs(k), plin, log,
-            seed=opts.sampling.seed, direct=True, stride=k)]
-        result = _polish_vote(result, stages, score, steps, ridge, structure.label(), log, k)
+        args = (tgt, structure, mapper, opts.texture_size, fits[structure, line], smp, pairs(k), plin, log)
+        if the_plan.polish_direct:  # only the ridge stage straight from the ALS fit (the third of polish_stages)
+            stages = [as_result(structure, polish.polish(*args, seed=opts.sampling.seed, direct=True, stride=k))]
+            which = (2,)
+        else:
+            stages = [as_result(structure, sf) for sf in polish.polish_stages(*args, seed=opts.sampling.seed,
+                                                                                direct=True, stride=k)]
+            which = tuple(range(len(stages)))
+        result = _polish_vote(result, stages, score, steps, ridge, structure.label(), log, k, which)
     return kept(result if analysis is None else result.replace(analysis=analysis))
 
 
@@ -448,25 +453,27 @@ def _figures(res: Result, score: Callable | None) -> dict:
 
 
 def _polish_vote(result: Result, stages: list[Result], score: Callable | None, steps: int, ridge: int,
-                 label: str, log, stride: int = 1) -> Result:
+                 label: str, log, stride: int = 1, which: tuple[int, ...] | None = None) -> Result:
     """The kept structure's ALS fit (``result``) or one of its polish ``stages`` (:func:`polish.polish_stages`
-    with ``direct``: without the ridge pairs, then with them, then with them from the ALS fit): the stage
-    of lowest validation error (``score``, the ridge stratum's, where given), kept only where its error is
-    below the ALS fit's (the same evidence as every other vote). ``selection.polish`` records the steps,
-    each stage's errors with its ridge pairs and start (:data:`polish.STAGE_STARTS`), the errors before
-    and after and what was kept (``kept``; ``stage``: the kept stage's index; ``ridge``, ``start``: its
-    ridge pairs and start)."""
+    with ``direct``: without the ridge pairs, then with them, then with them from the ALS fit; ``which``:
+    the index among those three of each of ``stages``, default all in order, ``(2,)`` for the plan's
+    ``polish_direct``): the stage of lowest validation error (``score``, the ridge stratum's, where given),
+    kept only where its error is below the ALS fit's (the same evidence as every other vote).
+    ``selection.polish`` records the steps, each stage's errors with its ridge pairs and start
+    (:data:`polish.STAGE_STARTS`), the errors before and after and what was kept (``kept``; ``stage``: the
+    kept stage's index among the three; ``ridge``, ``start``: its ridge pairs and start)."""
+    which = tuple(range(len(stages))) if which is None else which
     key, what = sums.scored_by(score is not None)
     before, figures = _figures(result, score), [_figures(r, score) for r in stages]
     best = int(np.argmin([f[key] for f in figures]))
     keep = figures[best][key] < before[key]
     log(f"polish of {label}: {what} {before[key]:.4g} -> " + " / ".join(f"{f[key]:.4g}" for f in figures)
-        + (f": stage {best + 1} kept" if keep else ": not kept (the validation error did not fall)"))
+        + (f": stage {which[best] + 1} kept" if keep else ": not kept (the validation error did not fall)"))
     described = [{"ridge": ridge if i else 0, "start": polish.STAGE_STARTS[i], **f}
-                 for i, f in enumerate(figures)]
+                 for i, f in zip(which, figures)]
     note = {"steps": steps, **{f"{k}_before": v for k, v in before.items()},
             **{f"{k}_after": v for k, v in figures[best].items()}, "stages": described, "rule": "vote", "kept": keep,
-            "stage": best if keep else None, "ridge": described[best]["ridge"] if keep else 0,
+            "stage": which[best] if keep else None, "ridge": described[best]["ridge"] if keep else 0,
             "start": described[best]["start"] if keep else None, "stride": int(stride)}
     return (stages[best] if keep else result).replace(selection={**result.selection, "polish": note})
 

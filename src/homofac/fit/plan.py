@@ -60,7 +60,9 @@ class Preset(NamedTuple):
     that the line and disc votes read first: the kept structure's other line size, or its disc, is fitted in
     full only where its short fit's figure is below the kept structure's (0: always fitted in full);
     ``highlight_start``: ALS sweeps of the highlight terms' own start (``advanced.linear.highlight_start``;
-    None: half the fit's sweeps)."""
+    None: half the fit's sweeps); ``polish_direct``: with ``ridge`` pairs, the polish is only the stage with them
+    straight from the ALS fit (:func:`homofac.fit.polish.polish` with ``direct``), voted against the ALS fit,
+    instead of the three stages of :func:`~homofac.fit.polish.polish_stages`."""
 
     lookups: int
     grid_count: int
@@ -82,6 +84,7 @@ class Preset(NamedTuple):
     vote_screen: int = 0
     race_continue: bool = False
     highlight_start: int | None = None
+    polish_direct: bool = False
 
 
 #: The grid directions of the presets' candidates: the off-specular reflection ``r_off`` only. On the
@@ -118,6 +121,14 @@ RACE = {"race": (10,), "race_keep": (2,), "race_margin": 0.03, "race_stride": 4}
 #: about a quarter of the preset's CPU time (docs/notes/speed.md, "balanced, sixteenth session").
 BALANCED_RACE = {**RACE, "race_keep": (1,), "race_margin": 0.0, "tolerance": 1e-3, "race_continue": True}
 
+#: ``best``'s race: ``balanced``'s, with the first round's fits on every 4th pair run to the full fit's 30 sweeps.
+#: At 16 lookups 10 sweeps misrank the candidates: on gold / forest (75 000 grid pairs, validation nrmse) the
+#: fits of ``E'+NROW x4+HFT x1``, ``E'+NROW x4+R+HW x1`` and ``E'+ROW x4+R+HFW x2`` read 0.133 / 0.117 / 0.130
+#: after 10 sweeps, 0.119 / 0.115 / 0.128 after 20 and 0.112 / 0.113 / 0.128 after 30, the order of their full
+#: fits on 300 000 pairs (0.101 / 0.104 / 0.122; on the converged truth 0.095 / 0.102 / 0.117); the race of 10
+#: sweeps kept the third (docs/notes/speed.md, "best, seventeenth session").
+BEST_RACE = {**BALANCED_RACE, "race": (30,), "race_continue": False}  # continuing not measured at 16 lookups
+
 #: ``fast`` has no polish: on the accuracy benchmark's four speed cases the polish then (a 2-step trial, then 8
 #: steps on every pair) lowered the figure on one (mirror / studio, 0.3514 unpolished against 0.3454 polished on the converged truth, +1.7 %), and the
 #: polish's off-grid pairs and Levenberg-Marquardt program were a third of the preset's time
@@ -138,10 +149,17 @@ POLISH_STRIDE = 4
 FAST_GRID_COUNT = 175_000
 
 #: The presets (names pinned). ``fast`` and ``balanced`` are the 4- and 8-lookup settings measured on
-#: the accuracy benchmark (docs/notes/sums-research.md); ``best`` the 16-lookup ones ("the quality mode" of the notes):
-#: 600 000 grid pairs (300 000 left gold / forest at 0.106 against 0.101 nrmse on the converged ground
-#: truth), 80 000 validation pairs (a ranking steadier than the candidates' differences), a line vote
-#: 32 / 4 x texture_size, tables, the disc vote, the plain objective and 20 000 ridge pairs.
+#: the accuracy benchmark (docs/notes/sums-research.md). ``best`` is ``balanced``'s machinery at 16 lookups
+#: (300 000 grid pairs, 20 000 validation pairs, one candidate fitted in full, the ALS stop at 1e-3, a polish
+#: on every 4th pair) with what the 16-lookup structures measurably need: a first round of 30 sweeps
+#: (:data:`BEST_RACE`), the tables (kept on 3 of the accuracy benchmark's 4 sixteen-lookup rows), the line
+#: vote 32 / 4 x texture_size and the disc vote (each read on a short fit first), the plain objective, and 20 000
+#: ridge pairs in every figure and in its polish: one stage of 8 Levenberg-Marquardt steps with the ridge pairs
+#: straight from the ALS fit (``polish_direct``; the stage kept on every case where three were tried:
+#: docs/notes/sums-research.md, "A third polish stage"). On gold / forest the choice among its 11 candidates is
+#: most of its accuracy: the full fits of the three leading structures on 300 000 pairs read 0.095 / 0.102 /
+#: 0.117 on the converged truth (docs/notes/speed.md, "best, seventeenth session"). Open: on plastic / city these
+#: values read 0.0669 on the truth, above ``balanced``'s 0.0599 (the sun's grazing ridge; same note, "Other cases").
 PRESETS: dict[str, Preset] = {
     "fast": Preset(lookups=4, grid_count=FAST_GRID_COUNT, validation=DEFAULT_VALIDATION, line_ratio=0, table=False,
                    disc_vote=False, nv_balance=1.0, polish=0, ridge=0, analysis=False, directions=PRESET_DIRECTIONS,
@@ -149,9 +167,9 @@ PRESETS: dict[str, Preset] = {
     "balanced": Preset(lookups=8, grid_count=GRID_COUNT, validation=DEFAULT_VALIDATION, line_ratio=0, table=False,
                        disc_vote=False, nv_balance=1.0, polish=2, ridge=0, analysis=False,
                        directions=PRESET_DIRECTIONS, polish_stride=POLISH_STRIDE, **BALANCED_RACE),
-    "best": Preset(lookups=16, grid_count=600_000, validation=80_000, line_ratio=4, table=True, disc_vote=True,
-                   nv_balance=0.0, polish=8, ridge=20_000, analysis=False, directions=PRESET_DIRECTIONS,
-                   vote_screen=RACE["race"][0], **RACE),
+    "best": Preset(lookups=16, grid_count=GRID_COUNT, validation=DEFAULT_VALIDATION, line_ratio=4, table=True,
+                   disc_vote=True, nv_balance=0.0, polish=8, ridge=20_000, analysis=False, directions=PRESET_DIRECTIONS,
+                   polish_stride=POLISH_STRIDE, polish_direct=True, vote_screen=BEST_RACE["race"][0], **BEST_RACE),
 }
 
 #: The lookup budget of ``target_error`` with sum keys but no ``max_lookups``.
@@ -193,6 +211,7 @@ class Plan:
     linear: LinearOptions | None
     polish: int  # steps of the kept structure's polish (0: none, or every candidate polished by linear.polish)
     polish_stride: int  # the polish fits every k-th grid pair and every k-th view of its off-grid pairs
+    polish_direct: bool  # the polish is only the ridge stage straight from the ALS fit (with ridge pairs)
     race: tuple[int, ...]  # ALS sweeps after which the candidates still in are ranked (empty: no race)
     race_keep: tuple[int, ...]  # at most this many continue after each round
     race_margin: float  # ... the lowest and those within this relative margin of its figure
@@ -217,7 +236,8 @@ class Plan:
                 "max_lookups": self.max_lookups,
                 "candidates": [{"label": c.label(), "structure": c.record()} for c in self.candidates],
                 "linear": None if self.linear is None else self.linear.model_dump(),
-                "polish": self.polish, "polish_stride": self.polish_stride, "ridge": self.ridge,
+                "polish": self.polish, "polish_stride": self.polish_stride, "polish_direct": self.polish_direct,
+                "ridge": self.ridge,
                 "race": {"sweeps": list(self.race), "keep": list(self.race_keep), "margin": self.race_margin,
                          "stride": self.race_stride, "continue": self.race_continue},
                 "line_sizes": list(self.line_sizes),
@@ -255,6 +275,7 @@ class Plan:
             if self.polish:
                 lines.append(f"  polish: {self.polish} Levenberg-Marquardt steps"
                              + (f", {self.ridge} ridge pairs" if self.ridge else "")
+                             + (" from the ALS fit (one stage)" if self.polish_direct else "")
                              + (f" on every {self.polish_stride}th grid pair and off-grid view"
                                 if self.polish_stride > 1 else ""))
         if len(self.line_sizes) > 1 or self.mode in ("sum", "choose"):
@@ -270,14 +291,16 @@ class Plan:
 
 def race_of(p: Preset | None, lin: LinearOptions | None, candidates: int) -> tuple[tuple[int, ...], tuple[int, ...]]:
     """The rounds of the race (sweep counts, at most how many continue after each) of preset ``p`` for
-    ``candidates`` candidates fitted with ``lin``: the preset's rounds below ``linear.iterations`` whose
-    keep is below the candidates still in (a round that would keep every one is no round); none without
-    a preset (or where the caller passes None: a target_error, a polish of every candidate, no ALS fit)."""
+    ``candidates`` candidates fitted with ``lin``: the preset's rounds below ``linear.iterations`` (a first
+    round on every ``race_stride``-th pair, k > 1, up to it: short fits of their own) whose keep is below
+    the candidates still in (a round that would keep every one is no round); none without a preset (or
+    where the caller passes None: a target_error, a polish of every candidate, no ALS fit)."""
     if p is None or lin is None:
         return (), ()
     rounds, keep, left = [], [], candidates
     for sweeps, k in zip(p.race, p.race_keep):
-        if 0 < sweeps < lin.iterations and k < left and (not rounds or sweeps > rounds[-1]):
+        below = sweeps <= lin.iterations if not rounds and p.race_stride > 1 else sweeps < lin.iterations
+        if 0 < sweeps and below and k < left and (not rounds or sweeps > rounds[-1]):
             rounds.append(int(sweeps))
             keep.append(int(k))
             left = k
@@ -430,6 +453,7 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
         steps, ridge = 0, 0
         if lin is not None and lin.ridge and not lin.polish:
             raise HomofacError(RIDGE_NEEDS_POLISH)
+    direct = bool(steps and ridge and p is not None and p.polish_direct)
     if lin is not None and lin.nv_balance and target.kind != "lighting":
         raise HomofacError(sums.NV_BALANCE_NEEDS_LIGHTING)
     hl = opts.advanced.highlights
@@ -459,7 +483,7 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
                 and any(c.highlights.terms for c in cands))
     # the line and disc votes read a short fit of the alternative first (the race's first round's sweeps and stride)
     vote_screen = (p.vote_screen if choosing and p is not None and (len(sizes) > 1 or disc) and als_fit
-                   and not lin.polish and 0 < p.vote_screen < lin.iterations else 0)
+                   and not lin.polish and 0 < p.vote_screen <= lin.iterations - (p.race_stride <= 1) else 0)
     vote_stride = int(p.race_stride) if vote_screen else 1
     quick = (f"; the alternative fitted in full only where a {vote_screen}-sweep ALS fit"
              + (f" on every {vote_stride}th training pair" if vote_stride > 1 else "")
@@ -477,8 +501,9 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
         if disc:
             votes.append(Vote("disc", ("point light", "the light's disc"), figure + " of the kept structure" + quick))
         if steps:
-            stages = ("ALS fit", "polish") + (("polish + ridge pairs", "polish + ridge pairs from the ALS fit")
-                                              if ridge else ())
+            stages = (("ALS fit", "polish + ridge pairs from the ALS fit") if direct else
+                      ("ALS fit", "polish") + (("polish + ridge pairs", "polish + ridge pairs from the ALS fit")
+                                               if ridge else ()))
             votes.append(Vote("polish", stages, figure + "; the polish is kept only where it falls"))
     env = getattr(target.fn, "env", None)
     res = (getattr(env, "info", None) or {}).get("resolution") if env is not None else None
@@ -490,7 +515,7 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
                 sampling=kind, grid_count=grid_count(opts), validation=validation_count(opts),
                 light_resolution=int(res) if res else None, validation_light=vlight, max_lookups=budget if choosing else None,
                 candidates=cands, linear=lin, polish=int(steps or 0),
-                polish_stride=int(p.polish_stride) if steps else 1, ridge=int(ridge or 0),
+                polish_stride=int(p.polish_stride) if steps else 1, polish_direct=direct, ridge=int(ridge or 0),
                 race=race, race_keep=race_keep, race_margin=float(p.race_margin) if race else 0.0,
                 race_stride=int(p.race_stride) if race else 1,
                 race_continue=bool(race and p.race_stride > 1 and p.race_continue),
