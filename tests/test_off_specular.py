@@ -247,10 +247,11 @@ def test_max_lookups_draws_grid_pairs_per_direction_and_keeps_the_chosen_structu
     assert only.solver["nv_balance"] == 0.0  # given: kept
 
 
-def test_a_budget_above_balanced_draws_best_s_grid_pairs_unless_the_count_is_given():
-    """A chooser budget above balanced's takes the ``best`` preset's grid count (more pairs than
-    ``balanced``'s); a given count, balanced's budget or one structure keep theirs; the memory estimate
-    reads the same count (behaviour, not the presets' numbers: those are tuned in fit/plan.py)."""
+def test_a_budget_above_balanced_draws_best_s_grid_pairs_unless_the_count_is_given(monkeypatch):
+    """A chooser budget above balanced's takes the ``best`` preset's grid count; a given count, balanced's
+    budget or one structure keep theirs; the memory estimate reads the same count (behaviour, not the
+    presets' numbers: those are tuned in fit/plan.py, so ``best``'s count is set apart from balanced's here)."""
+    monkeypatch.setitem(plan.PRESETS, "best", plan.PRESETS["best"]._replace(grid_count=2 * plan.PRESETS["balanced"].grid_count))
     q = plan.budget_of(FitOptions(preset="balanced"))
     best = plan.grid_count(FitOptions(preset="best"))
     assert best > plan.grid_count(FitOptions(preset="balanced"))
@@ -266,10 +267,11 @@ def test_a_budget_above_balanced_draws_best_s_grid_pairs_unless_the_count_is_giv
     assert large["samples"] > small["samples"]
 
 
-def test_a_budget_above_balanced_ranks_on_best_s_validation_pairs_unless_their_count_is_given():
+def test_a_budget_above_balanced_ranks_on_best_s_validation_pairs_unless_their_count_is_given(monkeypatch):
     """A chooser budget above balanced's ranks on the ``best`` preset's validation count; a given count
     (even the default's value, or 0), balanced's budget or one structure keep theirs; resolve_sampling and
-    the memory estimate agree."""
+    the memory estimate agree (``best``'s count set apart from the default's here, as above)."""
+    monkeypatch.setitem(plan.PRESETS, "best", plan.PRESETS["best"]._replace(validation=4 * DEFAULT_VALIDATION))
     q = plan.budget_of(FitOptions(preset="balanced"))
     default = DEFAULT_VALIDATION
     best = plan.validation_count(FitOptions(preset="best"))
