@@ -94,8 +94,9 @@ def _clipped(n: Float[Array, "B 3"], p: Float[Array, "4 3 B K"], moment: bool = 
     pts = [tuple(p[i, c] for c in range(3)) for i in range(4)]
     # A corner within rounding of the horizon is on it: compiled programs round n . p of a corner on the
     # horizon to +-1e-8 with signs that need not agree between the corner's classification and its
-    # crossing, which made texel edges lying on the horizon (n = (1, 1, 0) / sqrt(2) at cube edges) sum to
-    # 10x pi. On the horizon exactly, every case below is exact (a crossing at a corner is that corner).
+    # crossing, which made rows whose horizon runs along texel edges (n = (1, 1, 0) / sqrt(2) at cube edges) sum
+    # to 8-40 instead of pi. On the horizon exactly, every case below is exact (a crossing at a corner is that
+    # corner).
     tol = HORIZON_ULPS * jnp.finfo(n.dtype).eps
     s = [jnp.where(jnp.abs(v) <= tol, 0.0, v) for v in (_dot3(nv, q) for q in pts)]
     total = 0.0
