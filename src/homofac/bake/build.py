@@ -77,6 +77,31 @@ BLOCK_OVERSAMPLE = 4
 BLOCK_LIGHTS_MAX = 256
 
 
+class _Clock:
+    """Per-stage wall and CPU (``time.process_time``: every thread of the process) seconds: ``timings[stage_s]``
+    and ``timings[stage_cpu_s]``, summed over the stage's intervals. CPU is what compares across machine loads
+    (docs/notes/bake.md, "Bake time, eighteenth session")."""
+
+    def __init__(self):
+        self.timings: dict[str, float] = {}
+        self._wall0, self._cpu0 = time.perf_counter(), time.process_time()
+        self._stage: str | None = None
+
+    def __call__(self, stage: str | None) -> None:
+        """End the running stage (if any) and start ``stage`` (None: stop)."""
+        wall, cpu = time.perf_counter(), time.process_time()
+        if self._stage is not None:
+            for key, now, then in ((f"{self._stage}_s", wall, self._wall), (f"{self._stage}_cpu_s", cpu, self._cpu)):
+                self.timings[key] = self.timings.get(key, 0.0) + now - then
+        self._stage, self._wall, self._cpu = stage, wall, cpu
+
+    def total(self) -> dict[str, float]:
+        """The timings with ``total_s`` and ``total_cpu_s`` since the clock was made."""
+        self(None)
+        return {**self.timings, "total_s": time.perf_counter() - self._wall0,
+                "total_cpu_s": time.process_time() - self._cpu0}
+
+
 def fibonacci(count: int) -> np.ndarray:
     """``count`` near-uniform unit directions (the Fibonacci sphere), (count, 3)."""
     i = np.arange(count) + 0.5
@@ -379,8 +404,8 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
     """Bake ``environment`` (a lat-long EXR/HDR path, a cube map, a bundled name such as ``"forest"``, or an
     :class:`Environment`) for every glTF metallic-roughness material (see the module docstring)."""
     opts = options if isinstance(options, BakeOptions) else validate(BakeOptions, {**(options or {}), **kwargs}, "bake")
-    t0 = time.perf_counter()
-    timings: dict[str, float] = {}
+    clock = _Clock()
+    clock("load")
     max_size = int(opts.max_size or source_size(environment))
     pl = make_plan(opts.preset, max_size=max_size, min_roughness=opts.min_roughness, nv_size=opts.nv_size,
                    diffuse_size=opts.diffuse_size, layers=opts.layers, terms=opts.terms, diffuse_basis=opts.diffuse,
@@ -399,10 +424,9 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
     x = kn.nv_centres(pl.nv_size)
     data_env = lights(opts.data_resolution)
     dirs = fibonacci(opts.samples)
-    timings["load_s"] = time.perf_counter() - t0
 
     # diffuse: I_d ~ sum_d E_d(n) w_d(n.v)
-    t = time.perf_counter()
+    clock("diffuse")
     kd = kn.diffuse_kernels(x)
     kds = kn.smooth(kd, texel_radius(data_env))
     yd = normalized(*prefilter(kds, dirs, data_env), kn.mass(kds))  # (M, X, 3)
@@ -413,12 +437,10 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
     e, den = prefilter(ke, e_dirs, env_e)  # (T, D, 3)
     e = normalized(e, den[:, 0], kn.mass(ke)[0])
     E = e.reshape(pl.diffuse_size, 6 * pl.diffuse_size, pl.diffuse, 3).astype(np.float32)
-    timings["diffuse_s"] = time.perf_counter() - t
 
     # specular layers
     P, W, shifts, previous = [None] * pl.layers, [None] * pl.layers, [0.0] * pl.layers, None
     H, Hw, previous_h = [None] * pl.layers, [np.zeros(2 * len(x))] * pl.layers, None
-    timings["kernels_s"] = timings["weights_s"] = timings["maps_s"] = 0.0
     # the sharp layers (lobe at most half a texel of the largest map) share one block, computed at the sharpest
     # (the environment at the block's detail, as a mip chain's level 0)
     order = ([0] if shared[0] else []) + [j for j in range(pl.layers) if not shared[j]]
@@ -426,30 +448,27 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
     for j in order:
         rho, s = roughness[j], sizes[j]
         env_j = lights(block_lights(s) if shared[j] else max(s, MIN_LIGHTS))
-        t = time.perf_counter()
+        clock("kernels")
         exact = kn.albedos(rho, x)
-        timings["kernels_s"] += time.perf_counter() - t
         best = None
         for cand in (0.0,) if shared[j] else shift_candidates(rho):
-            t = time.perf_counter()
-            k_c = kn.calibrate(kn.specular_kernels(rho, x, shift=cand), exact).reshape(2 * len(x), -1)  # rows (A, x..), (B, x..)
-            timings["kernels_s"] += time.perf_counter() - t
-            t = time.perf_counter()
+            clock("kernels")
+            k_s, k_2 = kn.lobe_kernels(rho, x, shift=cand)
+            k_c = kn.calibrate(k_s, exact).reshape(2 * len(x), -1)  # rows (A, x..), (B, x..)
+            clock("maps")
             fit = layer_fit(kn.smooth(k_c, texel_radius(env_j)), s, env_j, kept[j], DATA_SIZE,
                             np.concatenate([exact[0], exact[1]]) if shared[j] else None,
                             coarse=None if shared[j] else lights(MIN_LIGHTS))
-            timings["maps_s"] += time.perf_counter() - t
             if best is None or fit[3] > best[2][3]:
-                best = (cand, k_c, fit)
-        shift, _, (v, wt, p, _) = best
+                best = (cand, k_c, fit, k_2)
+        shift, _, (v, wt, p, _), _ = best
         if kept[j] < pl.terms:  # the K-th product's channels stay 0 (the harmonic's in a mixed plan)
             v, wt = (np.concatenate([a, np.zeros((len(a), pl.terms - kept[j]))], 1) for a in (v, wt))
             p = np.concatenate([p, np.zeros((len(p), pl.terms - kept[j], 3))], 1)
-        t = time.perf_counter()
+        clock("weights")
         rot = _align(v, previous) if kept[j] == pl.terms else np.eye(pl.terms)
         v, wt, p = v @ rot, wt @ rot, np.einsum("tkc,kl->tlc", p, rot)
         previous = v
-        timings["weights_s"] += time.perf_counter() - t
         if shared[j]:
             # P_0 = Y v reads m.v under a constant environment (m the kernels' masses): layer i's weights are its
             # albedos over m.v, so P_0 w_i reads the albedos of layer i exactly; further terms 0
@@ -466,14 +485,12 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
         P[j] = p.reshape(s, 6 * s, pl.terms, 3).astype(np.float32)
         W[j], shifts[j] = wt, float(shift)
         if j in pl.harmonic_layers():
-            t = time.perf_counter()
-            k2 = kn.harmonic_kernels(rho, x, shift=shift).reshape(2 * len(x), -1)
-            timings["kernels_s"] += time.perf_counter() - t
-            t = time.perf_counter()
+            clock("harmonic")
+            k2 = best[3].reshape(2 * len(x), -1)  # the chosen shift's second harmonics (:func:`kn.lobe_kernels`)
             ref = kn.smooth(best[1], texel_radius(env_j)).sum(0)
             previous_h, Hw[j], m = harmonic_fit(k2, ref, s, env_j, DATA_SIZE, lights(MIN_LIGHTS), previous_h)
             H[j] = m.reshape(s, 6 * s, 5).astype(np.float32)
-            timings["harmonic_s"] = timings.get("harmonic_s", 0.0) + time.perf_counter() - t
+    clock("weights")
     W = [np.stack([v[: len(x)], v[len(x):]], axis=-1).reshape(len(x), 2 * pl.terms) for v in W]  # a_k, b_k interleaved
     w = np.stack(W)  # (L, X, 2K)
     wd = np.broadcast_to(vd[None], (pl.layers, len(x), pl.diffuse))
@@ -483,10 +500,9 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
         for j in pl.harmonic_layers():
             w[j, :, 2 * pl.terms - 2:] = hw[j]
     table = np.concatenate([w, wd] + ([np.stack(hw)] if hw and not pl.mixed else []), axis=-1).astype(np.float32)
-    t = time.perf_counter()
+    clock("sh9")
     sh = sh9(original(opts.data_resolution))  # the environment's irradiance, source included
-    timings["sh9_s"] = time.perf_counter() - t
-    timings["total_s"] = time.perf_counter() - t0
+    timings = clock.total()
     info = {"sh9": sh.document(), "source": str(getattr(environment, "info", {}).get("source", environment)) if isinstance(environment, Environment)
             else str(_path(environment)), "options": opts.model_dump(), "sizes": sizes,
             "data_resolution": int(data_env.info.get("resolution", 0)), "timings": timings,

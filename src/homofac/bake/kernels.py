@@ -76,21 +76,17 @@ def _cone_lobes(rough, x, gamma, shift):
 
 
 @jax.jit
-def _specular(rough, x, gamma, shift):
-    """(2, X, G): the azimuth means of the lobes (1 - s5) S and s5 S times max(n.l, 0) about the axis
-    a = normalize((1 - s) r + s n) (= r for s = 0; the lobe's dominant direction leans from r to n), a = +z."""
-    ga, gb, _ = _cone_lobes(rough, x, gamma, shift)
-    return jnp.stack([jnp.mean(ga, -1), jnp.mean(gb, -1)]).reshape(2, x.shape[0], gamma.shape[0])
-
-
-@jax.jit
-def _harmonic(rough, x, gamma, shift):
-    """(2, X, G): the second azimuthal Fourier coefficients k_2(gamma) = (1/pi) int g cos(2 omega) domega of the
-    lobes (1 - s5) S and s5 S times max(n.l, 0) about the axis a (omega the light's azimuth about a from the
-    plane of incidence): the lobe's elongation in (or across) that plane."""
+def _lobes(rough, x, gamma, shift):
+    """(2, 2, X, G): [0] the azimuth means of the lobes (1 - s5) S and s5 S times max(n.l, 0) about the axis
+    a = normalize((1 - s) r + s n) (= r for s = 0; the lobe's dominant direction leans from r to n), a = +z;
+    [1] their second azimuthal Fourier coefficients k_2(gamma) = (1/pi) int g cos(2 omega) domega (omega the
+    light's azimuth about a from the plane of incidence): the lobe's elongation in (or across) that plane.
+    One program for both (a process's first bake compiles it once)."""
     ga, gb, phi = _cone_lobes(rough, x, gamma, shift)
     c2 = 2.0 * jnp.cos(2.0 * phi)
-    return jnp.stack([jnp.mean(ga * c2, -1), jnp.mean(gb * c2, -1)]).reshape(2, x.shape[0], gamma.shape[0])
+    mean = jnp.stack([jnp.mean(ga, -1), jnp.mean(gb, -1)])
+    second = jnp.stack([jnp.mean(ga * c2, -1), jnp.mean(gb * c2, -1)])
+    return jnp.stack([mean, second]).reshape(2, 2, x.shape[0], gamma.shape[0])
 
 
 @jax.jit
@@ -106,23 +102,28 @@ def _diffuse(x, gamma):
     return jnp.mean(gd * jnp.where(above, l[2], 0.0), -1)
 
 
+def lobe_kernels(roughness: float, x: np.ndarray, nodes: int = TABLE_NODES, shift: float = 0.0
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """``(K (2, X, nodes), k_2 (2, X, nodes))``: :func:`specular_kernels` and :func:`harmonic_kernels` of one
+    roughness and shift from one evaluation of the lobes (float64)."""
+    gamma = 2.0 * np.arcsin(q_grid(nodes))
+    with jax.enable_x64(True):
+        out = _lobes(jnp.float64(roughness), jnp.asarray(x, jnp.float64), jnp.asarray(gamma), jnp.float64(shift))
+    out = np.asarray(out, np.float64)
+    return out[0], out[1]
+
+
 def specular_kernels(roughness: float, x: np.ndarray, nodes: int = TABLE_NODES, shift: float = 0.0) -> np.ndarray:
     """``(2, X, nodes)``: K^A_x and K^B_x (lobes (1 - s5) S and s5 S) at the table nodes (float64), about the
     axis normalize((1 - shift) r + shift n)."""
-    gamma = 2.0 * np.arcsin(q_grid(nodes))
-    with jax.enable_x64(True):
-        out = _specular(jnp.float64(roughness), jnp.asarray(x, jnp.float64), jnp.asarray(gamma), jnp.float64(shift))
-    return np.asarray(out, np.float64)
+    return lobe_kernels(roughness, x, nodes, shift)[0]
 
 
 def harmonic_kernels(roughness: float, x: np.ndarray, nodes: int = TABLE_NODES, shift: float = 0.0) -> np.ndarray:
     """``(2, X, nodes)``: the second harmonics k^A_2, k^B_2 of the lobes about the axis
-    normalize((1 - shift) r + shift n) (:func:`_harmonic`), at the table nodes (float64): the lobe is
+    normalize((1 - shift) r + shift n) (:func:`_lobes`), at the table nodes (float64): the lobe is
     K_x(gamma) + k_2(gamma) cos(2 omega) + (odd and higher harmonics)."""
-    gamma = 2.0 * np.arcsin(q_grid(nodes))
-    with jax.enable_x64(True):
-        out = _harmonic(jnp.float64(roughness), jnp.asarray(x, jnp.float64), jnp.asarray(gamma), jnp.float64(shift))
-    return np.asarray(out, np.float64)
+    return lobe_kernels(roughness, x, nodes, shift)[1]
 
 
 def albedos(roughness: float, x: np.ndarray, n: int = 128) -> np.ndarray:
@@ -189,5 +190,5 @@ def support(kernel: np.ndarray, fraction: float = 0.999) -> float:
     return float(2.0 * np.arcsin(q[min(idx + 1, len(q) - 1)]))
 
 
-__all__ = ["PHI_NODES", "TABLE_NODES", "albedos", "calibrate", "diffuse_kernels", "harmonic_kernels", "mass", "nv_centres", "q_grid", "smooth",
+__all__ = ["PHI_NODES", "TABLE_NODES", "albedos", "calibrate", "diffuse_kernels", "harmonic_kernels", "lobe_kernels", "mass", "nv_centres", "q_grid", "smooth",
            "specular_kernels", "support"]
