@@ -5,6 +5,10 @@ lighting is the converged reference (:mod:`homofac.light.reference`: MIS, float6
 image moves by < ``--tolerance``; tests/threejs/scene.py ``exact_lighting``). Writes benchmarks/threejs.json
 and docs/benchmarks/threejs.md; ``python benchmarks/pages.py`` also puts the rows into docs/benchmarks/bake.md
 as "three.js PMREM". ``--preset fast --json benchmarks/threejs_fast.json`` adds the fast bake's table to both pages.
+Each row also has ``seams`` (tests/threejs/scene.py ``seams``): the render's error, against the CPU's
+``Bake.evaluate`` and against the exact lighting, at the pixels whose reads lie within a texel of a cube face's
+(and atlas block's) edge and on boundaries between texels, beside the interior and the texel centres; and
+``layout``, the atlas blocks the page read.
 
     PYTHONPATH=src python benchmarks/threejs.py [--envs forest city] [--preset balanced] [--size 128]
         [--samples 4096] [--tolerance 0.005]
@@ -27,7 +31,7 @@ sys.path[:0] = [str(HERE), str(HERE.parent / "tests"), str(HERE.parent / "tests"
 
 import homofac as hf  # noqa: E402
 from pages import BANDS, threejs_page, threejs_runs  # noqa: E402
-from scene import nrmse, render  # noqa: E402
+from scene import nrmse, render, seams  # noqa: E402
 
 #: Texture fetches of three's MeshStandardMaterial under PMREM (r187, counted as bake.lookups counts them: a
 #: textureLod counts 1): getIBLRadiance one trilinear textureLod of the PMREM cube, getIBLIrradiance one (its
@@ -59,6 +63,7 @@ def main() -> None:
             t = time.perf_counter()
             out = render(env, bake, Path(work), a.size, a.samples, a.tolerance)
             render_s = time.perf_counter() - t
+            seam = seams(out, hf.load(Path(work) / "bake"))  # the bake the page read
         if a.save:
             Path(a.save).mkdir(parents=True, exist_ok=True)
             np.savez(Path(a.save) / f"{env}.npz", **{k: out[k] for k in ("pmrem", "homofac", "mask", "n", "v", "base",
@@ -70,7 +75,10 @@ def main() -> None:
                "texture_bytes": {"homofac": int(bake.texture_bytes()), "homofac_rgba": int(bake.texture_bytes()) * 4 // 3,
                                  "pmrem": out["pmrem_bytes"]},
                "pmrem_cube": {"size": out["pmrem_size"], "levels": out["pmrem_levels"]},
-               "nrmse": {k: nrmse(out, k) for k in ("pmrem", "homofac")}, "bands": []}
+               "nrmse": {k: nrmse(out, k) for k in ("pmrem", "homofac")}, "bands": [], "seams": seam,
+               "layout": {"texture_bytes": int(bake.texture_bytes()),
+                          "blocks": [list(map(int, atlas.sizes)) for atlas in bake.atlases],
+                          "diffuse_size": int(np.shape(bake.E)[0])}}
         for lo, hi in BANDS:
             sel = (r >= lo) & (r < hi)
             if sel.sum():

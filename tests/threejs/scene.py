@@ -29,6 +29,7 @@ from browser import chromium, serve
 from homofac.light.integrals import material_radiance
 from homofac.light.reference import reference_integrals, source_map
 from homofac.light.sources import bundled
+from homofac.param import mappers
 
 ROOT = Path(__file__).resolve().parents[2]
 ASSET = ROOT / "src" / "homofac" / "data" / "assets" / "material_sphere.glb"
@@ -123,6 +124,57 @@ def render(env_name: str, bake, work: Path, size: int, reference_samples: int = 
     out["exact"], out["reference"] = exact_lighting(latlong, env_name, out["n"], out["v"], out["base"], out["metallic"],
                                                     out["roughness"], samples=reference_samples, tolerance=tolerance)
     return out
+
+
+def edge_texels(bake, n: np.ndarray, v: np.ndarray, roughness: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where each pixel's texture reads fall on the bake's cube faces, in texels of the block read:
+    ``(edge (N,), texel (N,))``. ``edge``: the smallest distance, over every cube read of the pixel (each
+    specular map of the two layers it blends, at the axis a_j = normalize((1 - s_j) r + s_j n) and at the map's
+    block size in its atlas; E_d at n), from the read's continuous texel coordinate to the face's last texel
+    centre (< 0: the read is clamped there, inside the last half texel: both the cube-face seams and the atlas
+    blocks' edges, since a block's faces are laid side by side). ``texel``: the largest distance of a read's
+    coordinate from the nearest texel centre (0.5: on a boundary between texels, where bilinear weights cross
+    over), for the read that carries most of the pixel: P_1 of the nearer layer."""
+    m = mappers.get("cube")
+    n, v = np.asarray(n, np.float64), np.asarray(v, np.float64)
+    x = np.sum(n * v, -1, keepdims=True)
+    r = 2.0 * x * n - v
+    u = np.asarray(bake.layer_coordinate(roughness), np.float64)
+    reads = []
+    for j, shift in enumerate(bake.shift):
+        on = np.abs(u - j) < 1.0
+        a = (1.0 - shift) * r + shift * n
+        a = a / np.maximum(np.linalg.norm(a, axis=-1, keepdims=True), 1e-12)
+        for i, atlas in enumerate(bake.atlases):
+            reads.append((a, atlas.sizes[j], on, (np.round(u) == j) & (i == 0)))
+    reads.append((n, int(np.shape(bake.E)[0]), np.ones(len(n), bool), np.zeros(len(n), bool)))
+    edge = np.full(len(n), np.inf)
+    texel = np.zeros(len(n))
+    for d, size, on, main in reads:
+        _, fu, fv = (np.asarray(c, np.float64) for c in m.to_face_uv(d))
+        c = np.stack([fu * size - 0.5, fv * size - 0.5], -1)  # continuous texel coordinates in the face
+        dist = np.min(np.minimum(c, size - 1 - c), -1)
+        frac = np.max(np.abs(c - np.round(c)), -1)
+        edge = np.where(on, np.minimum(edge, dist), edge)
+        texel = np.where(main, frac, texel)
+    return edge, texel
+
+
+def seams(out: dict, bake) -> dict:
+    """The rendered image's error at the pixels whose reads lie on the bake's face and block seams (``edge`` <
+    0.5: within a texel of a face's edge, :func:`edge_texels`) and on boundaries between texels (``texel`` >
+    0.4), against the interior (``edge`` >= 1.5) and texel centres (``texel`` < 0.1): nrmse of the render
+    against the CPU's ``bake.evaluate`` (``gpu_cpu``) and of both against the exact lighting (``gpu_exact``,
+    ``cpu_exact``), and each class's pixel count."""
+    edge, texel = edge_texels(bake, out["n"], out["v"], out["roughness"])
+    got, cpu, exact = out["homofac"][out["mask"]][:, :3], out["bake"], out["exact"]
+
+    def err(a, e, sel):
+        return float(np.linalg.norm(a[sel] - e[sel]) / max(np.linalg.norm(e[sel]), 1e-30)) if sel.any() else float("nan")
+
+    classes = {"face_edge": edge < 0.5, "interior": edge >= 1.5, "texel_boundary": texel > 0.4, "texel_centre": texel < 0.1}
+    return {k: {"pixels": int(sel.sum()), "gpu_cpu": err(got, cpu, sel), "gpu_exact": err(got, exact, sel),
+                "cpu_exact": err(cpu, exact, sel)} for k, sel in classes.items()}
 
 
 def nrmse(out: dict, kind: str, select=None) -> float:
