@@ -31,7 +31,7 @@ from browser import chromium, console_problems, missing, serve, wait_for
 from homofac.light.sources import bundled
 
 sys.path.insert(0, str(Path(__file__).resolve().parent / "threejs"))
-from scene import ROOT, nrmse, render  # noqa: E402  (tests/threejs is not a package)
+from scene import ROOT, edge_texels, nrmse, render, seams  # noqa: E402  (tests/threejs is not a package)
 
 SIZE = 64
 ENV = "forest"
@@ -152,3 +152,28 @@ def test_a_bake_with_the_harmonic_renders_in_three_as_bake_evaluate(tmp_path):
     want = np.clip(out["bake"] * out["exposure"], 0, 1) * 255
     got = out["canvas"][out["mask"]][:, :3].astype(np.float64)
     assert np.percentile(np.abs(got - want), 99.9) <= 2.0, np.percentile(np.abs(got - want), [50, 99, 99.9, 100])
+
+
+def test_the_render_equals_bake_evaluate_on_face_and_block_seams(tmp_path):
+    """The schema-5 layout (``balanced``: P_2 in blocks of half the layer's face, one shared zero block, E_d at 16)
+    in three: at the pixels whose reads lie within half a texel of a cube face's edge (where the read is clamped
+    to the face, and where the atlas blocks meet; scene.edge_texels) and on boundaries between texels, the
+    drop-in's render equals ``Bake.evaluate`` as closely as at the interior and the texel centres."""
+    if not (ROOT / "js" / "node_modules" / "three").is_dir():
+        missing("js/node_modules/three is missing (make js-packages)")
+    bake = hf.bake(ENV, preset="balanced", max_size=32, data_resolution=8, samples=256)
+    out = render(ENV, bake, tmp_path, SIZE, REFERENCE_SAMPLES)
+    loaded = hf.load(tmp_path / "bake")
+    assert out["setup"] is True and out["lookups"][0] == loaded.lookups
+    sizes = loaded.atlases[1].sizes
+    assert any(s < p.shape[0] for s, p in zip(sizes, loaded.P)), sizes  # blocks smaller than their layer's face
+    s = seams(out, loaded)
+    print(json.dumps(s))
+    for seam, inner in (("face_edge", "interior"), ("texel_boundary", "texel_centre")):
+        assert s[seam]["pixels"] >= 100 and s[inner]["pixels"] >= 100, s
+        assert s[seam]["gpu_cpu"] <= 2.0 * s[inner]["gpu_cpu"] + 2e-3, (seam, s)
+    edge, _ = edge_texels(loaded, out["n"], out["v"], out["roughness"])
+    want = np.clip(out["bake"] * out["exposure"], 0, 1) * 255
+    got = out["canvas"][out["mask"]][:, :3].astype(np.float64)
+    diff = np.abs(got - want)[edge < 0.5]
+    assert np.percentile(diff, 99.9) <= 2.0, np.percentile(diff, [50, 99, 99.9, 100])

@@ -21,6 +21,10 @@ from . import kernels as kn
 #: Directions per lax.map step.
 CHUNK = 128
 
+#: :func:`prefilter` filters more than this many chunks of directions in calls of this many (the last padded):
+#: the program then does not depend on the direction count (a bake's first process compiled one per count).
+BLOCK_CHUNKS = 3
+
 
 #: The kernel tables of one filter call are padded to a multiple of this (zero tables, never read): calls with
 #: 2 to 40 tables run one compiled program per direction and light count.
@@ -74,8 +78,16 @@ def _power(env: Environment) -> np.ndarray:
 def prefilter(tables: np.ndarray, dirs: np.ndarray, env: Environment, chunk: int = CHUNK) -> tuple[np.ndarray, np.ndarray]:
     """The J kernels ``tables`` (J, G) applied to ``env`` at directions ``dirs`` (N, 3): ``(N, J, 3)``, and the
     discrete masses ``sum_k dw_k kappa_j`` (N, J) of the same sums (the quadrature check of :func:`normalized`)."""
-    out = np.asarray(_filter(*_padded(tables), np.asarray(dirs, np.float32), np.asarray(env.directions, np.float32),
-                             _power(env), int(min(chunk, max(1, len(dirs))))), np.float64)[:, :len(tables)]
+    padded, j = _padded(tables)
+    d = np.asarray(dirs, np.float32)
+    block = BLOCK_CHUNKS * chunk
+    if len(d) > block:  # fixed blocks of directions: one program per light count and table count, whatever N
+        d = np.concatenate([d, np.broadcast_to(d[:1], ((-len(d)) % block, 3))])
+    else:
+        chunk = int(min(chunk, max(1, len(d))))
+    lights, power = np.asarray(env.directions, np.float32), _power(env)
+    out = np.concatenate([np.asarray(_filter(padded, j, d[i:i + block], lights, power, chunk), np.float64)
+                          for i in range(0, len(d), block)])[:len(dirs), :len(tables)]
     return out[..., :3], out[..., 3]
 
 

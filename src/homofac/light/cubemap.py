@@ -129,6 +129,16 @@ def cube_strip(a: np.ndarray, source: str) -> np.ndarray:
     raise HomofacError(f"{source}: cube map must be a 6:1 (S x 6S) or 1:6 (6S x S) strip, got {w}x{h}")
 
 
+@functools.lru_cache(maxsize=4)
+def _texel_geometry(r: int) -> tuple:
+    """``(corners (6 r^2, 4, 3), moments)`` of the cube texels of face ``r`` as jax float32 arrays (immutable):
+    they depend on ``r`` only, and a bake loads the same resolution several times (the 256 face's corners and
+    moments took about 1 s of CPU each time)."""
+    d, w = cube_texels(r)
+    corners = cube_corners(r)
+    return jnp.asarray(corners.astype(np.float32)), moments_of(d, w, corners)
+
+
 def finish(
     radiance: np.ndarray, r: int, info: dict, lights: Sequence[dict], energy_before: np.ndarray | None
 ) -> Environment:
@@ -144,13 +154,14 @@ def finish(
         energy_before=[float(x) for x in (after if energy_before is None else energy_before)],
         energy_after=[float(x) for x in after],
     )
+    corners, moments = _texel_geometry(r)
     env = Environment(
         directions=jnp.asarray(d.astype(np.float32)),
         radiance=jnp.asarray(rad32),
         solid_angle=jnp.asarray(w32),
         info=info,
-        corners=jnp.asarray(cube_corners(r).astype(np.float32)),
-        moments=moments_of(d, w, cube_corners(r)),
+        corners=corners,
+        moments=moments,
     )
     env = with_lights(env, lights)
     check_power(np.asarray(env.radiance, np.float64), np.asarray(env.solid_angle, np.float64), info["source"])
