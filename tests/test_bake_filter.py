@@ -62,3 +62,23 @@ def test_a_call_reads_each_table_alone():
     near, _ = prefilter_cube(tables[:5], 8, fine, 0.05, tile=2)
     one, _ = prefilter_cube(tables[2:3], 8, fine, 0.05, tile=2)
     assert near.shape == (len(dirs), 5, 3) and np.allclose(one[:, 0], near[:, 2], rtol=1e-5, atol=0)
+
+
+def test_the_culled_filter_sums_every_light_inside_the_kernels_support():
+    """prefilter_cube reads, per tile, only the light bins within the tile's cone (filter._groups): for kernels
+    that are 0 beyond ``support`` it gives the all-lights sums, at tile sizes 4 and 8, and the bins do hold fewer
+    lights than the whole map (the culled path runs)."""
+    from homofac.bake.filter import _groups
+
+    env = hf.light.load_environment("city", 32)
+    size, support = 16, 0.2
+    tables = np.stack([taper(kn.TABLE_NODES, support / 2), taper(kn.TABLE_NODES, support / 4)])  # 0 beyond support
+    dirs = mappers.texel_directions("cube", size).reshape(-1, 3)
+    full, full_den = prefilter(tables, dirs, env)
+    groups, centres, radius = _groups(np.asarray(env.directions))
+    assert groups.shape[1] == 16 and 0 < radius < 0.15, (groups.shape, radius)
+    for tile in (4, 8):
+        culled, den = prefilter_cube(tables, size, env, support, tile=tile)
+        scale = np.abs(full).max()
+        assert np.allclose(culled, full, rtol=1e-4, atol=1e-5 * scale), np.abs(culled - full).max() / scale
+        assert np.allclose(den, full_den, rtol=1e-4, atol=1e-6)
