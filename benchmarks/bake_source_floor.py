@@ -148,7 +148,40 @@ def source_model(sources, n, v, rho, model: str) -> np.ndarray:
             wg = S / (a2 + S)
             return (wg * beckmann(a2 + ks[1] ** 2 * s2, nh, sin2) + (1 - wg) * ggx(a2 + S, nh, sin2)) / ggx(a2, nh, sin2)
         return profile_lobes(sources, n, v, rho, ratio)
+    if kind == "core":
+        return core_model(sources, n, v, rho, ks[0], ks[1])
     raise ValueError(f"unknown source model {model!r}")
+
+
+def core_model(sources, n, v, rho, k1: float, k2: float) -> np.ndarray:
+    """``core:k1:k2``: S = (k1 radius)^2 / (4 n.v), w = S / (alpha^2 + S); w of the source as a Gaussian blob about
+    its direction in light space, read at the reflected direction r with the mirror's albedos
+    (I_A: 1 - (1 - n.v)^5, I_B: (1 - n.v)^5, times 1 / (1 + 2 Lambda(n.v))): Phi exp(-t^2 / s^2) / (pi s^2), t the
+    angle of r from the source, s^2 = (k2 radius)^2 + 4 n.v alpha^2 (the source's radial RMS^2 and the lobe's in
+    light space); 1 - w of it as the point light's lobe with D at alpha^2 + S (GGX's own tail exactly)."""
+    n64, v64 = np.asarray(n, np.float64), np.asarray(v, np.float64)
+    x = np.maximum(np.sum(n64 * v64, 1), 1e-6)
+    r = 2 * x[:, None] * n64 - v64
+    a2 = np.asarray(rho, np.float64) ** 4
+    out = np.zeros((len(x), 3, 3))
+    for src in sources:
+        S = (k1 * src.radius) ** 2 / (4 * x)
+        wg = S / (a2 + S)
+        ell = np.asarray(src.direction, np.float64)
+        nl = n64 @ ell
+        wide = profile_lobes((src._replace(radius=k1 * src.radius),), n, v, rho,
+                             lambda a2_, s2, nh, sin2: ggx(a2_ + s2, nh, sin2) / ggx(a2_, nh, sin2))
+        t2 = np.arccos(np.clip(r @ ell, -1, 1)) ** 2
+        s2 = (k2 * src.radius) ** 2 + 4 * x * a2
+        lam = 0.5 * (np.sqrt(1 + a2 * (1 - x * x) / (x * x)) - 1)
+        blob = np.exp(-t2 / s2) / (np.pi * s2) / (1 + 2 * lam) * ((nl > 0) & (np.sum(n64 * v64, 1) > 0))
+        s5 = (1 - x) ** 5
+        core = np.stack([np.zeros_like(x), (1 - s5) * blob, s5 * blob], 1)[:, :, None] * np.asarray(src.power)[None, None, :]
+        part = wide.copy()
+        part[:, 1:] *= (1 - wg)[:, None, None]
+        part[:, 1:] += wg[:, None, None] * core[:, 1:]
+        out += part
+    return out
 
 
 def breakdown(maps, analytic, ref, refc, c, m, w) -> dict:
@@ -205,3 +238,55 @@ def main(argv=None):
 
 if __name__ == "__main__":
     main()
+
+
+def source_shape(env, source) -> tuple[np.ndarray, np.ndarray]:
+    """``(axes (2, 3), sigma2 (2,))``: the principal axes of the source's power-weighted covariance in the plane
+    normal to its direction, over the core of :func:`homofac.bake.sources.brightest_source` on ``env``, and
+    2 x the variance along each (a Gaussian exp(-sum (t.e_i)^2 / sigma2_i) has that covariance)."""
+    d = np.asarray(env.directions, np.float64)
+    rad = np.asarray(env.radiance, np.float64)
+    dw = np.asarray(env.solid_angle, np.float64)
+    lum = rad @ np.asarray(LUMINANCE, np.float64)
+    seed = int(np.argmax(lum))
+    cos = d @ d[seed]
+    core = (cos > np.cos(RADIUS)) & (lum >= lum[seed] / RATIO)
+    outer = max(2 * RADIUS, RADIUS + 2 * float(np.sqrt(dw.max())))
+    ring = (cos <= np.cos(RADIUS)) & (cos > np.cos(outer))
+    fill = (rad[ring] * dw[ring, None]).sum(0) / dw[ring].sum()
+    wgt = np.maximum(rad[core] - fill, 0.0) * dw[core, None] @ np.asarray(LUMINANCE, np.float64)
+    ell = np.asarray(source.direction, np.float64)
+    p = d[core] - (d[core] @ ell)[:, None] * ell
+    cov = (p * wgt[:, None]).T @ p / wgt.sum()
+    val, vec = np.linalg.eigh(cov)
+    return vec[:, 1:].T, 2 * val[1:]
+
+
+def aniso_model(sources, shapes, n, v, rho, k1: float, k2: float, extra: float = 0.0) -> np.ndarray:
+    """:func:`core_model` with the blob an anisotropic Gaussian of the source's covariance (``shapes``: per source
+    (axes, sigma2) of :func:`source_shape`), each sigma2 times k2^2 plus ``extra`` radius^2."""
+    n64, v64 = np.asarray(n, np.float64), np.asarray(v, np.float64)
+    x = np.maximum(np.sum(n64 * v64, 1), 1e-6)
+    r = 2 * x[:, None] * n64 - v64
+    a2 = np.asarray(rho, np.float64) ** 4
+    out = np.zeros((len(x), 3, 3))
+    for src, (axes, sig2) in zip(sources, shapes):
+        S = (k1 * src.radius) ** 2 / (4 * x)
+        wg = S / (a2 + S)
+        ell = np.asarray(src.direction, np.float64)
+        nl = n64 @ ell
+        wide = profile_lobes((src._replace(radius=k1 * src.radius),), n, v, rho,
+                             lambda a2_, s2, nh, sin2: ggx(a2_ + s2, nh, sin2) / ggx(a2_, nh, sin2))
+        b = 4 * x * a2
+        s2a = k2 ** 2 * sig2[0] + extra * src.radius ** 2 + b
+        s2b = k2 ** 2 * sig2[1] + extra * src.radius ** 2 + b
+        q = (r @ axes[0]) ** 2 / s2a + (r @ axes[1]) ** 2 / s2b
+        lam = 0.5 * (np.sqrt(1 + a2 * (1 - x * x) / (x * x)) - 1)
+        blob = np.exp(-q) / (np.pi * np.sqrt(s2a * s2b)) / (1 + 2 * lam) * ((nl > 0) & (r @ ell > 0))
+        s5 = (1 - x) ** 5
+        core = np.stack([np.zeros_like(x), (1 - s5) * blob, s5 * blob], 1)[:, :, None] * np.asarray(src.power)[None, None, :]
+        part = wide.copy()
+        part[:, 1:] *= (1 - wg)[:, None, None]
+        part[:, 1:] += wg[:, None, None] * core[:, 1:]
+        out += part
+    return out

@@ -64,10 +64,10 @@ def test_source_terms_are_the_integrals_of_a_directional_light(x64):
 
 
 def test_a_wide_source_is_a_lobe_as_wide_as_the_source_and_the_gpu_reads_it(sun_bake):
-    """Near a sun at low roughness the widened lobe reads the radiance the reference (the source map read
-    bilinearly) reads far closer than a point light, which overshoots it several times (GGX's shape is not the
-    sun's: the widened lobe is still 0.8 off here, docs/notes/bake.md); I_d is the point light's; the shader's
-    widened lobe equals ``source_terms``."""
+    """Near a sun at low roughness the source's lobe (a Gaussian core of the sun's size and a widened GGX tail)
+    reads the radiance the reference (the source map read bilinearly) reads within 15 % (measured 0.098; GGX
+    widened alone read 0.31, a point light 4.0: it overshoots several times); I_d is the point light's; the
+    shader's lobe equals ``source_terms``."""
     env = hf.light.load_environment("city", 64)
     _, sun, _ = brightest_source(env)
     assert sun.radius > 0.005
@@ -88,11 +88,15 @@ def test_a_wide_source_is_a_lobe_as_wide_as_the_source_and_the_gpu_reads_it(sun_
     point = np.asarray(source_terms((sun._replace(radius=0.0),), n, v, 0.06))
     wide = np.asarray(source_terms((sun,), n, v, 0.06))
     err = [np.linalg.norm(x[:, 1] - ref[:, 1]) / np.linalg.norm(ref[:, 1]) for x in (point, wide)]
-    assert err[0] > 2 and err[1] < 0.3 * err[0], err
+    assert err[0] > 2 and err[1] < 0.15, err
     np.testing.assert_allclose(wide[:, 0], point[:, 0], rtol=1e-6)
     assert SPREAD > 0
     wide_bake = dataclasses.replace(sun_bake, sources=(sun_bake.sources[0]._replace(radius=0.05),))
     n2, v2 = pairs(500, seed=5)
+    ell = np.asarray(wide_bake.sources[0].direction)  # 8 pairs mirroring the source, so the core is read
+    n2[:8] = ell + 0.8 * n2[:8]
+    n2[:8] /= np.linalg.norm(n2[:8], axis=1, keepdims=True)
+    v2[:8] = 2 * (n2[:8] @ ell)[:, None] * n2[:8] - ell
     assert not np.allclose(np.asarray(wide_bake.terms(n2, v2, 0.05)), np.asarray(sun_bake.terms(n2, v2, 0.05)))
     pytest.importorskip("moderngl")
     check_glsl_terms(wide_bake, n2, v2, (0.05, 0.3), 1e-4)

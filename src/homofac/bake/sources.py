@@ -8,18 +8,29 @@ integral, sum (L - fill) dw) and angular radius sigma,
 
     I_d += (1 - s5)/pi (n.l)+ Phi,   I_A += (1 - s5) S' (n.l)+ Phi,   I_B += s5 S' (n.l)+ Phi
 
-(the pinned integrals of I_d, I_A, I_B, docs/format.md), at zero texture fetches. S' = V D' is the lobe with the
-GGX distribution widened by the source's extent (the roughness modification of area lights, Karis 2013,
-"Real Shading in Unreal Engine 4"): D' is GGX at
+(the pinned integrals of I_d, I_A, I_B, docs/format.md), at zero texture fetches. The source is a blob of RMS
+angle sigma, not a point, so S' is the lobe convolved with it, in two parts weighted by the source's share of
+the combined width in half vectors, w = S / (alpha^2 + S) with S = (SPREAD sigma)^2 / (4 n.v) (a source of
+angular radius t covers half vectors within t^2 / (4 n.v) in solid angle: dw_l = 4 (v.h) dw_h, v.h = n.v at
+the peak):
 
-    alpha'^2 = alpha^2 + (SPREAD sigma)^2 / (4 n.v)
+* **the core** (weight w): the source as a Gaussian blob about l in light space, read at the mirror direction
+  r = 2 (n.v) n - v with the mirror's albedos, exact as alpha -> 0 (I_A -> Phi K(r) (1 - (1 - n.v)^5), I_B ->
+  Phi K(r) (1 - n.v)^5):
 
-with V the material's own: a source of angular radius t seen in reflection covers half vectors within about
-t / 2 of the peak at normal view and t^2 / (4 n.v) in solid angle at any view (dw_l = 4 (v.h) dw_h, v.h = n.v
-at the peak). D' keeps D's normalization, so the source's reflected power is unchanged; only its lobe is about
-as wide as the lobe convolved with the source. A point light (D itself) peaks at 1 / (pi alpha^2): below
-roughness 0.15 that was up to 8x the radiance the reference reads within half a degree of a sun
-(docs/notes/bake.md, "Converged cells, seventeenth session").
+      K(r) = exp(-|r - l|^2 / s^2) / (pi s^2) / (1 + 2 Lambda(n.v)),   s^2 = (CORE sigma)^2 + 4 (n.v) alpha^2,
+
+  (a 2-D Gaussian of radial RMS^2 s^2: the source's and the lobe's own extent in light directions; the Smith
+  term at the mirror, Lambda(n.v) the glTF one);
+* **the tail** (weight 1 - w): the glTF lobes at l with GGX D widened to alpha'^2 = alpha^2 + S (Karis 2013's
+  roughness modification, D' keeps D's normalization), so far from the source the tail is GGX's own:
+  (1 - w) alpha'^2 = alpha^2.
+
+As alpha -> 0 (w -> 1) the source reads as its own image, which is what the reference reads (the source map's
+pixels, bilinearly): the bilinear sun of the bundled maps is close to a Gaussian of its RMS angle; as alpha >>
+sigma (w -> 0) it is a point light. GGX widened alone (the previous rule) has GGX's long tails and a low peak:
+below roughness 0.15 it read 2-2.4x the idealized split-sum's error (docs/notes/bake.md, "Below 0.15, eighteenth
+session").
 """
 
 from __future__ import annotations
@@ -46,12 +57,16 @@ RADIUS = 0.05
 #: A pixel of the core is at least 1/RATIO of the brightest one's luminance (bake_sun.py's rule).
 RATIO = 20.0
 
-#: The source's widening of the GGX lobe in units of its radius: alpha'^2 = alpha^2 + (SPREAD radius)^2 / (4 n.v)
-#: (module docstring). Measured on the converged cells' pairs (benchmarks/bake_source_shape.py, balanced, nrmse
-#: below 0.15 / 0.15-0.3): point light 0.89 / 0.21 (city), 4.40 / 0.26 (interior), 1.84 / 0.15 (forest);
-#: SPREAD 1.25: 0.50 / 0.13, 0.46 / 0.24, 0.31 / 0.12 (1 and 1.5 within 10 % of it; without the 1 / (4 n.v)
-#: at its best, 1: 0.61 / 0.15, 1.06 / 0.24, 0.39 / 0.13).
-SPREAD = 1.25
+#: The source's extent in half vectors, S = (SPREAD radius)^2 / (4 n.v): the tail's widening alpha'^2 = alpha^2 + S
+#: and the core's weight S / (alpha^2 + S) (module docstring). Measured with :data:`CORE` on the cells' weighted
+#: pairs below 0.15 (benchmarks/bake_source_floor.py, docs/notes/bake.md "Below 0.15, eighteenth session"):
+#: 1, 1.25, 1.5, 2 within 4 % of each other; 1 the smallest error on city and forest.
+SPREAD = 1.0
+
+#: The core's RMS angle in units of the source's radius (module docstring): 1.1 (city, forest, interior, studio
+#: below 0.15: 0.342, 0.166, 0.439, 0.149; 1.0: 0.339, 0.170, 0.473, 0.172; 1.2: 0.359, 0.182, 0.420, 0.137). The
+#: radius is measured on the light texels' centres; the reference's bilinear read of the source's pixels is wider.
+CORE = 1.1
 
 #: Smallest share of the environment's luminance power a source must hold to be taken out. The bundled
 #: environments' compact sources hold 6-33 % (city's sun 23.7 %, interior's lamp 20.3 %, forest's sun core 6.1 %);
@@ -122,8 +137,8 @@ def widened_ratio(a2, s2, nh, sin2):
 
 def source_terms(sources, n: Float[Array, "N 3"], v: Float[Array, "N 3"], roughness) -> Float[Array, "N 3 3"]:
     """``(I_d, I_A, I_B)`` (N, 3, 3) of the analytic lights ``sources`` (a sequence of :class:`Source`) at the
-    pairs: the glTF lobes with D widened by each source's radius (module docstring) times (n.l)+ times each
-    power; 0 where n.v <= 0."""
+    pairs: I_d the point light's, I_A and I_B the core and the tail of the lobe convolved with the source
+    (module docstring), times each power; 0 where n.v <= 0 or n.l <= 0."""
     n = jnp.asarray(n, jnp.float32)
     v = jnp.asarray(v, jnp.float32)
     rho = jnp.broadcast_to(jnp.asarray(roughness, jnp.float32), n.shape[:1])
@@ -133,20 +148,31 @@ def source_terms(sources, n: Float[Array, "N 3"], v: Float[Array, "N 3"], roughn
     t, b = _frame(n)
     wo = _local(v, t, b, n)
     a2 = rho ** 4
+    x = jnp.where(wo[2] > 0, wo[2], 1.0)
+    r = 2 * x[:, None] * n - v
+    lam = 0.5 * (jnp.sqrt(1 + a2 * (1 - x * x) / (x * x)) - 1)
+    m5 = (1 - x) ** 5
     for s in sources:  # a handful of lights, not samples
-        wi = _local(jnp.broadcast_to(jnp.asarray(s.direction, jnp.float32), n.shape), t, b, n)
+        ell = jnp.asarray(s.direction, jnp.float32)
+        wi = _local(jnp.broadcast_to(ell, n.shape), t, b, n)
         above = (wi[2] > 0) & (wo[2] > 0)
         wi = tuple(jnp.where(above, c, 0.0 if i < 2 else 1.0) for i, c in enumerate(wi))
-        wo_ = (wo[0], wo[1], jnp.where(above, wo[2], 1.0))
+        wo_ = (wo[0], wo[1], x)
         d, la, lb = gltf_lobes_at(rho, wi, wo_)
         h = [a + c for a, c in zip(wi, wo_)]
         hn2 = h[0] * h[0] + h[1] * h[1] + h[2] * h[2]
-        s2 = (SPREAD * s.radius) ** 2 / 4 / wo_[2]
-        k = widened_ratio(a2, s2, jnp.maximum(h[2], 0.0) * jax.lax.rsqrt(hn2), (h[0] * h[0] + h[1] * h[1]) / hn2)
-        lobes = jnp.stack([d, la * k, lb * k], 1)  # (N, 3)
-        lobes = jnp.where(above[:, None], lobes * wi[2][:, None], 0.0)
+        S = (SPREAD * s.radius) ** 2 / 4 / x
+        k = widened_ratio(a2, S, jnp.maximum(h[2], 0.0) * jax.lax.rsqrt(hn2), (h[0] * h[0] + h[1] * h[1]) / hn2)
+        w = S / (a2 + S) if s.radius > 0 else jnp.zeros_like(x)
+        e = r - ell
+        sc = (CORE * s.radius) ** 2 + 4 * x * a2
+        blob = jnp.exp(-jnp.sum(e * e, -1) / sc) / (jnp.pi * sc) / (1 + 2 * lam)
+        tail = jnp.stack([d, la * k, lb * k], 1) * wi[2][:, None]  # (N, 3)
+        core = jnp.stack([jnp.zeros_like(x), (1 - m5) * blob, m5 * blob], 1)
+        lobes = jnp.where(above[:, None], (1 - w)[:, None] * tail + w[:, None] * core, 0.0)
+        lobes = lobes.at[:, 0].set(jnp.where(above, tail[:, 0], 0.0))
         out = out + lobes[:, :, None] * jnp.asarray(s.power, jnp.float32)[None, None, :]
     return out
 
 
-__all__ = ["MIN_SHARE", "RADIUS", "RATIO", "SPREAD", "Source", "brightest_source", "source_terms", "widened_ratio"]
+__all__ = ["CORE", "MIN_SHARE", "RADIUS", "RATIO", "SPREAD", "Source", "brightest_source", "source_terms", "widened_ratio"]
