@@ -82,11 +82,28 @@ class Source(NamedTuple):
     direction: tuple[float, float, float]
     power: tuple[float, float, float]
     radius: float
+    #: The source's two principal semi-axes in the plane normal to ``direction`` (rad; :func:`principal_axes`),
+    #: or () for a round source of RMS angle ``radius``: the core's shape (module docstring).
+    axes: tuple = ()
 
     def describe(self) -> str:
         d, p = self.direction, self.power
+        shape = "" if not self.axes else f" (axes {float(np.linalg.norm(self.axes[0])):.3g}, {float(np.linalg.norm(self.axes[1])):.3g} rad)"
         return (f"direction ({d[0]:.3f}, {d[1]:.3f}, {d[2]:.3f}), power ({p[0]:.4g}, {p[1]:.4g}, {p[2]:.4g}), "
-                f"radius {self.radius:.3g} rad")
+                f"radius {self.radius:.3g} rad{shape}")
+
+    def core_frame(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(e (2, 3), s2 (2,))``: unit principal axes normal to the direction and the core's squared widths
+        along them before the lobe's, (CORE |a_i|)^2; a round source: any orthonormal pair, (CORE radius)^2."""
+        ell = np.asarray(self.direction, np.float64)
+        a = np.asarray(self.axes, np.float64).reshape(-1, 3)
+        lengths = np.linalg.norm(a, axis=1)
+        if len(a) == 2 and lengths.min() > 1e-9:
+            return a / lengths[:, None], (CORE * lengths) ** 2
+        helper = np.array([1.0, 0.0, 0.0]) if abs(ell[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        e1 = np.cross(ell, helper)
+        e1 /= np.linalg.norm(e1)
+        return np.stack([e1, np.cross(ell, e1)]), np.full(2, (CORE * max(self.radius, 1e-9)) ** 2)
 
 
 def brightest_source(env: Environment, radius: float = RADIUS, ratio: float = RATIO,
@@ -124,8 +141,23 @@ def brightest_source(env: Environment, radius: float = RADIUS, ratio: float = RA
     out = rad.copy()
     out[core] = np.minimum(rad[core], fill)
     rest = eqx.tree_at(lambda e: e.radiance, env, jnp.asarray(out, jnp.asarray(env.radiance).dtype))
-    src = Source(tuple(float(c) for c in direction), tuple(float(c) for c in power), spread)
+    src = Source(tuple(float(c) for c in direction), tuple(float(c) for c in power), spread,
+                 principal_axes(d[core], weight, direction) if spread > 0 else ())
     return rest, src, share
+
+
+def principal_axes(directions, weights, direction) -> tuple:
+    """The principal semi-axes a_1, a_2 ((2, 3) as nested tuples, rad) of ``weights`` (N,) at unit ``directions``
+    (N, 3) about the unit ``direction``: the eigenvectors of their weighted covariance in the plane normal to it,
+    each scaled by sqrt 2 x the standard deviation along it, so a Gaussian exp(-sum (t.a_i)^2 / |a_i|^4) with
+    that covariance has |a_1|^2 + |a_2|^2 = 2 x its RMS angle^2 (a round source: |a_i| = its RMS angle)."""
+    d = np.asarray(directions, np.float64)
+    w = np.asarray(weights, np.float64)
+    ell = np.asarray(direction, np.float64)
+    p = d - (d @ ell)[:, None] * ell
+    cov = (p * w[:, None]).T @ p / max(float(w.sum()), 1e-300)
+    val, vec = np.linalg.eigh(cov)  # ascending; the smallest is along ell
+    return tuple(tuple(float(c) for c in vec[:, i] * np.sqrt(2 * max(val[i], 0.0))) for i in (2, 1))
 
 
 def widened_ratio(a2, s2, nh, sin2):
@@ -164,9 +196,13 @@ def source_terms(sources, n: Float[Array, "N 3"], v: Float[Array, "N 3"], roughn
         S = (SPREAD * s.radius) ** 2 / 4 / x
         k = widened_ratio(a2, S, jnp.maximum(h[2], 0.0) * jax.lax.rsqrt(hn2), (h[0] * h[0] + h[1] * h[1]) / hn2)
         w = S / (a2 + S) if s.radius > 0 else jnp.zeros_like(x)
+        axes, widths = s.core_frame()
         e = r - ell
-        sc = (CORE * s.radius) ** 2 + 4 * x * a2
-        blob = jnp.exp(-jnp.sum(e * e, -1) / sc) / (jnp.pi * sc) / (1 + 2 * lam)
+        s1 = float(widths[0]) + 4 * x * a2
+        s2 = float(widths[1]) + 4 * x * a2
+        q = ((e @ jnp.asarray(axes[0], jnp.float32)) ** 2 / s1 + (e @ jnp.asarray(axes[1], jnp.float32)) ** 2 / s2
+             + (e @ ell) ** 2 / jnp.minimum(s1, s2))
+        blob = jnp.exp(-q) / (jnp.pi * jnp.sqrt(s1 * s2)) / (1 + 2 * lam)
         tail = jnp.stack([d, la * k, lb * k], 1) * wi[2][:, None]  # (N, 3)
         core = jnp.stack([jnp.zeros_like(x), (1 - m5) * blob, m5 * blob], 1)
         lobes = jnp.where(above[:, None], (1 - w)[:, None] * tail + w[:, None] * core, 0.0)
@@ -175,4 +211,5 @@ def source_terms(sources, n: Float[Array, "N 3"], v: Float[Array, "N 3"], roughn
     return out
 
 
-__all__ = ["CORE", "MIN_SHARE", "RADIUS", "RATIO", "SPREAD", "Source", "brightest_source", "source_terms", "widened_ratio"]
+__all__ = ["CORE", "MIN_SHARE", "RADIUS", "RATIO", "SPREAD", "Source", "brightest_source", "principal_axes", "source_terms",
+           "widened_ratio"]
