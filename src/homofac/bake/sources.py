@@ -16,21 +16,22 @@ the peak):
 
 * **the core** (weight w): the source as a Gaussian blob about l in light space, read at the mirror direction
   r = 2 (n.v) n - v with the mirror's albedos, exact as alpha -> 0 (I_A -> Phi K(r) (1 - (1 - n.v)^5), I_B ->
-  Phi K(r) (1 - n.v)^5):
+  Phi K(r) (1 - n.v)^5); with t = r - l, e_i the source's unit principal axes and a_i its semi-axes
+  (:func:`principal_axes`; a round source: |a_i| = sigma),
 
-      K(r) = exp(-|r - l|^2 / s^2) / (pi s^2) / (1 + 2 Lambda(n.v)),   s^2 = (CORE sigma)^2 + 4 (n.v) alpha^2,
+      K(r) = exp(-(t.e_1)^2 / g_1 - (t.e_2)^2 / g_2 - (t.l)^2 / min g) / (pi sqrt(g_1 g_2) (1 + 2 Lambda(n.v))),
+      g_i = (CORE |a_i|)^2 + 4 (n.v) alpha^2
 
-  (a 2-D Gaussian of radial RMS^2 s^2: the source's and the lobe's own extent in light directions; the Smith
-  term at the mirror, Lambda(n.v) the glTF one);
+  (a 2-D Gaussian with the source's covariance widened by the lobe's own extent in light directions; the
+  (t.l)^2 term keeps it at l's side of the sphere; the Smith term at the mirror, Lambda(n.v) the glTF one);
 * **the tail** (weight 1 - w): the glTF lobes at l with GGX D widened to alpha'^2 = alpha^2 + S (Karis 2013's
   roughness modification, D' keeps D's normalization), so far from the source the tail is GGX's own:
   (1 - w) alpha'^2 = alpha^2.
 
 As alpha -> 0 (w -> 1) the source reads as its own image, which is what the reference reads (the source map's
-pixels, bilinearly): the bilinear sun of the bundled maps is close to a Gaussian of its RMS angle; as alpha >>
-sigma (w -> 0) it is a point light. GGX widened alone (the previous rule) has GGX's long tails and a low peak:
-below roughness 0.15 it read 2-2.4x the idealized split-sum's error (docs/notes/bake.md, "Below 0.15, eighteenth
-session").
+pixels, bilinearly; a sun of one or two lat-long pixels is an elongated blob, close to a Gaussian of its
+covariance); as alpha >> sigma (w -> 0) it is a point light. GGX widened alone has GGX's long tails and a low
+peak (measured in docs/notes/bake.md, "Below 0.15, eighteenth session").
 """
 
 from __future__ import annotations
@@ -63,9 +64,10 @@ RATIO = 20.0
 #: 1, 1.25, 1.5, 2 within 4 % of each other; 1 the smallest error on city and forest.
 SPREAD = 1.0
 
-#: The core's RMS angle in units of the source's radius (module docstring): 1.1 (city, forest, interior, studio
-#: below 0.15: 0.342, 0.166, 0.439, 0.149; 1.0: 0.339, 0.170, 0.473, 0.172; 1.2: 0.359, 0.182, 0.420, 0.137). The
-#: radius is measured on the light texels' centres; the reference's bilinear read of the source's pixels is wider.
+#: The core's widths in units of the source's semi-axes (module docstring); the axes are measured on light
+#: texels' centres, and the reference's bilinear read of the source's pixels is wider. Measured on the cells'
+#: weighted pairs below 0.15 (docs/notes/bake.md, "Below 0.15, eighteenth session"; round core, city, forest,
+#: interior, studio): 1.1: 0.342, 0.166, 0.439, 0.149; 1.0: 0.339, 0.170, 0.473, 0.172; 1.2: 0.359, 0.182, 0.420, 0.137.
 CORE = 1.1
 
 #: Smallest share of the environment's luminance power a source must hold to be taken out. The bundled
