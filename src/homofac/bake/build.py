@@ -162,11 +162,15 @@ class _Lights:
                 excess = np.maximum(rad[under] - fill, 0.0) @ np.asarray(LUMINANCE, np.float32)
                 rad[under] = np.minimum(rad[under], fill)
                 self.fine[finer] = from_cube(rad, finer, source=str(self.source))
-                # the core's shape from the finer texels (the 64 face's centres are about the sun's own size)
+                # the core's direction and shape from the finer texels (the coarse face's texels are about a sun's
+                # own size: their centres place it up to a third of a degree off and round it)
                 dirs = np.asarray(fine.directions, np.float64)[: 6 * finer * finer].reshape(finer, 6 * finer, 3)[under]
                 dw = np.asarray(fine.solid_angle, np.float64)[: 6 * finer * finer].reshape(finer, 6 * finer)[under]
-                if float(np.sum(excess * dw)) > 0:
-                    found = found._replace(axes=principal_axes(dirs, excess * dw, found.direction))
+                weight = excess * dw
+                if float(np.sum(weight)) > 0:
+                    mean = weight @ dirs
+                    direction = tuple(float(c) for c in mean / np.linalg.norm(mean))
+                    found = found._replace(direction=direction, axes=principal_axes(dirs, weight, direction))
         return found, share
 
 
