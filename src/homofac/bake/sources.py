@@ -66,9 +66,11 @@ SPREAD = 1.0
 
 #: The core's widths in units of the source's semi-axes (module docstring); the axes are measured on light
 #: texels' centres, and the reference's bilinear read of the source's pixels is wider. Measured on the cells'
-#: weighted pairs below 0.15 (docs/notes/bake.md, "Below 0.15, eighteenth session"; round core, city, forest,
-#: interior, studio): 1.1: 0.342, 0.166, 0.439, 0.149; 1.0: 0.339, 0.170, 0.473, 0.172; 1.2: 0.359, 0.182, 0.420, 0.137.
-CORE = 1.1
+#: weighted pairs below 0.15 (docs/notes/bake.md, "Below 0.15, eighteenth session"; the first 4096 pairs of each
+#: cell; city, forest, interior, studio with the axes and direction from the block's lights): 1.0: 0.220, 0.173,
+#: 0.297, 0.165; 1.1: 0.161, 0.153, 0.276, 0.144; 1.15: 0.149, 0.154, 0.271, 0.138; 1.2: 0.148, 0.159, 0.268, 0.135;
+#: 1.3: 0.173, 0.180, 0.270, 0.135 (forest and studio with the block's axes, the direction of the 64 face's).
+CORE = 1.15
 
 #: Smallest share of the environment's luminance power a source must hold to be taken out. The bundled
 #: environments' compact sources hold 6-33 % (city's sun 23.7 %, interior's lamp 20.3 %, forest's sun core 6.1 %);
