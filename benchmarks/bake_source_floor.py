@@ -15,9 +15,13 @@ weighted pairs (:mod:`bake_pairs`) against the converged reference (:mod:`homofa
   shaded exactly**: the bake's maps plus the reference integral of the source's pixels); ``maps_d`` /
   ``maps_AB``: the maps' error in the diffuse term / the two specular terms alone; ``src_A``, ``src_B``, ``src_d``
   likewise; ``cross``: 2 sum w e_src.e_maps / sum w |e|^2 (the share of the squared error in the cross term);
-* ``--models``: the bake's maps plus other source models (:func:`source_model`) against the reference.
+* ``--models``: the bake's maps plus other source models (:func:`source_model`: ``point``, ``widened:k``,
+  ``mix:k1:k2``, ``core:k1:k2``) against the reference; ``--core``: the bake's own source (its axes when it has
+  them) at other values of :data:`homofac.bake.sources.CORE`. :func:`source_shape` and :func:`aniso_model` are
+  the prototypes of the axes (measured on an environment's own core at a given light resolution).
 
     PYTHONPATH=src python benchmarks/bake_source_floor.py --bake-dir DIR [--envs city ...] [--bands 0] [--pairs 4096]
+        [--cache DIR] [--models core:1:1.1 ...] [--core 1.0 1.1 1.2]
 """
 
 from __future__ import annotations
@@ -32,6 +36,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import homofac as hf
+from homofac.bake import sources
 from homofac.bake.kernels import _frame, _local
 from homofac.bake.sources import RADIUS, RATIO, source_terms
 from homofac.brdf.gltf import DIELECTRIC_F0, gltf_lobes_at
@@ -208,6 +213,7 @@ def main(argv=None):
     ap.add_argument("--samples", type=int, default=4096)
     ap.add_argument("--cache", help="directory keeping each cell's pairs and references (.npz) between runs")
     ap.add_argument("--models", nargs="*", default=[], help="source models (source_model's names) to read beside the bake's")
+    ap.add_argument("--core", nargs="*", type=float, default=[], help="values of sources.CORE to read the bake's source at")
     args = ap.parse_args(argv)
     for name in args.envs:
         b = hf.load(Path(args.bake_dir) / f"{name}-{args.preset}")
@@ -229,6 +235,12 @@ def main(argv=None):
             row = {"env": name, "band": band, "pairs": args.pairs,
                    "source": b.sources[0].describe() if b.sources else None,
                    **{k: round(x, 4) for k, x in breakdown(maps, analytic, ref, refc, c, m, w).items()}}
+            for core in args.core:
+                default, sources.CORE = sources.CORE, core
+                alt = np.asarray(source_terms(b.sources, n, v, rho), np.float64)
+                sources.CORE = default
+                row[f"CORE {core:g}"] = {k: round(x, 4) for k, x in breakdown(maps, alt, ref, refc, c, m, w).items()
+                                         if k in ("bake", "src")}
             for model in args.models:
                 alt = source_model(b.sources, n, v, rho, model)
                 row[model] = {k: round(x, 4) for k, x in breakdown(maps, alt, ref, refc, c, m, w).items()
