@@ -331,6 +331,7 @@ def test_a_crafted_bake_json_is_refused_in_one_line(forest_bake, tmp_path, path,
 BAKE_SHIM = r"""
 namespace metal {
 inline float log(float a) { return std::log(a); }
+inline float exp(float a) { return std::exp(a); }
 inline int min(int a, int b) { return a < b ? a : b; }
 inline float3 normalize(float3 a) { return a / std::sqrt(dot(a, a)); }
 inline float3 mix(float3 a, float3 b, float3 t) { return a + (b - a) * t; }

@@ -13,7 +13,7 @@ import pytest
 
 import homofac as hf
 from homofac.bake import shader
-from homofac.bake.sources import SPREAD, Source, brightest_source, source_terms
+from homofac.bake.sources import SPREAD, Source, brightest_source, principal_axes, source_terms
 from homofac.errors import HomofacError
 from homofac.io.exr import read_exr
 from homofac.light import Environment
@@ -64,10 +64,10 @@ def test_source_terms_are_the_integrals_of_a_directional_light(x64):
 
 
 def test_a_wide_source_is_a_lobe_as_wide_as_the_source_and_the_gpu_reads_it(sun_bake):
-    """Near a sun at low roughness the widened lobe reads the radiance the reference (the source map read
-    bilinearly) reads far closer than a point light, which overshoots it several times (GGX's shape is not the
-    sun's: the widened lobe is still 0.8 off here, docs/notes/bake.md); I_d is the point light's; the shader's
-    widened lobe equals ``source_terms``."""
+    """Near a sun at low roughness the source's lobe (a Gaussian core of the sun's size and a widened GGX tail)
+    reads the radiance the reference (the source map read bilinearly) reads within 15 % (measured 0.061; GGX
+    widened alone read 0.31, a point light 4.0: it overshoots several times); I_d is the point light's; the
+    shader's lobe equals ``source_terms``."""
     env = hf.light.load_environment("city", 64)
     _, sun, _ = brightest_source(env)
     assert sun.radius > 0.005
@@ -88,14 +88,48 @@ def test_a_wide_source_is_a_lobe_as_wide_as_the_source_and_the_gpu_reads_it(sun_
     point = np.asarray(source_terms((sun._replace(radius=0.0),), n, v, 0.06))
     wide = np.asarray(source_terms((sun,), n, v, 0.06))
     err = [np.linalg.norm(x[:, 1] - ref[:, 1]) / np.linalg.norm(ref[:, 1]) for x in (point, wide)]
-    assert err[0] > 2 and err[1] < 0.3 * err[0], err
+    assert err[0] > 2 and err[1] < 0.15, err
     np.testing.assert_allclose(wide[:, 0], point[:, 0], rtol=1e-6)
     assert SPREAD > 0
     wide_bake = dataclasses.replace(sun_bake, sources=(sun_bake.sources[0]._replace(radius=0.05),))
     n2, v2 = pairs(500, seed=5)
+    ell = np.asarray(wide_bake.sources[0].direction)  # 8 pairs mirroring the source, so the core is read
+    n2[:8] = ell + 0.8 * n2[:8]
+    n2[:8] /= np.linalg.norm(n2[:8], axis=1, keepdims=True)
+    v2[:8] = 2 * (n2[:8] @ ell)[:, None] * n2[:8] - ell
     assert not np.allclose(np.asarray(wide_bake.terms(n2, v2, 0.05)), np.asarray(sun_bake.terms(n2, v2, 0.05)))
     pytest.importorskip("moderngl")
     check_glsl_terms(wide_bake, n2, v2, (0.05, 0.3), 1e-4)
+
+
+def test_an_elongated_source_keeps_its_axes_and_its_core_reads_them(tmp_path, sun_bake):
+    """principal_axes recovers an anisotropic Gaussian's semi-axes (sqrt 2 x its standard deviations, long one
+    first); the core of a source with those axes reads higher along the long axis than along the short one at the
+    same angle, and a round source with axes of its radius reads as one without; bake.json keeps the axes."""
+    rng = np.random.default_rng(0)
+    ell = np.array([0.3, -0.4, 0.866]) / np.linalg.norm([0.3, -0.4, 0.866])
+    e1 = np.cross(ell, (0, 0, 1.0))
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(ell, e1)
+    pts = ell + rng.normal(size=(100000, 1)) * 0.01 * e1 + rng.normal(size=(100000, 1)) * 0.03 * e2
+    pts /= np.linalg.norm(pts, axis=1, keepdims=True)
+    axes = principal_axes(pts, np.ones(len(pts)), ell)
+    np.testing.assert_allclose(np.linalg.norm(axes, axis=1), np.sqrt(2) * np.array([0.03, 0.01]), rtol=0.02)
+    assert abs(np.dot(axes[0], e2)) > 0.99 * np.linalg.norm(axes[0])
+    src = Source(tuple(ell), (1.0, 1.0, 1.0), 0.03, axes)
+    m = np.stack([np.cos(0.02) * ell + np.sin(0.02) * e for e in (e2, e1)])  # 0.02 rad along the long, short axis
+    n = np.stack([ell, ell])
+    v = 2 * np.sum(n * m, 1)[:, None] * n - m  # the mirror direction of v about n = l is m
+    a = np.asarray(source_terms((src,), n, v, 0.05))[:, 1, 0]
+    assert a[0] > 2 * a[1], a  # exp(-0.18) against exp(-1.5) here
+    n2, v2 = pairs(200, seed=6)
+    iso = Source(tuple(ell), (1.0, 1.0, 1.0), 0.02)
+    round_axes = iso._replace(axes=(tuple(0.02 * e1), tuple(0.02 * e2)))
+    np.testing.assert_allclose(np.asarray(source_terms((round_axes,), n2, v2, 0.05)),
+                               np.asarray(source_terms((iso,), n2, v2, 0.05)), rtol=1e-4, atol=1e-6)
+    bk = dataclasses.replace(sun_bake, sources=(src,))
+    back = hf.load(bk.save(tmp_path / "bk"))
+    assert back.sources == (src,) and "axes" in back.describe()
 
 
 def test_bake_takes_the_source_out_and_adds_it_back():
@@ -119,7 +153,7 @@ def sun_bake():
 def test_round_trip_and_schema_1_reads_as_no_sources(sun_bake, tmp_path):
     out = sun_bake.save(tmp_path / "bk")
     doc = json.loads((out / "bake.json").read_text())
-    assert doc["schema_version"] == 5 and len(doc["sources"]) == 1
+    assert doc["schema_version"] == 6 and len(doc["sources"]) == 1
     back = hf.load(out)
     assert back.sources == sun_bake.sources
     n, v = pairs(100, seed=8)
@@ -136,7 +170,8 @@ def test_round_trip_and_schema_1_reads_as_no_sources(sun_bake, tmp_path):
 
 @pytest.mark.parametrize("field, value", [
     ("power", [float("nan"), 1.0, 1.0]), ("power", [1.0, -1.0, 1.0]), ("direction", [1.0, 0.0]),
-    ("direction", [2.0, 0.0, 0.0]), ("radius", -1.0),
+    ("direction", [2.0, 0.0, 0.0]), ("radius", -1.0), ("axes", [[0.01, 0.0, 0.0]]),
+    ("axes", [[0.01, 0.0, 0.0], [float("nan"), 0.0, 0.0]]),
 ])
 def test_bad_sources_are_refused_in_one_line(sun_bake, tmp_path, field, value):
     out = sun_bake.save(tmp_path / "bk")

@@ -74,7 +74,7 @@ LIBRARY_FORMAT = "homofac.library"
 LIBRARY_VERSION = 1
 INDEX_NAME = "index.json"
 BAKE_FORMAT = "homofac.bake"
-BAKE_SCHEMA = 5
+BAKE_SCHEMA = 6
 BAKE_JSON = "bake.json"
 #: The shader files of a bake directory (homofac_ibl, homofac_ibl_terms).
 BAKE_SHADERS = {"glsl": "shader.glsl", "glsl_es": "shader_es.glsl", "hlsl": "shader.hlsl", "msl": "shader.metal",
@@ -898,6 +898,15 @@ class BakeSourceEntry(Options):
     direction: list[float] = Field(min_length=3, max_length=3)
     power: list[float] = Field(min_length=3, max_length=3)
     radius: float = Field(ge=0, le=math.pi)
+    #: schema 6: the two principal semi-axes (rad) of the source's core normal to ``direction``; absent: round
+    axes: list[list[float]] | None = Field(None, min_length=2, max_length=2)
+
+    @field_validator("axes")
+    @classmethod
+    def _axes(cls, v):
+        if v is not None and not all(len(a) == 3 and all(math.isfinite(c) and abs(c) <= math.pi for c in a) for a in v):
+            raise ValueError("must be two 3-vectors of finite numbers within pi (rad)")
+        return v
 
     @field_validator("direction")
     @classmethod
@@ -915,12 +924,13 @@ class BakeSourceEntry(Options):
 
 
 class BakeDocument(Options):
-    """bake.json (schema 5: each specular map's blocks in its own atlas; schema 4 is read with every map in the
+    """bake.json (schema 6: sources may give their ``axes``; schema 5 is read with round sources; schema 5: each
+    specular map's blocks in its own atlas; schema 4 is read with every map in the
     shelf packer's layout of ``layers``' x, y; schema 3 is read as a bake without ``plan.mixed``, schema 2 as one without the harmonic, schema 1, without ``sources``, as a
     bake without sources either): see docs/format.md."""
 
     format: Literal["homofac.bake"]
-    schema_version: Literal[1, 2, 3, 4, 5]
+    schema_version: Literal[1, 2, 3, 4, 5, 6]
     brdf: Literal["gltf"]
     plan: BakePlanEntry
     lookups: int
@@ -967,7 +977,8 @@ def bake_document(bake: Bake, exr: str = "half") -> dict:
         "diffuse_size": s, "nv_size": pl.nv_size, "textures": tex, "exr": exr, "shaders": dict(BAKE_SHADERS),
         "texture_bytes_half": bake.texture_bytes(),
         **({"diffuse_sh9": np.asarray(bake.sh, np.float64).tolist()} if pl.diffuse_basis == "sh9" else {}),
-        "sources": [{"direction": list(src.direction), "power": list(src.power), "radius": src.radius} for src in bake.sources],
+        "sources": [{"direction": list(src.direction), "power": list(src.power), "radius": src.radius,
+                     **({"axes": [list(a) for a in src.axes]} if src.axes else {})} for src in bake.sources],
         "info": _jsonable(bake.info, bad),
     }
 
@@ -1098,7 +1109,8 @@ def load_bake(d, *, max_bytes: int = 1 << 28) -> Bake:
     W = np.concatenate([read(t, (pl.layers, doc.nv_size))[..., :3] for t in by_kind["weights"]], axis=-1)[:, :, :pl.channels]
     return Bake(pl, tuple(layer.roughness for layer in doc.layers), tuple(layer.shift for layer in doc.layers), P, E, W,
                 dict(raw.get("info") or {}), sh=None if sh is None else sh.astype(np.float32), blocks=blocks,
-                sources=tuple(Source(tuple(e.direction), tuple(e.power), e.radius) for e in doc.sources), H=H,
+                sources=tuple(Source(tuple(e.direction), tuple(e.power), e.radius,
+                                     tuple(tuple(a) for a in e.axes) if e.axes else ()) for e in doc.sources), H=H,
                 layouts=atlases)
 
 

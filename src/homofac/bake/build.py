@@ -48,7 +48,7 @@ from .gauge import face_gauge
 from .model import Bake, diffuse_sh9
 from .options import BakeOptions
 from .plan import BakePlan, plan as make_plan
-from .sources import Source, brightest_source
+from .sources import Source, brightest_source, principal_axes
 
 #: Roughness from which layers try axis shifts (below it the choice was measured unreliable: forest, fast,
 #: rho 0.156 picked s = 2 alpha and read 0.57 nrmse on I_A where s = 0 reads 0.20; at 0.538 s = alpha: 0.33 -> 0.21).
@@ -184,8 +184,18 @@ class _Lights:
                 fine = load_environment(self.source, finer)
                 rad = np.array(np.asarray(fine.radiance, np.float32)[: 6 * finer * finer].reshape(finer, 6 * finer, 3))
                 under = np.repeat(np.repeat(core, k, 0), k, 1)  # the strip's rows and columns scale with the face
+                excess = np.maximum(rad[under] - fill, 0.0) @ np.asarray(LUMINANCE, np.float32)
                 rad[under] = np.minimum(rad[under], fill)
                 self.fine[finer] = from_cube(rad, finer, source=str(self.source))
+                # the core's direction and shape from the finer texels (the coarse face's texels are about a sun's
+                # own size: their centres place it up to a third of a degree off and round it)
+                dirs = np.asarray(fine.directions, np.float64)[: 6 * finer * finer].reshape(finer, 6 * finer, 3)[under]
+                dw = np.asarray(fine.solid_angle, np.float64)[: 6 * finer * finer].reshape(finer, 6 * finer)[under]
+                weight = excess * dw
+                if float(np.sum(weight)) > 0:
+                    mean = weight @ dirs
+                    direction = tuple(float(c) for c in mean / np.linalg.norm(mean))
+                    found = found._replace(direction=direction, axes=principal_axes(dirs, weight, direction))
         return found, share
 
 

@@ -212,10 +212,12 @@ def _harmonic_functions(language: str) -> list[str]:
 
 
 def _source_function(language: str) -> list[str]:
-    """``hf_source(n, v, x, roughness, l, s2)``: ((1 - s5)/pi, (1 - s5) S', s5 S') (n.l)+ of an analytic light at
-    unit l whose GGX D is widened to alpha^2 + s2 / x (:func:`homofac.bake.sources.source_terms`; x = n.v > 0;
-    sin^2 theta_h from |n x h|^2, no cancellation at the peak). Returned as a vector (d, A, B); the caller
-    multiplies by the light's RGB power."""
+    """``hf_source(n, v, x, roughness, l, s2, e1, w1, e2, w2)``: ((1 - s5)/pi, (1 - s5) S', s5 S') (n.l)+ of an
+    analytic light at unit l (:func:`homofac.bake.sources.source_terms`; x = n.v > 0): the core, a Gaussian blob
+    about l of squared widths w_i + 4 x alpha^2 along its unit axes e_i read at the mirror direction, weight
+    w = S / (alpha^2 + S) with S = s2 / x, and the
+    tail, GGX D widened to alpha^2 + S, weight 1 - w (sin^2 theta_h from |n x h|^2, no cancellation at the
+    peak). Returned as a vector (d, A, B); the caller multiplies by the light's RGB power."""
     msl, wgsl = language == "msl", language == "wgsl"
     v3, ft = ("float3", "float") if msl else (("vec3<f32>", "f32") if wgsl else ("vec3", "float"))
     f = (lambda x: L.float_literal(float(x), "f")) if msl else _f
@@ -228,18 +230,27 @@ def _source_function(language: str) -> list[str]:
             let("h", v3, "normalize(l + v)"), let("c", v3, "cross(n, h)"),
             let("nh", ft, f"max(dot(n, h), {zero})"), let("vh", ft, f"min(abs(dot(v, h)), {one})"),
             let("a2", ft, "roughness * roughness * roughness * roughness"),
-            let("aw", ft, "a2 + s2 / x"), let("q", ft, "aw * nh * nh + dot(c, c)"), let("dd", ft, f"aw / ({f(np.pi)} * q * q)"),
+            let("sx", ft, "s2 / x"), let("aw", ft, "a2 + sx"), let("wc", ft, f"select({zero}, sx / aw, sx > {zero})"
+                                                                     if wgsl else f"sx > {zero} ? sx / aw : {zero}"),
+            let("q", ft, "aw * nh * nh + dot(c, c)"), let("dd", ft, f"aw / ({f(np.pi)} * q * q)"),
             let("lv", ft, f"{f(0.5)} * (sqrt({one} + a2 * ({one} - x * x) / (x * x)) - {one})"),
             let("ll", ft, f"{f(0.5)} * (sqrt({one} + a2 * ({one} - nl * nl) / (nl * nl)) - {one})"),
-            let("sv", ft, f"dd / (({one} + ll + lv) * {f(4.0)} * nl * x)"),
+            let("sv", ft, f"({one} - wc) * dd / (({one} + ll + lv) * {f(4.0)} * x)"),
             let("m", ft, f"{one} - vh"), let("s5", ft, "m * m * m * m * m"),
-            f"return {v3}(({one} - s5) / {f(np.pi)}, ({one} - s5) * sv, s5 * sv) * nl;"]
-    params = [("n", v3), ("v", v3), ("x", ft), ("roughness", ft), ("l", v3), ("s2", ft)]
+            let("e", v3, f"{f(2.0)} * x * n - v - l"), let("g1", ft, f"w1 + {f(4.0)} * x * a2"),
+            let("g2", ft, f"w2 + {f(4.0)} * x * a2"), let("t1", ft, "dot(e, e1)"), let("t2", ft, "dot(e, e2)"),
+            let("t3", ft, "dot(e, l)"),
+            let("k", ft, f"wc * exp(-(t1 * t1 / g1 + t2 * t2 / g2 + t3 * t3 / min(g1, g2))) "
+                         f"/ ({f(np.pi)} * sqrt(g1 * g2) * ({one} + {f(2.0)} * lv))"),
+            let("mx", ft, f"{one} - x"), let("m5", ft, "mx * mx * mx * mx * mx"),
+            f"return {v3}(({one} - s5) / {f(np.pi)} * nl, ({one} - s5) * sv + ({one} - m5) * k, s5 * sv + m5 * k);"]
+    params = [("n", v3), ("v", v3), ("x", ft), ("roughness", ft), ("l", v3), ("s2", ft), ("e1", v3), ("w1", ft),
+              ("e2", v3), ("w2", ft)]
     if wgsl:
         head = f"fn hf_source({', '.join(f'{a}: {t}' for a, t in params)}) -> {v3}"
     else:
         head = f"{v3} hf_source({', '.join(f'{t} {a}' for a, t in params)})"
-    return [head + " {  // ((1 - s5)/pi, (1 - s5) S, s5 S) (n.l)+ of a light at l, GGX D at alpha^2 + s2 / n.v",
+    return [head + " {  // ((1 - s5)/pi, (1 - s5) S', s5 S') (n.l)+ of a source at l: Gaussian core + widened GGX tail",
             *("    " + b for b in body), "}"]
 
 
@@ -252,7 +263,10 @@ def _source_lines(bake: Bake, language: str, out: tuple[str, str, str]) -> list[
     for i, src in enumerate(bake.sources):
         d = ", ".join(f(c) for c in src.direction)
         p = f"{v3}({', '.join(f(c) for c in src.power)})"
-        g = f"hf_source(n, v, x, roughness, {v3}({d}), {f((SPREAD * src.radius) ** 2 / 4)})"
+        axes, widths = src.core_frame()
+        e1, e2 = (f"{v3}({', '.join(f(c) for c in a)})" for a in axes)
+        g = (f"hf_source(n, v, x, roughness, {v3}({d}), {f((SPREAD * src.radius) ** 2 / 4)}, "
+             f"{e1}, {f(widths[0])}, {e2}, {f(widths[1])})")
         lines.append(f"let g{i}: {v3} = {g};" if wgsl else f"{v3} g{i} = {g};")
         lines += [f"{o} = {o} + g{i}.{c} * {p};" for o, c in zip(out, "xyz")]
     return lines

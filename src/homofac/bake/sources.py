@@ -8,18 +8,30 @@ integral, sum (L - fill) dw) and angular radius sigma,
 
     I_d += (1 - s5)/pi (n.l)+ Phi,   I_A += (1 - s5) S' (n.l)+ Phi,   I_B += s5 S' (n.l)+ Phi
 
-(the pinned integrals of I_d, I_A, I_B, docs/format.md), at zero texture fetches. S' = V D' is the lobe with the
-GGX distribution widened by the source's extent (the roughness modification of area lights, Karis 2013,
-"Real Shading in Unreal Engine 4"): D' is GGX at
+(the pinned integrals of I_d, I_A, I_B, docs/format.md), at zero texture fetches. The source is a blob of RMS
+angle sigma, not a point, so S' is the lobe convolved with it, in two parts weighted by the source's share of
+the combined width in half vectors, w = S / (alpha^2 + S) with S = (SPREAD sigma)^2 / (4 n.v) (a source of
+angular radius t covers half vectors within t^2 / (4 n.v) in solid angle: dw_l = 4 (v.h) dw_h, v.h = n.v at
+the peak):
 
-    alpha'^2 = alpha^2 + (SPREAD sigma)^2 / (4 n.v)
+* **the core** (weight w): the source as a Gaussian blob about l in light space, read at the mirror direction
+  r = 2 (n.v) n - v with the mirror's albedos, exact as alpha -> 0 (I_A -> Phi K(r) (1 - (1 - n.v)^5), I_B ->
+  Phi K(r) (1 - n.v)^5); with t = r - l, e_i the source's unit principal axes and a_i its semi-axes
+  (:func:`principal_axes`; a round source: |a_i| = sigma),
 
-with V the material's own: a source of angular radius t seen in reflection covers half vectors within about
-t / 2 of the peak at normal view and t^2 / (4 n.v) in solid angle at any view (dw_l = 4 (v.h) dw_h, v.h = n.v
-at the peak). D' keeps D's normalization, so the source's reflected power is unchanged; only its lobe is about
-as wide as the lobe convolved with the source. A point light (D itself) peaks at 1 / (pi alpha^2): below
-roughness 0.15 that was up to 8x the radiance the reference reads within half a degree of a sun
-(docs/notes/bake.md, "Converged cells, seventeenth session").
+      K(r) = exp(-(t.e_1)^2 / g_1 - (t.e_2)^2 / g_2 - (t.l)^2 / min g) / (pi sqrt(g_1 g_2) (1 + 2 Lambda(n.v))),
+      g_i = (CORE |a_i|)^2 + 4 (n.v) alpha^2
+
+  (a 2-D Gaussian with the source's covariance widened by the lobe's own extent in light directions; the
+  (t.l)^2 term keeps it at l's side of the sphere; the Smith term at the mirror, Lambda(n.v) the glTF one);
+* **the tail** (weight 1 - w): the glTF lobes at l with GGX D widened to alpha'^2 = alpha^2 + S (Karis 2013's
+  roughness modification, D' keeps D's normalization), so far from the source the tail is GGX's own:
+  (1 - w) alpha'^2 = alpha^2.
+
+As alpha -> 0 (w -> 1) the source reads as its own image, which is what the reference reads (the source map's
+pixels, bilinearly; a sun of one or two lat-long pixels is an elongated blob, close to a Gaussian of its
+covariance); as alpha >> sigma (w -> 0) it is a point light. GGX widened alone has GGX's long tails and a low
+peak (measured in docs/notes/bake.md, "Below 0.15, eighteenth session").
 """
 
 from __future__ import annotations
@@ -46,12 +58,19 @@ RADIUS = 0.05
 #: A pixel of the core is at least 1/RATIO of the brightest one's luminance (bake_sun.py's rule).
 RATIO = 20.0
 
-#: The source's widening of the GGX lobe in units of its radius: alpha'^2 = alpha^2 + (SPREAD radius)^2 / (4 n.v)
-#: (module docstring). Measured on the converged cells' pairs (benchmarks/bake_source_shape.py, balanced, nrmse
-#: below 0.15 / 0.15-0.3): point light 0.89 / 0.21 (city), 4.40 / 0.26 (interior), 1.84 / 0.15 (forest);
-#: SPREAD 1.25: 0.50 / 0.13, 0.46 / 0.24, 0.31 / 0.12 (1 and 1.5 within 10 % of it; without the 1 / (4 n.v)
-#: at its best, 1: 0.61 / 0.15, 1.06 / 0.24, 0.39 / 0.13).
-SPREAD = 1.25
+#: The source's extent in half vectors, S = (SPREAD radius)^2 / (4 n.v): the tail's widening alpha'^2 = alpha^2 + S
+#: and the core's weight S / (alpha^2 + S) (module docstring). Measured with :data:`CORE` on the cells' weighted
+#: pairs below 0.15 (benchmarks/bake_source_floor.py, docs/notes/bake.md "Below 0.15, eighteenth session"):
+#: 1, 1.25, 1.5, 2 within 4 % of each other; 1 the smallest error on city and forest.
+SPREAD = 1.0
+
+#: The core's widths in units of the source's semi-axes (module docstring); the axes are measured on light
+#: texels' centres, and the reference's bilinear read of the source's pixels is wider. Measured on the cells'
+#: weighted pairs below 0.15 (docs/notes/bake.md, "Below 0.15, eighteenth session"; the first 4096 pairs of each
+#: cell; city, forest, interior, studio with the axes and direction from the block's lights): 1.0: 0.220, 0.173,
+#: 0.297, 0.165; 1.1: 0.161, 0.153, 0.276, 0.144; 1.15: 0.149, 0.154, 0.271, 0.138; 1.2: 0.148, 0.159, 0.268, 0.135;
+#: 1.3: 0.173, 0.180, 0.270, 0.135 (forest and studio with the block's axes, the direction of the 64 face's).
+CORE = 1.15
 
 #: Smallest share of the environment's luminance power a source must hold to be taken out. The bundled
 #: environments' compact sources hold 6-33 % (city's sun 23.7 %, interior's lamp 20.3 %, forest's sun core 6.1 %);
@@ -67,11 +86,28 @@ class Source(NamedTuple):
     direction: tuple[float, float, float]
     power: tuple[float, float, float]
     radius: float
+    #: The source's two principal semi-axes in the plane normal to ``direction`` (rad; :func:`principal_axes`),
+    #: or () for a round source of RMS angle ``radius``: the core's shape (module docstring).
+    axes: tuple = ()
 
     def describe(self) -> str:
         d, p = self.direction, self.power
+        shape = "" if not self.axes else f" (axes {float(np.linalg.norm(self.axes[0])):.3g}, {float(np.linalg.norm(self.axes[1])):.3g} rad)"
         return (f"direction ({d[0]:.3f}, {d[1]:.3f}, {d[2]:.3f}), power ({p[0]:.4g}, {p[1]:.4g}, {p[2]:.4g}), "
-                f"radius {self.radius:.3g} rad")
+                f"radius {self.radius:.3g} rad{shape}")
+
+    def core_frame(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(e (2, 3), s2 (2,))``: unit principal axes normal to the direction and the core's squared widths
+        along them before the lobe's, (CORE |a_i|)^2; a round source: any orthonormal pair, (CORE radius)^2."""
+        ell = np.asarray(self.direction, np.float64)
+        a = np.asarray(self.axes, np.float64).reshape(-1, 3)
+        lengths = np.linalg.norm(a, axis=1)
+        if len(a) == 2 and lengths.min() > 1e-9:
+            return a / lengths[:, None], (CORE * lengths) ** 2
+        helper = np.array([1.0, 0.0, 0.0]) if abs(ell[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        e1 = np.cross(ell, helper)
+        e1 /= np.linalg.norm(e1)
+        return np.stack([e1, np.cross(ell, e1)]), np.full(2, (CORE * max(self.radius, 1e-9)) ** 2)
 
 
 def brightest_source(env: Environment, radius: float = RADIUS, ratio: float = RATIO,
@@ -109,8 +145,23 @@ def brightest_source(env: Environment, radius: float = RADIUS, ratio: float = RA
     out = rad.copy()
     out[core] = np.minimum(rad[core], fill)
     rest = eqx.tree_at(lambda e: e.radiance, env, jnp.asarray(out, jnp.asarray(env.radiance).dtype))
-    src = Source(tuple(float(c) for c in direction), tuple(float(c) for c in power), spread)
+    src = Source(tuple(float(c) for c in direction), tuple(float(c) for c in power), spread,
+                 principal_axes(d[core], weight, direction) if spread > 0 else ())
     return rest, src, share
+
+
+def principal_axes(directions, weights, direction) -> tuple:
+    """The principal semi-axes a_1, a_2 ((2, 3) as nested tuples, rad) of ``weights`` (N,) at unit ``directions``
+    (N, 3) about the unit ``direction``: the eigenvectors of their weighted covariance in the plane normal to it,
+    each scaled by sqrt 2 x the standard deviation along it, so a Gaussian exp(-sum (t.a_i)^2 / |a_i|^4) with
+    that covariance has |a_1|^2 + |a_2|^2 = 2 x its RMS angle^2 (a round source: |a_i| = its RMS angle)."""
+    d = np.asarray(directions, np.float64)
+    w = np.asarray(weights, np.float64)
+    ell = np.asarray(direction, np.float64)
+    p = d - (d @ ell)[:, None] * ell
+    cov = (p * w[:, None]).T @ p / max(float(w.sum()), 1e-300)
+    val, vec = np.linalg.eigh(cov)  # ascending; the smallest is along ell
+    return tuple(tuple(float(c) for c in vec[:, i] * np.sqrt(2 * max(val[i], 0.0))) for i in (2, 1))
 
 
 def widened_ratio(a2, s2, nh, sin2):
@@ -122,8 +173,8 @@ def widened_ratio(a2, s2, nh, sin2):
 
 def source_terms(sources, n: Float[Array, "N 3"], v: Float[Array, "N 3"], roughness) -> Float[Array, "N 3 3"]:
     """``(I_d, I_A, I_B)`` (N, 3, 3) of the analytic lights ``sources`` (a sequence of :class:`Source`) at the
-    pairs: the glTF lobes with D widened by each source's radius (module docstring) times (n.l)+ times each
-    power; 0 where n.v <= 0."""
+    pairs: I_d the point light's, I_A and I_B the core and the tail of the lobe convolved with the source
+    (module docstring), times each power; 0 where n.v <= 0 or n.l <= 0."""
     n = jnp.asarray(n, jnp.float32)
     v = jnp.asarray(v, jnp.float32)
     rho = jnp.broadcast_to(jnp.asarray(roughness, jnp.float32), n.shape[:1])
@@ -133,20 +184,36 @@ def source_terms(sources, n: Float[Array, "N 3"], v: Float[Array, "N 3"], roughn
     t, b = _frame(n)
     wo = _local(v, t, b, n)
     a2 = rho ** 4
+    x = jnp.where(wo[2] > 0, wo[2], 1.0)
+    r = 2 * x[:, None] * n - v
+    lam = 0.5 * (jnp.sqrt(1 + a2 * (1 - x * x) / (x * x)) - 1)
+    m5 = (1 - x) ** 5
     for s in sources:  # a handful of lights, not samples
-        wi = _local(jnp.broadcast_to(jnp.asarray(s.direction, jnp.float32), n.shape), t, b, n)
+        ell = jnp.asarray(s.direction, jnp.float32)
+        wi = _local(jnp.broadcast_to(ell, n.shape), t, b, n)
         above = (wi[2] > 0) & (wo[2] > 0)
         wi = tuple(jnp.where(above, c, 0.0 if i < 2 else 1.0) for i, c in enumerate(wi))
-        wo_ = (wo[0], wo[1], jnp.where(above, wo[2], 1.0))
+        wo_ = (wo[0], wo[1], x)
         d, la, lb = gltf_lobes_at(rho, wi, wo_)
         h = [a + c for a, c in zip(wi, wo_)]
         hn2 = h[0] * h[0] + h[1] * h[1] + h[2] * h[2]
-        s2 = (SPREAD * s.radius) ** 2 / 4 / wo_[2]
-        k = widened_ratio(a2, s2, jnp.maximum(h[2], 0.0) * jax.lax.rsqrt(hn2), (h[0] * h[0] + h[1] * h[1]) / hn2)
-        lobes = jnp.stack([d, la * k, lb * k], 1)  # (N, 3)
-        lobes = jnp.where(above[:, None], lobes * wi[2][:, None], 0.0)
+        S = (SPREAD * s.radius) ** 2 / 4 / x
+        k = widened_ratio(a2, S, jnp.maximum(h[2], 0.0) * jax.lax.rsqrt(hn2), (h[0] * h[0] + h[1] * h[1]) / hn2)
+        w = S / (a2 + S) if s.radius > 0 else jnp.zeros_like(x)
+        axes, widths = s.core_frame()
+        e = r - ell
+        s1 = float(widths[0]) + 4 * x * a2
+        s2 = float(widths[1]) + 4 * x * a2
+        q = ((e @ jnp.asarray(axes[0], jnp.float32)) ** 2 / s1 + (e @ jnp.asarray(axes[1], jnp.float32)) ** 2 / s2
+             + (e @ ell) ** 2 / jnp.minimum(s1, s2))
+        blob = jnp.exp(-q) / (jnp.pi * jnp.sqrt(s1 * s2)) / (1 + 2 * lam)
+        tail = jnp.stack([d, la * k, lb * k], 1) * wi[2][:, None]  # (N, 3)
+        core = jnp.stack([jnp.zeros_like(x), (1 - m5) * blob, m5 * blob], 1)
+        lobes = jnp.where(above[:, None], (1 - w)[:, None] * tail + w[:, None] * core, 0.0)
+        lobes = lobes.at[:, 0].set(jnp.where(above, tail[:, 0], 0.0))
         out = out + lobes[:, :, None] * jnp.asarray(s.power, jnp.float32)[None, None, :]
     return out
 
 
-__all__ = ["MIN_SHARE", "RADIUS", "RATIO", "SPREAD", "Source", "brightest_source", "source_terms", "widened_ratio"]
+__all__ = ["CORE", "MIN_SHARE", "RADIUS", "RATIO", "SPREAD", "Source", "brightest_source", "principal_axes", "source_terms",
+           "widened_ratio"]
