@@ -19,9 +19,10 @@ residual's lookups are 4 gathers of all factors' rows at once, so the program, w
 inside the inner solve, traces each once instead of once per factor. Levenberg-Marquardt runs as
 :func:`_lm`, optimistix's method (its damping, trust region, stop and truncated LSMR) in a program of its own
 that skips the proposal of the last step, which optimistix solves for and never evaluates, and returns F
-before and after. On the ``balanced`` polish of gold / forest (2 steps, 175 352 pairs, 8 factors) the solve
-went from 8.2 s CPU to compile and 1.6 s to run (and the objective's own program twice) to 6.2 s and 1.7 s,
-the result equal to 1e-7 (docs/notes/speed.md, "balanced, eighteenth session").
+before and after. On the ``balanced`` polish of gold / forest (2 steps, 175 352 pairs, 8 factors) that is
+6.2 s CPU to compile and 1.7 s to run against 8.2 s and 1.6 s for optimistix's program on the per-texture
+residuals (and the objective's own program), the same point to 1e-7 (docs/notes/speed.md, "balanced,
+eighteenth session").
 
 ``backend="jaxopt"`` runs jaxopt's ``LevenbergMarquardt`` / ``GaussNewton`` (matrix-free CG inner solve)
 on the same residual, for comparison; jaxopt is an optional extra (``homofac[jaxopt]``).
