@@ -525,6 +525,56 @@ def test_a_capped_inner_solve_still_steps():
     assert float(refine.objective(capped, prob, terms)) < 2 * float(refine.objective(full, prob, terms))
 
 
+def _three_texture_problem(seed: int = 1):
+    """A small sum of products (terms (0,), (1, 2)) over textures of 30, 12 and 7 unknowns, with smoothing and
+    sample weights: data of a nearby true model plus noise, so that Levenberg-Marquardt takes several steps."""
+    rng = np.random.default_rng(seed)
+    n, sizes, terms = 500, (30, 12, 7), ((0,), (1, 2))
+    which = [k for t in terms for k in t]
+    cols = [rng.integers(0, sizes[k], (n, 4)).astype(np.int32) for k in which]
+    w = [rng.dirichlet(np.ones(4), n).astype(np.float32) for _ in which]
+    true = [rng.uniform(0.5, 1.5, (m, 3)).astype(np.float32) for m in sizes]
+    y = sum(np.prod([np.einsum("nk,nkc->nc", w[j], true[which[j]][cols[j]]) for j in js], axis=0)
+            for js in ([0], [1, 2])) + rng.normal(0, 0.01, (n, 3))
+    lk = tuple(refine.Lookup(jnp.asarray(c), jnp.asarray(x)) for c, x in zip(cols, w))
+    edges = tuple(jnp.asarray(refine.edges_of(np.stack([np.roll(np.arange(m), 1)] + [-np.ones(m, int)] * 3, 1)))
+                  for m in sizes)
+    prob = refine.Problem(lk, jnp.asarray(y, jnp.float32), edges, tuple(jnp.float32(1e-3) for _ in sizes),
+                          refine.column_scales(lk, tuple(which), sizes),
+                          jnp.asarray(np.sqrt(rng.uniform(0.5, 2.0, n)), jnp.float32))
+    X0 = tuple(jnp.asarray(t * rng.uniform(0.6, 1.4, t.shape), jnp.float32) for t in true)
+    return X0, prob, terms
+
+
+@pytest.mark.parametrize("steps", [2, 5])
+def test_the_stacked_levenberg_marquardt_is_optimistixs(steps):
+    """refine's Levenberg-Marquardt (``_lm`` on the stacked unknowns) takes optimistix's steps: the same point
+    as ``optx.LevenbergMarquardt`` with the truncated LSMR on the per-texture residuals, the same step count,
+    and F before and after as :func:`refine.objective` reads them; the stacked residuals' sum of squares is F."""
+    import lineax as lx
+    import optimistix as optx
+    from homofac.fit.solvers.inexact import Truncated
+
+    X0, prob, terms = _three_texture_problem()
+    Z0, st = refine.stack(X0, prob, terms)
+    F0 = float(refine.objective(X0, prob, terms))
+    assert sum(float(jnp.sum(r * r)) for r in refine.stacked_residuals(Z0, st, terms)) == pytest.approx(F0, rel=1e-5)
+    solver = optx.LevenbergMarquardt(rtol=1e-7, atol=1e-7, linear_solver=Truncated(lx.LSMR(rtol=1e-4, atol=1e-4,
+                                                                                          max_steps=100)))
+    sol = optx.least_squares(lambda z, p: refine.residuals(z, p, terms), solver,
+                             tuple(x / s[:, None] for x, s in zip(X0, prob.scales)), args=prob, max_steps=steps,
+                             throw=False)
+    want = [np.asarray(z * s[:, None]) for z, s in zip(sol.value, prob.scales)]
+    X, taken, _, before, after = refine.solve_objectives(X0, prob, terms, iterations=steps)
+    assert taken == int(sol.stats["num_steps"])
+    assert after < 0.9 * before
+    assert before == pytest.approx(F0, rel=1e-5)
+    assert after == pytest.approx(float(refine.objective(X, prob, terms)), rel=1e-5)
+    for got, ref, x0 in zip(X, want, X0):
+        assert got.shape == x0.shape
+        np.testing.assert_allclose(np.asarray(got), ref, rtol=0, atol=1e-4 * float(np.max(np.abs(ref))))
+
+
 def test_nv_balance_needs_a_lighting_target():
     """BRDF pairs have no n.v: refused in one line before sampling, and by fit_sum."""
     target = hf.target.brdf_target(hf.brdf.phong(kd=0.2, ks=0.5, exponent=10.0))

@@ -845,10 +845,9 @@ def _fit_lm(target, fitted_specs, fitted_terms, layouts, x0, a, b, y, opts: Line
     prob = refine.Problem(tuple(lookups), jnp.asarray(y, jnp.float32), tuple(edges), mu, scales,
                           jnp.asarray(np.sqrt(weights), jnp.float32))
     X0 = tuple(jnp.asarray(x0[n], jnp.float32) for n in names)
-    start_obj = float(refine.objective(X0, prob, tuple(terms)))
-    X, steps, ok = refine.solve(X0, prob, tuple(terms), method=method, backend=opts.backend,
-                                iterations=int(opts.iterations), inner=int(opts.inner_iterations), chunk=chunk)
-    end_obj = float(refine.objective(X, prob, tuple(terms)))
+    X, steps, ok, start_obj, end_obj = refine.solve_objectives(
+        X0, prob, tuple(terms), method=method, backend=opts.backend, iterations=int(opts.iterations),
+        inner=int(opts.inner_iterations), chunk=chunk)
     return {n: np.asarray(x) for n, x in zip(names, X)}, steps, ok, np.array([start_obj, end_obj])
 
 
