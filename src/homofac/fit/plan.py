@@ -54,7 +54,8 @@ class Preset(NamedTuple):
     round, continue from where they stopped; empty: every candidate fitted in full); ``race_stride``: the
     first round fits every k-th training pair (k > 1: short fits of their own, those kept start over on
     every pair, or with ``race_continue`` continue on every pair from their short fit's textures:
-    :func:`homofac.fit.sums.continued`); ``tolerance``: the ALS
+    :func:`homofac.fit.sums.continued`; so does a line or disc vote's alternative fitted in full, from its
+    ``vote_screen`` short fit); ``tolerance``: the ALS
     stops where a sweep lowers its objective by less than this fraction (``advanced.linear.tolerance``);
     ``vote_screen``: ALS sweeps of the short fits (on every ``race_stride``-th pair, as the race's first round)
     that the line and disc votes read first: the kept structure's other line size, or its disc, is fitted in
@@ -220,7 +221,7 @@ class Plan:
     race_keep: tuple[int, ...]  # at most this many continue after each round
     race_margin: float  # ... the lowest and those within this relative margin of its figure
     race_stride: int  # the first round fits every k-th training pair (k > 1: fits of their own)
-    race_continue: bool  # ... from which those kept continue on every pair (else they start over)
+    race_continue: bool  # ... from which those kept (and the votes' screened alternatives) continue on every pair
     vote_screen: int  # ALS sweeps of the short fits the line and disc votes read first (0: full refits only)
     vote_stride: int  # ... fitted on every k-th training pair
     ridge: int
@@ -489,9 +490,11 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
     vote_screen = (p.vote_screen if choosing and p is not None and (len(sizes) > 1 or disc) and als_fit
                    and not lin.polish and 0 < p.vote_screen <= lin.iterations - (p.race_stride <= 1) else 0)
     vote_stride = int(p.race_stride) if vote_screen else 1
+    carry = bool(race and p.race_stride > 1 and p.race_continue)  # full fits continue from their short fits
     quick = (f"; the alternative fitted in full only where a {vote_screen}-sweep ALS fit"
              + (f" on every {vote_stride}th training pair" if vote_stride > 1 else "")
-             + " reads lower than the kept structure's" if vote_screen else "")
+             + " reads lower than the kept structure's" + (", continuing from that fit" if carry else "")
+             if vote_screen else "")
     if choosing:
         figure = _vote_figure(ridge)
         rule = (f"the first whose figure meets target_error {opts.target_error:g}" if opts.target_error is not None
@@ -522,7 +525,7 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
                 polish_stride=int(p.polish_stride) if steps else 1, polish_direct=direct, ridge=int(ridge or 0),
                 race=race, race_keep=race_keep, race_margin=float(p.race_margin) if race else 0.0,
                 race_stride=int(p.race_stride) if race else 1,
-                race_continue=bool(race and p.race_stride > 1 and p.race_continue),
+                race_continue=carry,
                 vote_screen=int(vote_screen), vote_stride=vote_stride,
                 line_sizes=sizes,
                 disc_vote=disc, analysis=bool(choosing and target.kind == "lighting"
