@@ -129,8 +129,8 @@ BALANCED_RACE = {**RACE, "race_keep": (1,), "race_margin": 0.0, "tolerance": 1e-
 #: fits on 300 000 pairs (0.101 / 0.104 / 0.122; on the converged truth 0.095 / 0.102 / 0.117); the race of 10
 #: sweeps kept the third (docs/notes/speed.md, "best, seventeenth session"). The kept candidate continues from
 #: its race fit (``race_continue``, as ``balanced``'s): on plastic / city the fit on every pair then converges in 5
-#: sweeps (27 s CPU) where one started over ran 14 (60 s), to a figure as low (validation with the ridge stratum
-#: 0.140 against 0.143; docs/notes/speed.md, "best, eighteenth session").
+#: sweeps (27 s CPU) where one started over runs its highlight start and 14, to a figure as low (validation with
+#: the ridge stratum 0.140 against 0.143; docs/notes/speed.md, "best, eighteenth session").
 BEST_RACE = {**BALANCED_RACE, "race": (30,)}
 
 #: ``fast`` has no polish: on the accuracy benchmark's four speed cases the polish then (a 2-step trial, then 8
