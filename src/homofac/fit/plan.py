@@ -162,8 +162,9 @@ FAST_GRID_COUNT = 175_000
 #: straight from the ALS fit (``polish_direct``; the stage kept on every case where three were tried:
 #: docs/notes/sums-research.md, "A third polish stage"). On gold / forest the choice among its 11 candidates is
 #: most of its accuracy: the full fits of the three leading structures on 300 000 pairs read 0.095 / 0.102 /
-#: 0.117 on the converged truth (docs/notes/speed.md, "best, seventeenth session"). Open: on plastic / city these
-#: values read 0.0669 on the truth, above ``balanced``'s 0.0599 (the sun's grazing ridge; same note, "Other cases").
+#: 0.117 on the converged truth (docs/notes/speed.md, "best, seventeenth session"). On plastic / city the benchmark's
+#: 20000 pairs put it above ``balanced`` (0.0626 against 0.0598) and the 270 000 dense pairs, which see the city sun's
+#: grazing ridge, below (0.118 against 0.138; docs/notes/speed.md, "best, eighteenth session").
 PRESETS: dict[str, Preset] = {
     "fast": Preset(lookups=4, grid_count=FAST_GRID_COUNT, validation=DEFAULT_VALIDATION, line_ratio=0, table=False,
                    disc_vote=False, nv_balance=1.0, polish=0, ridge=0, analysis=False, directions=PRESET_DIRECTIONS,
