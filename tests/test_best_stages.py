@@ -79,6 +79,8 @@ def test_best_plans_the_short_fits_of_its_votes_and_balanced_has_no_such_votes()
     over = {"advanced": {"validation_light": int(validation.environment(t).info["resolution"])}}
     best = plan.build_plan(t, "best", over)
     assert best.vote_screen == plan.PRESETS["best"].vote_screen > 0 and best.vote_stride == best.race_stride
+    # the kept candidate, and a vote's alternative fitted in full, continue from their short fits
+    assert best.race_continue and best.to_dict()["race"]["continue"] and "continues on every pair" in str(best)
     votes = {v.name: v.reads for v in best.votes}
     assert all(f"{best.vote_screen}-sweep" in votes[n] for n in ("lines", "disc"))
     assert plan.dumps(best) and '"vote_screen"' in plan.dumps(best)

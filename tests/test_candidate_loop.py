@@ -49,6 +49,33 @@ def test_a_warm_start_keeps_the_highlight_terms(sun):
                                atol=1e-5 * float(np.max(np.abs(want))))
 
 
+TABLE = Structure("RO", 1, "fitted", True, reflection=True, highlights={"terms": 1, "fresnel": True, "table": True})
+
+
+def test_a_table_fit_continued_from_its_short_fit_starts_where_the_short_fit_stopped(sun):
+    """``best``'s kept candidate continues from its race fit (``race_continue``): for a structure whose highlight
+    terms read a table T(n.i, n.v) the ALS carries the lines the table was made of, so the head's table is
+    separated again (:func:`homofac.fit.table.separate`) and tabulated at the end. Before any sweep the continued
+    fit keeps the head's accuracy (to the two interpolations: within 2 % of its validation nrmse), and its sweeps on
+    every pair lower the training error from there."""
+    target, samples = sun
+    head = sums.fit_sum(target, TABLE, "dual_paraboloid", 8, sums.strided(samples, 3),
+                        OPTS.model_copy(update={"iterations": 3}))
+    run = sums.begin(target, TABLE, "dual_paraboloid", 8, samples, OPTS, previous=head.model)
+    assert run.sweeps == 0
+    again = sums.finish(run)
+    out = sums.continued(target, TABLE, "dual_paraboloid", 8, samples, OPTS, stride=3, sweeps=3, head=head)
+
+    def nrmse(model, a, b, y) -> float:
+        d = np.asarray(model.evaluate(np.asarray(a), np.asarray(b)), np.float64) - np.asarray(y, np.float64)
+        return float(np.mean(np.linalg.norm(d, axis=0) / np.linalg.norm(np.asarray(y, np.float64), axis=0)))
+
+    val = (samples.val_a, samples.val_b, samples.val_y)
+    assert abs(nrmse(again.model, *val) / nrmse(head.model, *val) - 1.0) < 0.02
+    train = (samples.a, samples.b, samples.y)
+    assert out.solver["structure"] == TABLE.record() and nrmse(out.model, *train) < nrmse(head.model, *train)
+
+
 def test_a_fit_continued_from_its_strided_short_fit_carries_it_on_every_pair(sun):
     """``continued``: the short fit on every 3rd pair, then the fit on every pair from its model; the record
     names the head (stride, sweeps, its start) and the start rule of the head, and the short fit given (the

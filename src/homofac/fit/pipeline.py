@@ -285,7 +285,9 @@ def _sums(target: Target, the_plan: Plan, samples: Samples, record: dict, sample
     slots = sums.als_slots(target, the_plan.candidates, mapper, opts.texture_size, sizes[0])
 
     running: dict = {}  # structure -> its fit under way (the race's candidates still in it)
-    heads: dict = {}  # structure -> its short fit of the race's strided first round
+    # (structure, line size) -> its strided short fit (the race's first round, a line or disc vote's screen), its
+    # stride and sweeps: with race_continue the full fit continues from it
+    heads: dict = {}
 
     def start(structure: Structure) -> sums.Running:
         tgt, smp, _ = pool(structure)
@@ -295,9 +297,10 @@ def _sums(target: Target, the_plan: Plan, samples: Samples, record: dict, sample
         tgt, smp, _ = pool(structure)
         if line == sizes[0] and structure in running:  # a candidate of the race continues from where it stopped
             sf = sums.finish(sums.advance(running.pop(structure), None, log))
-        elif line == sizes[0] and the_plan.race_continue and structure in heads:  # ... or from its strided fit
-            sf = sums.continued(tgt, structure, mapper, opts.texture_size, smp, lin, log, stride=the_plan.race_stride,
-                                sweeps=the_plan.race[0], line_size=line, slots=slots, head=heads.pop(structure))
+        elif the_plan.race_continue and (structure, line) in heads:  # ... or from its strided short fit
+            head, k, n = heads.pop((structure, line))
+            sf = sums.continued(tgt, structure, mapper, opts.texture_size, smp, lin, log, stride=k, sweeps=n,
+                                line_size=line, slots=slots, head=head)
         else:
             sf = sums.fit_sum(tgt, structure, mapper, opts.texture_size, smp, lin, log, line_size=line, slots=slots)
         if lin.polish > 0:
@@ -357,10 +360,10 @@ def _sums(target: Target, the_plan: Plan, samples: Samples, record: dict, sample
             if stride > 1:  # a short fit of its own on every stride-th pair (those kept continue from it on
                 # every pair where the plan says race_continue, else start over)
                 tgt, smp, _ = pool(structure)
-                heads[structure] = sums.fit_sum(tgt, structure, mapper, opts.texture_size, sums.strided(smp, stride),
-                                                lin.model_copy(update={"iterations": sweeps}), log,
-                                                line_size=sizes[0], slots=slots)
-                return as_result(structure, heads[structure])
+                head = sums.fit_sum(tgt, structure, mapper, opts.texture_size, sums.strided(smp, stride),
+                                    lin.model_copy(update={"iterations": sweeps}), log, line_size=sizes[0], slots=slots)
+                heads[structure, sizes[0]] = (head, stride, sweeps)
+                return as_result(structure, head)
             run = running[structure] if structure in running else start(structure)
             running[structure] = sums.advance(run, sweeps - run.sweeps, log)
             return as_result(structure, sums.finish(running[structure]))
@@ -389,9 +392,10 @@ def _sums(target: Target, the_plan: Plan, samples: Samples, record: dict, sample
                     tgt, smp, _ = pool(s)
                     k = the_plan.vote_stride
                     slin = lin.model_copy(update={"iterations": the_plan.vote_screen})
-                    r = as_result(s, sums.fit_sum(tgt, s, mapper, opts.texture_size,
-                                                  smp._replace(a=smp.a[::k], b=smp.b[::k], y=smp.y[::k]), slin,
-                                                  log, line_size=n, slots=slots))
+                    sf = sums.fit_sum(tgt, s, mapper, opts.texture_size, sums.strided(smp, k), slin, log, line_size=n,
+                                      slots=slots)
+                    heads[s, n] = (sf, k, the_plan.vote_screen)  # a full fit of it continues from here
+                    r = as_result(s, sf)
                     shorts[s, n] = (_vote_errors([r], score)[1][0], r)
             return shorts[s, n]
 

@@ -54,7 +54,8 @@ class Preset(NamedTuple):
     round, continue from where they stopped; empty: every candidate fitted in full); ``race_stride``: the
     first round fits every k-th training pair (k > 1: short fits of their own, those kept start over on
     every pair, or with ``race_continue`` continue on every pair from their short fit's textures:
-    :func:`homofac.fit.sums.continued`); ``tolerance``: the ALS
+    :func:`homofac.fit.sums.continued`; so does a line or disc vote's alternative fitted in full, from its
+    ``vote_screen`` short fit); ``tolerance``: the ALS
     stops where a sweep lowers its objective by less than this fraction (``advanced.linear.tolerance``);
     ``vote_screen``: ALS sweeps of the short fits (on every ``race_stride``-th pair, as the race's first round)
     that the line and disc votes read first: the kept structure's other line size, or its disc, is fitted in
@@ -126,8 +127,11 @@ BALANCED_RACE = {**RACE, "race_keep": (1,), "race_margin": 0.0, "tolerance": 1e-
 #: fits of ``E'+NROW x4+HFT x1``, ``E'+NROW x4+R+HW x1`` and ``E'+ROW x4+R+HFW x2`` read 0.133 / 0.117 / 0.130
 #: after 10 sweeps, 0.119 / 0.115 / 0.128 after 20 and 0.112 / 0.113 / 0.128 after 30, the order of their full
 #: fits on 300 000 pairs (0.101 / 0.104 / 0.122; on the converged truth 0.095 / 0.102 / 0.117); the race of 10
-#: sweeps kept the third (docs/notes/speed.md, "best, seventeenth session").
-BEST_RACE = {**BALANCED_RACE, "race": (30,), "race_continue": False}  # continuing not measured at 16 lookups
+#: sweeps kept the third (docs/notes/speed.md, "best, seventeenth session"). The kept candidate continues from
+#: its race fit (``race_continue``, as ``balanced``'s): on plastic / city the fit on every pair then converges in 5
+#: sweeps (27 s CPU) where one started over runs its highlight start and 14, to a figure as low (validation with
+#: the ridge stratum 0.140 against 0.143; docs/notes/speed.md, "best, eighteenth session").
+BEST_RACE = {**BALANCED_RACE, "race": (30,)}
 
 #: ``fast`` has no polish: on the accuracy benchmark's four speed cases the polish then (a 2-step trial, then 8
 #: steps on every pair) lowered the figure on one (mirror / studio, 0.3514 unpolished against 0.3454 polished on the converged truth, +1.7 %), and the
@@ -158,8 +162,9 @@ FAST_GRID_COUNT = 175_000
 #: straight from the ALS fit (``polish_direct``; the stage kept on every case where three were tried:
 #: docs/notes/sums-research.md, "A third polish stage"). On gold / forest the choice among its 11 candidates is
 #: most of its accuracy: the full fits of the three leading structures on 300 000 pairs read 0.095 / 0.102 /
-#: 0.117 on the converged truth (docs/notes/speed.md, "best, seventeenth session"). Open: on plastic / city these
-#: values read 0.0669 on the truth, above ``balanced``'s 0.0599 (the sun's grazing ridge; same note, "Other cases").
+#: 0.117 on the converged truth (docs/notes/speed.md, "best, seventeenth session"). On plastic / city the benchmark's
+#: 20000 pairs put it above ``balanced`` (0.0626 against 0.0598) and the 270 000 dense pairs, which see the city sun's
+#: grazing ridge, below (0.118 against 0.138; docs/notes/speed.md, "best, eighteenth session").
 PRESETS: dict[str, Preset] = {
     "fast": Preset(lookups=4, grid_count=FAST_GRID_COUNT, validation=DEFAULT_VALIDATION, line_ratio=0, table=False,
                    disc_vote=False, nv_balance=1.0, polish=0, ridge=0, analysis=False, directions=PRESET_DIRECTIONS,
@@ -216,7 +221,7 @@ class Plan:
     race_keep: tuple[int, ...]  # at most this many continue after each round
     race_margin: float  # ... the lowest and those within this relative margin of its figure
     race_stride: int  # the first round fits every k-th training pair (k > 1: fits of their own)
-    race_continue: bool  # ... from which those kept continue on every pair (else they start over)
+    race_continue: bool  # ... from which those kept (and the votes' screened alternatives) continue on every pair
     vote_screen: int  # ALS sweeps of the short fits the line and disc votes read first (0: full refits only)
     vote_stride: int  # ... fitted on every k-th training pair
     ridge: int
@@ -485,9 +490,11 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
     vote_screen = (p.vote_screen if choosing and p is not None and (len(sizes) > 1 or disc) and als_fit
                    and not lin.polish and 0 < p.vote_screen <= lin.iterations - (p.race_stride <= 1) else 0)
     vote_stride = int(p.race_stride) if vote_screen else 1
+    carry = bool(race and p.race_stride > 1 and p.race_continue)  # full fits continue from their short fits
     quick = (f"; the alternative fitted in full only where a {vote_screen}-sweep ALS fit"
              + (f" on every {vote_stride}th training pair" if vote_stride > 1 else "")
-             + " reads lower than the kept structure's" if vote_screen else "")
+             + " reads lower than the kept structure's" + (", continuing from that fit" if carry else "")
+             if vote_screen else "")
     if choosing:
         figure = _vote_figure(ridge)
         rule = (f"the first whose figure meets target_error {opts.target_error:g}" if opts.target_error is not None
@@ -518,7 +525,7 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
                 polish_stride=int(p.polish_stride) if steps else 1, polish_direct=direct, ridge=int(ridge or 0),
                 race=race, race_keep=race_keep, race_margin=float(p.race_margin) if race else 0.0,
                 race_stride=int(p.race_stride) if race else 1,
-                race_continue=bool(race and p.race_stride > 1 and p.race_continue),
+                race_continue=carry,
                 vote_screen=int(vote_screen), vote_stride=vote_stride,
                 line_sizes=sizes,
                 disc_vote=disc, analysis=bool(choosing and target.kind == "lighting"
