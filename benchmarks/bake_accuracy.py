@@ -330,7 +330,7 @@ def cell_seed(name: str, band_index: int) -> int:
 def methods_at(n, v, c, m, rho, ctx):
     """Every method's radiance (N, 3) at the pairs, with the reference and its record (:func:`cell`)."""
     parts, samples, conv, change = reference(ctx["src"], n, v, rho, c, m, start=ctx["ref_start"], cap=ctx["cap"], w=ctx["w"])
-    out = {"reference": np.asarray(material_radiance(jnp.asarray(parts), c, m)),
+    out = {"reference": np.asarray(material_radiance(jnp.asarray(parts), c, m)), "reference_parts": np.asarray(parts),
            "split_sum_ideal": np.asarray(material_radiance(jnp.asarray(ideal_split_sum(
                ctx["src"], ctx["uniform"], ctx["name"], n, v, rho, samples, ctx["albedo_samples"])), c, m)),
            "split_sum_engines": np.asarray(material_radiance(jnp.asarray(ctx["engines"](n, v, rho)), c, m))}
@@ -369,7 +369,7 @@ def cell(image, band, band_index, ctx, start, cap, nv, nv_share=NV_SHARE):
         batches.append(rec)
         vals = {k: (np.concatenate([vals[k], x]) if k in vals else x) for k, x in out.items()}
         L = vals["reference"]
-        cells = {k: weighted_nrmse(x, L, w) for k, x in vals.items() if k != "reference"}
+        cells = {k: weighted_nrmse(x, L, w) for k, x in vals.items() if not k.startswith("reference")}
         history.append({"pairs": count, **{k: round(x, 5) for k, x in cells.items()}})
         move = None
         if len(history) > 1:
@@ -421,6 +421,9 @@ def main(argv=None):
     ap.add_argument("--no-sampler", action="store_true", help="leave glTF-IBL-Sampler out")
     ap.add_argument("--bake-dir", default=None, help="read the bakes from DIR/NAME-PRESET when there (else bake and keep them there)")
     ap.add_argument("--out", default=str(HERE / "bake_accuracy"), help="stem of the .json and .md written")
+    ap.add_argument("--save-pairs", default=None,
+                    help="write each cell's pairs, weights, every method's radiance and the reference's (d, A, B) to "
+                         "DIR/NAME-BAND.npz (what benchmarks/bake_breakdown.py --pairs-from reads)")
     args = ap.parse_args(argv)
     fit_rng = np.random.default_rng(1)
     dfg32 = DFG(32)
@@ -475,7 +478,10 @@ def main(argv=None):
             band = BANDS[bi]
             ctx["seed"] = cell_seed(name, bi)
             t_cell = time.process_time()
-            row, (n, v, c, m, rho, w), _ = cell(image, band, bi, ctx, args.pairs, args.max_pairs, args.nv, args.nv_share)
+            row, (n, v, c, m, rho, w), vals = cell(image, band, bi, ctx, args.pairs, args.max_pairs, args.nv, args.nv_share)
+            if args.save_pairs:
+                Path(args.save_pairs).mkdir(parents=True, exist_ok=True)
+                np.savez_compressed(Path(args.save_pairs) / f"{name}-{bi}.npz", n=n, v=v, c=c, m=m, rho=rho, w=w, **vals)
             row["cpu_s"] = time.process_time() - t_cell
             rows.append(row)
             print(json.dumps({k: (round(x, 4) if isinstance(x, float) else x) for k, x in row.items()
