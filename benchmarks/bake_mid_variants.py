@@ -6,10 +6,13 @@
   (P_1 and the tensor in the harmonic layers, P_1 and P_2 below). Its ``texture_bytes`` holds the tensor in a
   map of its own, so the packed layout's bytes are not this figure (about the mixed bake's plus the crossing
   layer's P_2 block at half face and one more table).
+* ``unpacked``: the harmonic layers keep both products and add the tensor in a map of its own (``mixed=False``,
+  `balanced+h0.35` of the accuracy benchmark: 10 fetches, the upper bound of what packing the harmonic
+  beside K = 2 could read).
 * ``screen``: the layers' fit weighting the n.v columns by the screen measure 2 n.v (``build.NV_MEASURE``), the
   benchmark population's density of n.v, instead of uniformly.
 
-    PYTHONPATH=src python benchmarks/bake_mid_variants.py PAIRS_DIR --variant nocross|screen --envs forest ... --bands 1 2
+    PYTHONPATH=src python benchmarks/bake_mid_variants.py PAIRS_DIR --variant nocross|unpacked|screen --envs forest ... --bands 1 2
 """
 
 from __future__ import annotations
@@ -37,13 +40,15 @@ def no_crossing(self) -> tuple[int, ...]:
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("pairs")
-    ap.add_argument("--variant", choices=("nocross", "screen"), required=True)
+    ap.add_argument("--variant", choices=("nocross", "unpacked", "screen"), required=True)
     ap.add_argument("--envs", nargs="+", default=["forest", "interior", "studio"])
     ap.add_argument("--bands", nargs="+", type=int, default=[1, 2])
     args = ap.parse_args(argv)
     opts = {}
     if args.variant == "nocross":
         BakePlan.layer_terms = no_crossing
+        opts["mixed"] = False
+    elif args.variant == "unpacked":
         opts["mixed"] = False
     else:
         build.NV_MEASURE = "screen"
