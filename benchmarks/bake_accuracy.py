@@ -81,7 +81,7 @@ from homofac.light.integrals import material_radiance
 from homofac.light.reference import reference_integrals, source_map
 from homofac.param import mappers
 
-from bake_pairs import weighted_nrmse, weighted_pairs
+from bake_pairs import NV_SHARE, weighted_nrmse, weighted_pairs
 
 BANDS = ((0.045, 0.15), (0.15, 0.3), (0.3, 0.6), (0.6, 1.0))
 HERE = Path(__file__).parent
@@ -330,7 +330,7 @@ def cell_seed(name: str, band_index: int) -> int:
 def methods_at(n, v, c, m, rho, ctx):
     """Every method's radiance (N, 3) at the pairs, with the reference and its record (:func:`cell`)."""
     parts, samples, conv, change = reference(ctx["src"], n, v, rho, c, m, start=ctx["ref_start"], cap=ctx["cap"], w=ctx["w"])
-    out = {"reference": np.asarray(material_radiance(jnp.asarray(parts), c, m)),
+    out = {"reference": np.asarray(material_radiance(jnp.asarray(parts), c, m)), "reference_parts": np.asarray(parts),
            "split_sum_ideal": np.asarray(material_radiance(jnp.asarray(ideal_split_sum(
                ctx["src"], ctx["uniform"], ctx["name"], n, v, rho, samples, ctx["albedo_samples"])), c, m)),
            "split_sum_engines": np.asarray(material_radiance(jnp.asarray(ctx["engines"](n, v, rho)), c, m))}
@@ -355,21 +355,21 @@ def pair_check(ctx, n, v, c, m, rho, w, L, err, samples):
             "lowest_nv": float(np.sum(n[top] * v[top], 1).min())}
 
 
-def cell(image, band, band_index, ctx, start, cap, nv):
+def cell(image, band, band_index, ctx, start, cap, nv, nv_share=NV_SHARE):
     """One cell (environment x band): pairs (:func:`bake_pairs.weighted_pairs`) doubled from ``start`` until one
     more doubling moves every method's weighted nrmse by < ``TOLERANCE`` (relative), or ``cap``; the reference
     doubled per batch of new pairs (:func:`reference`). Returns the row and the arrays."""
     count, have, vals, history, batches = start, 0, {}, [], []
     arrays = None
     while True:
-        n, v, c, m, rho, w = weighted_pairs(image, band, count, ctx["seed"], nv)
+        n, v, c, m, rho, w = weighted_pairs(image, band, count, ctx["seed"], nv, nv_share)
         new = slice(have, count)
         ctx["w"] = w[new]
         out, rec = methods_at(n[new], v[new], c[new], m[new], rho[new], ctx)
         batches.append(rec)
         vals = {k: (np.concatenate([vals[k], x]) if k in vals else x) for k, x in out.items()}
         L = vals["reference"]
-        cells = {k: weighted_nrmse(x, L, w) for k, x in vals.items() if k != "reference"}
+        cells = {k: weighted_nrmse(x, L, w) for k, x in vals.items() if not k.startswith("reference")}
         history.append({"pairs": count, **{k: round(x, 5) for k, x in cells.items()}})
         move = None
         if len(history) > 1:
@@ -385,7 +385,7 @@ def cell(image, band, band_index, ctx, start, cap, nv):
     err = np.sum((vals[first] - L) ** 2, 1)
     check = pair_check(ctx, n, v, c, m, rho, w, L, err, max(r["samples"] for r in batches))
     x = np.sum(n * v, 1)
-    row = {"environment": ctx["name"], "band": list(band), "pairs": count, "nv": nv, "converged": bool(move and max(move.values()) < TOLERANCE),
+    row = {"environment": ctx["name"], "band": list(band), "pairs": count, "nv": nv, "nv_share": nv_share, "converged": bool(move and max(move.values()) < TOLERANCE),
            "movement": {k: round(x_, 4) for k, x_ in (move or {}).items()}, "history": history,
            "reference_samples": max(r["samples"] for r in batches), "reference_converged": all(r["converged"] for r in batches),
            "reference_last_change": max(r["change"] or 0 for r in batches), "reference_batches": batches, "reference_check": check,
@@ -404,6 +404,9 @@ def main(argv=None):
     ap.add_argument("--max-pairs", type=int, default=MAX_PAIRS, help="cap of a cell's pairs")
     ap.add_argument("--nv", choices=("cosine", "uniform"), default="cosine",
                     help="n.v as on a rendered object (cosine) or uniform on the hemisphere (the earlier runs)")
+    ap.add_argument("--nv-share", type=float, default=NV_SHARE,
+                    help="share of the population's own n.v law in the proposal of n | r, the rest favouring grazing "
+                         "views (bake_pairs.py (2'); 1: the seventeenth session's pairs)")
     ap.add_argument("--presets", nargs="+", default=["fast", "balanced"],
                     help="presets, or PRESET+hR: the preset with the second harmonic from roughness R, unpacked "
                          "(--harmonic R --no-mixed; +h0: none); PRESET+mR: mixed (--harmonic R --mixed)")
@@ -418,6 +421,9 @@ def main(argv=None):
     ap.add_argument("--no-sampler", action="store_true", help="leave glTF-IBL-Sampler out")
     ap.add_argument("--bake-dir", default=None, help="read the bakes from DIR/NAME-PRESET when there (else bake and keep them there)")
     ap.add_argument("--out", default=str(HERE / "bake_accuracy"), help="stem of the .json and .md written")
+    ap.add_argument("--save-pairs", default=None,
+                    help="write each cell's pairs, weights, every method's radiance and the reference's (d, A, B) to "
+                         "DIR/NAME-BAND.npz (what benchmarks/bake_breakdown.py --pairs-from reads)")
     args = ap.parse_args(argv)
     fit_rng = np.random.default_rng(1)
     dfg32 = DFG(32)
@@ -472,7 +478,10 @@ def main(argv=None):
             band = BANDS[bi]
             ctx["seed"] = cell_seed(name, bi)
             t_cell = time.process_time()
-            row, (n, v, c, m, rho, w), _ = cell(image, band, bi, ctx, args.pairs, args.max_pairs, args.nv)
+            row, (n, v, c, m, rho, w), vals = cell(image, band, bi, ctx, args.pairs, args.max_pairs, args.nv, args.nv_share)
+            if args.save_pairs:
+                Path(args.save_pairs).mkdir(parents=True, exist_ok=True)
+                np.savez_compressed(Path(args.save_pairs) / f"{name}-{bi}.npz", n=n, v=v, c=c, m=m, rho=rho, w=w, **vals)
             row["cpu_s"] = time.process_time() - t_cell
             rows.append(row)
             print(json.dumps({k: (round(x, 4) if isinstance(x, float) else x) for k, x in row.items()
