@@ -50,6 +50,20 @@ import bake_accuracy as ba  # noqa: E402
 from bake_pairs import weighted_pairs  # noqa: E402
 
 
+def core_and_fill(d: np.ndarray, rad: np.ndarray, dw: np.ndarray, radius: float, ratio: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(core (N,) bool, fill (3,))`` at unit directions ``d`` (N, 3) of radiance ``rad`` (N, 3) and solid angle
+    ``dw`` (N,): the brightest direction's core (within ``radius`` rad of it with >= 1/``ratio`` of its luminance)
+    and the mean radiance of the ring around it (radius to 2 radius, at least two texels wide), as
+    :func:`homofac.bake.sources.brightest_source` takes them."""
+    lum = rad @ np.asarray(LUMINANCE, np.float64)
+    seed = int(np.argmax(lum))
+    cos = d @ d[seed]
+    core = (cos > np.cos(radius)) & (lum >= lum[seed] / ratio)
+    outer = max(2 * radius, radius + 2 * float(np.sqrt(dw.max())))
+    ring = (cos <= np.cos(radius)) & (cos > np.cos(outer))
+    return core, (rad[ring] * dw[ring, None]).sum(0) / dw[ring].sum()
+
+
 def split_core(image: np.ndarray, radius: float = RADIUS, ratio: float = RATIO) -> tuple[np.ndarray, np.ndarray]:
     """``(core, rest)`` lat-long images (H, 2H, 3), core + rest = image: the brightest pixel's core (pixels within
     ``radius`` rad of it with >= 1/``ratio`` of its luminance) minus the ring's fill (radius to 2 radius, at least
@@ -59,13 +73,7 @@ def split_core(image: np.ndarray, radius: float = RADIUS, ratio: float = RATIO) 
     d = latlong_directions(h, w).reshape(-1, 3)
     dw = np.repeat(latlong_solid_angles(h, w), w)
     rad = img.reshape(-1, 3)
-    lum = rad @ np.asarray(LUMINANCE, np.float64)
-    seed = int(np.argmax(lum))
-    cos = d @ d[seed]
-    core = (cos > np.cos(radius)) & (lum >= lum[seed] / ratio)
-    outer = max(2 * radius, radius + 2 * float(np.sqrt(dw.max())))
-    ring = (cos <= np.cos(radius)) & (cos > np.cos(outer))
-    fill = (rad[ring] * dw[ring, None]).sum(0) / dw[ring].sum()
+    core, fill = core_and_fill(d, rad, dw, radius, ratio)
     rest = rad.copy()
     rest[core] = np.minimum(rad[core], fill)
     return (rad - rest).reshape(img.shape), rest.reshape(img.shape)
@@ -248,8 +256,6 @@ def main(argv=None):
             print(json.dumps(row), flush=True)
 
 
-if __name__ == "__main__":
-    main()
 
 
 def source_shape(env, source) -> tuple[np.ndarray, np.ndarray]:
@@ -259,13 +265,7 @@ def source_shape(env, source) -> tuple[np.ndarray, np.ndarray]:
     d = np.asarray(env.directions, np.float64)
     rad = np.asarray(env.radiance, np.float64)
     dw = np.asarray(env.solid_angle, np.float64)
-    lum = rad @ np.asarray(LUMINANCE, np.float64)
-    seed = int(np.argmax(lum))
-    cos = d @ d[seed]
-    core = (cos > np.cos(RADIUS)) & (lum >= lum[seed] / RATIO)
-    outer = max(2 * RADIUS, RADIUS + 2 * float(np.sqrt(dw.max())))
-    ring = (cos <= np.cos(RADIUS)) & (cos > np.cos(outer))
-    fill = (rad[ring] * dw[ring, None]).sum(0) / dw[ring].sum()
+    core, fill = core_and_fill(d, rad, dw, RADIUS, RATIO)
     wgt = np.maximum(rad[core] - fill, 0.0) * dw[core, None] @ np.asarray(LUMINANCE, np.float64)
     ell = np.asarray(source.direction, np.float64)
     p = d[core] - (d[core] @ ell)[:, None] * ell
@@ -302,3 +302,7 @@ def aniso_model(sources, shapes, n, v, rho, k1: float, k2: float, extra: float =
         part[:, 1:] += wg[:, None, None] * core[:, 1:]
         out += part
     return out
+
+
+if __name__ == "__main__":
+    main()
