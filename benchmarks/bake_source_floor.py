@@ -166,6 +166,24 @@ def source_model(sources, n, v, rho, model: str) -> np.ndarray:
     raise ValueError(f"unknown source model {model!r}")
 
 
+def core_and_tail(src, n, v, rho, k1: float, x, a2, blob) -> np.ndarray:
+    """``(I_d, I_A, I_B)`` (N, 3, 3) of one source as the weighted sum of the module's two parts: with S = (k1
+    radius)^2 / (4 n.v) and w = S / (alpha^2 + S), w of the core ``blob`` (N,) (the source's density read at the
+    mirror direction, already divided by 1 + 2 Lambda(n.v)) times the mirror's albedos (I_A: 1 - (1 - n.v)^5,
+    I_B: (1 - n.v)^5), and 1 - w of the point light's lobe with D at alpha^2 + S; I_d the point light's. ``x``
+    (N,) is n.v, ``a2`` alpha^2."""
+    S = (k1 * src.radius) ** 2 / (4 * x)
+    wg = S / (a2 + S)
+    part = profile_lobes((src._replace(radius=k1 * src.radius),), n, v, rho,
+                         lambda a2_, s2, nh, sin2: ggx(a2_ + s2, nh, sin2) / ggx(a2_, nh, sin2))
+    s5 = (1 - x) ** 5
+    core = np.stack([np.zeros_like(x), (1 - s5) * blob, s5 * blob], 1)[:, :, None] * np.asarray(src.power)[None, None, :]
+    part = part.copy()
+    part[:, 1:] *= (1 - wg)[:, None, None]
+    part[:, 1:] += wg[:, None, None] * core[:, 1:]
+    return part
+
+
 def core_model(sources, n, v, rho, k1: float, k2: float) -> np.ndarray:
     """``core:k1:k2``: S = (k1 radius)^2 / (4 n.v), w = S / (alpha^2 + S); w of the source as a Gaussian blob about
     its direction in light space, read at the reflected direction r with the mirror's albedos
@@ -178,22 +196,13 @@ def core_model(sources, n, v, rho, k1: float, k2: float) -> np.ndarray:
     a2 = np.asarray(rho, np.float64) ** 4
     out = np.zeros((len(x), 3, 3))
     for src in sources:
-        S = (k1 * src.radius) ** 2 / (4 * x)
-        wg = S / (a2 + S)
         ell = np.asarray(src.direction, np.float64)
         nl = n64 @ ell
-        wide = profile_lobes((src._replace(radius=k1 * src.radius),), n, v, rho,
-                             lambda a2_, s2, nh, sin2: ggx(a2_ + s2, nh, sin2) / ggx(a2_, nh, sin2))
         t2 = np.arccos(np.clip(r @ ell, -1, 1)) ** 2
         s2 = (k2 * src.radius) ** 2 + 4 * x * a2
         lam = 0.5 * (np.sqrt(1 + a2 * (1 - x * x) / (x * x)) - 1)
         blob = np.exp(-t2 / s2) / (np.pi * s2) / (1 + 2 * lam) * ((nl > 0) & (np.sum(n64 * v64, 1) > 0))
-        s5 = (1 - x) ** 5
-        core = np.stack([np.zeros_like(x), (1 - s5) * blob, s5 * blob], 1)[:, :, None] * np.asarray(src.power)[None, None, :]
-        part = wide.copy()
-        part[:, 1:] *= (1 - wg)[:, None, None]
-        part[:, 1:] += wg[:, None, None] * core[:, 1:]
-        out += part
+        out += core_and_tail(src, n, v, rho, k1, x, a2, blob)
     return out
 
 
@@ -283,24 +292,15 @@ def aniso_model(sources, shapes, n, v, rho, k1: float, k2: float, extra: float =
     a2 = np.asarray(rho, np.float64) ** 4
     out = np.zeros((len(x), 3, 3))
     for src, (axes, sig2) in zip(sources, shapes):
-        S = (k1 * src.radius) ** 2 / (4 * x)
-        wg = S / (a2 + S)
         ell = np.asarray(src.direction, np.float64)
         nl = n64 @ ell
-        wide = profile_lobes((src._replace(radius=k1 * src.radius),), n, v, rho,
-                             lambda a2_, s2, nh, sin2: ggx(a2_ + s2, nh, sin2) / ggx(a2_, nh, sin2))
         b = 4 * x * a2
         s2a = k2 ** 2 * sig2[0] + extra * src.radius ** 2 + b
         s2b = k2 ** 2 * sig2[1] + extra * src.radius ** 2 + b
         q = (r @ axes[0]) ** 2 / s2a + (r @ axes[1]) ** 2 / s2b
         lam = 0.5 * (np.sqrt(1 + a2 * (1 - x * x) / (x * x)) - 1)
         blob = np.exp(-q) / (np.pi * np.sqrt(s2a * s2b)) / (1 + 2 * lam) * ((nl > 0) & (r @ ell > 0))
-        s5 = (1 - x) ** 5
-        core = np.stack([np.zeros_like(x), (1 - s5) * blob, s5 * blob], 1)[:, :, None] * np.asarray(src.power)[None, None, :]
-        part = wide.copy()
-        part[:, 1:] *= (1 - wg)[:, None, None]
-        part[:, 1:] += wg[:, None, None] * core[:, 1:]
-        out += part
+        out += core_and_tail(src, n, v, rho, k1, x, a2, blob)
     return out
 
 
