@@ -147,9 +147,9 @@ BEST_RACE = {**BALANCED_RACE, "race": (30,)}
 #: truth moved by +0.1, -5.5, +0.4 and +1.6 % (docs/notes/speed.md, "balanced, sixteenth session").
 POLISH_STRIDE = 4
 
-#: The candidates ``balanced`` does not try: on the accuracy benchmark's cases (materials x environments; 12 of the
+#: The candidates ``balanced`` does not try: on the accuracy benchmark's cases (materials x environments; 11 of the
 #: 16 measured) its race's first round (10 ALS sweeps on every 4th grid pair) put ``E'+ROW x3+R`` 13.6 % or more
-#: above the lowest on every case (median 66 %), and it was the lowest after none of 1-10 sweeps on any
+#: above the lowest on every case (median 61 %), and it was the lowest after 2-10 sweeps on none
 #: (benchmarks/race_study_balanced19.json; docs/notes/speed.md, "balanced, nineteenth session"). It was the only
 #: candidate of its ALS slot shape (3 lined terms): dropping it saves that sweep program's compilation and its
 #: sweeps (about 4-5 s CPU in a fresh process) and changes no kept structure (the race keeps the lowest).
