@@ -295,6 +295,23 @@ def test_the_presets_try_the_candidates_of_their_grid_directions_and_say_how_the
     assert {hf.fit.draw.grid_projection("lighting", c.parametrization, grid) for c in given_r.candidates} == {"r"}
 
 
+def test_a_preset_does_not_try_its_dropped_candidates_unless_a_constraint_leaves_only_those(envs):
+    """``balanced`` drops the candidates its race never keeps (plan.BALANCED_DROPPED): they are among the
+    8-lookup structures of its grid direction (structures.candidates), not among its candidates (nor among
+    those of ``max_lookups: 8``, which is balanced's budget); a constraint that only they meet keeps them."""
+    t = _gold(envs["interior"])
+    grid = FitOptions().sampling.model_copy(update={"kind": "grid"})
+    every = {c.label() for c in hf.fit.structures.candidates("lighting", 8, parametrization="NR")
+             if hf.fit.draw.grid_projection("lighting", c.parametrization, grid) in plan.PRESET_DIRECTIONS}
+    got = {c.label() for c in _plan(t, "balanced").candidates}
+    dropped = set(plan.PRESETS["balanced"].dropped)
+    assert dropped and dropped <= every and got == every - dropped
+    assert {c.label() for c in _plan(t, None, {"max_lookups": 8}).candidates} == got  # the 8-lookup preset's
+    only = _plan(t, "balanced", {"diffuse": "fitted", "advanced": {"highlights": {"terms": 0}},
+                                 "parametrization": "RO"}).candidates
+    assert [c.label() for c in only] == ["E'+ROW x3+R"]
+
+
 def test_a_polish_trial_that_did_not_lower_the_figure_is_summarised_as_no_polish():
     before, after = {"validation_nrmse": 0.2141}, {"validation_nrmse": 0.2143}
     note = {"steps": 8, "validation_nrmse_before": 0.2141, "validation_nrmse_after": 0.2143, "stages": [],
