@@ -7,6 +7,7 @@
     python benchmarks/presets.py --presets fast --no-split-sum --overrides '{"sampling": {"count": 150000}}'
     python benchmarks/presets.py --presets best --no-split-sum --log   # each fit's stage log (wall, CPU s) on stderr
     python benchmarks/presets.py --presets balanced,best --cases plastic/city --dense   # also on the dense pairs
+    python benchmarks/presets.py --presets best --preset-values '{"race": [10, 20, 30], "race_keep": [11, 11, 1]}'
 
 Each preset is fitted as a user would fit it: ``hf.fit.factorize(target, preset=NAME)`` on the
 environment at its default light resolution (32) with the default texture size (32), in a fresh
@@ -22,7 +23,9 @@ against their own converged ground truth, cached in benchmarks/.cache after the 
 ``--warm`` adds, per preset, the second run of a user who changed the material: a first fit of copper
 (same environment, preset and overrides) fills a fresh compilation cache, then the row's material is fitted
 with it (``warm: true``; the sample cache is empty for both). ``--overrides`` replaces preset values with
-factorize keywords (a variant under study, recorded as ``overrides``).
+factorize keywords (a variant under study, recorded as ``overrides``); ``--preset-values`` replaces the preset's own
+values (:class:`homofac.fit.plan.Preset` fields, lists as tuples: a preset variant under study, recorded as
+``preset_values``).
 
 The machine is shared: wall times move by tens of percent with the load (``load`` records the 1-minute
 load average before and after each row).
@@ -64,10 +67,13 @@ def _polish_note(selection: dict | None) -> dict | None:
 
 
 def one(material: str, env: str, method: str, resolution: int, truth_limit: int = 512,
-        overrides: dict | None = None, log: bool = False, dense: bool = False) -> dict:
+        overrides: dict | None = None, log: bool = False, dense: bool = False, preset_values: dict | None = None) -> dict:
     """One row: fit ``method`` (a preset name or ``split_sum``, with ``overrides``: factorize keywords
     that replace the preset's values) and measure it; with ``log``, the fit's log on stderr, each line
     after the wall and CPU seconds since the row started."""
+    if preset_values:  # a variant of the preset under study (this process only)
+        hf.fit.plan.PRESETS[method] = hf.fit.plan.PRESETS[method]._replace(
+            **{k: tuple(v) if isinstance(v, list) else v for k, v in preset_values.items()})
     t0, c0 = time.perf_counter(), time.process_time()
 
     def stage(msg: str) -> None:
@@ -102,7 +108,8 @@ def one(material: str, env: str, method: str, resolution: int, truth_limit: int 
             "nrmse": err["nrmse"], "nrmse_grazing": err["nrmse_grazing"], "nrmse_frontal": err["nrmse_frontal"],
             "fit_validation": float(fac.metrics["validation"]["float"]["nrmse"]),
             "ground_truth_resolution": r_gt, "ground_truth_change": change, "light_resolution": resolution,
-            "timings": {k: float(v) for k, v in (fac.timings or {}).items()}, "overrides": overrides or {}}
+            "timings": {k: float(v) for k, v in (fac.timings or {}).items()}, "overrides": overrides or {},
+            **({"preset_values": preset_values} if preset_values else {})}
 
 
 def _child(args, material: str, env: str, method: str, fresh: str, cache_dir: str | None, overrides: dict) -> dict:
@@ -113,7 +120,7 @@ def _child(args, material: str, env: str, method: str, fresh: str, cache_dir: st
     child["HOMOFAC_JAX_CACHE"] = cache_dir or "0"
     out = subprocess.run([sys.executable, __file__, "--one", f"{material}/{env}/{method}", "--resolution",
                           str(args.resolution), "--truth-limit", str(args.truth_limit), "--overrides",
-                          json.dumps(overrides)] + (["--log"] if args.log else []) + (["--dense"] if args.dense else []),
+                          json.dumps(overrides), "--preset-values", args.preset_values] + (["--log"] if args.log else []) + (["--dense"] if args.dense else []),
                          stdout=subprocess.PIPE, stderr=None if args.log else subprocess.PIPE, text=True, check=True,
                          env=child)
     return json.loads(out.stdout.strip().splitlines()[-1])
@@ -156,12 +163,15 @@ def main(argv=None) -> int:
                          "changes a material re-runs")
     ap.add_argument("--log", action="store_true", help="each fit's log on stderr (wall and CPU s per stage)")
     ap.add_argument("--dense", action="store_true", help="also the nrmse on the 270 000 dense pairs of 9000 normals")
+    ap.add_argument("--preset-values", default="{}",
+                    help="JSON replacing the preset's own values (Preset fields; a variant under study)")
     ap.add_argument("--one", help=argparse.SUPPRESS)  # material/env/method: one row in this process
     args = ap.parse_args(argv)
     overrides = json.loads(args.overrides)
     if args.one:
         material, env, method = args.one.split("/")
-        print(json.dumps(one(material, env, method, args.resolution, args.truth_limit, overrides, args.log, args.dense)))
+        print(json.dumps(one(material, env, method, args.resolution, args.truth_limit, overrides, args.log, args.dense,
+                             json.loads(args.preset_values))))
         return 0
     rows = []
     for case in args.cases.split(","):

@@ -348,7 +348,9 @@ def test_the_race_is_planned_where_the_preset_chooses_by_the_lowest_figure(envs)
         left = len(got.candidates)
         for j, (sweeps, keep) in enumerate(zip(got.race, got.race_keep)):
             # below the full fit's sweeps; a first round on every k-th pair (k > 1: fits of their own) up to them
-            assert 0 < sweeps <= got.linear.iterations - (j > 0 or got.race_stride == 1) and 1 <= keep < left
+            # (a race_strided plan: every round on those pairs, a round before the last may keep all its margin admits)
+            assert 0 < sweeps <= got.linear.iterations - ((j > 0 and not got.race_strided) or got.race_stride == 1)
+            assert 1 <= keep < left or (got.race_strided and j + 1 < len(got.race) and keep <= left)
             left = keep
         if got.race:
             raced.append(name)
@@ -362,6 +364,16 @@ def test_the_race_is_planned_where_the_preset_chooses_by_the_lowest_figure(envs)
     assert plan.race_of(whole, hf.fit.options.LinearOptions(iterations=30), 3) == ((), ())
     assert plan.race_of(whole._replace(race_stride=4), hf.fit.options.LinearOptions(iterations=30), 3) == ((30,), (1,))
     assert plan.race_of(whole._replace(race_stride=4), hf.fit.options.LinearOptions(iterations=20), 3) == ((), ())
+    # a strided race (every round on every k-th pair): its later rounds may reach the full fit's sweeps, and a
+    # round before the last that drops by its margin is a round even where its keep admits every candidate
+    strided = whole._replace(race=(10, 30), race_keep=(5, 1), race_stride=4, race_strided=True,
+                             race_margins=(0.2, 0.0))
+    assert plan.race_of(strided, hf.fit.options.LinearOptions(iterations=30), 3) == ((10, 30), (3, 1))
+    assert plan.race_of(strided._replace(race_strided=False), hf.fit.options.LinearOptions(iterations=30), 3) == (
+        (30,), (1,))  # unstrided, a keep of 5 of 3 is no round
+    assert plan.race_margins_of(strided, (10, 30)) == (0.2, 0.0)
+    assert plan.race_margins_of(strided._replace(race_margins=(), race_margin=0.05), (30,)) == (0.05,)
+    assert plan.race_of(strided, hf.fit.options.LinearOptions(iterations=30), 1) == ((), ())
 
 
 def test_the_race_continues_the_lowest_and_those_within_its_margin_round_by_round():
@@ -387,6 +399,14 @@ def test_the_race_continues_the_lowest_and_those_within_its_margin_round_by_roun
     assert first["kept"] == [cands[1].label(), cands[2].label()] and first["validation_nrmse"] == [0.3, 0.2, 0.21, 0.5]
     assert first["ran"] == [3, 2, 3, 3] and second["sweeps"] == 8 and second["labels"] == first["kept"]
     assert note["stride"] == 4
+    # a strided race with a margin per round: every round on every 4th pair; the first drops only A and D
+    # (more than 30 % behind B), keeping C too though its keep would admit 4
+    calls.clear()
+    kept, note = hf.fit.pipeline._race(cands, to, (3, 8), (4, 1), (0.3, 0.0), None, lambda m: None, stride=4,
+                                       strided=True)
+    assert calls == [("A", 3, 4), ("B", 3, 4), ("C", 3, 4), ("D", 3, 4), ("B", 8, 4), ("C", 8, 4)]
+    assert kept == [cands[2]] and note["strided"] and [r["margin"] for r in note["rounds"]] == [0.3, 0.0]
+    assert note["rounds"][0]["kept"] == [cands[1].label(), cands[2].label()]
 
 
 @pytest.mark.slow

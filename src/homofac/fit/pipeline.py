@@ -356,7 +356,21 @@ def _sums(target: Target, the_plan: Plan, samples: Samples, record: dict, sample
     cands, raced = list(the_plan.candidates), None
     if the_plan.race:  # every candidate's first sweeps; the plan's lowest continue (fit() picks them up)
 
+        shorts_under_way: dict = {}  # structure -> its strided fit under way (a race_strided plan's later rounds)
+
         def to(structure: Structure, sweeps: int, stride: int = 1) -> Result:
+            if stride > 1 and the_plan.race_strided:  # every round on the strided pairs, continuing (the budget:
+                # the last round's sweeps, so the fit is the one-round race's sweep for sweep)
+                if structure not in shorts_under_way:
+                    tgt, smp, _ = pool(structure)
+                    shorts_under_way[structure] = sums.begin(
+                        tgt, structure, mapper, opts.texture_size, sums.strided(smp, stride),
+                        lin.model_copy(update={"iterations": the_plan.race[-1]}), log, line_size=sizes[0], slots=slots)
+                run = shorts_under_way[structure]
+                run = shorts_under_way[structure] = sums.advance(run, sweeps - run.sweeps, log)
+                head = sums.finish(run)
+                heads[structure, sizes[0]] = (head, stride, sweeps)
+                return as_result(structure, head)
             if stride > 1:  # a short fit of its own on every stride-th pair (those kept continue from it on
                 # every pair where the plan says race_continue, else start over)
                 tgt, smp, _ = pool(structure)
@@ -368,10 +382,11 @@ def _sums(target: Target, the_plan: Plan, samples: Samples, record: dict, sample
             running[structure] = sums.advance(run, sweeps - run.sweeps, log)
             return as_result(structure, sums.finish(running[structure]))
 
-        cands, raced = _race(cands, to, the_plan.race, the_plan.race_keep, the_plan.race_margin, score, log,
-                             the_plan.race_stride)
+        cands, raced = _race(cands, to, the_plan.race, the_plan.race_keep, the_plan.race_margins or the_plan.race_margin,
+                             score, log, the_plan.race_stride, the_plan.race_strided)
         for structure in [s for s in running if s not in cands]:
             del running[structure]
+        shorts_under_way.clear()
     result = sums.choose(fit, cands, target_error=opts.target_error,
                          max_lookups=the_plan.max_lookups, log=log, score=score)
     if raced is not None:
@@ -380,7 +395,8 @@ def _sums(target: Target, the_plan: Plan, samples: Samples, record: dict, sample
     line = sizes[0]  # the kept fit's line size (fits[structure, line] is its SumFit)
     quick = None
     if the_plan.vote_screen:  # the line and disc votes read a short fit of the alternative first
-        known = _race_figures(raced, score) if the_plan.race and (the_plan.race[0], the_plan.race_stride) == (
+        known = _race_figures(raced, score, the_plan.vote_screen) if the_plan.race and (
+            the_plan.race[-1] if the_plan.race_strided else the_plan.race[0], the_plan.race_stride) == (
             the_plan.vote_screen, the_plan.vote_stride) else {}
         shorts: dict = {}
 
@@ -422,8 +438,8 @@ def _sums(target: Target, the_plan: Plan, samples: Samples, record: dict, sample
 
 
 def _race(candidates: list[Structure], to: Callable[..., Result], rounds: tuple[int, ...],
-          keep: tuple[int, ...], margin: float, score: Callable | None, log,
-          stride: int = 1) -> tuple[list[Structure], dict]:
+          keep: tuple[int, ...], margin: float | tuple[float, ...], score: Callable | None, log,
+          stride: int = 1, strided: bool = False) -> tuple[list[Structure], dict]:
     """The plan's race: at each round ``rounds[j]`` (ALS sweeps), every candidate still in is brought to that
     many sweeps by ``to(structure, sweeps, stride)`` (continuing its own fit; the first round on every
     ``stride``-th training pair where ``stride`` > 1, a short fit of its own from which nothing continues)
@@ -431,18 +447,21 @@ def _race(candidates: list[Structure], to: Callable[..., Result], rounds: tuple[
     given); the lowest and the next ones whose figure is within ``margin`` (relative) of it, at most
     ``keep[j]``, stay in, in the candidates' order (cheapest first). Returns those and the record
     ``selection.race``: per round its sweeps, the labels in it, their figures, the sweeps each actually ran
-    (a fit that converged stops early) and the labels kept."""
-    left, note = list(candidates), {"rounds": [], "stride": int(stride)}
+    (a fit that converged stops early) and the labels kept. ``margin``: one for every round, or each round's;
+    ``strided``: every round on every ``stride``-th pair (``to`` continues the strided fits)."""
+    margins = tuple(margin) if isinstance(margin, (tuple, list)) else (float(margin),) * len(rounds)
+    left, note = list(candidates), {"rounds": [], "stride": int(stride), "strided": bool(strided)}
     for j, (sweeps, k) in enumerate(zip(rounds, keep)):
-        tried = [to(c, sweeps, stride if j == 0 else 1) for c in left]
+        tried = [to(c, sweeps, stride if j == 0 or strided else 1) for c in left]
         plain, errs, what = _vote_errors(tried, score)
         order = np.argsort(errs, kind="stable")
         best = errs[order[0]]
-        chosen = {int(i) for i in order[:max(1, k)] if errs[i] <= best * (1.0 + margin)}
+        chosen = {int(i) for i in order[:max(1, k)] if errs[i] <= best * (1.0 + margins[j])}
         kept = [c for i, c in enumerate(left) if i in chosen]
         log(f"race ({sweeps} ALS sweeps): {what} " + ", ".join(f"{c.label()} {e:.4g}" for c, e in zip(left, errs))
             + "; continue: " + ", ".join(c.label() for c in kept))
-        note["rounds"].append({"sweeps": int(sweeps), "labels": [c.label() for c in left], "validation_nrmse": plain,
+        note["rounds"].append({"sweeps": int(sweeps), "margin": float(margins[j]),
+                               "labels": [c.label() for c in left], "validation_nrmse": plain,
                                **({} if score is None else {sums.RIDGE_METRIC: errs}),
                                "ran": [int(r.solver["iterations"]) for r in tried], "kept": [c.label() for c in kept]})
         left = kept
@@ -490,12 +509,13 @@ def _vote_errors(tried: list[Result], score: Callable | None) -> tuple[list[floa
     return plain, errs, sums.scored_by(score is not None)[1]
 
 
-def _race_figures(raced: dict | None, score: Callable | None) -> dict[str, float]:
-    """Each candidate's figure after the race's first round (``selection.race``: the one the votes read), by
-    label."""
+def _race_figures(raced: dict | None, score: Callable | None, sweeps: int | None = None) -> dict[str, float]:
+    """Each candidate's figure after the race's first round (``selection.race``: the one the votes read), or
+    after its round of ``sweeps`` where given (a strided race's later round), by label."""
     if not raced or not raced.get("rounds"):
         return {}
-    first = raced["rounds"][0]
+    first = next((r for r in raced["rounds"] if r["sweeps"] == sweeps), raced["rounds"][0]) if sweeps \
+        else raced["rounds"][0]
     key = sums.RIDGE_METRIC if score is not None else "validation_nrmse"
     return dict(zip(first.get("labels", []), first.get(key, [])))
 

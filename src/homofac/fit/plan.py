@@ -65,7 +65,10 @@ class Preset(NamedTuple):
     straight from the ALS fit (:func:`homofac.fit.polish.polish` with ``direct``), voted against the ALS fit,
     instead of the three stages of :func:`~homofac.fit.polish.polish_stages`; ``dropped``: the labels of candidates
     the preset does not try (a candidate the race never keeps: :data:`BALANCED_DROPPED`; a constraint in the options
-    that leaves only dropped ones tries those)."""
+    that leaves only dropped ones tries those); ``race_strided``: every round of
+    the race fits the first round's every ``race_stride``-th pair, a later round continuing the strided fits
+    where they stopped (a round may then keep every candidate its margin admits: ``race_keep`` only caps it);
+    ``race_margins``: the margin of each round (replacing ``race_margin`` where given)."""
 
     lookups: int
     grid_count: int
@@ -89,6 +92,8 @@ class Preset(NamedTuple):
     highlight_start: int | None = None
     polish_direct: bool = False
     dropped: tuple[str, ...] = ()
+    race_strided: bool = False
+    race_margins: tuple[float, ...] = ()
 
 
 #: The grid directions of the presets' candidates: the off-specular reflection ``r_off`` only. On the
@@ -125,16 +130,21 @@ RACE = {"race": (10,), "race_keep": (2,), "race_margin": 0.03, "race_stride": 4}
 #: about a quarter of the preset's CPU time (docs/notes/speed.md, "balanced, sixteenth session").
 BALANCED_RACE = {**RACE, "race_keep": (1,), "race_margin": 0.0, "tolerance": 1e-3, "race_continue": True}
 
-#: ``best``'s race: ``balanced``'s, with the first round's fits on every 4th pair run to the full fit's 30 sweeps.
-#: At 16 lookups 10 sweeps misrank the candidates: on gold / forest (75 000 grid pairs, validation nrmse) the
+#: ``best``'s race: ``balanced``'s, with the strided fits on every 4th pair run to the full fit's 30 sweeps.
+#: At 16 lookups 10 sweeps of a fit of 10 misrank the candidates: on gold / forest (75 000 grid pairs, validation nrmse) the
 #: fits of ``E'+NROW x4+HFT x1``, ``E'+NROW x4+R+HW x1`` and ``E'+ROW x4+R+HFW x2`` read 0.133 / 0.117 / 0.130
 #: after 10 sweeps, 0.119 / 0.115 / 0.128 after 20 and 0.112 / 0.113 / 0.128 after 30, the order of their full
 #: fits on 300 000 pairs (0.101 / 0.104 / 0.122; on the converged truth 0.095 / 0.102 / 0.117); the race of 10
-#: sweeps kept the third (docs/notes/speed.md, "best, seventeenth session"). The kept candidate continues from
-#: its race fit (``race_continue``, as ``balanced``'s): on plastic / city the fit on every pair then converges in 5
-#: sweeps (27 s CPU) where one started over runs its highlight start and 14, to a figure as low (validation with
-#: the ridge stratum 0.140 against 0.143; docs/notes/speed.md, "best, eighteenth session").
-BEST_RACE = {**BALANCED_RACE, "race": (30,)}
+#: sweeps kept the third (docs/notes/speed.md, "best, seventeenth session"). Every round fits the strided pairs
+#: (``race_strided``): after 10 of the 30 sweeps (the highlight terms' start already that of a fit of 30) those more than
+#: 5 % behind the lowest are dropped, the others continue to 30, where the lowest is kept. The 30-sweep figures are
+#: the one-round race's (to 4 digits on gold / forest); after 10 sweeps the 30-sweep winner was 1.2 % behind the
+#: lowest on gold / forest and the lowest on plastic / city, where 4 and 9 of the 11 candidates were more than 5 %
+#: behind (benchmarks/presets_best19_race.json; docs/notes/speed.md, "best, nineteenth session"). The kept candidate
+#: continues from its race fit (``race_continue``, as ``balanced``'s): on plastic / city the fit on every pair then
+#: converges in 5 sweeps (27 s CPU) where one started over runs its highlight start and 14, to a figure as low
+#: (validation with the ridge stratum 0.140 against 0.143; docs/notes/speed.md, "best, eighteenth session").
+BEST_RACE = {**BALANCED_RACE, "race": (10, 30), "race_keep": (10, 1), "race_strided": True, "race_margins": (0.05, 0.0)}
 
 #: ``fast`` has no polish: on the accuracy benchmark's four speed cases the polish then (a 2-step trial, then 8
 #: steps on every pair) lowered the figure on one (mirror / studio, 0.3514 unpolished against 0.3454 polished on the converged truth, +1.7 %), and the
@@ -186,7 +196,7 @@ PRESETS: dict[str, Preset] = {
                        **BALANCED_RACE),
     "best": Preset(lookups=16, grid_count=GRID_COUNT, validation=DEFAULT_VALIDATION, line_ratio=4, table=True,
                    disc_vote=True, nv_balance=0.0, polish=8, ridge=20_000, analysis=False, directions=PRESET_DIRECTIONS,
-                   polish_stride=POLISH_STRIDE, polish_direct=True, vote_screen=BEST_RACE["race"][0], **BEST_RACE),
+                   polish_stride=POLISH_STRIDE, polish_direct=True, vote_screen=BEST_RACE["race"][-1], **BEST_RACE),
 }
 
 #: The lookup budget of ``target_error`` with sum keys but no ``max_lookups``.
@@ -234,6 +244,8 @@ class Plan:
     race_margin: float  # ... the lowest and those within this relative margin of its figure
     race_stride: int  # the first round fits every k-th training pair (k > 1: fits of their own)
     race_continue: bool  # ... from which those kept (and the votes' screened alternatives) continue on every pair
+    race_strided: bool  # every round on the first round's strided pairs (later rounds continue the strided fits)
+    race_margins: tuple[float, ...]  # the margin of each round (``race_margin`` per round, or the preset's own)
     vote_screen: int  # ALS sweeps of the short fits the line and disc votes read first (0: full refits only)
     vote_stride: int  # ... fitted on every k-th training pair
     ridge: int
@@ -256,7 +268,8 @@ class Plan:
                 "polish": self.polish, "polish_stride": self.polish_stride, "polish_direct": self.polish_direct,
                 "ridge": self.ridge,
                 "race": {"sweeps": list(self.race), "keep": list(self.race_keep), "margin": self.race_margin,
-                         "stride": self.race_stride, "continue": self.race_continue},
+                         "stride": self.race_stride, "continue": self.race_continue,
+                         "strided": self.race_strided, "margins": list(self.race_margins)},
                 "line_sizes": list(self.line_sizes),
                 "vote_screen": {"sweeps": self.vote_screen, "stride": self.vote_stride},
                 "disc_vote": self.disc_vote, "analysis": self.analysis,
@@ -281,8 +294,8 @@ class Plan:
             lines.append(f"  candidates ({len(self.candidates)}):")
             lines += [f"    {c.label()} ({c.describe()})" for c in self.candidates]
         if self.race:
-            lines.append("  race: " + describe_race(self.race, self.race_keep, self.race_margin, self.race_stride,
-                                                    self.race_continue))
+            lines.append("  race: " + describe_race(self.race, self.race_keep, self.race_margins or self.race_margin,
+                                                    self.race_stride, self.race_continue, self.race_strided))
         if self.linear is not None:
             lin = self.linear
             lines.append(f"  linear fit: {lin.method}, {lin.iterations} iterations (stops where one lowers the "
@@ -315,28 +328,49 @@ def race_of(p: Preset | None, lin: LinearOptions | None, candidates: int) -> tup
     if p is None or lin is None:
         return (), ()
     rounds, keep, left = [], [], candidates
-    for sweeps, k in zip(p.race, p.race_keep):
-        below = sweeps <= lin.iterations if not rounds and p.race_stride > 1 else sweeps < lin.iterations
-        if 0 < sweeps and below and k < left and (not rounds or sweeps > rounds[-1]):
+    strided = p.race_strided and p.race_stride > 1
+    for j, (sweeps, k) in enumerate(zip(p.race, p.race_keep)):
+        below = sweeps <= lin.iterations if (not rounds or strided) and p.race_stride > 1 else sweeps < lin.iterations
+        cut = k < left or (strided and j + 1 < len(p.race) and left > 1)  # a strided round drops by its margin
+        if 0 < sweeps and below and cut and (not rounds or sweeps > rounds[-1]):
             rounds.append(int(sweeps))
-            keep.append(int(k))
-            left = k
+            keep.append(int(min(k, left)))
+            left = min(k, left)
     return tuple(rounds), tuple(keep)
 
 
-def describe_race(race: tuple[int, ...], keep: tuple[int, ...], margin: float, stride: int = 1,
-                  carry: bool = False) -> str:
+def race_margins_of(p: Preset | None, race: tuple[int, ...]) -> tuple[float, ...]:
+    """The margin of each of the planned rounds ``race`` (:func:`race_of`) of preset ``p``: its
+    ``race_margins`` by the round's position among the preset's rounds, else ``race_margin``."""
+    if p is None or not race:
+        return ()
+    by_sweeps = {n: (p.race_margins[j] if j < len(p.race_margins) else p.race_margin) for j, n in enumerate(p.race)}
+    return tuple(float(by_sweeps[n]) for n in race)
+
+
+def describe_race(race: tuple[int, ...], keep: tuple[int, ...], margin: float | tuple[float, ...], stride: int = 1,
+                  carry: bool = False, strided: bool = False) -> str:
     """The race in words (``--plan``): after each round's sweeps, who continues (``carry``: the kept continue
-    on every pair from their strided first-round fit)."""
+    on every pair from their strided first-round fit; ``strided``: every round on the strided pairs, the
+    last round's kept continue on every pair). ``margin``: one for every round, or each round's."""
+    margins = tuple(margin) if isinstance(margin, (tuple, list)) else (float(margin),) * len(race)
+    last = len(race) - 1
+
+    def who(j: int, k: int) -> str:
+        if stride > 1 and strided and j < last:
+            return " continue on the same pairs from where they stopped" if k > 1 else \
+                " continues on the same pairs from where it stopped"
+        if stride > 1 and (not j or strided):
+            return ((" continue on every pair from their short fits" if carry else " start over on every pair")
+                    if k > 1 else (" continues on every pair from its short fit" if carry
+                                   else " starts over on every pair"))
+        return " continue from where they stopped" if k > 1 else " continues from where it stopped"
+
     return "; ".join(f"after {n} ALS sweeps" + (f" on every {stride}th training pair" if stride > 1 and not j else "")
                      + " the lowest validation figure"
-                     + (f" and those within {100 * margin:g} % of it (at most {k})" if k > 1 else "")
-                     + (((" continue on every pair from their short fits" if carry else " start over on every pair")
-                         if k > 1 else (" continues on every pair from its short fit" if carry
-                                        else " starts over on every pair"))
-                        if stride > 1 and not j
-                        else (" continue from where they stopped" if k > 1 else " continues from where it stopped"))
-                     for j, (n, k) in enumerate(zip(race, keep)))
+                     + (f" and those within {100 * m:g} % of it (at most {k})" if k > 1 else "")
+                     + who(j, k)
+                     for j, (n, k, m) in enumerate(zip(race, keep, margins)))
 
 
 def preset_of(opts: FitOptions) -> str | None:
@@ -539,7 +573,8 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
                 polish_stride=int(p.polish_stride) if steps else 1, polish_direct=direct, ridge=int(ridge or 0),
                 race=race, race_keep=race_keep, race_margin=float(p.race_margin) if race else 0.0,
                 race_stride=int(p.race_stride) if race else 1,
-                race_continue=carry,
+                race_continue=carry, race_strided=bool(race and p.race_strided and p.race_stride > 1),
+                race_margins=race_margins_of(p, race),
                 vote_screen=int(vote_screen), vote_stride=vote_stride,
                 line_sizes=sizes,
                 disc_vote=disc, analysis=bool(choosing and target.kind == "lighting"
@@ -563,5 +598,5 @@ def dumps(plan: Plan) -> str:
     return json.dumps(plan.to_dict(), indent=2)
 
 
-__all__ = ["constrained", "DEFAULT_MAX_LOOKUPS", "PRESET_DIRECTIONS", "PRESETS", "Plan", "Preset", "RIDGE_NEEDS_POLISH", "Vote", "budget_of", "describe_race", "race_of",
+__all__ = ["constrained", "DEFAULT_MAX_LOOKUPS", "PRESET_DIRECTIONS", "PRESETS", "Plan", "Preset", "RIDGE_NEEDS_POLISH", "Vote", "budget_of", "describe_race", "race_margins_of", "race_of",
            "build_plan", "dumps", "grid_count", "line_sizes", "preset_of", "validation_count", "validation_light"]
