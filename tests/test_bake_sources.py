@@ -191,6 +191,22 @@ def test_bake_takes_the_source_out_and_adds_it_back():
     assert hf.bake(hf.light.uniform(1.0, 8), preset="fast", **TINY).sources == ()
 
 
+def test_bake_takes_a_second_source_from_the_map_the_first_left():
+    """Two suns far apart, each holding more than MIN_SHARE: the bake takes both out (brightest first) and adds
+    both back; the second's power is what its texel holds above the sky."""
+    env, i = sun_environment()
+    rad = np.asarray(env.radiance).copy()
+    j = i + 3 * 16 * 16 // 2  # another face's texel
+    rad[j] = (40.0, 50.0, 60.0)
+    two = Environment(env.directions, jnp.asarray(rad), env.solid_angle, env.info, env.corners, env.moments)
+    b = hf.bake(two, preset="fast", **TINY)
+    assert len(b.sources) == 2
+    np.testing.assert_allclose(b.sources[0].direction, np.asarray(env.directions[i]), atol=1e-6)
+    np.testing.assert_allclose(b.sources[1].direction, np.asarray(env.directions[j]), atol=1e-6)
+    np.testing.assert_allclose(b.sources[1].power, (np.array([40.0, 50.0, 60.0]) - 0.1) * float(env.solid_angle[j]), rtol=1e-4)
+    assert b.info["analytic_source"]["count"] == 2
+
+
 @pytest.fixture(scope="module")
 def sun_bake():
     return hf.bake(sun_environment()[0], preset="fast", **TINY)

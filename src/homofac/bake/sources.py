@@ -82,6 +82,12 @@ CORE = 1.15
 #: a uniform or smooth sky holds ~0 (its fill equals its core) and is left to the maps.
 MIN_SHARE = 0.03
 
+#: Most sources a bake takes out, each the brightest compact source of the map the previous ones left while it
+#: holds MIN_SHARE of that map's power (bake.json allows 8). The bundled environments hold at most two: interior's
+#: second lamp (16.5 % of the rest, 40 degrees from the first) and studio's second light (11.7 %, 107 degrees);
+#: city's and forest's next are 0.8 % and 2.0 % (docs/notes/bake.md, "Below 0.3, nineteenth session").
+MAX_SOURCES = 4
+
 
 class Source(NamedTuple):
     """One analytic light: unit ``direction`` (3,), RGB ``power`` (3,) (the radiance integral over the removed
@@ -239,5 +245,5 @@ def source_terms(sources, n: Float[Array, "N 3"], v: Float[Array, "N 3"], roughn
     return out
 
 
-__all__ = ["CORE", "MIN_SHARE", "RADIUS", "RATIO", "SPREAD", "Source", "brightest_source", "core_widths", "principal_axes", "source_terms",
+__all__ = ["CORE", "MAX_SOURCES", "MIN_SHARE", "RADIUS", "RATIO", "SPREAD", "Source", "brightest_source", "core_widths", "principal_axes", "source_terms",
            "widened_ratio"]
