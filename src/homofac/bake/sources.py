@@ -83,9 +83,10 @@ CORE = 1.15
 MIN_SHARE = 0.03
 
 #: Most sources a bake takes out, each the brightest compact source of the map the previous ones left while it
-#: holds MIN_SHARE of that map's power (bake.json allows 8). The bundled environments hold at most two: interior's
-#: second lamp (16.5 % of the rest, 40 degrees from the first) and studio's second light (11.7 %, 107 degrees);
-#: city's and forest's next are 0.8 % and 2.0 % (docs/notes/bake.md, "Below 0.3, nineteenth session").
+#: holds MIN_SHARE of that map's power (bake.json allows 8). On the bundled environments (balanced, 64 lights):
+#: city and forest one (their next hold 0.8 % and 2.0 %); interior three lamps (22.3, 12.8, 4.0 % of the whole
+#: map's luminance power); studio four (10.4, 10.4, 9.5 % and 2.9 %, the last 3 degrees from the first: the rest of
+#: that light). Measured in docs/notes/bake.md, "Below 0.3, nineteenth session".
 MAX_SOURCES = 4
 
 
