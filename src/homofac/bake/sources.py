@@ -227,7 +227,8 @@ def source_terms(sources, n: Float[Array, "N 3"], v: Float[Array, "N 3"], roughn
         hy2 = (h[1] * wo[0] - h[0] * wo[1]) ** 2 / ut2 / hn2
         sin2 = (h[0] * h[0] + h[1] * h[1]) / hn2
         base = (SPREAD * s.radius) ** 2 / 4
-        k = widened_ratio(a2, base, base / (x * x), jnp.maximum(h[2], 0.0) ** 2 / hn2, jnp.maximum(sin2 - hy2, 0.0), hy2)
+        k = widened_ratio(a2, base, base / (x * x), jnp.maximum(h[2], 0.0) ** 2 / hn2,
+                          jnp.maximum(sin2 - hy2, 0.0), hy2)
         S = base / x
         w = S / (a2 + S) if s.radius > 0 else jnp.zeros_like(x)
         axes, widths = s.core_frame()
@@ -246,5 +247,5 @@ def source_terms(sources, n: Float[Array, "N 3"], v: Float[Array, "N 3"], roughn
     return out
 
 
-__all__ = ["CORE", "MAX_SOURCES", "MIN_SHARE", "RADIUS", "RATIO", "SPREAD", "Source", "brightest_source", "core_widths", "principal_axes", "source_terms",
-           "widened_ratio"]
+__all__ = ["CORE", "MAX_SOURCES", "MIN_SHARE", "RADIUS", "RATIO", "SPREAD", "Source", "brightest_source", "core_widths",
+           "principal_axes", "source_terms", "widened_ratio"]
