@@ -56,7 +56,7 @@ def source_model(src, n, v, rho, kind: str, k: float) -> np.ndarray:
         h = [a + c for a, c in zip(wi, wo)]
         hn2 = h[0] ** 2 + h[1] ** 2 + h[2] ** 2
         s2 = (k * src.radius) ** 2 if kind == "widened" else (k * src.radius) ** 2 / (4 * jnp.maximum(wo[2], 1e-4))
-        r = widened_ratio(a2, s2, jnp.maximum(h[2], 0) / jnp.sqrt(hn2), (h[0] ** 2 + h[1] ** 2) / hn2)
+        r = widened_ratio(a2, s2, s2, jnp.maximum(h[2], 0) ** 2 / hn2, (h[0] ** 2 + h[1] ** 2) / hn2, 0.0)
         out = point.copy()
         out[:, 1:] *= np.asarray(jnp.where(above, r, 1.0))[:, None, None]
         return out

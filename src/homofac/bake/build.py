@@ -48,7 +48,7 @@ from .gauge import face_gauge
 from .model import Bake, diffuse_sh9
 from .options import BakeOptions
 from .plan import BakePlan, plan as make_plan
-from .sources import Source, brightest_source, principal_axes
+from .sources import MAX_SOURCES, Source, brightest_source, principal_axes
 
 #: Roughness from which layers try axis shifts (below it the choice was measured unreliable: forest, fast,
 #: rho 0.156 picked s = 2 alpha and read 0.57 nrmse on I_A where s = 0 reads 0.20; at 0.538 s = alpha: 0.33 -> 0.21).
@@ -193,7 +193,7 @@ class _Lights:
                 core = np.any(self.strip != before, axis=-1)  # (r, 6r): the texels the core took out
                 fill = self.strip[core].max(0)  # their values are min(L, fill); the seed's is the fill
                 k = finer // r
-                fine = load_environment(self.source, finer)
+                fine = self.fine[finer] if finer in self.fine else load_environment(self.source, finer)
                 rad = np.array(np.asarray(fine.radiance, np.float32)[: 6 * finer * finer].reshape(finer, 6 * finer, 3))
                 under = np.repeat(np.repeat(core, k, 0), k, 1)  # the strip's rows and columns scale with the face
                 excess = np.maximum(rad[under] - fill, 0.0) @ np.asarray(LUMINANCE, np.float32)
@@ -440,10 +440,15 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
     shared = [sharp(rho, max_size) for rho in roughness]
     # the brightest compact source leaves the map before every filter (the sharp block's finer lights included)
     # and is shaded as a point light
-    found, share = (lights.take_source(max(max_size, opts.data_resolution, MIN_LIGHTS),
-                                       block_lights(max_size) if any(shared) else None)
-                    if opts.analytic_source else (None, None))
-    sources = (found,) if found is not None else ()
+    # (each next source from the map the previous ones left, while it holds MIN_SHARE of that map's power)
+    sources, share = (), None
+    while opts.analytic_source and len(sources) < MAX_SOURCES:
+        found, s = lights.take_source(max(max_size, opts.data_resolution, MIN_LIGHTS),
+                                      block_lights(max_size) if any(shared) else None)
+        share = s if share is None else share
+        if found is None:
+            break
+        sources += (found,)
     x = kn.nv_centres(pl.nv_size)
     data_env = lights(opts.data_resolution)
     dirs = fibonacci(opts.samples)
@@ -529,7 +534,7 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
     info = {"sh9": sh.document(), "source": str(getattr(environment, "info", {}).get("source", environment)) if isinstance(environment, Environment)
             else str(_path(environment)), "options": opts.model_dump(), "sizes": sizes,
             "data_resolution": int(data_env.info.get("resolution", 0)), "timings": timings,
-            "analytic_source": {"share": share, "found": found is not None}}
+            "analytic_source": {"share": share, "found": bool(sources), "count": len(sources)}}
     blocks = tuple(int(np.argmax(shared)) if shared[j] else j for j in range(pl.layers))
     return stored(Bake(pl, roughness, tuple(shifts), tuple(P), E, table, info,
                        sh=diffuse_sh9(E) if pl.diffuse_basis == "sh9" else None, blocks=blocks, sources=sources,

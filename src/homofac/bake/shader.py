@@ -213,11 +213,12 @@ def _harmonic_functions(language: str) -> list[str]:
 
 def _source_function(language: str) -> list[str]:
     """``hf_source(n, v, x, roughness, l, s2, e1, w1, e2, w2)``: ((1 - s5)/pi, (1 - s5) S', s5 S') (n.l)+ of an
-    analytic light at unit l (:func:`homofac.bake.sources.source_terms`; x = n.v > 0): the core, a Gaussian blob
-    about l of squared widths w_i + 4 x alpha^2 along its unit axes e_i read at the mirror direction, weight
-    w = S / (alpha^2 + S) with S = s2 / x, and the
-    tail, GGX D widened to alpha^2 + S, weight 1 - w (sin^2 theta_h from |n x h|^2, no cancellation at the
-    peak). Returned as a vector (d, A, B); the caller multiplies by the light's RGB power."""
+    analytic light at unit l (:func:`homofac.bake.sources.source_terms`; x = n.v > 0), widened per axis of the
+    plane of incidence (u = n x v across it): the core, a Gaussian blob about l of covariance G = diag(w_1, w_2) +
+    4 alpha^2 (I - u u^T) in its unit axes e_i, read at the mirror direction, weight w = S / (alpha^2 + S) with
+    S = s2 / x; the tail, the anisotropic GGX of squared widths alpha^2 + s2 in the plane and alpha^2 + s2 / x^2
+    across it (h_y = h.u / |u|, h_x^2 = |n x h|^2 - h_y^2), weight 1 - w. Returned as a vector (d, A, B); the
+    caller multiplies by the light's RGB power."""
     msl, wgsl = language == "msl", language == "wgsl"
     v3, ft = ("float3", "float") if msl else (("vec3<f32>", "f32") if wgsl else ("vec3", "float"))
     f = (lambda x: L.float_literal(float(x), "f")) if msl else _f
@@ -230,18 +231,23 @@ def _source_function(language: str) -> list[str]:
             let("h", v3, "normalize(l + v)"), let("c", v3, "cross(n, h)"),
             let("nh", ft, f"max(dot(n, h), {zero})"), let("vh", ft, f"min(abs(dot(v, h)), {one})"),
             let("a2", ft, "roughness * roughness * roughness * roughness"),
-            let("sx", ft, "s2 / x"), let("aw", ft, "a2 + sx"), let("wc", ft, f"select({zero}, sx / aw, sx > {zero})"
-                                                                     if wgsl else f"sx > {zero} ? sx / aw : {zero}"),
-            let("q", ft, "aw * nh * nh + dot(c, c)"), let("dd", ft, f"aw / ({f(np.pi)} * q * q)"),
+            let("u", v3, "cross(n, v)"), let("hu", ft, "dot(h, u)"),
+            let("hy2", ft, f"hu * hu / max(dot(u, u), {f(1e-12)})"), let("hx2", ft, f"max(dot(c, c) - hy2, {zero})"),
+            let("sx", ft, "s2 / x"), let("wc", ft, f"select({zero}, sx / (a2 + sx), sx > {zero})"
+                                            if wgsl else f"sx > {zero} ? sx / (a2 + sx) : {zero}"),
+            let("ax", ft, "a2 + s2"), let("ay", ft, "a2 + s2 / (x * x)"),
+            let("q", ft, "hx2 * ay + hy2 * ax + nh * nh * ax * ay"),
+            let("dd", ft, f"ax * ay * sqrt(ax * ay) / ({f(np.pi)} * q * q)"),
             let("lv", ft, f"{f(0.5)} * (sqrt({one} + a2 * ({one} - x * x) / (x * x)) - {one})"),
             let("ll", ft, f"{f(0.5)} * (sqrt({one} + a2 * ({one} - nl * nl) / (nl * nl)) - {one})"),
             let("sv", ft, f"({one} - wc) * dd / (({one} + ll + lv) * {f(4.0)} * x)"),
             let("m", ft, f"{one} - vh"), let("s5", ft, "m * m * m * m * m"),
-            let("e", v3, f"{f(2.0)} * x * n - v - l"), let("g1", ft, f"w1 + {f(4.0)} * x * a2"),
-            let("g2", ft, f"w2 + {f(4.0)} * x * a2"), let("t1", ft, "dot(e, e1)"), let("t2", ft, "dot(e, e2)"),
-            let("t3", ft, "dot(e, l)"),
-            let("k", ft, f"wc * exp(-(t1 * t1 / g1 + t2 * t2 / g2 + t3 * t3 / min(g1, g2))) "
-                         f"/ ({f(np.pi)} * sqrt(g1 * g2) * ({one} + {f(2.0)} * lv))"),
+            let("e", v3, f"{f(2.0)} * x * n - v - l"), let("u1", ft, "dot(u, e1)"), let("u2", ft, "dot(u, e2)"),
+            let("g11", ft, f"w1 + {f(4.0)} * a2 * ({one} - u1 * u1)"), let("g12", ft, f"{f(-4.0)} * a2 * u1 * u2"),
+            let("g22", ft, f"w2 + {f(4.0)} * a2 * ({one} - u2 * u2)"), let("det", ft, "g11 * g22 - g12 * g12"),
+            let("t1", ft, "dot(e, e1)"), let("t2", ft, "dot(e, e2)"), let("t3", ft, "dot(e, l)"),
+            let("k", ft, f"wc * exp(-((g22 * t1 * t1 - {f(2.0)} * g12 * t1 * t2 + g11 * t2 * t2) / det "
+                         f"+ t3 * t3 / min(g11, g22))) / ({f(np.pi)} * sqrt(det) * ({one} + {f(2.0)} * lv))"),
             let("mx", ft, f"{one} - x"), let("m5", ft, "mx * mx * mx * mx * mx"),
             f"return {v3}(({one} - s5) / {f(np.pi)} * nl, ({one} - s5) * sv + ({one} - m5) * k, s5 * sv + m5 * k);"]
     params = [("n", v3), ("v", v3), ("x", ft), ("roughness", ft), ("l", v3), ("s2", ft), ("e1", v3), ("w1", ft),

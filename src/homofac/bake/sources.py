@@ -9,24 +9,27 @@ integral, sum (L - fill) dw) and angular radius sigma,
     I_d += (1 - s5)/pi (n.l)+ Phi,   I_A += (1 - s5) S' (n.l)+ Phi,   I_B += s5 S' (n.l)+ Phi
 
 (the pinned integrals of I_d, I_A, I_B, docs/format.md), at zero texture fetches. The source is a blob of RMS
-angle sigma, not a point, so S' is the lobe convolved with it, in two parts weighted by the source's share of
-the combined width in half vectors, w = S / (alpha^2 + S) with S = (SPREAD sigma)^2 / (4 n.v) (a source of
-angular radius t covers half vectors within t^2 / (4 n.v) in solid angle: dw_l = 4 (v.h) dw_h, v.h = n.v at
-the peak):
+angle sigma, not a point, so S' is the lobe convolved with it. At the peak a light direction moves the half
+vector by dh = dl / 2 in the plane of incidence and dh = dl / (2 n.v) across it (u = n x v), so a source of
+angular radius t covers half vectors of squared half-widths t^2 / 4 and t^2 / (4 (n.v)^2), and a GGX lobe of
+width alpha in half vectors covers light directions of squared widths 4 alpha^2 and 4 (n.v)^2 alpha^2. Both
+parts below are widened **per axis** by that footprint, P = (SPREAD sigma)^2 / 4, and weighted by the source's
+share of the combined width in half vectors, w = S / (alpha^2 + S), S = P / (n.v) the footprint's geometric mean:
 
 * **the core** (weight w): the source as a Gaussian blob about l in light space, read at the mirror direction
   r = 2 (n.v) n - v with the mirror's albedos, exact as alpha -> 0 (I_A -> Phi K(r) (1 - (1 - n.v)^5), I_B ->
-  Phi K(r) (1 - n.v)^5); with t = r - l, e_i the source's unit principal axes and a_i its semi-axes
-  (:func:`principal_axes`; a round source: |a_i| = sigma),
+  Phi K(r) (1 - n.v)^5); with t = r - l, t' = (t.e_1, t.e_2), e_i the source's unit principal axes and a_i its
+  semi-axes (:func:`principal_axes`; a round source: |a_i| = sigma),
 
-      K(r) = exp(-(t.e_1)^2 / g_1 - (t.e_2)^2 / g_2 - (t.l)^2 / min g) / (pi sqrt(g_1 g_2) (1 + 2 Lambda(n.v))),
-      g_i = (CORE |a_i|)^2 + 4 (n.v) alpha^2
+      K(r) = exp(-t'^T G^-1 t' - (t.l)^2 / min(G_11, G_22)) / (pi sqrt(det G) (1 + 2 Lambda(n.v))),
+      G = diag((CORE |a_1|)^2, (CORE |a_2|)^2) + 4 alpha^2 (I - u' u'^T),   u' = (u.e_1, u.e_2)
 
-  (a 2-D Gaussian with the source's covariance widened by the lobe's own extent in light directions; the
-  (t.l)^2 term keeps it at l's side of the sphere; the Smith term at the mirror, Lambda(n.v) the glTF one);
-* **the tail** (weight 1 - w): the glTF lobes at l with GGX D widened to alpha'^2 = alpha^2 + S (Karis 2013's
-  roughness modification, D' keeps D's normalization), so far from the source the tail is GGX's own:
-  (1 - w) alpha'^2 = alpha^2.
+  (a 2-D Gaussian with the source's covariance plus the lobe's own, 4 alpha^2 in the plane of incidence and
+  4 alpha^2 (1 - |u|^2) = 4 (n.v)^2 alpha^2 across it, :func:`core_widths`; the (t.l)^2 term keeps it at l's
+  side of the sphere; the Smith term at the mirror, Lambda(n.v) the glTF one);
+* **the tail** (weight 1 - w): the glTF lobes at l with D the anisotropic GGX of squared widths alpha^2 + P in
+  the plane of incidence and alpha^2 + P / (n.v)^2 across it (:func:`widened_ratio`; D' keeps D's normalization,
+  Karis 2013's roughness modification per axis), so far from the source the tail is GGX's own.
 
 As alpha -> 0 (w -> 1) the source reads as its own image, which is what the reference reads (the source map's
 pixels, bilinearly; a sun of one or two lat-long pixels is an elongated blob, close to a Gaussian of its
@@ -58,11 +61,13 @@ RADIUS = 0.05
 #: A pixel of the core is at least 1/RATIO of the brightest one's luminance (bake_sun.py's rule).
 RATIO = 20.0
 
-#: The source's extent in half vectors, S = (SPREAD radius)^2 / (4 n.v): the tail's widening alpha'^2 = alpha^2 + S
-#: and the core's weight S / (alpha^2 + S) (module docstring). Measured with :data:`CORE` on the cells' weighted
-#: pairs below 0.15 (benchmarks/bake_source_floor.py, docs/notes/bake.md "Below 0.15, eighteenth session"):
-#: 1, 1.25, 1.5, 2 within 4 % of each other; 1 the smallest error on city and forest.
-SPREAD = 1.0
+#: The source's extent in half vectors: (SPREAD radius)^2 / 4 in the plane of incidence, (SPREAD radius)^2 /
+#: (4 (n.v)^2) across it (the tail's widening per axis), S = (SPREAD radius)^2 / (4 n.v) their geometric mean (the
+#: core's weight S / (alpha^2 + S)); module docstring. Measured on every band below 0.6
+#: (benchmarks/bake_source_aniso.py, docs/notes/bake.md "Below 0.3, nineteenth session"): 1.25 the smallest
+#: error or within 1 % of it on 9 of the 12 cells, 1.0 up to 12 % worse (city < 0.15), 1.5 up to 7 % worse
+#: (city 0.3-0.6).
+SPREAD = 1.25
 
 #: The core's widths in units of the source's semi-axes (module docstring); the axes are measured on light
 #: texels' centres, and the reference's bilinear read of the source's pixels is wider. Measured on the cells'
@@ -76,6 +81,13 @@ CORE = 1.15
 #: environments' compact sources hold 6-33 % (city's sun 23.7 %, interior's lamp 20.3 %, forest's sun core 6.1 %);
 #: a uniform or smooth sky holds ~0 (its fill equals its core) and is left to the maps.
 MIN_SHARE = 0.03
+
+#: Most sources a bake takes out, each the brightest compact source of the map the previous ones left while it
+#: holds MIN_SHARE of that map's power (bake.json allows 8). On the bundled environments (balanced, 64 lights):
+#: city and forest one (their next hold 0.8 % and 2.0 %); interior three lamps (22.3, 12.8, 4.0 % of the whole
+#: map's luminance power); studio four (10.4, 10.4, 9.5 % and 2.9 %, the last 3 degrees from the first: the rest of
+#: that light). Measured in docs/notes/bake.md, "Below 0.3, nineteenth session".
+MAX_SOURCES = 4
 
 
 class Source(NamedTuple):
@@ -164,17 +176,30 @@ def principal_axes(directions, weights, direction) -> tuple:
     return tuple(tuple(float(c) for c in vec[:, i] * np.sqrt(2 * max(val[i], 0.0))) for i in (2, 1))
 
 
-def widened_ratio(a2, s2, nh, sin2):
-    """D'(h) / D(h): GGX at alpha'^2 = ``a2`` + ``s2`` over GGX at ``a2`` (alpha^2), at cos theta_h ``nh`` and
-    sin^2 theta_h ``sin2`` (the form of :func:`homofac.brdf.gltf.gltf_lobes_at`, no cancellation at the peak)."""
-    a2w = a2 + s2
-    return (a2w / a2) * ((a2 * nh * nh + sin2) / (a2w * nh * nh + sin2)) ** 2
+def widened_ratio(a2, sx2, sy2, nh2, hx2, hy2):
+    """D'(h) / D(h): the anisotropic GGX of squared widths ``a2`` + ``sx2`` (along x) and ``a2`` + ``sy2`` (along y)
+    over GGX at ``a2`` (alpha^2), at the unit half vector's squared components ``hx2``, ``hy2``, ``nh2`` (h.n):
+    D' = (ax^2 ay^2)^(3/2) / (pi Q^2), Q = hx^2 ay^2 + hy^2 ax^2 + (h.n)^2 ax^2 ay^2 (Heitz 2014 eq. 85, written
+    without divisions), D = alpha^2 / (pi (alpha^2 (h.n)^2 + hx^2 + hy^2)^2); no cancellation at the peak."""
+    ax2, ay2 = a2 + sx2, a2 + sy2
+    q = hx2 * ay2 + hy2 * ax2 + nh2 * ax2 * ay2
+    return (ax2 * ay2) ** 1.5 * (a2 * nh2 + hx2 + hy2) ** 2 / (a2 * q * q)
+
+
+def core_widths(widths, u1, u2, a2):
+    """``(G11, G12, G22)``: the core's covariance G in the source's axes (light directions, module docstring):
+    ``widths`` (CORE |a_i|)^2 plus the lobe's 4 alpha^2 (I - u u^T), u = n x v of length sqrt(1 - (n.v)^2) across
+    the plane of incidence (4 alpha^2 in the plane, 4 (n.v)^2 alpha^2 across it); ``u1``, ``u2`` u's components
+    along the axes, ``a2`` alpha^2 (n.v enters through |u|)."""
+    g = 4 * a2
+    return widths[0] + g * (1 - u1 * u1), -g * u1 * u2, widths[1] + g * (1 - u2 * u2)
 
 
 def source_terms(sources, n: Float[Array, "N 3"], v: Float[Array, "N 3"], roughness) -> Float[Array, "N 3 3"]:
     """``(I_d, I_A, I_B)`` (N, 3, 3) of the analytic lights ``sources`` (a sequence of :class:`Source`) at the
-    pairs: I_d the point light's, I_A and I_B the core and the tail of the lobe convolved with the source
-    (module docstring), times each power; 0 where n.v <= 0 or n.l <= 0."""
+    pairs: I_d the point light's, I_A and I_B the core and the tail of the lobe convolved with the source, each
+    widened per axis of the plane of incidence (module docstring), times each power; 0 where n.v <= 0 or
+    n.l <= 0."""
     n = jnp.asarray(n, jnp.float32)
     v = jnp.asarray(v, jnp.float32)
     rho = jnp.broadcast_to(jnp.asarray(roughness, jnp.float32), n.shape[:1])
@@ -186,6 +211,8 @@ def source_terms(sources, n: Float[Array, "N 3"], v: Float[Array, "N 3"], roughn
     a2 = rho ** 4
     x = jnp.where(wo[2] > 0, wo[2], 1.0)
     r = 2 * x[:, None] * n - v
+    u = jnp.cross(n, v)  # across the plane of incidence, |u|^2 = 1 - x^2
+    ut2 = jnp.maximum(wo[0] * wo[0] + wo[1] * wo[1], 1e-12)  # |u|^2 in the local frame, u = (-wo_y, wo_x, 0)
     lam = 0.5 * (jnp.sqrt(1 + a2 * (1 - x * x) / (x * x)) - 1)
     m5 = (1 - x) ** 5
     for s in sources:  # a handful of lights, not samples
@@ -197,16 +224,21 @@ def source_terms(sources, n: Float[Array, "N 3"], v: Float[Array, "N 3"], roughn
         d, la, lb = gltf_lobes_at(rho, wi, wo_)
         h = [a + c for a, c in zip(wi, wo_)]
         hn2 = h[0] * h[0] + h[1] * h[1] + h[2] * h[2]
-        S = (SPREAD * s.radius) ** 2 / 4 / x
-        k = widened_ratio(a2, S, jnp.maximum(h[2], 0.0) * jax.lax.rsqrt(hn2), (h[0] * h[0] + h[1] * h[1]) / hn2)
+        hy2 = (h[1] * wo[0] - h[0] * wo[1]) ** 2 / ut2 / hn2
+        sin2 = (h[0] * h[0] + h[1] * h[1]) / hn2
+        base = (SPREAD * s.radius) ** 2 / 4
+        k = widened_ratio(a2, base, base / (x * x), jnp.maximum(h[2], 0.0) ** 2 / hn2,
+                          jnp.maximum(sin2 - hy2, 0.0), hy2)
+        S = base / x
         w = S / (a2 + S) if s.radius > 0 else jnp.zeros_like(x)
         axes, widths = s.core_frame()
+        e1, e2 = (jnp.asarray(a, jnp.float32) for a in axes)
+        g11, g12, g22 = core_widths(widths.astype(np.float32), u @ e1, u @ e2, a2)
+        det = g11 * g22 - g12 * g12
         e = r - ell
-        s1 = float(widths[0]) + 4 * x * a2
-        s2 = float(widths[1]) + 4 * x * a2
-        q = ((e @ jnp.asarray(axes[0], jnp.float32)) ** 2 / s1 + (e @ jnp.asarray(axes[1], jnp.float32)) ** 2 / s2
-             + (e @ ell) ** 2 / jnp.minimum(s1, s2))
-        blob = jnp.exp(-q) / (jnp.pi * jnp.sqrt(s1 * s2)) / (1 + 2 * lam)
+        t1, t2, t3 = e @ e1, e @ e2, e @ ell
+        q = (g22 * t1 * t1 - 2 * g12 * t1 * t2 + g11 * t2 * t2) / det + t3 * t3 / jnp.minimum(g11, g22)
+        blob = jnp.exp(-q) / (jnp.pi * jnp.sqrt(det)) / (1 + 2 * lam)
         tail = jnp.stack([d, la * k, lb * k], 1) * wi[2][:, None]  # (N, 3)
         core = jnp.stack([jnp.zeros_like(x), (1 - m5) * blob, m5 * blob], 1)
         lobes = jnp.where(above[:, None], (1 - w)[:, None] * tail + w[:, None] * core, 0.0)
@@ -215,5 +247,5 @@ def source_terms(sources, n: Float[Array, "N 3"], v: Float[Array, "N 3"], roughn
     return out
 
 
-__all__ = ["CORE", "MIN_SHARE", "RADIUS", "RATIO", "SPREAD", "Source", "brightest_source", "principal_axes", "source_terms",
-           "widened_ratio"]
+__all__ = ["CORE", "MAX_SOURCES", "MIN_SHARE", "RADIUS", "RATIO", "SPREAD", "Source", "brightest_source", "core_widths",
+           "principal_axes", "source_terms", "widened_ratio"]
