@@ -190,7 +190,7 @@ def test_cli_writes_a_bake_and_refuses_bad_input(tmp_path, capsys):
 
 
 def test_presets_are_one_printable_plan():
-    assert [make_plan(p).lookups for p in PRESETS] == [4, 7, 16]
+    assert [make_plan(p).lookups for p in PRESETS] == [4, 8, 16]
     assert "lookups per pixel" in make_plan("best").describe()
 
 

@@ -43,7 +43,7 @@ def _unpacked(b: Bake) -> Bake:
 def test_plan_of_a_mixed_bake():
     """balanced + harmonic 0.3, mixed: 2 RGBA maps per layer, 2 tables of 5 channels: 1 + 2 x 2 + 2 = 7 fetches
     (10 unpacked); the layers from 0.3 up and the one below them keep 1 product."""
-    pl = make_plan("balanced", harmonic=0.3, mixed=True)
+    pl = make_plan("balanced", harmonic=0.3, mixed=True, diffuse_basis="texture")
     assert (pl.lookups, pl.maps, pl.tables, pl.channels, pl.harmonic_channel) == (7, 2, 2, 5, 2)
     assert make_plan("balanced", harmonic=0.3, mixed=False, shared_gain=False, diffuse_basis="texture").lookups == 10
     rho, h = pl.roughnesses(), pl.harmonic_layers()
