@@ -225,13 +225,23 @@ def ideal_split_sum(src, uniform, name, n, v, rho, samples, albedo_samples=None)
 
 
 def preset_flags(preset: str) -> list[str]:
-    """The CLI flags of a benchmark preset: a preset name, ``PRESET+hR`` (the preset with ``--harmonic R
-    --no-mixed``: the layers from roughness R up carry the second harmonic, unpacked; ``+h0``: none) or
-    ``PRESET+mR`` (``--harmonic R --mixed``: those layers carry K - 1 products and the harmonic in the K-th's
-    channels)."""
-    mixed = "+m" in preset
-    base, _, extra = preset.replace("+m", "+h").partition("+h")
-    return (["--preset", base] + (["--harmonic", extra, "--mixed" if mixed else "--no-mixed"] if extra else []))
+    """The CLI flags of a benchmark preset: a preset name followed by any of ``+hR`` (``--harmonic R
+    --no-mixed``: the layers from roughness R up carry the second harmonic, unpacked; ``+h0``: none), ``+mR``
+    (``--harmonic R --mixed``: those layers carry K - 1 products and the harmonic in the K-th's channels), ``+tex``
+    / ``+sh9`` (``--diffuse``) and ``+own`` (``--no-shared-gain``: h_A and h_B). The eighteenth session's
+    ``balanced`` (7 fetches) is ``balanced+m0.35+tex``."""
+    base, *parts = preset.split("+")
+    flags = ["--preset", base]
+    for p in parts:
+        if p[:1] in "hm" and p[1:]:
+            flags += ["--harmonic", p[1:], "--mixed" if p[0] == "m" else "--no-mixed"]
+        elif p in ("tex", "sh9"):
+            flags += ["--diffuse", "texture" if p == "tex" else "sh9"]
+        elif p == "own":
+            flags += ["--no-shared-gain"]
+        else:
+            raise SystemExit(f"bake_accuracy: unknown preset part +{p} in {preset!r}")
+    return flags
 
 
 def fresh_bake(name, preset, tmp):

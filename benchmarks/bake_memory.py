@@ -220,7 +220,8 @@ def breakdown(preset: str = "balanced", max_size: int = 64) -> list[dict]:
                          "layer_face": sizes[j], "texels": t, "bytes": t * 3 * 2})
         rows.append({"map": i, "layers": "packing", "texels": a.width * a.height - used,
                      "bytes": (a.width * a.height - used) * 3 * 2, "atlas": [a.width, a.height]})
-    rows.append({"layers": "E_d", "bytes": pl.diffuse * 6 * pl.diffuse_size ** 2 * 3 * 2})
+    rows.append({"layers": "E_d" if pl.diffuse_basis == "texture" else "E_d (SH9 constants, no texture)",
+                 "bytes": pl.diffuse * 6 * pl.diffuse_size ** 2 * 3 * 2 if pl.diffuse_basis == "texture" else 0})
     rows.append({"layers": "tables", "bytes": pl.tables * pl.layers * pl.nv_size * 3 * 2})
     return rows
 

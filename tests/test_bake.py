@@ -47,7 +47,7 @@ def nrmse(a, e):
 
 @pytest.fixture(scope="module")
 def forest_bake():
-    return hf.bake("forest", preset="balanced", harmonic=0.0, **TINY)  # the plain products (mixed: test_bake_mixed.py)
+    return hf.bake("forest", preset="balanced", harmonic=0.0, diffuse="texture", **TINY)  # the plain products (mixed: test_bake_mixed.py)
 
 
 def test_white_furnace_integrals(x64):
@@ -122,7 +122,7 @@ def test_evaluate_interface(forest_bake):
     f0 = (1 - m[:, None]) * 0.04 + m[:, None] * c
     np.testing.assert_allclose(out, (1 - m[:, None]) * 0.96 * c * t[:, 0] + f0 * t[:, 1] + t[:, 2], rtol=1e-5, atol=1e-7)
     assert np.all(np.asarray(b.evaluate(n, -v, c, m, r)) == 0)
-    assert b.lookups == make_plan("balanced").lookups == 7
+    assert b.lookups == make_plan("balanced", harmonic=0.0, diffuse_basis="texture").lookups == 7
     with pytest.raises(HomofacError, match="evaluate"):
         b.evaluate(n[:, :2], v, c, m, r)
 
@@ -190,7 +190,7 @@ def test_cli_writes_a_bake_and_refuses_bad_input(tmp_path, capsys):
 
 
 def test_presets_are_one_printable_plan():
-    assert [make_plan(p).lookups for p in PRESETS] == [4, 7, 16]
+    assert [make_plan(p).lookups for p in PRESETS] == [4, 8, 16]
     assert "lookups per pixel" in make_plan("best").describe()
 
 

@@ -159,7 +159,7 @@ def test_plan_counts_the_harmonic_fetches():
     tables gain h_A, h_B: fast + harmonic reads 2 x 2 + 1 + 2 = 7 fetches."""
     assert make_plan("fast", harmonic=0.3).lookups == 7
     assert make_plan("fast", harmonic=0.0).lookups == 4
-    assert make_plan("balanced", harmonic=0.3, mixed=False).lookups == 2 * 3 + 1 + 3
+    assert make_plan("balanced", harmonic=0.3, mixed=False, shared_gain=False, diffuse_basis="texture").lookups == 2 * 3 + 1 + 3
     assert "second harmonic from roughness 0.3" in make_plan("fast", harmonic=0.3).describe()
 
 
@@ -245,7 +245,7 @@ def test_save_load_round_trip_and_schema_2(harmonic_bake, tmp_path):
     b = harmonic_bake
     out = b.save(tmp_path / "h", exr="float32")
     doc = json.loads((out / "bake.json").read_text())
-    assert doc["schema_version"] == 6 and doc["plan"]["harmonic"] == 0.3
+    assert doc["schema_version"] == 7 and doc["plan"]["harmonic"] == 0.3
     assert [t["channels"] for t in doc["textures"] if t["kind"] == "prefiltered"] == [["P0.r", "P0.g", "P0.b"], ["M.uu", "M.vv", "M.uv"]]
     back = hf.load(out)
     n, v = _pairs(300, 4)

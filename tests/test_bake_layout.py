@@ -37,8 +37,8 @@ def _moved(b):
 @pytest.fixture(scope="module")
 def moved():
     """A plain (RGB, K = 2) and a mixed (RGBA, harmonic) bake, each with its second map in its own layout."""
-    plain = hf.bake("forest", preset="balanced", harmonic=0.0, **TINY)
-    mixed = hf.bake("forest", preset="balanced", harmonic=0.55, mixed=True, **th.TINY)
+    plain = hf.bake("forest", preset="balanced", harmonic=0.0, diffuse="texture", **TINY)
+    mixed = hf.bake("forest", preset="balanced", harmonic=0.55, mixed=True, diffuse="texture", **th.TINY)
     return {"plain": (plain, _moved(plain)), "mixed": (mixed, _moved(mixed))}
 
 
@@ -69,7 +69,7 @@ def test_own_layouts_change_nothing_but_the_files(moved, kind, tmp_path):
     out = m.save(tmp_path / "b", exr="float32")
     doc = json.loads((out / "bake.json").read_text())
     maps = [t for t in doc["textures"] if t["kind"] == "prefiltered"]
-    assert doc["schema_version"] == 6 and doc["texture_bytes_half"] == m.texture_bytes()
+    assert doc["schema_version"] == 7 and doc["texture_bytes_half"] == m.texture_bytes()
     assert [[(k["x"], k["y"], k["size"]) for k in t["blocks"]] for t in maps] == [
         [(x, y, s) for (x, y), s in zip(a.offsets, a.sizes)] for a in m.atlases]
     assert [(t["width"], t["height"]) for t in maps] == [(a.width, a.height) for a in m.atlases]
@@ -166,7 +166,7 @@ def halved():
     (P_2 at half its layers' face, one shared block of zeros in the crossing, the tensors at their faces,
     skyline-packed: :func:`homofac.bake.build.map_layouts`)."""
     h = hf.bake("forest", preset="balanced", layers=6, min_roughness=0.3, max_size=16, nv_size=8, samples=64,
-                data_resolution=4, harmonic=0.55)
+                data_resolution=4, harmonic=0.55, mixed=True, diffuse="texture")
     return dataclasses.replace(h, layouts=()), h
 
 

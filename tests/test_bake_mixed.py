@@ -23,7 +23,7 @@ TINY = dict(layers=6, min_roughness=0.3, max_size=8, nv_size=8, samples=64, data
 
 @pytest.fixture(scope="module")
 def mixed_bake():
-    return hf.bake("forest", preset="balanced", harmonic=0.55, mixed=True, **TINY)
+    return hf.bake("forest", preset="balanced", harmonic=0.55, mixed=True, diffuse="texture", **TINY)
 
 
 def _unpacked(b: Bake) -> Bake:
@@ -43,9 +43,9 @@ def _unpacked(b: Bake) -> Bake:
 def test_plan_of_a_mixed_bake():
     """balanced + harmonic 0.3, mixed: 2 RGBA maps per layer, 2 tables of 5 channels: 1 + 2 x 2 + 2 = 7 fetches
     (10 unpacked); the layers from 0.3 up and the one below them keep 1 product."""
-    pl = make_plan("balanced", harmonic=0.3, mixed=True)
+    pl = make_plan("balanced", harmonic=0.3, mixed=True, diffuse_basis="texture")
     assert (pl.lookups, pl.maps, pl.tables, pl.channels, pl.harmonic_channel) == (7, 2, 2, 5, 2)
-    assert make_plan("balanced", harmonic=0.3, mixed=False).lookups == 10
+    assert make_plan("balanced", harmonic=0.3, mixed=False, shared_gain=False, diffuse_basis="texture").lookups == 10
     rho, h = pl.roughnesses(), pl.harmonic_layers()
     assert h == tuple(j for j in range(pl.layers) if rho[j] >= 0.3) and rho[min(h) - 1] < 0.3
     assert pl.layer_terms() == tuple(1 if j >= min(h) - 1 else 2 for j in range(pl.layers))
@@ -56,10 +56,11 @@ def test_plan_of_a_mixed_bake():
     assert make_plan("balanced", terms=1).mixed is False  # the preset's mixed needs K >= 2
 
 
-def test_balanced_is_mixed_from_0_35():
-    """The preset (benchmarks/bake_accuracy.md, balanced+m0.35): K = 2 below 0.35, 1 + the harmonic from the 0.429
-    layer up (the 0.324 layer the crossing), 7 fetches; --harmonic 0 is the plain K = 2 bake."""
-    pl = make_plan("balanced")
+def test_balanced_mixed_from_0_35():
+    """The eighteenth session's preset (benchmarks/bake_accuracy.md, balanced+m0.35, E_0 a texture): K = 2 below
+    0.35, 1 + the harmonic from the 0.429 layer up (the 0.324 layer the crossing), 7 fetches; --harmonic 0 is the
+    plain K = 2 bake."""
+    pl = make_plan("balanced", mixed=True, diffuse_basis="texture")
     assert (pl.harmonic, pl.mixed, pl.lookups) == (0.35, True, 7)
     assert pl.layer_terms() == (2,) * 7 + (1,) * 5 and pl.harmonic_layers() == (8, 9, 10, 11)
     assert make_plan("balanced", harmonic=0.0).layer_terms() == (2,) * 12
@@ -94,7 +95,7 @@ def test_save_load_round_trip_schema_4_and_3(mixed_bake, tmp_path):
     b = mixed_bake
     out = b.save(tmp_path / "m", exr="float32")
     doc = json.loads((out / "bake.json").read_text())
-    assert doc["schema_version"] == 6 and doc["plan"]["mixed"] is True and doc["lookups"] == 7
+    assert doc["schema_version"] == 7 and doc["plan"]["mixed"] is True and doc["lookups"] == 7
     assert [t["channels"] for t in doc["textures"] if t["kind"] != "diffuse"] == [
         ["P0.r", "P0.g", "P0.b"], ["P1.r/M.uu", "P1.g/M.vv", "P1.b/M.uv"],
         ["a0", "b0", "a1/hA"], ["b1/hB", "w0", "-"]]

@@ -22,10 +22,11 @@ from helpers import made_up_bake, visible_pairs
 
 def test_lookups_drop_by_the_diffuse_maps():
     for p in PRESETS:
-        tex, sh = make_plan(p), make_plan(p, diffuse_basis="sh9")
+        tex, sh = make_plan(p, diffuse_basis="texture"), make_plan(p, diffuse_basis="sh9")
         assert sh.lookups == tex.lookups - tex.diffuse and sh.tables == tex.tables
         assert "SH9" in sh.describe()
-    assert [make_plan(p, diffuse_basis="sh9").lookups for p in PRESETS] == [3, 6, 14]
+    assert [make_plan(p, diffuse_basis="sh9").lookups for p in PRESETS] == [3, 8, 14]
+    assert [make_plan(p).diffuse_basis for p in PRESETS] == ["texture", "sh9", "texture"]
     with pytest.raises(HomofacError):
         hf.bake("forest", diffuse="sh3")
 

@@ -215,7 +215,7 @@ def sun_bake():
 def test_round_trip_and_schema_1_reads_as_no_sources(sun_bake, tmp_path):
     out = sun_bake.save(tmp_path / "bk")
     doc = json.loads((out / "bake.json").read_text())
-    assert doc["schema_version"] == 6 and len(doc["sources"]) == 1
+    assert doc["schema_version"] == 7 and len(doc["sources"]) == 1
     back = hf.load(out)
     assert back.sources == sun_bake.sources
     n, v = pairs(100, seed=8)

@@ -74,7 +74,7 @@ LIBRARY_FORMAT = "homofac.library"
 LIBRARY_VERSION = 1
 INDEX_NAME = "index.json"
 BAKE_FORMAT = "homofac.bake"
-BAKE_SCHEMA = 6
+BAKE_SCHEMA = 7
 BAKE_JSON = "bake.json"
 #: The shader files of a bake directory (homofac_ibl, homofac_ibl_terms).
 BAKE_SHADERS = {"glsl": "shader.glsl", "glsl_es": "shader_es.glsl", "hlsl": "shader.hlsl", "msl": "shader.metal",
@@ -889,6 +889,8 @@ class BakePlanEntry(Options):
     mixed: bool = False
     #: P_2..P_K's face divisor (schema 5; informative: each map's blocks give the sizes the maps are read at)
     later_face: int = Field(1, ge=1, le=64)
+    #: schema 7: the harmonic's one table channel h_A scales I_A and I_B (schemas 1-6: h_A and h_B, or mixed)
+    shared_gain: bool = False
 
 
 class BakeSourceEntry(Options):
@@ -924,13 +926,13 @@ class BakeSourceEntry(Options):
 
 
 class BakeDocument(Options):
-    """bake.json (schema 6: sources may give their ``axes``; schema 5 is read with round sources; schema 5: each
+    """bake.json (schema 7: ``plan.shared_gain``, absent in schema 6 and older: read as false; schema 6: sources may give their ``axes``; schema 5 is read with round sources; schema 5: each
     specular map's blocks in its own atlas; schema 4 is read with every map in the
     shelf packer's layout of ``layers``' x, y; schema 3 is read as a bake without ``plan.mixed``, schema 2 as one without the harmonic, schema 1, without ``sources``, as a
     bake without sources either): see docs/format.md."""
 
     format: Literal["homofac.bake"]
-    schema_version: Literal[1, 2, 3, 4, 5, 6]
+    schema_version: Literal[1, 2, 3, 4, 5, 6, 7]
     brdf: Literal["gltf"]
     plan: BakePlanEntry
     lookups: int
@@ -956,7 +958,7 @@ def bake_document(bake: Bake, exr: str = "half") -> dict:
     pl = bake.plan
     atlases = bake.atlases
     chans = ([f"{c}{k}" for k in range(pl.terms) for c in ("a", "b")] + [f"w{d}" for d in range(pl.diffuse)]
-             + (["hA", "hB"] if pl.harmonic and not pl.mixed else []))
+             + ((["hA"] if pl.shared_gain else ["hA", "hB"]) if pl.harmonic and not pl.mixed else []))
     if pl.mixed and pl.harmonic:  # a_K, b_K's channels carry h_A, h_B in the harmonic layers
         chans[2 * pl.terms - 2:2 * pl.terms] = [f"a{pl.terms - 1}/hA", f"b{pl.terms - 1}/hB"]
     tex = [{"name": f"P{i}", "file": f"P{i}.exr", "kind": "prefiltered", "width": a.width, "height": a.height,

@@ -432,7 +432,8 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
     max_size = int(opts.max_size or source_size(environment))
     pl = make_plan(opts.preset, max_size=max_size, min_roughness=opts.min_roughness, nv_size=opts.nv_size,
                    diffuse_size=opts.diffuse_size, layers=opts.layers, terms=opts.terms, diffuse_basis=opts.diffuse,
-                   harmonic=opts.harmonic, mixed=opts.mixed, later_face=opts.later_face)
+                   harmonic=opts.harmonic, mixed=opts.mixed, later_face=opts.later_face,
+                   shared_gain=opts.shared_gain)
     original = _Lights(environment)
     lights = _Lights(environment)
     roughness = pl.roughnesses()
@@ -523,6 +524,8 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
     w = np.stack(W)  # (L, X, 2K)
     wd = np.broadcast_to(vd[None], (pl.layers, len(x), pl.diffuse))
     hw = [np.stack([h[: len(x)], h[len(x):]], axis=-1) for h in Hw] if pl.harmonic else []  # h_A, h_B
+    if pl.shared_gain:  # h_A alone: its gain scales I_B too
+        hw = [h[:, :1] for h in hw]
     if pl.mixed and hw:  # h_A, h_B in a_K, b_K's channels of the harmonic layers (those are 0 there)
         w = w.copy()
         for j in pl.harmonic_layers():

@@ -17,6 +17,8 @@ each layer's axis is added, coloured as the products (:func:`homofac.bake.gauge.
       (M_j stored in 3 channels, the face gauge of :mod:`.gauge`: t^T M t = t_u^2 M'_uu + t_v^2 M'_vv + 2 t_u t_v M'_uv)
     I_A <- I_A max(0, 1 + h_A H / Y(I_A)),     I_B <- I_B max(0, 1 + h_B H / Y(I_B))   (h_A, h_B: table channels)
 
+With the plan's ``shared_gain`` the tables hold h_A only and I_B takes I_A's gain: I_B <- I_B max(0, 1 + h_A H / Y(I_A)).
+
 With the plan's ``mixed`` (:meth:`~homofac.bake.plan.BakePlan.layer_terms`) the harmonic layers store P_K = 0
 and h_A, h_B in a_K, b_K's channels, and the layer below them stores P_K = 0, a_K = b_K = 0 and no tensor: the
 formulas above then hold unchanged with h_A = T_{2K-2}, h_B = T_{2K-1} (every blended channel is, in both
@@ -151,7 +153,7 @@ class Bake:
         maps = _terms(P, diffuse,
                       jnp.asarray(self.W, jnp.float32), jnp.asarray(self.shift, jnp.float32),
                       self.layer_coordinate(rho), n, v, self.plan.terms,
-                      self.plan.diffuse, sh9, H, self.plan.harmonic_channel)
+                      self.plan.diffuse, sh9, H, self.plan.harmonic_channel, self.plan.shared_gain)
         return maps + source_terms(self.sources, n, v, rho) if self.sources else maps
 
     def read_maps(self) -> tuple[tuple, tuple | None]:
@@ -234,11 +236,17 @@ def tensor_read(m: Float[Array, "N 5"], t: Float[Array, "N 3"]) -> Float[Array, 
             + 2.0 * (xy * tx * ty + xz * tx * tz + yz * ty * tz))
 
 
+def harmonic_gain(i0: Float[Array, "N 3"], h: Float[Array, "N"]) -> Float[Array, "N"]:
+    """The factor max(0, 1 + h / Y(i0)) that adds a lobe's second harmonic's luminance ``h`` to its isotropic RGB
+    part ``i0`` coloured as i0 (Y the Rec. 709 luminance; 1 where Y(i0) <= 0)."""
+    y = i0 @ jnp.asarray(LUMINANCE, i0.dtype)
+    return jnp.where(y > 1e-20, jnp.maximum(0.0, 1.0 + h / jnp.where(y > 1e-20, y, 1.0)), 1.0)
+
+
 def harmonic_colour(i0: Float[Array, "N 3"], h: Float[Array, "N"]) -> Float[Array, "N 3"]:
     """A lobe's RGB integral with its second harmonic's luminance ``h`` added, coloured as its isotropic part
-    ``i0``: i0 max(0, 1 + h / Y(i0)) (Y the Rec. 709 luminance; Y(i0) <= 0 adds nothing)."""
-    y = i0 @ jnp.asarray(LUMINANCE, i0.dtype)
-    return i0 * jnp.where(y > 1e-20, jnp.maximum(0.0, 1.0 + h / jnp.where(y > 1e-20, y, 1.0)), 1.0)[:, None]
+    ``i0``: i0 max(0, 1 + h / Y(i0)) (:func:`harmonic_gain`; Y(i0) <= 0 adds nothing)."""
+    return i0 * harmonic_gain(i0, h)[:, None]
 
 
 #: |n - (n.a) a| below which the tangent t fades to 0 (t = g / max(|g|, floor)): where the axis is n (a layer of
@@ -247,8 +255,8 @@ def harmonic_colour(i0: Float[Array, "N 3"], h: Float[Array, "N"]) -> Float[Arra
 TANGENT_FLOOR = 1e-3
 
 
-@jax.jit(static_argnums=(7, 8, 9, 11))
-def _terms(P, E, W, shift, u, n, v, K: int, D: int, sh9: bool = False, H=None, hc: int = 0):
+@jax.jit(static_argnums=(7, 8, 9, 11, 12))
+def _terms(P, E, W, shift, u, n, v, K: int, D: int, sh9: bool = False, H=None, hc: int = 0, shared: bool = False):
     x = jnp.sum(n * v, axis=-1)
     r = 2.0 * x[:, None] * n - v
     xc = jnp.clip(x, 0.0, 1.0)
@@ -268,7 +276,10 @@ def _terms(P, E, W, shift, u, n, v, K: int, D: int, sh9: bool = False, H=None, h
     t = jnp.sum(hats[:, :, None] * _line(W, xc), axis=1)  # (N, C)
     ia = jnp.sum(pb * t[:, 0:2 * K:2, None], axis=1)
     ib = jnp.sum(pb * t[:, 1:2 * K:2, None], axis=1)
-    if H is not None:  # h_A, h_B: the tables' channels hc, hc + 1
+    if H is not None and shared:  # h_A: the tables' channel hc; its gain scales I_A and I_B
+        g = harmonic_gain(ia, hb * t[:, hc])[:, None]
+        ia, ib = ia * g, ib * g
+    elif H is not None:  # h_A, h_B: the tables' channels hc, hc + 1
         ia = harmonic_colour(ia, hb * t[:, hc])
         ib = harmonic_colour(ib, hb * t[:, hc + 1])
     # the diffuse maps: cube textures, or (sh9) E holds their SH coefficients (D, 9, 3)
@@ -278,4 +289,4 @@ def _terms(P, E, W, shift, u, n, v, K: int, D: int, sh9: bool = False, H=None, h
     return jnp.where((x > 0)[:, None, None], out, 0.0)
 
 
-__all__ = ["Bake", "diffuse_sh9", "harmonic_colour", "register_writer", "sh9_basis", "tensor_read"]
+__all__ = ["Bake", "diffuse_sh9", "harmonic_colour", "harmonic_gain", "register_writer", "sh9_basis", "tensor_read"]

@@ -10,7 +10,7 @@ from ..options import Options
 
 
 class BakeOptions(Options):
-    """What a bake computes. ``preset`` picks the structure (:func:`homofac.bake.plan.plan`: 4, 7 and 16
+    """What a bake computes. ``preset`` picks the structure (:func:`homofac.bake.plan.plan`: 4, 8 and 16
     lookups per pixel); the rest override it or set sizes."""
 
     TAG: ClassVar[str] = "bake"
@@ -26,9 +26,10 @@ class BakeOptions(Options):
     terms: Optional[int] = Field(None, ge=1, le=8, description="specular products (default: the preset's)")
     samples: int = Field(512, ge=64, le=65536, description="directions of the data the diffuse weights are fitted on (the specular layers are fitted at their maps' texels)")
     data_resolution: int = Field(16, ge=4, le=256, description="light resolution of the diffuse data and of the SH9 projection")
-    diffuse: Literal["texture", "sh9"] = Field(
-        "texture", description="the diffuse maps E_d as cube textures (1 lookup each) or as 9 SH coefficients each, "
-                               "evaluated in the shader from constants (0 lookups; docs/format.md)")
+    diffuse: Optional[Literal["texture", "sh9"]] = Field(
+        None, description="the diffuse maps E_d as cube textures (1 lookup each) or as 9 SH coefficients each, "
+                          "evaluated in the shader from constants (0 lookups; docs/format.md); default: the preset's, "
+                          "sh9 for balanced, texture for fast and best")
     analytic_source: bool = Field(
         True, description="take the environment's brightest compact source out of the maps and shade it as a point "
                           "light with the exact glTF lobes (0 lookups; homofac.bake.sources)")
@@ -39,6 +40,9 @@ class BakeOptions(Options):
     mixed: Optional[bool] = Field(
         None, description="with harmonic: the harmonic layers store K - 1 products and the harmonic in the K-th "
                           "product's channels (fewer fetches; docs/format.md); default: the preset's")
+    shared_gain: Optional[bool] = Field(
+        None, description="with harmonic (not mixed): one table channel h_A whose gain scales both I_A and I_B "
+                          "(docs/format.md); default: the preset's, on for balanced")
     exr: Literal["half", "float32"] = "half"
     ktx2: bool = Field(False, description="also write each texture as <name>.ktx2 (RGBA half or float, as exr)")
 

@@ -27,7 +27,8 @@ class BakePlan(NamedTuple):
     ``layers`` roughness layers spaced geometrically from ``min_roughness`` to 1; ``nv_size`` columns of
     the weight tables; ``max_size`` the largest P face size (the sharpest layers'); ``diffuse_size`` the
     face size of the E_d maps; ``later_face``: P_2..P_K are stored at 1 / later_face of their layer's face (at
-    least 8; the layer's map box-averaged per face, :func:`homofac.bake.build.map_layouts`)."""
+    least 8; the layer's map box-averaged per face, :func:`homofac.bake.build.map_layouts`); ``shared_gain``: the
+    harmonic's one weight h_A scales I_A and I_B by the same gain (one table channel instead of h_A, h_B)."""
 
     preset: str
     terms: int
@@ -41,16 +42,17 @@ class BakePlan(NamedTuple):
     harmonic: float = 0.0
     mixed: bool = False
     later_face: int = 1
+    shared_gain: bool = False
 
     @property
     def channels(self) -> int:
         """Weight-table channels: a_1, b_1, ..., a_K, b_K, w_1, ..., w_D (and h_A, h_B with the harmonic, unless
-        ``mixed``: then h_A, h_B are a_K, b_K's channels in the harmonic layers)."""
-        return 2 * self.terms + self.diffuse + (2 if self.harmonic and not self.mixed else 0)
+        ``mixed``: then h_A, h_B are a_K, b_K's channels in the harmonic layers; ``shared_gain``: h_A only)."""
+        return 2 * self.terms + self.diffuse + ((1 if self.shared_gain else 2) if self.harmonic and not self.mixed else 0)
 
     @property
     def harmonic_channel(self) -> int:
-        """The table channel of h_A (h_B the next): 2K + D, or with ``mixed`` 2K - 2 (a_K's)."""
+        """The table channel of h_A (h_B the next, none with ``shared_gain``): 2K + D, or with ``mixed`` 2K - 2 (a_K's)."""
         return 2 * self.terms - 2 if self.mixed else 2 * self.terms + self.diffuse
 
     def layer_terms(self) -> tuple[int, ...]:
@@ -108,18 +110,27 @@ class BakePlan(NamedTuple):
                 f"{' as SH9 constants' if self.diffuse_basis == 'sh9' else ''}; "
                 f"{f'second harmonic from roughness {self.harmonic:g}; ' if self.harmonic else ''}"
                 f"{self._later()}"
+                f"{'one harmonic gain for I_A and I_B; ' if self.shared_gain and self.harmonic else ''}"
                 f"{f'mixed: {self.terms - 1} term(s) + the harmonic in layers {self._span(self.harmonic_layers())}, {self.terms - 1} term(s) in the crossing layer {min(self.harmonic_layers()) - 1}; ' if self.mixed and self.harmonic_layers() else ''}"
                 f"{self.lookups} lookups per pixel")
 
 
-#: preset -> (terms, diffuse, layers): 4, 7 and 16 lookups (budgets 4, 8, 16).
+#: preset -> (terms, diffuse, layers): 4, 8 and 16 lookups (budgets 4, 8, 16).
 _STRUCTURE = {"fast": (1, 1, 10), "balanced": (2, 1, 12), "best": (5, 2, 12)}
 
 #: preset -> the roughness from which layers store the second harmonic (0: none).
 _HARMONIC = {"fast": 0.0, "balanced": 0.35, "best": 0.0}
 
 #: preset -> whether the harmonic layers replace the K-th product (``mixed``, :meth:`BakePlan.layer_terms`).
-_MIXED = {"fast": False, "balanced": True, "best": False}
+_MIXED = {"fast": False, "balanced": False, "best": False}
+
+#: preset -> whether the harmonic layers' I_B takes I_A's harmonic gain (one table channel h_A, no h_B).
+#: balanced: with E_d as SH9 and K = 2 kept in the harmonic layers, 0 + 3 maps x 2 + 2 tables = 8 lookups
+#: (docs/notes/bake.md, "From 0.3 up, nineteenth session").
+_SHARED_GAIN = {"fast": False, "balanced": True, "best": False}
+
+#: preset -> the diffuse maps' basis (balanced: ``sh9``, 0 lookups, which pays the harmonic's tensor map).
+_DIFFUSE_BASIS = {"fast": "texture", "balanced": "sh9", "best": "texture"}
 
 #: preset -> the face size of the E_d maps (balanced: 16, every accuracy cell within 0.0001 of 32's;
 #: docs/notes/bake.md, "Memory, sixteenth session").
@@ -132,8 +143,8 @@ _LATER_FACE = {"fast": 1, "balanced": 2, "best": 1}
 
 def plan(preset: str = "balanced", *, max_size: int = 256, min_roughness: float = 0.045, nv_size: int = 32,
          diffuse_size: int | None = None, layers: int | None = None, terms: int | None = None,
-         diffuse_basis: str = "texture", harmonic: float | None = None,
-         mixed: bool | None = None, later_face: int | None = None) -> BakePlan:
+         diffuse_basis: str | None = None, harmonic: float | None = None,
+         mixed: bool | None = None, later_face: int | None = None, shared_gain: bool | None = None) -> BakePlan:
     """The plan of a preset, with the given overrides (validated by :class:`homofac.bake.BakeOptions`)."""
     k, d, n = _STRUCTURE[preset]
     if mixed and int(terms or k) < 2:
@@ -141,9 +152,13 @@ def plan(preset: str = "balanced", *, max_size: int = 256, min_roughness: float 
     h = float(_HARMONIC[preset] if harmonic is None else harmonic)
     mixed = bool(_MIXED[preset] and int(terms or k) >= 2) if mixed is None else mixed
     mixed = bool(mixed and h > 0)  # without a harmonic nothing is mixed
+    if shared_gain and mixed:
+        raise HomofacError("bake: shared_gain needs the unpacked harmonic (mixed stores h_A, h_B in a_K, b_K's channels)")
+    shared = bool(_SHARED_GAIN[preset] if shared_gain is None else shared_gain) and h > 0 and not mixed
     return BakePlan(preset, int(terms or k), d, int(layers or n), int(nv_size), int(max_size),
-                    int(diffuse_size or _DIFFUSE_SIZE[preset]), float(min_roughness), str(diffuse_basis), h, mixed,
-                    int(later_face or _LATER_FACE[preset]))
+                    int(diffuse_size or _DIFFUSE_SIZE[preset]), float(min_roughness),
+                    str(diffuse_basis or _DIFFUSE_BASIS[preset]), h, mixed, int(later_face or _LATER_FACE[preset]),
+                    shared)
 
 
 __all__ = ["BakePlan", "PRESETS", "Preset", "plan"]

@@ -148,8 +148,13 @@ def source(bake: Bake, language: str = "glsl", *, y_up: bool = False, flip_v: bo
         gs = ("hg0 * ", "hg1 * ") if mixed else ("", "")
         body.append(f"    float hh = mix({gs[0]}hf_gauge(q0_{g}, a0, hf_tangent(n, a0)), "
                     f"{gs[1]}hf_gauge(q1_{g}, a1, hf_tangent(n, a1)), t);")
-        body.append(f"    I_A = hf_harmonic(I_A, hh * {chans[pl.harmonic_channel]});")
-        body.append(f"    I_B = hf_harmonic(I_B, hh * {chans[pl.harmonic_channel + 1]});")
+        if pl.shared_gain:  # one gain, h_A's, scales I_A and I_B
+            body.append(f"    float ga = hf_gain(I_A, hh * {chans[pl.harmonic_channel]});")
+            body.append("    I_A *= ga;")
+            body.append("    I_B *= ga;")
+        else:
+            body.append(f"    I_A = hf_harmonic(I_A, hh * {chans[pl.harmonic_channel]});")
+            body.append(f"    I_B = hf_harmonic(I_B, hh * {chans[pl.harmonic_channel + 1]});")
     for d in range(D):
         read = f"hf_sh9_{d}(n)" if sh9 else f"hf_cube(hf_E{d}, {_f(se)}, n)"
         body.append(f"    I_d += {read} * {chans[2 * K + d]};")
@@ -175,8 +180,9 @@ def _layer_rows(atlas, shift, vec4: str, f) -> str:
 def _harmonic_functions(language: str) -> list[str]:
     """``hf_tangent(n, a)`` (the unit tangent from the axis a towards n), ``hf_gauge(m, a, t)`` (t^T M t from the
     face-gauge channels m = (M'_uu, M'_vv, M'_uv), (u, v) the minor axes of a's cube face) and ``hf_harmonic(i0,
-    h)`` (i0 max(0, 1 + h / Y(i0)): the harmonic's luminance coloured as the isotropic part):
-    :func:`homofac.bake.gauge.gauge_read`, :func:`homofac.bake.model.harmonic_colour`."""
+    h)`` (i0 max(0, 1 + h / Y(i0)): the harmonic's luminance coloured as the isotropic part), ``hf_gain(i0, h)``
+    (its factor, for the plan's ``shared_gain``): :func:`homofac.bake.gauge.gauge_read`,
+    :func:`homofac.bake.model.harmonic_colour`, :func:`homofac.bake.model.harmonic_gain`."""
     msl, wgsl = language == "msl", language == "wgsl"
     v3, ft = ("float3", "float") if msl else (("vec3<f32>", "f32") if wgsl else ("vec3", "float"))
     f = (lambda x: L.float_literal(float(x), "f")) if msl else _f
@@ -207,6 +213,11 @@ def _harmonic_functions(language: str) -> list[str]:
         "    " + let("y", ft, f"dot(i0, {lum})"),
         f"    if (y <= {f(1e-20)}) {{ return i0; }}",
         f"    return i0 * max({f(0.0)}, {f(1.0)} + h / y);",
+        "}",
+        head("hf_gain", [("i0", v3), ("h", ft)], ft) + "  // max(0, 1 + h / Y(i0)), 1 where Y(i0) <= 0",
+        "    " + let("y", ft, f"dot(i0, {lum})"),
+        f"    if (y <= {f(1e-20)}) {{ return {f(1.0)}; }}",
+        f"    return max({f(0.0)}, {f(1.0)} + h / y);",
         "}",
     ]
 
@@ -278,14 +289,18 @@ def _source_lines(bake: Bake, language: str, out: tuple[str, str, str]) -> list[
     return lines
 
 
-def _sh9_function(d: int, c) -> str:
-    """``vec3 hf_sh9_<d>(vec3 n)``: sum_i c_i Y_i(n) with the constants folded into the coefficients (the
-    polynomials 1, y, z, x, xy, yz, 3z^2 - 1, xz, x^2 - y^2 of :mod:`homofac.light.sh`, +z up)."""
+def _sh9_function(d: int, c, language: str = "glsl") -> str:
+    """``hf_sh9_<d>(n)``: sum_i c_i Y_i(n) with the constants folded into the coefficients (the polynomials 1, y,
+    z, x, xy, yz, 3z^2 - 1, xz, x^2 - y^2 of :mod:`homofac.light.sh`, +z up), in the GLSL family, MSL or WGSL."""
+    msl, wgsl = language == "msl", language == "wgsl"
+    v3 = "float3" if msl else ("vec3<f32>" if wgsl else "vec3")
+    f = (lambda x: L.float_literal(float(x), "f")) if msl else _f
     k = np.asarray(c, np.float64) * SH9_NORM[:, None]
-    v = [f"vec3({_f(r)}, {_f(g)}, {_f(b)})" for r, g, b in k]
-    return (f"vec3 hf_sh9_{d}(vec3 n) {{  // E{d}(n) from its 9 SH coefficients (no texture)\n"
+    v = [f"{v3}({f(r)}, {f(g)}, {f(b)})" for r, g, b in k]
+    head = f"fn hf_sh9_{d}(n: {v3}) -> {v3} {{" if wgsl else f"{v3} hf_sh9_{d}({v3} n) {{"
+    return (f"{head}  // E{d}(n) from its 9 SH coefficients (no texture)\n"
             f"    return {v[0]} + {v[1]} * n.y + {v[2]} * n.z + {v[3]} * n.x\n"
-            f"         + {v[4]} * (n.x * n.y) + {v[5]} * (n.y * n.z) + {v[6]} * (3.0 * n.z * n.z - 1.0)\n"
+            f"         + {v[4]} * (n.x * n.y) + {v[5]} * (n.y * n.z) + {v[6]} * ({f(3.0)} * n.z * n.z - {f(1.0)})\n"
             f"         + {v[7]} * (n.x * n.z) + {v[8]} * (n.x * n.x - n.y * n.y);\n}}")
 
 
@@ -333,7 +348,7 @@ def _names(bake: Bake) -> list[tuple[str, str]]:
     """``(texture name, comment)`` of every texture, in binding order (P<k>, E<d>, W<t>)."""
     pl, atlases = bake.plan, bake.atlases
     return ([(f"hf_P{k}", f"P{k}: {pl.layers} layers in a {a.width} x {a.height} atlas") for k, a in enumerate(atlases)]
-            + [(f"hf_E{d}", f"E{d}: cube {pl.diffuse_size}") for d in range(pl.diffuse)]
+            + [(f"hf_E{d}", f"E{d}: cube {pl.diffuse_size}") for d in range(pl.diffuse if pl.diffuse_basis == "texture" else 0)]
             + [(f"hf_W{t}", f"W{t}: {pl.layers} x {pl.nv_size} weight table") for t in range(pl.tables)])
 
 
@@ -427,8 +442,10 @@ def _metal_or_wgsl(bake: Bake, language: str, *, y_up: bool, flip_v: bool) -> st
     else:
         for k in range(pl.maps):
             lines += fn(f"hf_layer_P{k}", [("layer", v4), ("atlas", v2), ("d", v3)], v3, layer_body(f"hf_P{k}"))
-        for d in range(D):
+        for d in range(D if pl.diffuse_basis == "texture" else 0):
             lines += fn(f"hf_cube_E{d}", [("s", ft), ("d", v3)], v3, cube_body(f"hf_E{d}"))
+    if pl.diffuse_basis == "sh9":
+        lines += [_sh9_function(d, np.asarray(bake.sh)[d], language) for d in range(D)]
     if harm:
         lines += _harmonic_functions(language)
     if bake.sources:
@@ -477,10 +494,16 @@ def _metal_or_wgsl(bake: Bake, language: str, *, y_up: bool, flip_v: bool) -> st
         body.append(let("h0", ft, f"{gs[0]}hf_gauge(q0_{g}, a0, hf_tangent(n, a0))"))
         body.append(let("h1", ft, f"{gs[1]}hf_gauge(q1_{g}, a1, hf_tangent(n, a1))"))
         body.append(let("hh", ft, "h0 + (h1 - h0) * t"))
-        body.append(f"{out[1]} = hf_harmonic({out[1]}, hh * {chans[pl.harmonic_channel]});")
-        body.append(f"{out[2]} = hf_harmonic({out[2]}, hh * {chans[pl.harmonic_channel + 1]});")
+        if pl.shared_gain:  # one gain, h_A's, scales I_A and I_B
+            body.append(let("ga", ft, f"hf_gain({out[1]}, hh * {chans[pl.harmonic_channel]})"))
+            body.append(f"{out[1]} = {out[1]} * ga;")
+            body.append(f"{out[2]} = {out[2]} * ga;")
+        else:
+            body.append(f"{out[1]} = hf_harmonic({out[1]}, hh * {chans[pl.harmonic_channel]});")
+            body.append(f"{out[2]} = hf_harmonic({out[2]}, hh * {chans[pl.harmonic_channel + 1]});")
     for d in range(D):
-        e = f"hf_cube(hf.hf_E{d}, {f(se)}, n)" if msl else f"hf_cube_E{d}({f(se)}, n)"
+        e = (f"hf_sh9_{d}(n)" if pl.diffuse_basis == "sh9" else
+             f"hf_cube(hf.hf_E{d}, {f(se)}, n)" if msl else f"hf_cube_E{d}({f(se)}, n)")
         body.append(f"{out[0]} = {out[0]} + {e} * {chans[2 * K + d]};")
     body += _source_lines(bake, language, out)
     if not msl:
