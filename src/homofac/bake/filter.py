@@ -34,8 +34,8 @@ TABLES = 40
 
 #: A filter call with more tables than this reads them binned (:func:`_binned`), with at most this many table
 #: by table (:func:`_gathered`): binning a light costs about as much as reading 3-6 tables (docs/notes/bake.md,
-#: "Bake time, nineteenth session"). A bake's data calls have 9-40 tables, its maps 3-6 (binned), the sharp
-#: block and the irradiance map 2 (gathered).
+#: "Bake time, nineteenth session"). A bake's data calls have 9-40 tables (binned), its maps K + 1 = 2-6 (the
+#: sharp block's and fast's 2 gathered), its irradiance maps D = 1-2 (gathered).
 GATHER_TABLES = 2
 
 #: Directions per scatter-add in :func:`_binned` (their bins, BIN_ROWS x G x 4 floats, stay in the cache:
