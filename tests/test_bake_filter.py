@@ -82,3 +82,22 @@ def test_the_culled_filter_sums_every_light_inside_the_kernels_support():
         scale = np.abs(full).max()
         assert np.allclose(culled, full, rtol=1e-4, atol=1e-5 * scale), np.abs(culled - full).max() / scale
         assert np.allclose(den, full_den, rtol=1e-4, atol=1e-6)
+
+
+def test_both_reads_are_the_direct_sum_of_the_interpolated_tables():
+    """F_j(d) = sum_k L_k dw_k K_j(q(d.l_k)) with K_j read linearly at sqrt(q) (float64 numpy here): the binned
+    read (more than filter.GATHER_TABLES tables) and the table-by-table one (fewer) both give it."""
+    env = hf.light.load_environment("city", 8)
+    dirs = np.asarray(mappers.texel_directions("cube", 4), np.float64).reshape(-1, 3)
+    tables = np.random.default_rng(1).random((7, kn.TABLE_NODES))
+    lights = np.asarray(env.directions, np.float64)
+    power = np.asarray(env.radiance, np.float64) * np.asarray(env.solid_angle, np.float64)[:, None]
+    g = kn.TABLE_NODES
+    pos = np.sqrt(np.sqrt(np.clip((1.0 - dirs @ lights.T) * 0.5, 0.0, 1.0))) * (g - 1)
+    i0 = np.minimum(np.floor(pos).astype(int), g - 2)
+    f = pos - i0
+    exact = np.einsum("jdl,lc->djc", (1.0 - f) * tables[:, i0] + f * tables[:, i0 + 1], power)
+    for rows in ([0, 1, 2, 3, 4, 5, 6], [2, 5]):
+        got, _ = prefilter(tables[rows], dirs, env)
+        want = exact[:, rows]
+        np.testing.assert_allclose(got, want, rtol=2e-4, atol=1e-6 * np.abs(want).max())

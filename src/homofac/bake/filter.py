@@ -2,7 +2,8 @@
 
 ``F_j(d) = sum_k L_k dw_k kappa_j(q(d.l_k))`` with q = sqrt((1 - d.l) / 2) and kappa_j tabulated uniformly
 in sqrt(q) (:mod:`.kernels`): cosines as one (B, 3) @ (3, L) matmul per chunk, the J tables read by linear
-interpolation at a shared index, the sums as (B, L) @ (L, 3) matmuls; directions go through ``lax.map`` in
+interpolation at a shared index, the sums as (B, L) @ (L, 3) matmuls, or, for many tables, the lights' power
+binned at the table nodes and the sums as (J, G) @ (G, 3) matmuls; directions go through ``lax.map`` in
 chunks, so memory stays B x L per table, never directions x lights x 3.
 """
 
@@ -31,7 +32,18 @@ BLOCK_CHUNKS = 3
 TABLES = 40
 
 
-def _read(tables, count, i0, f, power):
+#: A filter call with more tables than this reads them binned (:func:`_binned`), with at most this many table
+#: by table (:func:`_gathered`): binning a light costs about as much as reading 3-6 tables (docs/notes/bake.md,
+#: "Bake time, nineteenth session"). A bake's data calls have 9-40 tables (binned), its maps K + 1 = 2-6 (the
+#: sharp block's and fast's 2 gathered), its irradiance maps D = 1-2 (gathered).
+GATHER_TABLES = 2
+
+#: Directions per scatter-add in :func:`_binned` (their bins, BIN_ROWS x G x 4 floats, stay in the cache:
+#: 2.5x faster than 128 at 6144 lights).
+BIN_ROWS = 16
+
+
+def _gathered(tables, count, i0, f, power):
     """``sum_l ((1 - f) K_j[i0] + f K_j[i0 + 1])[b, l] power[l]`` for the first ``count`` tables j (a traced
     count; the rest 0): (B, J, 4). A loop over the tables: the program's size (and XLA's compile time) does not
     grow with J, one (B, L) gather at a time is live, and a call with fewer tables runs the same program
@@ -43,6 +55,30 @@ def _read(tables, count, i0, f, power):
     return jax.lax.fori_loop(0, count, one, jnp.zeros((i0.shape[0], tables.shape[0], power.shape[1]), power.dtype))
 
 
+def _binned(tables, i0, f, power):
+    """The sums of :func:`_gathered` for every table as ``sum_g K_j[g] H[b, g]``, ``H[b, g] = sum_l ((1 - f)
+    [g = i0] + f [g = i0 + 1])[b, l] power[l]``: the lights' power binned at the table nodes by the same
+    linear interpolation weights (one scatter-add per :data:`BIN_ROWS` directions), then one (J, G) @ (G, 4)
+    matmul per direction. The same terms summed in another order; its cost is B L once, not B L per table
+    (the padding tables are zeros and read 0)."""
+    rows = BIN_ROWS if i0.shape[0] % BIN_ROWS == 0 else i0.shape[0]
+
+    def one(args):
+        i, w = args
+        b = jnp.broadcast_to(jnp.arange(rows)[:, None], i.shape)
+        h = jnp.zeros((rows, tables.shape[1], power.shape[1]), power.dtype)
+        return h.at[b, i].add((1.0 - w)[..., None] * power[None]).at[b, i + 1].add(w[..., None] * power[None])
+
+    h = jax.lax.map(one, (i0.reshape(-1, rows, i0.shape[1]), f.reshape(-1, rows, f.shape[1])))
+    return jnp.einsum("jg,bgc->bjc", tables, h.reshape(i0.shape[0], tables.shape[1], power.shape[1]))
+
+
+def _read(tables, count, i0, f, power, binned: bool):
+    """(B, J, 4): the first ``count`` tables read at the lights' interpolation indices ``i0`` and weights ``f``
+    (B, L), times their power (L, 4) and summed: :func:`_binned` if ``binned`` else :func:`_gathered`."""
+    return _binned(tables, i0, f, power) if binned else _gathered(tables, count, i0, f, power)
+
+
 def _padded(tables: np.ndarray) -> tuple[np.ndarray, np.int32]:
     """The tables (J, G) padded with zero rows to a multiple of :data:`TABLES`, and J."""
     j = tables.shape[0]
@@ -51,7 +87,7 @@ def _padded(tables: np.ndarray) -> tuple[np.ndarray, np.int32]:
 
 
 @eqx.filter_jit
-def _filter(tables, count, dirs, light_dirs, power, chunk: int):
+def _filter(tables, count, dirs, light_dirs, power, chunk: int, binned: bool):
     j_count, g = tables.shape
     n = dirs.shape[0]
     pad = (-n) % chunk
@@ -62,7 +98,7 @@ def _filter(tables, count, dirs, light_dirs, power, chunk: int):
         pos = jnp.sqrt(jnp.sqrt(jnp.clip((1.0 - c) * 0.5, 0.0, 1.0))) * (g - 1)
         i0 = jnp.minimum(jnp.floor(pos).astype(jnp.int32), g - 2)
         f = pos - i0
-        return _read(tables, count, i0, f, power)  # (B, J, 4)
+        return _read(tables, count, i0, f, power, binned)  # (B, J, 4)
 
     out = jax.lax.map(one, d.reshape(-1, chunk, 3))
     return out.reshape(-1, j_count, power.shape[1])[:n]
@@ -86,7 +122,7 @@ def prefilter(tables: np.ndarray, dirs: np.ndarray, env: Environment, chunk: int
     else:
         chunk = int(min(chunk, max(1, len(d))))
     lights, power = np.asarray(env.directions, np.float32), _power(env)
-    out = np.concatenate([np.asarray(_filter(padded, j, d[i:i + block], lights, power, chunk), np.float64)
+    out = np.concatenate([np.asarray(_filter(padded, j, d[i:i + block], lights, power, chunk, bool(j > GATHER_TABLES)), np.float64)
                           for i in range(0, len(d), block)])[:len(dirs), :len(tables)]
     return out[..., :3], out[..., 3]
 
@@ -104,7 +140,7 @@ def normalized(values: np.ndarray, discrete: np.ndarray, exact) -> np.ndarray:
 
 
 @eqx.filter_jit
-def _filter_tiles(tables, count, tiles, light_dirs, power, groups, centres, slots: int):
+def _filter_tiles(tables, count, tiles, light_dirs, power, groups, centres, slots: int, binned: bool):
     """:func:`_filter` over tiles of nearby directions (T, B, 3), each with the lights of the ``slots`` light
     groups (:func:`_groups`: ``groups`` (G, M) light indices, ``centres`` (G, 3)) nearest its axis."""
     j_count, g = tables.shape
@@ -119,7 +155,7 @@ def _filter_tiles(tables, count, tiles, light_dirs, power, groups, centres, slot
         pos = jnp.sqrt(jnp.sqrt(jnp.clip((1.0 - c) * 0.5, 0.0, 1.0))) * (g - 1)
         i0 = jnp.minimum(jnp.floor(pos).astype(jnp.int32), g - 2)
         f = pos - i0
-        return _read(tables, count, i0, f, pw)
+        return _read(tables, count, i0, f, pw, binned)
 
     return jax.lax.map(one, tiles)
 
@@ -178,7 +214,7 @@ def prefilter_cube(tables: np.ndarray, size: int, env: Environment, support: flo
     out = np.asarray(_filter_tiles(padded, j, np.asarray(blocks, np.float32),
                                    np.concatenate([light_dirs, light_dirs[:1]]),
                                    np.concatenate([power, np.zeros((1, power.shape[1]), power.dtype)]),
-                                   groups, centres, slots), np.float64)
+                                   groups, centres, slots, bool(j > GATHER_TABLES)), np.float64)
     out = out.reshape(size // tile, 6 * size // tile, tile, tile, len(padded), 4).transpose(0, 2, 1, 3, 4, 5)
     out = out.reshape(-1, len(padded), 4)[:, :len(tables)]
     return out[..., :3], out[..., 3]
