@@ -34,6 +34,11 @@ def sun_environment(r=16, seed=3):
     return Environment(env.directions, jnp.asarray(rad), env.solid_angle, env.info, env.corners, env.moments), i
 
 
+@pytest.fixture(scope="module")
+def sun_bake():
+    return hf.bake(sun_environment()[0], preset="fast", **TINY)
+
+
 def test_the_rule_finds_a_compact_source_and_leaves_a_uniform_map():
     env, i = sun_environment()
     rest, src, share = brightest_source(env)
@@ -132,9 +137,9 @@ def test_an_elongated_source_keeps_its_axes_and_its_core_reads_them(tmp_path, su
     assert back.sources == (src,) and "axes" in back.describe()
 
 
-def test_bake_takes_the_source_out_and_adds_it_back():
+def test_bake_takes_the_source_out_and_adds_it_back(sun_bake):
     env, i = sun_environment()
-    with_src = hf.bake(env, preset="fast", **TINY)
+    with_src = sun_bake  # hf.bake(env, preset="fast", **TINY) on this environment
     without = hf.bake(env, preset="fast", analytic_source=False, **TINY)
     assert len(with_src.sources) == 1 and without.sources == ()
     assert "analytic source: direction" in with_src.describe() and "analytic source: none" in without.describe()
@@ -143,11 +148,6 @@ def test_bake_takes_the_source_out_and_adds_it_back():
     err = [np.linalg.norm(np.asarray(b.terms(n, v, 0.2))[:, 1] - ref[:, 1]) / np.linalg.norm(ref[:, 1]) for b in (with_src, without)]
     assert err[0] < 0.5 * err[1]  # a sun in an 8-texel map is the map's error; as a point light it is exact
     assert hf.bake(hf.light.uniform(1.0, 8), preset="fast", **TINY).sources == ()
-
-
-@pytest.fixture(scope="module")
-def sun_bake():
-    return hf.bake(sun_environment()[0], preset="fast", **TINY)
 
 
 def test_round_trip_and_schema_1_reads_as_no_sources(sun_bake, tmp_path):
