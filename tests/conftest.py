@@ -18,7 +18,9 @@ fitting entry points also call).
 
 Most of the suite's CPU is XLA compiling small programs that then run for milliseconds, so the tests (and
 the CLIs they start, through the environment) compile with XLA's cheaper settings: the CPU backend's classic
-emitters instead of its MLIR fusion emitters (``--xla_cpu_use_fusion_emitters=false``, every test), and
+emitters instead of its MLIR fusion emitters (``--xla_cpu_use_fusion_emitters=false``, every test), each
+program's LLVM module compiled whole instead of split for parallel codegen (``--xla_cpu_parallel_codegen_split_count=1``,
+every test: the two workers already fill the two cores, so the split's parts only add work), and
 most optimizations off (``jax_disable_most_optimizations``: LLVM at -O0, no expensive passes) for the fast
 tests but those marked ``xla_optimized`` (their programs run long enough that -O0 costs more than it saves)
 and the slow ones (the true default config and the other long runs). Measured in docs/notes/suite.md; the
@@ -50,7 +52,8 @@ if _JAX_CACHE:
 # Cheap compiles (see the docstring). XLA reads XLA_FLAGS when the backend starts, after this file.
 _CHEAP = os.environ.get("HOMOFAC_TEST_XLA_OPT", "0") != "1"
 if _CHEAP:
-    os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} --xla_cpu_use_fusion_emitters=false".strip()
+    os.environ["XLA_FLAGS"] = (f"{os.environ.get('XLA_FLAGS', '')} --xla_cpu_use_fusion_emitters=false"
+                               " --xla_cpu_parallel_codegen_split_count=1").strip()
 
 
 def pytest_configure(config):

@@ -23,8 +23,14 @@ def _radiance(d: np.ndarray) -> np.ndarray:
 
 
 def test_block_lights_are_finer_than_the_block_and_bounded():
-    assert block_lights(8) == 32 and block_lights(64) == 256
-    assert block_lights(128) == 256 and block_lights(256) == 256
+    """Never coarser than the face, finer than it at the sizes bakes use (up to the bundled maps' 64 face: the
+    next test's stripes need it), growing with the face, and bounded: a large face is filtered at its own size."""
+    sizes = [8, 16, 32, 64, 128, 256, 512, 1024, 4096]
+    lights = [block_lights(s) for s in sizes]
+    assert all(isinstance(n, int) and n >= s for n, s in zip(lights, sizes))
+    assert all(block_lights(s) > s for s in (8, 16, 32, 64))
+    assert lights == sorted(lights)
+    assert block_lights(4096) == 4096 and block_lights(2048) == 2048
 
 
 def test_the_sharp_block_reads_the_source_at_its_texel_centres(tmp_path):

@@ -34,6 +34,11 @@ def sun_environment(r=16, seed=3):
     return Environment(env.directions, jnp.asarray(rad), env.solid_angle, env.info, env.corners, env.moments), i
 
 
+@pytest.fixture(scope="module")
+def sun_bake():
+    return hf.bake(sun_environment()[0], preset="fast", **TINY)
+
+
 def test_the_rule_finds_a_compact_source_and_leaves_a_uniform_map():
     env, i = sun_environment()
     rest, src, share = brightest_source(env)
@@ -179,8 +184,9 @@ def test_the_widening_per_axis_keeps_the_lobe_normalized_and_follows_the_plane_o
 
 
 def test_bake_takes_the_source_out_and_adds_it_back():
+def test_bake_takes_the_source_out_and_adds_it_back(sun_bake):
     env, i = sun_environment()
-    with_src = hf.bake(env, preset="fast", **TINY)
+    with_src = sun_bake  # hf.bake(env, preset="fast", **TINY) on this environment
     without = hf.bake(env, preset="fast", analytic_source=False, **TINY)
     assert len(with_src.sources) == 1 and without.sources == ()
     assert "analytic source: direction" in with_src.describe() and "analytic source: none" in without.describe()

@@ -229,17 +229,32 @@ def test_the_fresnel_line_in_the_skeleton_label_record_candidates_and_refusals()
     assert all(c.highlights.fresnel for c in on if c.highlights.terms) and any(not c.highlights.terms for c in on)
 
 
-@pytest.mark.slow  # a pair of fits for one line; the fast suite keeps the glossy metal's highlight-term pair
-def test_a_dielectric_under_a_sun_fits_better_with_the_fresnel_line(tmp_path):
-    """The property the line is for: a dielectric's highlight rises toward grazing v.h' (F0 0.04 -> 1),
-    which d(nh_dom) w(n.v) alone cannot follow; the line is fitted by the same ALS and survives a save."""
+@pytest.fixture(scope="module")
+def dielectric():
+    """The dielectric under a sun of the slow Fresnel- and cosine-line tests: its grid samples drawn once, and
+    ``dielectric(**highlights)`` fits one highlight term with those keys once (the Fresnel-line fit is both
+    tests')."""
     env = hf.light.sun_sky(SUN, sun_radiance=3.0e3, sun_angle_deg=4.0, sky=(0.3, 0.4, 0.6), resolution=8)
     brdf = hf.brdf.ggx(kd=0.3, ks=1.0, roughness=0.4, f0=0.04)
     target = hf.light.lighting_target(brdf, env, parametrization="RO")
     samples = hf.fit.draw_samples(target, "RO", GRID)
     kw = dict(texture_size=8, samples=samples, diffuse="fitted", nv_factor=True)
-    plain = hf.fit.factorize(target, "RO", advanced={"highlights": {"terms": 1}}, **kw)
-    fres = hf.fit.factorize(target, "RO", advanced={"highlights": {"terms": 1, "fresnel": True}}, **kw)
+    fits = {}
+
+    def fit(**highlights):
+        key = tuple(sorted(highlights.items()))
+        if key not in fits:
+            fits[key] = hf.fit.factorize(target, "RO", advanced={"highlights": {"terms": 1, **highlights}}, **kw)
+        return fits[key]
+    return fit
+
+
+@pytest.mark.slow  # a pair of fits for one line; the fast suite keeps the glossy metal's highlight-term pair
+def test_a_dielectric_under_a_sun_fits_better_with_the_fresnel_line(tmp_path, dielectric):
+    """The property the line is for: a dielectric's highlight rises toward grazing v.h' (F0 0.04 -> 1),
+    which d(nh_dom) w(n.v) alone cannot follow; the line is fitted by the same ALS and survives a save."""
+    plain = dielectric()
+    fres = dielectric(fresnel=True)
     assert fres.model.lookups == plain.model.lookups + 1
     assert fres.solver["method"] == "als" and fres.solver["structure"]["highlights"]["fresnel"]
     e_plain = plain.metrics["validation"]["float"]["nrmse"]
@@ -293,17 +308,12 @@ def test_the_cosine_line_in_the_skeleton_label_record_candidates_and_refusals():
 
 
 @pytest.mark.slow  # a pair of fits for one line; the fast suite keeps the glossy metal's highlight-term pair
-def test_a_dielectric_under_a_sun_fits_better_with_the_cosine_line(tmp_path):
+def test_a_dielectric_under_a_sun_fits_better_with_the_cosine_line(tmp_path, dielectric):
     """The property the line is for: the highlight of a light fades with its cosine n.i (the shadowing
     G1(n.i), down to 0 at its horizon), which d(nh_dom) [f(v.h')] w(n.v) cannot follow where n.i and n.v
     differ; fitted by the same ALS (two extra line blocks with the Fresnel line) and kept by a save."""
-    env = hf.light.sun_sky(SUN, sun_radiance=3.0e3, sun_angle_deg=4.0, sky=(0.3, 0.4, 0.6), resolution=8)
-    brdf = hf.brdf.ggx(kd=0.3, ks=1.0, roughness=0.4, f0=0.04)
-    target = hf.light.lighting_target(brdf, env, parametrization="RO")
-    samples = hf.fit.draw_samples(target, "RO", GRID)
-    kw = dict(texture_size=8, samples=samples, diffuse="fitted", nv_factor=True)
-    fres = hf.fit.factorize(target, "RO", advanced={"highlights": {"terms": 1, "fresnel": True}}, **kw)
-    both = hf.fit.factorize(target, "RO", advanced={"highlights": {"terms": 1, "fresnel": True, "cosine": True}}, **kw)
+    fres = dielectric(fresnel=True)
+    both = dielectric(fresnel=True, cosine=True)
     assert both.model.lookups == fres.model.lookups + 1
     assert both.solver["method"] == "als" and both.solver["structure"]["highlights"]["cosine"]
     e_fres = fres.metrics["validation"]["float"]["nrmse"]
