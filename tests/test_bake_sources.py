@@ -183,7 +183,6 @@ def test_the_widening_per_axis_keeps_the_lobe_normalized_and_follows_the_plane_o
         np.testing.assert_allclose(got[0] / got[1], ref[0] / ref[1], rtol=0.15)
 
 
-def test_bake_takes_the_source_out_and_adds_it_back():
 def test_bake_takes_the_source_out_and_adds_it_back(sun_bake):
     env, i = sun_environment()
     with_src = sun_bake  # hf.bake(env, preset="fast", **TINY) on this environment
@@ -211,11 +210,6 @@ def test_bake_takes_a_second_source_from_the_map_the_first_left():
     np.testing.assert_allclose(b.sources[1].direction, np.asarray(env.directions[j]), atol=1e-6)
     np.testing.assert_allclose(b.sources[1].power, (np.array([40.0, 50.0, 60.0]) - 0.1) * float(env.solid_angle[j]), rtol=1e-4)
     assert b.info["analytic_source"]["count"] == 2
-
-
-@pytest.fixture(scope="module")
-def sun_bake():
-    return hf.bake(sun_environment()[0], preset="fast", **TINY)
 
 
 def test_round_trip_and_schema_1_reads_as_no_sources(sun_bake, tmp_path):
