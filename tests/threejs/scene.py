@@ -147,7 +147,8 @@ def edge_texels(bake, n: np.ndarray, v: np.ndarray, roughness: np.ndarray) -> tu
         a = a / np.maximum(np.linalg.norm(a, axis=-1, keepdims=True), 1e-12)
         for i, atlas in enumerate(bake.atlases):
             reads.append((a, atlas.sizes[j], on, (np.round(u) == j) & (i == 0)))
-    reads.append((n, int(np.shape(bake.E)[0]), np.ones(len(n), bool), np.zeros(len(n), bool)))
+    if bake.plan.diffuse_basis != "sh9":  # E_d as SH9 constants is no texture read
+        reads.append((n, int(np.shape(bake.E)[0]), np.ones(len(n), bool), np.zeros(len(n), bool)))
     edge = np.full(len(n), np.inf)
     texel = np.zeros(len(n))
     for d, size, on, main in reads:
