@@ -382,7 +382,7 @@ def _sums(target: Target, the_plan: Plan, samples: Samples, record: dict, sample
             running[structure] = sums.advance(run, sweeps - run.sweeps, log)
             return as_result(structure, sums.finish(running[structure]))
 
-        cands, raced = _race(cands, to, the_plan.race, the_plan.race_keep, the_plan.race_margins or the_plan.race_margin,
+        cands, raced = _race(cands, to, the_plan.race, the_plan.race_keep, the_plan.race_margins,
                              score, log, the_plan.race_stride, the_plan.race_strided)
         for structure in [s for s in running if s not in cands]:
             del running[structure]

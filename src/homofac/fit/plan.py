@@ -294,7 +294,7 @@ class Plan:
             lines.append(f"  candidates ({len(self.candidates)}):")
             lines += [f"    {c.label()} ({c.describe()})" for c in self.candidates]
         if self.race:
-            lines.append("  race: " + describe_race(self.race, self.race_keep, self.race_margins or self.race_margin,
+            lines.append("  race: " + describe_race(self.race, self.race_keep, self.race_margins,
                                                     self.race_stride, self.race_continue, self.race_strided))
         if self.linear is not None:
             lin = self.linear
