@@ -52,6 +52,21 @@ def _eval_groups(fn, normals, views):
     return fn.grouped(normals, views)
 
 
+#: Row widths up to this run the grouped lighting compiled by :func:`_eval_groups_quick`.
+QUICK_WIDTH = 8
+#: XLA CPU's loop emitters instead of its fusion emitters: the compile takes about half the CPU (gold / forest,
+#: the (256, 8) program: 2.9 -> 1.5 s) and a block of rows of 8 views about 15 % more (0.17 -> 0.20 s), 64 views
+#: 55 % more (0.47 -> 0.73 s). The rows of 8 views (a plan's decision, the validation values: about 14 blocks)
+#: gain about 1 s CPU; the training grid's wider rows (14 blocks of 3x the work) would lose 2 s, and keep the
+#: fusion emitters (docs/notes/speed.md, "fast, twentieth session").
+QUICK_COMPILE = {"xla_cpu_use_fusion_emitters": False}
+
+
+@eqx.filter_jit(compiler_options=QUICK_COMPILE)
+def _eval_groups_quick(fn, normals, views):
+    return fn.grouped(normals, views)
+
+
 def evaluate_grouped(target: Target, grouped) -> Float[Array, "M 3"]:
     """Values at the valid pairs of a :class:`~homofac.fit.sampling.Grouped` set, in flattened order.
 
@@ -98,14 +113,15 @@ BLOCK_ROWS = 256
 def _blocks(fn, normals, views):
     """``fn.grouped`` over blocks of :data:`BLOCK_ROWS` rows (the last padded with copies of the first
     row), so that one compiled program of shape (BLOCK_ROWS, W) serves every sample set of row width W
-    (the training grids of both directions, the polish pairs, ...), whatever its number of rows."""
+    (the training grids of both directions, the polish pairs, ...), whatever its number of rows; rows of
+    at most :data:`QUICK_WIDTH` views by the program compiled with :data:`QUICK_COMPILE`."""
     g = int(normals.shape[0])
     pad = (-g) % BLOCK_ROWS
     if pad:
         normals = jnp.concatenate([normals, jnp.broadcast_to(normals[:1], (pad, 3))])
         views = jnp.concatenate([views, jnp.broadcast_to(views[:1], (pad,) + views.shape[1:])])
-    out = [_eval_groups(fn, normals[i:i + BLOCK_ROWS], views[i:i + BLOCK_ROWS])
-           for i in range(0, g + pad, BLOCK_ROWS)]
+    program = _eval_groups_quick if views.shape[1] <= QUICK_WIDTH else _eval_groups
+    out = [program(fn, normals[i:i + BLOCK_ROWS], views[i:i + BLOCK_ROWS]) for i in range(0, g + pad, BLOCK_ROWS)]
     return jnp.concatenate(out)[:g]
 
 
@@ -160,4 +176,4 @@ def _culled(fn, normals, views):
 
 
 
-__all__ = ["FIELDS", "ROW_COST", "Samples", "check_values", "evaluate", "evaluate_blocked", "evaluate_grouped", "packed"]
+__all__ = ["FIELDS", "QUICK_COMPILE", "QUICK_WIDTH", "ROW_COST", "Samples", "check_values", "evaluate", "evaluate_blocked", "evaluate_grouped", "packed"]
