@@ -59,9 +59,9 @@ if _CHEAP:
                                " --xla_cpu_parallel_codegen_split_count=1").strip()
 
 
-#: The test files that read the session's bakes (:func:`forest_bakes`): xdist runs them as one work unit, on one worker.
+#: The test files that read the session's bakes (:func:`forest_bakes`, :func:`uniform_bake`): xdist runs them as one work unit, on one worker.
 SHARED_BAKE_FILES = ("test_bake.py", "test_bake_harmonic.py", "test_bake_layout.py", "test_bake_mixed.py",
-                     "test_bake_shared.py")
+                     "test_bake_shared.py", "test_bake_sources.py")
 
 
 class _LoadFileSharingBakes(LoadFileScheduling):
@@ -132,3 +132,10 @@ def forest_bakes():
         return made[layout]
 
     return get
+
+
+@pytest.fixture(scope="session")
+def uniform_bake():
+    """``fast`` under constant radiance 1 (light resolution 8), three layers at ``helpers.BAKE_SIZES``: the white
+    furnace of test_bake and the map without a source of test_bake_sources."""
+    return hf.bake(hf.light.uniform(1.0, 8), preset="fast", layers=3, **BAKE_SIZES)
