@@ -35,7 +35,10 @@ from pathlib import Path
 
 import jax
 import pytest
+from xdist.scheduler import LoadFileScheduling
 
+import homofac as hf
+from helpers import BAKE_SIZES, FOREST_BAKES
 from homofac.fit.programs import bound_compiled_programs
 
 # Samples cached by the tests go to a private directory, never to the user's ~/.cache.
@@ -54,6 +57,26 @@ _CHEAP = os.environ.get("HOMOFAC_TEST_XLA_OPT", "0") != "1"
 if _CHEAP:
     os.environ["XLA_FLAGS"] = (f"{os.environ.get('XLA_FLAGS', '')} --xla_cpu_use_fusion_emitters=false"
                                " --xla_cpu_parallel_codegen_split_count=1").strip()
+
+
+#: The test files that read the session's bakes (:func:`forest_bakes`, :func:`uniform_bake`): xdist runs them as one work unit, on one worker.
+SHARED_BAKE_FILES = ("test_bake.py", "test_bake_harmonic.py", "test_bake_layout.py", "test_bake_mixed.py",
+                     "test_bake_shared.py", "test_bake_sources.py")
+
+
+class _LoadFileSharingBakes(LoadFileScheduling):
+    """``--dist loadfile``, but the files of :data:`SHARED_BAKE_FILES` are one work unit (each file its own else)."""
+
+    def _split_scope(self, nodeid: str) -> str:
+        path = super()._split_scope(nodeid)
+        return "shared bakes" if Path(path).name in SHARED_BAKE_FILES else path
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config, log):
+    """``--dist loadfile`` keeps the files that share the session's bakes on one worker, so each bake is made
+    once a run; other modes are xdist's own."""
+    return _LoadFileSharingBakes(config, log) if config.getvalue("dist") == "loadfile" else None
 
 
 def pytest_configure(config):
@@ -94,3 +117,25 @@ def _bounded_mappings():
     """Keep the worker's memory mappings below the kernel's limit (see the module docstring)."""
     yield
     bound_compiled_programs()
+
+
+@pytest.fixture(scope="session")
+def forest_bakes():
+    """``forest_bakes(layout)``: the forest bake of ``helpers.FOREST_BAKES[layout]`` at ``helpers.BAKE_SIZES``,
+    made on first use and kept for the session (the files that read them share a worker:
+    :func:`pytest_xdist_make_scheduler`)."""
+    made = {}
+
+    def get(layout: str):
+        if layout not in made:
+            made[layout] = hf.bake("forest", **FOREST_BAKES[layout], **BAKE_SIZES)
+        return made[layout]
+
+    return get
+
+
+@pytest.fixture(scope="session")
+def uniform_bake():
+    """``fast`` under constant radiance 1 (light resolution 8), three layers at ``helpers.BAKE_SIZES``: the white
+    furnace of test_bake and the map without a source of test_bake_sources."""
+    return hf.bake(hf.light.uniform(1.0, 8), preset="fast", layers=3, **BAKE_SIZES)

@@ -88,6 +88,20 @@ def worst(a: dict, b: dict) -> tuple[float, str]:
     return out
 
 
+#: The forest bakes the bake tests share, by layout (tests/conftest.py ``forest_bakes`` builds each once per worker, on
+#: first use): K = 2 products in RGB maps; the shared gain (K products and the tensor in the harmonic layers, one
+#: gain); the mixed maps (RGBA: K products below the harmonic, K - 1 and the tensor from it up); the second
+#: harmonic beside the products (fast). Layers 0.3 ... 1 (six): the harmonic from 0.55 holds layers 3-5.
+FOREST_BAKES = {
+    "plain": dict(preset="balanced", harmonic=0.0, diffuse="texture", layers=3),
+    "shared": dict(preset="balanced", harmonic=0.55, analytic_source=False, layers=6, min_roughness=0.3),
+    "mixed": dict(preset="balanced", harmonic=0.55, mixed=True, diffuse="texture", layers=6, min_roughness=0.3),
+    "harmonic": dict(preset="fast", harmonic=0.3, layers=4),
+}
+#: The sizes of every bake in FOREST_BAKES (and of the tests' other small bakes).
+BAKE_SIZES = dict(max_size=8, nv_size=8, samples=64, data_resolution=4, diffuse_size=8)
+
+
 def made_up_bake(preset: str = "fast", seed: int = 0, diffuse_basis: str = "texture"):
     """A bake of the preset's structure (3 layers, small sizes) with smooth made-up positive textures: what the
     GPU == CPU and viewer tests need, without a fit. ``diffuse_basis="sh9"``: E_d's SH9 projections as well."""

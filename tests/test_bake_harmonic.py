@@ -17,7 +17,7 @@ from homofac.bake.model import Bake, tensor_read
 from homofac.bake.plan import plan as make_plan
 from homofac.light.environment import LUMINANCE
 from homofac.param import mappers
-from test_bake import as_schema_4, check_glsl_terms, check_glslang, check_msl, check_wgsl
+from test_bake import as_schema_4, check_glsl_terms
 
 
 def test_tensor_maps_read_the_second_harmonic_of_the_light_sum():
@@ -165,12 +165,10 @@ def test_plan_counts_the_harmonic_fetches():
 
 # --- a bake with the harmonic: its directory and its shaders ------------------------------------------------
 
-TINY = dict(layers=4, max_size=8, nv_size=8, samples=64, data_resolution=4, diffuse_size=8)
-
-
-@pytest.fixture(scope="module")
-def harmonic_bake():
-    return hf.bake("forest", preset="fast", harmonic=0.3, **TINY)
+@pytest.fixture
+def harmonic_bake(forest_bakes):
+    """fast with the harmonic from 0.3, four layers (its shaders in every language: test_bake.py)."""
+    return forest_bakes("harmonic")
 
 
 def test_a_bake_fits_the_harmonic_in_its_rough_layers_only(harmonic_bake):
@@ -278,17 +276,3 @@ def test_gpu_equals_cpu_with_the_harmonic(harmonic_bake):
     n, v = _pairs(1500, 9)
     # 1e-3: h / Y(I_0) amplifies float32 rounding where Y(I_0) is small
     check_glsl_terms(harmonic_bake, n, v, (0.2, 0.45, 0.8), 1e-3)
-
-
-@pytest.mark.parametrize("language", ["glsl", "glsl_es", "hlsl"])
-def test_harmonic_shader_compiles_with_glslang(harmonic_bake, language, tmp_path):
-    check_glslang(harmonic_bake, language, tmp_path, y_ups=(False,))
-
-
-def test_harmonic_msl_compiles_against_the_metal_shim(harmonic_bake, tmp_path):
-    check_msl(harmonic_bake, tmp_path, y_ups=(False,))
-
-
-def test_harmonic_wgsl_runs_on_wgpu_and_equals_cpu(harmonic_bake):
-    """The WGSL of a bake with RGBA specular maps on wgpu (lavapipe) equals bake.terms and bake.evaluate."""
-    check_wgsl(harmonic_bake, 400, (1e-3, 3e-3))

@@ -14,7 +14,7 @@ import test_bake_harmonic as th
 from homofac.bake import shader
 from homofac.bake.atlas import Atlas, bottom_left, check_layout, down, pack, up
 from homofac.errors import HomofacError
-from test_bake import TINY, as_schema_4, check_glsl_terms, check_glslang, check_msl, check_wgsl
+from test_bake import as_schema_4, check_glsl_terms, check_glslang, check_msl, check_wgsl
 
 
 def _row_layout(atlas: Atlas, blocks) -> Atlas:
@@ -35,10 +35,9 @@ def _moved(b):
 
 
 @pytest.fixture(scope="module")
-def moved():
+def moved(forest_bakes):
     """A plain (RGB, K = 2) and a mixed (RGBA, harmonic) bake, each with its second map in its own layout."""
-    plain = hf.bake("forest", preset="balanced", harmonic=0.0, diffuse="texture", **TINY)
-    mixed = hf.bake("forest", preset="balanced", harmonic=0.55, mixed=True, diffuse="texture", **th.TINY)
+    plain, mixed = forest_bakes("plain"), forest_bakes("mixed")
     return {"plain": (plain, _moved(plain)), "mixed": (mixed, _moved(mixed))}
 
 

@@ -11,19 +11,17 @@ import pytest
 
 import homofac as hf
 import test_bake_harmonic as th
-from test_bake import check_glsl_terms, check_glslang, check_msl, check_wgsl
+from test_bake import check_glsl_terms
 from homofac.bake import shader
 from homofac.bake.model import Bake
 from homofac.errors import HomofacError
 from homofac.bake.plan import plan as make_plan
 
-#: layers 0.3, 0.38, 0.49, 0.62, 0.79, 1: layer 1 stores 2 products, layer 2 (the crossing) 1, layers 3-5 1 + the harmonic
-TINY = dict(layers=6, min_roughness=0.3, max_size=8, nv_size=8, samples=64, data_resolution=4, diffuse_size=8)
-
-
-@pytest.fixture(scope="module")
-def mixed_bake():
-    return hf.bake("forest", preset="balanced", harmonic=0.55, mixed=True, diffuse="texture", **TINY)
+@pytest.fixture
+def mixed_bake(forest_bakes):
+    """layers 0.3, 0.38, 0.49, 0.62, 0.79, 1: layer 1 stores 2 products, layer 2 (the crossing) 1, layers 3-5 1 + the
+    harmonic (its shaders in every language: test_bake.py)."""
+    return forest_bakes("mixed")
 
 
 def _unpacked(b: Bake) -> Bake:
@@ -124,19 +122,6 @@ def test_gpu_equals_cpu_across_the_crossings(mixed_bake):
     pytest.importorskip("moderngl")
     n, v = th._pairs(1500, 9)
     check_glsl_terms(mixed_bake, n, v, (0.35, 0.43, 0.55, 0.9), 1e-3)
-
-
-@pytest.mark.parametrize("language", ["glsl", "glsl_es", "hlsl"])
-def test_mixed_shader_compiles_with_glslang(mixed_bake, language, tmp_path):
-    check_glslang(mixed_bake, language, tmp_path, y_ups=(False,))
-
-
-def test_mixed_msl_compiles_against_the_metal_shim(mixed_bake, tmp_path):
-    check_msl(mixed_bake, tmp_path, y_ups=(False,))
-
-
-def test_mixed_wgsl_runs_on_wgpu_and_equals_cpu(mixed_bake):
-    check_wgsl(mixed_bake, 400, (1e-3, 3e-3))
 
 
 @pytest.mark.parametrize("material", [(0.8, 0.3, 0.2, 0.0, 0.45), (0.95, 0.64, 0.54, 1.0, 0.7)], ids=["dielectric", "metal"])

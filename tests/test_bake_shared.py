@@ -11,18 +11,16 @@ import pytest
 
 import homofac as hf
 import test_bake_harmonic as th
-from test_bake import check_glsl_terms, check_glslang, check_msl, check_wgsl
+from test_bake import check_glsl_terms
 from homofac.bake.model import Bake, harmonic_gain
 from homofac.bake.plan import plan as make_plan
 from homofac.errors import HomofacError
 
-#: layers 0.3, 0.38, 0.49, 0.62, 0.79, 1: layers 3-5 (from 0.55) store the harmonic beside 2 products
-TINY = dict(layers=6, min_roughness=0.3, max_size=8, nv_size=8, samples=64, data_resolution=4, diffuse_size=8)
-
-
-@pytest.fixture(scope="module")
-def shared_bake():
-    return hf.bake("forest", preset="balanced", harmonic=0.55, analytic_source=False, **TINY)
+@pytest.fixture
+def shared_bake(forest_bakes):
+    """layers 0.3, 0.38, 0.49, 0.62, 0.79, 1: layers 3-5 (from 0.55) store the harmonic beside 2 products
+    (its shaders in every language: test_bake.py)."""
+    return forest_bakes("shared")
 
 
 def test_balanced_keeps_two_products_in_8_fetches():
@@ -89,16 +87,3 @@ def test_gpu_equals_cpu(shared_bake):
     pytest.importorskip("moderngl")
     n, v = th._pairs(1500, 9)
     check_glsl_terms(shared_bake, n, v, (0.4, 0.55, 0.7, 1.0), 1e-3)
-
-
-@pytest.mark.parametrize("language", ["glsl", "glsl_es", "hlsl"])
-def test_shared_shader_compiles_with_glslang(shared_bake, language, tmp_path):
-    check_glslang(shared_bake, language, tmp_path, y_ups=(False,))
-
-
-def test_shared_msl_compiles_against_the_metal_shim(shared_bake, tmp_path):
-    check_msl(shared_bake, tmp_path, y_ups=(False,))
-
-
-def test_shared_wgsl_runs_on_wgpu_and_equals_cpu(shared_bake):
-    check_wgsl(shared_bake, 400, (1e-3, 3e-3))

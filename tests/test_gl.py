@@ -410,17 +410,20 @@ def test_window_viewer_renders_headless(lighting, tmp_path):
     assert 0.2 < covered.mean() < 0.9 and len(np.unique(img[covered], axis=0)) > 50
 
 
-def test_headless_renders_never_load_a_gl_driver_into_the_fitting_process(tmp_path):
-    """render / evaluate / preview run in the GL device process: after them, the process that fitted (and
-    compiles XLA programs afterwards) has neither moderngl nor a Mesa driver or its LLVM mapped, and the
-    device answers again after it died (a driver crash costs one call, not the session)."""
+def test_headless_renders_never_load_a_gl_driver_into_the_fitting_process(lighting, tmp_path):
+    """render / evaluate / preview run in the GL device process: after them, the process that computes with
+    XLA (the preview's exact panel and the CPU evaluate compile XLA programs in it, as a fit does) has neither
+    moderngl nor a Mesa driver or its LLVM mapped, and the device answers again after it died (a driver crash
+    costs one call, not the session). The factorization is the module's, loaded: a fit in the child would add
+    its compiles (about 6 s of CPU) and nothing this test checks."""
+    lighting["facs"]["octahedral"].save(tmp_path / "fac")
     script = """
 import os, signal, sys, numpy as np, homofac as hf
 from homofac.errors import HomofacError
 from homofac.gl import device
 env = hf.light.load_environment("forest", resolution=8)
 t = hf.light.lighting_target(hf.brdf.ggx(roughness=0.4), env)
-fac = hf.fit.factorize(t, "NR", mapper="octahedral", texture_size=8, sampling={"kind": "texels", "size": 8})
+fac = hf.load(sys.argv[1])
 img = hf.gl.preview(fac, t, size=32)
 n = np.array([[0.0, 0.0, 1.0]]); v = np.array([[0.0, 0.6, 0.8]])
 gpu = hf.gl.evaluate(fac, n, v)
@@ -437,6 +440,7 @@ except HomofacError as e:
 assert np.allclose(hf.gl.evaluate(fac, n, v), gpu)
 print("ok", img.shape)
 """
-    r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=600, cwd=tmp_path)
+    r = subprocess.run([sys.executable, "-c", script, str(tmp_path / "fac")], capture_output=True, text=True, timeout=600,
+                       cwd=tmp_path)
     assert r.returncode == 0, r.stderr[-3000:]
     assert "ok (" in r.stdout
