@@ -31,6 +31,10 @@ share of the combined width in half vectors, w = S / (alpha^2 + S), S = P / (n.v
   the plane of incidence and alpha^2 + P / (n.v)^2 across it (:func:`widened_ratio`; D' keeps D's normalization,
   Karis 2013's roughness modification per axis), so far from the source the tail is GGX's own.
 
+Each light is shaded as two such sources of the same total power (:func:`core_and_halo`): its core, the finer
+light texels at least 1/SPLIT as bright as its brightest, and its halo, the rest; one Gaussian of all the texels'
+covariance is too low at a bright sun and too wide around it (forest's sun and its dimmer neighbours).
+
 As alpha -> 0 (w -> 1) the source reads as its own image, which is what the reference reads (the source map's
 pixels, bilinearly; a sun of one or two lat-long pixels is an elongated blob, close to a Gaussian of its
 covariance); as alpha >> sigma (w -> 0) it is a point light. GGX widened alone has GGX's long tails and a low
@@ -94,7 +98,8 @@ MIN_SHARE = 0.03
 #: holds MIN_SHARE of that map's power (bake.json allows 8). On the bundled environments (balanced, 64 lights):
 #: city and forest one (their next hold 0.8 % and 2.0 %); interior three lamps (22.3, 12.8, 4.0 % of the whole
 #: map's luminance power); studio four (10.4, 10.4, 9.5 % and 2.9 %, the last 3 degrees from the first: the rest of
-#: that light). Measured in docs/notes/bake.md, "Below 0.3, nineteenth session".
+#: that light). Measured in docs/notes/bake.md, "Below 0.3, nineteenth session". Each light is one or two
+#: bake.json entries (:func:`core_and_halo`): at most 2 MAX_SOURCES = 8, bake.json's limit.
 MAX_SOURCES = 4
 
 
