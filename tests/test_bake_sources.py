@@ -13,7 +13,8 @@ import pytest
 
 import homofac as hf
 from homofac.bake import shader
-from homofac.bake.sources import CORE, SPREAD, Source, brightest_source, core_widths, principal_axes, source_terms, widened_ratio
+from homofac.bake.sources import (CORE, SPLIT, SPREAD, Source, brightest_source, core_and_halo, core_widths, principal_axes,
+                                  source_terms, widened_ratio)
 from homofac.errors import HomofacError
 from homofac.io.exr import read_exr
 from homofac.light import Environment
@@ -210,6 +211,31 @@ def test_bake_takes_a_second_source_from_the_map_the_first_left():
     np.testing.assert_allclose(b.sources[1].direction, np.asarray(env.directions[j]), atol=1e-6)
     np.testing.assert_allclose(b.sources[1].power, (np.array([40.0, 50.0, 60.0]) - 0.1) * float(env.solid_angle[j]), rtol=1e-4)
     assert b.info["analytic_source"]["count"] == 2
+
+
+def test_core_and_halo_split_a_peaked_source_into_two_gaussians_of_its_power():
+    """A sun of semi-axes 0.01 x 0.005 rad in a dim round halo 5x wider (its texels 1/100 as bright at the centre):
+    the core is the sun (its axes within 10 % of the sun's cut at 1/SPLIT of its peak), the halo wider, the powers sum to the source's and share it as the
+    texels' weights do; a flat source (every texel at least 1/SPLIT of the brightest) stays one Gaussian."""
+    g = np.linspace(-0.12, 0.12, 97)
+    x, y = np.meshgrid(g, g)
+    d = np.stack([x.ravel(), y.ravel(), np.ones(x.size)], 1)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    sun = np.exp(-(x / 0.01) ** 2 - (y / 0.005) ** 2).ravel()
+    halo = 0.01 * np.exp(-(x * x + y * y) / 0.05 ** 2).ravel()
+    w = sun + halo
+    keep = w > 1e-6 * w.max()
+    d, w, sun = d[keep], w[keep], sun[keep]
+    src = Source((0.0, 0.0, 1.0), (2.0, 1.0, 0.5), 0.02, principal_axes(d, w, np.array([0.0, 0.0, 1.0])))
+    core, out = core_and_halo(src, d, w)
+    np.testing.assert_allclose(np.add(core.power, out.power), src.power, rtol=1e-9)
+    np.testing.assert_allclose(np.asarray(core.power) / np.asarray(src.power), w[w >= w.max() / SPLIT].sum() / w.sum(), rtol=1e-9)
+    c = np.log(SPLIT)  # the core is the sun cut at 1/SPLIT of its peak: its r^2 / a^2 ~ Exp(1) truncated at c
+    np.testing.assert_allclose([np.linalg.norm(a) for a in core.axes], np.array([0.01, 0.005]) * np.sqrt(1 - c / np.expm1(c)), rtol=0.1)
+    assert core.radius < 0.5 * out.radius and min(np.linalg.norm(a) for a in out.axes) > 0.02
+    assert np.allclose(core.direction, (0.0, 0.0, 1.0), atol=1e-6) and np.allclose(out.direction, (0.0, 0.0, 1.0), atol=1e-6)
+    flat = (x * x + y * y).ravel()[keep] < 0.02 ** 2
+    assert core_and_halo(src, d[flat], np.ones(int(flat.sum()))) == (src,)
 
 
 def test_round_trip_and_schema_1_reads_as_no_sources(sun_bake, tmp_path):

@@ -48,7 +48,7 @@ from .gauge import face_gauge
 from .model import Bake, diffuse_sh9
 from .options import BakeOptions
 from .plan import BakePlan, plan as make_plan
-from .sources import MAX_SOURCES, Source, brightest_source, principal_axes
+from .sources import MAX_SOURCES, Source, brightest_source, core_and_halo, principal_axes
 
 #: Roughness from which layers try axis shifts (below it the choice was measured unreliable: forest, fast,
 #: rho 0.156 picked s = 2 alpha and read 0.57 nrmse on I_A where s = 0 reads 0.20; at 0.538 s = alpha: 0.33 -> 0.21).
@@ -172,16 +172,18 @@ class _Lights:
                                       else from_cube(self.strip, resolution, source=str(self.source)))
         return self.cache[resolution]
 
-    def take_source(self, resolution: int, finer: int | None = None) -> tuple[Source | None, float]:
+    def take_source(self, resolution: int, finer: int | None = None) -> tuple[tuple[Source, ...], float]:
         """Find the brightest compact source at light ``resolution`` (:func:`~homofac.bake.sources.brightest_source`)
-        and remove it from every resolution served afterwards; ``(source or None, its power share)``. ``finer``
-        (a multiple of ``resolution``): that resolution is loaded from the source itself and the same core
-        removed from it (its texels under the core's texels clipped to the same fill), so it keeps the source's
-        detail instead of being resampled from the coarser map (the sharp block's lights, :func:`block_lights`)."""
+        and remove it from every resolution served afterwards; ``(its Gaussians, its power share)``, () when there
+        is none. ``finer`` (a multiple of ``resolution``): that resolution is loaded from the source itself and the
+        same core removed from it (its texels under the core's texels clipped to the same fill), so it keeps the
+        source's detail instead of being resampled from the coarser map (the sharp block's lights,
+        :func:`block_lights`); the source's direction and shape are measured on those texels, as its core and halo
+        (:func:`~homofac.bake.sources.core_and_halo`). Without ``finer``: one Gaussian of the coarse texels."""
         env = self(resolution)
         rest, found, share = brightest_source(env)
         if found is None:
-            return None, share
+            return (), share
         if isinstance(self.source, Environment):
             self.source = rest
         else:
@@ -208,7 +210,8 @@ class _Lights:
                     mean = weight @ dirs
                     direction = tuple(float(c) for c in mean / np.linalg.norm(mean))
                     found = found._replace(direction=direction, axes=principal_axes(dirs, weight, direction))
-        return found, share
+                    return core_and_halo(found, dirs, weight), share
+        return (found,), share
 
 
 def texel_radius(env: Environment) -> float:
@@ -442,14 +445,15 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
     # the brightest compact source leaves the map before every filter (the sharp block's finer lights included)
     # and is shaded as a point light
     # (each next source from the map the previous ones left, while it holds MIN_SHARE of that map's power)
-    sources, share = (), None
-    while opts.analytic_source and len(sources) < MAX_SOURCES:
+    # (each light one or two Gaussians, its core and halo: sources.core_and_halo)
+    sources, share, taken = (), None, 0
+    while opts.analytic_source and taken < MAX_SOURCES:
         found, s = lights.take_source(max(max_size, opts.data_resolution, MIN_LIGHTS),
                                       block_lights(max_size) if any(shared) else None)
         share = s if share is None else share
-        if found is None:
+        if not found:
             break
-        sources += (found,)
+        sources, taken = sources + found, taken + 1
     x = kn.nv_centres(pl.nv_size)
     data_env = lights(opts.data_resolution)
     dirs = fibonacci(opts.samples)
@@ -537,7 +541,7 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
     info = {"sh9": sh.document(), "source": str(getattr(environment, "info", {}).get("source", environment)) if isinstance(environment, Environment)
             else str(_path(environment)), "options": opts.model_dump(), "sizes": sizes,
             "data_resolution": int(data_env.info.get("resolution", 0)), "timings": timings,
-            "analytic_source": {"share": share, "found": bool(sources), "count": len(sources)}}
+            "analytic_source": {"share": share, "found": bool(sources), "count": len(sources), "lights": taken}}
     blocks = tuple(int(np.argmax(shared)) if shared[j] else j for j in range(pl.layers))
     return stored(Bake(pl, roughness, tuple(shifts), tuple(P), E, table, info,
                        sh=diffuse_sh9(E) if pl.diffuse_basis == "sh9" else None, blocks=blocks, sources=sources,

@@ -31,6 +31,10 @@ share of the combined width in half vectors, w = S / (alpha^2 + S), S = P / (n.v
   the plane of incidence and alpha^2 + P / (n.v)^2 across it (:func:`widened_ratio`; D' keeps D's normalization,
   Karis 2013's roughness modification per axis), so far from the source the tail is GGX's own.
 
+Each light is shaded as two such sources of the same total power (:func:`core_and_halo`): its core, the finer
+light texels at least 1/SPLIT as bright as its brightest, and its halo, the rest; one Gaussian of all the texels'
+covariance is too low at a bright sun and too wide around it (forest's sun and its dimmer neighbours).
+
 As alpha -> 0 (w -> 1) the source reads as its own image, which is what the reference reads (the source map's
 pixels, bilinearly; a sun of one or two lat-long pixels is an elongated blob, close to a Gaussian of its
 covariance); as alpha >> sigma (w -> 0) it is a point light. GGX widened alone has GGX's long tails and a low
@@ -70,12 +74,20 @@ RATIO = 20.0
 SPREAD = 1.25
 
 #: The core's widths in units of the source's semi-axes (module docstring); the axes are measured on light
-#: texels' centres, and the reference's bilinear read of the source's pixels is wider. Measured on the cells'
-#: weighted pairs below 0.15 (docs/notes/bake.md, "Below 0.15, eighteenth session"; the first 4096 pairs of each
-#: cell; city, forest, interior, studio with the axes and direction from the block's lights): 1.0: 0.220, 0.173,
-#: 0.297, 0.165; 1.1: 0.161, 0.153, 0.276, 0.144; 1.15: 0.149, 0.154, 0.271, 0.138; 1.2: 0.148, 0.159, 0.268, 0.135;
-#: 1.3: 0.173, 0.180, 0.270, 0.135 (forest and studio with the block's axes, the direction of the 64 face's).
-CORE = 1.15
+#: texels' centres, and the reference's bilinear read of the source's pixels is wider. Measured with each light
+#: split into its core and halo (:func:`core_and_halo`, SPLIT 6) on the cells' first 4096 weighted pairs, the
+#: bakes' maps unchanged (docs/notes/bake.md, "Forest below 0.15, twentieth session"): below 0.15 city, forest,
+#: interior, studio at 1.1: 0.138, 0.122, 0.137, 0.152; 1.15: 0.116, 0.116, 0.116, 0.139; **1.2: 0.108, 0.118,
+#: 0.105, 0.134**; 1.25: 0.115, 0.126, 0.103, 0.136 (0.15-0.3: interior 0.087 / 0.093 / 0.100 / 0.105, the
+#: others within 2 %). One Gaussian per light (before the split): 1.15 (the eighteenth session's sweep).
+CORE = 1.2
+
+#: A light's core and halo (:func:`core_and_halo`): its finer light texels whose excess is at least 1/SPLIT of
+#: the brightest one's form the core, the rest the halo, each a Gaussian of its own covariance. Measured with
+#: CORE on the cells below 0.3 (CORE's comment): below 0.15 at CORE 1.2, SPLIT 4 / 6 / 8 / 12 read forest 0.112 /
+#: 0.118 / 0.135 / 0.144, city 0.117 / 0.108 / 0.108 / 0.109, interior 0.119 / 0.105 / 0.107 / 0.115, studio
+#: 0.135 / 0.134 / 0.135 / 0.134 (one Gaussian: 0.149, 0.105, 0.125, 0.137).
+SPLIT = 6.0
 
 #: Smallest share of the environment's luminance power a source must hold to be taken out. The bundled
 #: environments' compact sources hold 6-33 % (city's sun 23.7 %, interior's lamp 20.3 %, forest's sun core 6.1 %);
@@ -86,7 +98,8 @@ MIN_SHARE = 0.03
 #: holds MIN_SHARE of that map's power (bake.json allows 8). On the bundled environments (balanced, 64 lights):
 #: city and forest one (their next hold 0.8 % and 2.0 %); interior three lamps (22.3, 12.8, 4.0 % of the whole
 #: map's luminance power); studio four (10.4, 10.4, 9.5 % and 2.9 %, the last 3 degrees from the first: the rest of
-#: that light). Measured in docs/notes/bake.md, "Below 0.3, nineteenth session".
+#: that light). Measured in docs/notes/bake.md, "Below 0.3, nineteenth session". Each light is one or two
+#: bake.json entries (:func:`core_and_halo`): at most 2 MAX_SOURCES = 8, bake.json's limit.
 MAX_SOURCES = 4
 
 
@@ -176,6 +189,31 @@ def principal_axes(directions, weights, direction) -> tuple:
     return tuple(tuple(float(c) for c in vec[:, i] * np.sqrt(2 * max(val[i], 0.0))) for i in (2, 1))
 
 
+def core_and_halo(source: Source, directions, weights, split: float = SPLIT) -> tuple[Source, ...]:
+    """``source`` as two Gaussians of the same total power: its core, the texels (unit ``directions`` (N, 3),
+    luminance power ``weights`` (N,), measured on lights finer than the ones it was found on) whose weight is at
+    least 1/``split`` of the largest, and its halo, the rest; each at its power-weighted mean direction with its
+    RMS angle and :func:`principal_axes`, and ``source.power`` shared in proportion to their weights. A bright
+    sun's core is narrower than the covariance of all its texels (forest's sun and its dimmer neighbours); one
+    Gaussian of that covariance reads too low at the sun and too wide around it. ``(source,)`` when either part
+    has fewer than two texels."""
+    d = np.asarray(directions, np.float64)
+    w = np.asarray(weights, np.float64)
+    core = w >= w.max() / split if len(w) else np.zeros(0, bool)
+    if min(int(core.sum()), int((~core).sum())) < 2:
+        return (source,)
+    power = np.asarray(source.power, np.float64)
+    parts = []
+    for part in (core, ~core):
+        wp = w[part]
+        mean = wp @ d[part]
+        direction = mean / np.linalg.norm(mean)
+        ang = np.arccos(np.clip(d[part] @ direction, -1.0, 1.0))
+        parts.append(Source(tuple(float(c) for c in direction), tuple(float(c) for c in power * wp.sum() / w.sum()),
+                            float(np.sqrt(np.sum(wp * ang * ang) / wp.sum())), principal_axes(d[part], wp, direction)))
+    return tuple(parts)
+
+
 def widened_ratio(a2, sx2, sy2, nh2, hx2, hy2):
     """D'(h) / D(h): the anisotropic GGX of squared widths ``a2`` + ``sx2`` (along x) and ``a2`` + ``sy2`` (along y)
     over GGX at ``a2`` (alpha^2), at the unit half vector's squared components ``hx2``, ``hy2``, ``nh2`` (h.n):
@@ -247,5 +285,6 @@ def source_terms(sources, n: Float[Array, "N 3"], v: Float[Array, "N 3"], roughn
     return out
 
 
-__all__ = ["CORE", "MAX_SOURCES", "MIN_SHARE", "RADIUS", "RATIO", "SPREAD", "Source", "brightest_source", "core_widths",
+__all__ = ["CORE", "MAX_SOURCES", "MIN_SHARE", "RADIUS", "RATIO", "SPLIT", "SPREAD", "Source", "brightest_source",
+           "core_and_halo", "core_widths",
            "principal_axes", "source_terms", "widened_ratio"]
