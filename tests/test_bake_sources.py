@@ -13,7 +13,7 @@ import pytest
 
 import homofac as hf
 from homofac.bake import shader
-from homofac.bake.sources import (CORE, SPLIT, SPREAD, Source, brightest_source, core_and_halo, core_widths, principal_axes,
+from homofac.bake.sources import (CORE, MAX_SOURCES, SPLIT, SPREAD, Source, brightest_source, core_and_halo, core_widths, principal_axes,
                                   source_terms, widened_ratio)
 from homofac.errors import HomofacError
 from homofac.io.exr import read_exr
@@ -236,6 +236,24 @@ def test_core_and_halo_split_a_peaked_source_into_two_gaussians_of_its_power():
     assert np.allclose(core.direction, (0.0, 0.0, 1.0), atol=1e-6) and np.allclose(out.direction, (0.0, 0.0, 1.0), atol=1e-6)
     flat = (x * x + y * y).ravel()[keep] < 0.02 ** 2
     assert core_and_halo(src, d[flat], np.ones(int(flat.sum()))) == (src,)
+
+
+def test_the_bake_takes_up_to_bake_json_s_eight_sources(tmp_path):
+    """Nine suns far apart, each holding more than MIN_SHARE of what the others leave: the bake takes eight (the
+    format's limit, MAX_SOURCES; a softbox-lit studio takes eight cores), brightest first, and they round-trip."""
+    env = hf.light.uniform(0.1, 16)
+    d = np.asarray(env.directions)
+    targets = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1],
+                        [1, 1, 1], [-1, -1, 1], [1, -1, -1]], np.float64)
+    texels = [int(np.argmax(d @ (t / np.linalg.norm(t)))) for t in targets]
+    rad = np.asarray(env.radiance).copy()
+    for k, j in enumerate(texels):
+        rad[j] = 60.0 - k
+    suns = Environment(env.directions, jnp.asarray(rad), env.solid_angle, env.info, env.corners, env.moments)
+    b = hf.bake(suns, preset="fast", **TINY)
+    assert b.info["analytic_source"]["lights"] == MAX_SOURCES == 8 and len(b.sources) == 8  # one-texel suns: a core each
+    np.testing.assert_allclose([s.direction for s in b.sources], d[texels[:8]], atol=1e-6)
+    assert hf.load(b.save(tmp_path / "bk")).sources == b.sources
 
 
 def test_round_trip_and_schema_1_reads_as_no_sources(sun_bake, tmp_path):

@@ -948,7 +948,7 @@ class BakeDocument(Options):
     sh9: Optional[dict[Literal["json", "filament"], Literal[SH9_JSON, SH9_FILAMENT]]] = None
     #: with plan.diffuse_basis sh9: the E_d maps' SH9 coefficients (D x 9 x RGB), finite (they reach generated code)
     diffuse_sh9: Optional[list[list[list[float]]]] = None
-    #: the analytic lights taken out of the maps (schema 2; at most 8)
+    #: the analytic lights taken out of the maps (schema 2; at most 16: two per light)
     sources: list[BakeSourceEntry] = Field(default_factory=list, max_length=8)
     info: dict = {}
 
