@@ -551,6 +551,23 @@ def summary(doc: dict) -> list[str]:
     return out
 
 
+def fits_markdown(doc: dict) -> list[str]:
+    """The per-material fits' table of a run (``--fits``): per fit its material, fetches and time, and the nrmse of
+    the fit, the ideal split-sum and each preset's bake on the cell's first pairs with that one material."""
+    presets, fs = doc["presets"], doc["fit_settings"]
+    lines = [f"Per-material homofac fits (`hf.fit.factorize(lighting_target(gltf(...), env at {fs['light_resolution']}), "
+             f"max_lookups={fs['max_lookups']}, texture_size={fs['texture_size']}, sampling={fs['sampling']}, "
+             f"advanced={fs['advanced']})`), nrmse on the band's pairs with that one material:", "",
+             "| environment | band | material (c; m; rho) | fit fetches | fit time (s) | fit | split-sum ideal | "
+             + " | ".join(f"bake {p}" for p in presets) + " |",
+             "|---|---|---|---:|---:|---:|---:|" + "---:|" * len(presets)]
+    for f in doc["fits"]:
+        mat = f"({', '.join(f'{a:.2f}' for a in f['base_color'])}); {f['metallic']:.2f}; {f['roughness']:.3f}"
+        lines.append(f"| {f['environment']} | {_band(f)} | {mat} | {f['fit_lookups']} | {f['fit_s']:.0f} | {f['fit']:.4f} | "
+                     f"{f['split_sum_ideal']:.4f} | " + " | ".join(f"{f[f'bake_{p}']:.4f}" for p in presets) + " |")
+    return lines
+
+
 def markdown(doc: dict) -> str:
     """The tables of a run (benchmarks/bake_accuracy.md; docs/benchmarks/bake.md adds a heading)."""
     presets, rows = doc["presets"], doc["rows"]
@@ -579,17 +596,7 @@ def markdown(doc: dict) -> str:
         lines.append("| " + " | ".join(cells) + " |")
     lines += [""] + summary(doc)
     if doc.get("fits"):
-        fs = doc["fit_settings"]
-        lines += ["", f"Per-material homofac fits (`hf.fit.factorize(lighting_target(gltf(...), env at {fs['light_resolution']}), "
-                  f"max_lookups={fs['max_lookups']}, texture_size={fs['texture_size']}, sampling={fs['sampling']}, "
-                  f"advanced={fs['advanced']})`), nrmse on the band's pairs with that one material:", "",
-                  "| environment | band | material (c; m; rho) | fit fetches | fit time (s) | fit | split-sum ideal | "
-                  + " | ".join(f"bake {p}" for p in presets) + " |",
-                  "|---|---|---|---:|---:|---:|---:|" + "---:|" * len(presets)]
-        for f in doc["fits"]:
-            mat = f"({', '.join(f'{a:.2f}' for a in f['base_color'])}); {f['metallic']:.2f}; {f['roughness']:.3f}"
-            lines.append(f"| {f['environment']} | {_band(f)} | {mat} | {f['fit_lookups']} | {f['fit_s']:.0f} | {f['fit']:.4f} | "
-                         f"{f['split_sum_ideal']:.4f} | " + " | ".join(f"{f[f'bake_{p}']:.4f}" for p in presets) + " |")
+        lines += ["", *fits_markdown(doc)]
     lines += ["", "| environment | method | fetches | wall time (s) | CPU (s) | load | / sampler | texture MB (half) | "
               "finest face | split-sum same sharpness: level 0, MB | / split-sum |", "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     eng = {r["environment"]: r["split_sum_engines_bytes"] for r in rows}
