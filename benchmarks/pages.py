@@ -224,8 +224,11 @@ def _other_runs(others: list[dict]) -> list[str]:
     lines: list[str] = []
     for o in others:
         m = o["machine"]
+        reused = [r["environment"] for r in o["rows"] if r["reference"].get("reused")]
         lines += ["", f"With a `{o.get('preset')}` bake (`{o['command']}`; run {m['date_utc']} UTC, {m['wall_s'] / 60:.1f} min "
-                  f"wall, load average {m['load_average_before']:.1f}):", "", *threejs_rows(o)[:2 + len(o["rows"])]]
+                  f"wall, load average {m['load_average_before']:.1f}"
+                  + (f"; the exact lighting of {', '.join(reused)} read from an earlier run's saved pixels, the G-buffer "
+                     "the same bit for bit" if reused else "") + "):", "", *threejs_rows(o)[:2 + len(o["rows"])]]
     return lines
 
 
