@@ -314,6 +314,7 @@ def fit_rows(name, band, n, v, rng, count, lookups, src, samples, bakes, presets
                "roughness": rho, "pairs": len(n), "fit_lookups": int(fac.model.lookups), "fit_max_lookups": lookups,
                "fit_s": fit_s, "fit": weighted_nrmse(np.asarray(fac.evaluate(n.astype(np.float32), v.astype(np.float32))), L, w),
                "fit_validation": fac.metrics["validation"]["float"]["nrmse"],
+               "fit_choice": (fac.selection or {}).get("reason"),
                "split_sum_ideal": weighted_nrmse(material_radiance(jnp.asarray(ideal), cc, mm), L, w)}
         for p in presets:
             row[f"bake_{p}"] = weighted_nrmse(np.asarray(bakes[(name, p)].evaluate(n, v, cc, mm, rr)), L, w)
@@ -551,6 +552,26 @@ def summary(doc: dict) -> list[str]:
     return out
 
 
+def fits_markdown(doc: dict) -> list[str]:
+    """The per-material fits' table of a run (``--fits``): per fit its material, fetches and time, and the nrmse of
+    the fit, the ideal split-sum and each preset's bake on the cell's first pairs with that one material."""
+    presets, fs = doc["presets"], doc["fit_settings"]
+    lines = [f"Per-material homofac fits (`hf.fit.factorize(lighting_target(gltf(...), env at {fs['light_resolution']}), "
+             f"max_lookups={fs['max_lookups']}, texture_size={fs['texture_size']}, sampling={fs['sampling']}, "
+             f"advanced={fs['advanced']})`), nrmse on the band's pairs with that one material (*fit*: in parentheses "
+             "the fit's own validation nrmse, on its validation pairs and lighting):", "",
+             "| environment | band | material (c; m; rho) | fit fetches | fit time (s) | fit | split-sum ideal | "
+             + " | ".join(f"bake {p}" for p in presets) + " |",
+             "|---|---|---|---:|---:|---:|---:|" + "---:|" * len(presets)]
+    for f in doc["fits"]:
+        mat = f"({', '.join(f'{a:.2f}' for a in f['base_color'])}); {f['metallic']:.2f}; {f['roughness']:.3f}"
+        lines.append(f"| {f['environment']} | {_band(f)} | {mat} | {f['fit_lookups']} | {f['fit_s']:.0f} | {f['fit']:.4f} "
+                     f"({f['fit_validation']:.3f}) | {f['split_sum_ideal']:.4f} | "
+                     + " | ".join(f"{f[f'bake_{p}']:.4f}" for p in presets) + " |")
+    chosen = [f"{f['environment']} {_band(f)}: {f['fit_choice']}" for f in doc["fits"] if f.get("fit_choice")]
+    return lines + (["", "The fits' choices: " + "; ".join(chosen) + "."] if chosen else [])
+
+
 def markdown(doc: dict) -> str:
     """The tables of a run (benchmarks/bake_accuracy.md; docs/benchmarks/bake.md adds a heading)."""
     presets, rows = doc["presets"], doc["rows"]
@@ -579,17 +600,7 @@ def markdown(doc: dict) -> str:
         lines.append("| " + " | ".join(cells) + " |")
     lines += [""] + summary(doc)
     if doc.get("fits"):
-        fs = doc["fit_settings"]
-        lines += ["", f"Per-material homofac fits (`hf.fit.factorize(lighting_target(gltf(...), env at {fs['light_resolution']}), "
-                  f"max_lookups={fs['max_lookups']}, texture_size={fs['texture_size']}, sampling={fs['sampling']}, "
-                  f"advanced={fs['advanced']})`), nrmse on the band's pairs with that one material:", "",
-                  "| environment | band | material (c; m; rho) | fit fetches | fit time (s) | fit | split-sum ideal | "
-                  + " | ".join(f"bake {p}" for p in presets) + " |",
-                  "|---|---|---|---:|---:|---:|---:|" + "---:|" * len(presets)]
-        for f in doc["fits"]:
-            mat = f"({', '.join(f'{a:.2f}' for a in f['base_color'])}); {f['metallic']:.2f}; {f['roughness']:.3f}"
-            lines.append(f"| {f['environment']} | {_band(f)} | {mat} | {f['fit_lookups']} | {f['fit_s']:.0f} | {f['fit']:.4f} | "
-                         f"{f['split_sum_ideal']:.4f} | " + " | ".join(f"{f[f'bake_{p}']:.4f}" for p in presets) + " |")
+        lines += ["", *fits_markdown(doc)]
     lines += ["", "| environment | method | fetches | wall time (s) | CPU (s) | load | / sampler | texture MB (half) | "
               "finest face | split-sum same sharpness: level 0, MB | / split-sum |", "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     eng = {r["environment"]: r["split_sum_engines_bytes"] for r in rows}

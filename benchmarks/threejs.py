@@ -11,7 +11,11 @@ Each row also has ``seams`` (tests/threejs/scene.py ``seams``): the render's err
 ``layout``, the atlas blocks the page read.
 
     PYTHONPATH=src python benchmarks/threejs.py [--envs forest city] [--preset balanced] [--size 128]
-        [--samples 4096] [--tolerance 0.005]
+        [--samples 4096] [--tolerance 0.005] [--save DIR] [--exact-from DIR]
+
+``--exact-from DIR`` reads the exact lighting of an earlier ``--save DIR`` run instead of computing it again, for
+each environment whose G-buffer is the same bit for bit (the reference is deterministic); the row's
+``reference`` then says ``reused`` and where from.
 """
 
 from __future__ import annotations
@@ -41,6 +45,16 @@ PMREM_FETCHES = 3
 
 
 
+def saved(folder: str | None, env: str) -> dict | None:
+    """A run's pixels saved with ``--save`` (``folder/<env>.npz``; ``reference``: how its exact lighting
+    converged), or None when there is none."""
+    path = Path(folder or "") / f"{env}.npz"
+    if folder is None or not path.is_file():
+        return None
+    z = np.load(path)
+    return {**{k: z[k] for k in z.files if k != "reference"}, "reference": {**json.loads(str(z["reference"])), "from": str(path)}}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--envs", nargs="+", default=["forest", "city", "interior", "studio"])
@@ -51,6 +65,8 @@ def main() -> None:
     ap.add_argument("--json", default=str(HERE / "threejs.json"))
     ap.add_argument("--page", default=str(HERE.parent / "docs" / "benchmarks" / "threejs.md"))
     ap.add_argument("--save", help="also write each environment's pixels (renders, G-buffer, exact) to SAVE/<env>.npz")
+    ap.add_argument("--exact-from", help="reuse the exact lighting of a run saved with --save (DIR/<env>.npz) where its "
+                                         "G-buffer equals this render's (tests/threejs/scene.py known_exact)")
     a = ap.parse_args()
     rows = []
     start = time.time()
@@ -61,13 +77,14 @@ def main() -> None:
         bake_s = time.perf_counter() - t
         with tempfile.TemporaryDirectory() as work:
             t = time.perf_counter()
-            out = render(env, bake, Path(work), a.size, a.samples, a.tolerance)
+            out = render(env, bake, Path(work), a.size, a.samples, a.tolerance, known=saved(a.exact_from, env))
             render_s = time.perf_counter() - t
             seam = seams(out, hf.load(Path(work) / "bake"))  # the bake the page read
         if a.save:
             Path(a.save).mkdir(parents=True, exist_ok=True)
-            np.savez(Path(a.save) / f"{env}.npz", **{k: out[k] for k in ("pmrem", "homofac", "mask", "n", "v", "base",
-                                                                          "metallic", "roughness", "bake", "exact")})
+            np.savez(Path(a.save) / f"{env}.npz", reference=json.dumps(out["reference"]),
+                     **{k: out[k] for k in ("pmrem", "homofac", "mask", "n", "v", "base", "metallic", "roughness",
+                                            "bake", "exact")})
         r = out["roughness"]
         row = {"environment": env, "preset": a.preset, "pixels": int(out["mask"].sum()), "bake_s": round(bake_s, 1),
                "render_and_reference_s": round(render_s, 1), "reference": out["reference"],

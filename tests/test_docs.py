@@ -261,7 +261,7 @@ def test_benchmark_pages_are_generated_from_the_committed_results(tmp_path):
                                                            pages.load_rows(ROOT / "benchmarks" / "presets.json")))
     (tmp_path / "threejs.md").write_text(pages.threejs_page(*pages.threejs_runs()))
     (tmp_path / "bake.md").write_text(pages.bake_page(json.loads((ROOT / "benchmarks" / "bake_accuracy.json").read_text()),
-                                                      *pages.threejs_runs()))
+                                                      *pages.threejs_runs(), fits=pages.fit_runs()))
     made = sorted(p.name for p in tmp_path.glob("*.md"))
     assert made == sorted(p.name for p in (DOCS / "benchmarks").glob("*.md"))
     for name in made:
