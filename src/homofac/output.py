@@ -46,6 +46,7 @@ from .bake import register_writer as register_bake_writer
 from .bake import shader as bake_shader
 from .bake.atlas import Atlas, assemble, blocks_of, check_layout, pack, split, up
 from .bake.gauge import face_gauge
+from .bake.sources import MAX_SOURCES
 from .bake.sources import Source
 from .fit.result import Result, register_writer
 from .io.exr import read_exr, write_exr
@@ -948,8 +949,8 @@ class BakeDocument(Options):
     sh9: Optional[dict[Literal["json", "filament"], Literal[SH9_JSON, SH9_FILAMENT]]] = None
     #: with plan.diffuse_basis sh9: the E_d maps' SH9 coefficients (D x 9 x RGB), finite (they reach generated code)
     diffuse_sh9: Optional[list[list[list[float]]]] = None
-    #: the analytic lights taken out of the maps (schema 2; at most 16: two per light)
-    sources: list[BakeSourceEntry] = Field(default_factory=list, max_length=8)
+    #: the analytic lights taken out of the maps (schema 2; at most 2 MAX_SOURCES = 16: a core and a halo per light)
+    sources: list[BakeSourceEntry] = Field(default_factory=list, max_length=2 * MAX_SOURCES)
     info: dict = {}
 
 
