@@ -168,6 +168,18 @@ POLISH_STRIDE = 4
 #: sweeps (about 4-5 s CPU in a fresh process) and changes no kept structure (the race keeps the lowest).
 BALANCED_DROPPED = ("E'+ROW x3+R",)
 
+#: The candidates ``best`` does not try: each highlight candidate on the lines ``w(n.v)`` (``HFW``) whose table twin
+#: (``HFT``: the same terms, their highlight read from a table ``T(n.i, n.v)`` fitted as the lines ``c(n.i) w(n.v)``,
+#: at the same 16 lookups) is a candidate. The twin holds every function the lined candidate holds (``c`` constant)
+#: and its ALS fits a superset of the lined one's unknowns. In the race on the four speed cases (gold / forest,
+#: plastic / city, mirror / studio, metal / interior) the twin read lower in all 12 pairs after 30 strided sweeps
+#: (by 0.6-9 %) and in 11 of 12 after 10 (gold / forest's ``x2`` pair: the lined 0.7 % lower, 0.6 % higher after
+#: 30), and no lined candidate was the race's lowest after 30 sweeps (benchmarks/presets_best19_race.json,
+#: presets_best20_race.json; docs/notes/speed.md, "best, twentieth session"). Dropping the three saves their race
+#: starts (11-24 s CPU each on gold / forest at load 14) and, where they pass the first round's margin, their later
+#: sweeps; the kept structure is the same wherever a table twin was kept.
+BEST_DROPPED = ("E'+NROW x4+HFW x1", "E'+ROW x4+R+HFW x2", "E'+ROW x6+HFW x1")
+
 #: ``fast``'s training pairs: 32 per unknown of its largest candidate (``E'+NROW x1`` and ``E'+ROW x1+R``: 5456 texels
 #: per channel at texture size 32), about what ``balanced``'s 300 000 give its largest ones (``E'+NROW x2+R`` 10 912
 #: unknowns: 27, ``E'+ROW x3+R`` 9136: 33). The grid's lighting integrals were the largest fixed stage of ``fast``
@@ -199,7 +211,8 @@ PRESETS: dict[str, Preset] = {
                        **BALANCED_RACE),
     "best": Preset(lookups=16, grid_count=GRID_COUNT, validation=DEFAULT_VALIDATION, line_ratio=4, table=True,
                    disc_vote=True, nv_balance=0.0, polish=8, ridge=20_000, analysis=False, directions=PRESET_DIRECTIONS,
-                   polish_stride=POLISH_STRIDE, polish_direct=True, vote_screen=BEST_RACE["race"][-1], **BEST_RACE),
+                   polish_stride=POLISH_STRIDE, polish_direct=True, vote_screen=BEST_RACE["race"][-1],
+                   dropped=BEST_DROPPED, **BEST_RACE),
 }
 
 #: The lookup budget of ``target_error`` with sum keys but no ``max_lookups``.
