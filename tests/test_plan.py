@@ -444,3 +444,20 @@ def test_the_strided_polish_pairs_are_every_kth_view_of_the_polish_pairs_with_th
     key = {tuple(np.round(np.concatenate([a, b]), 5)): y for a, b, y in zip(full.a, full.b, full.y)}
     got = np.array([key[tuple(np.round(np.concatenate([a, b]), 5))] for a, b in zip(part.a, part.b)])
     np.testing.assert_allclose(part.y, got, rtol=1e-4, atol=1e-6)  # float32 sums in another row packing
+
+
+def test_best_drops_the_lined_highlight_candidates_whose_table_twin_it_tries(envs):
+    """``best`` (``table_twins``) drops each highlight candidate on lines (``HFW``) whose table twin (``HFT``: the same
+    terms at the same lookups, a function class holding the lined one's) is among its candidates; without tables
+    there is no twin and the lined candidates are tried."""
+    t = _gold(envs["interior"])
+    grid = FitOptions().sampling.model_copy(update={"kind": "grid"})
+    every = {c.label() for c in hf.fit.structures.candidates("lighting", 16, parametrization="NR", table=True)
+             if hf.fit.draw.grid_projection("lighting", c.parametrization, grid) in plan.PRESET_DIRECTIONS}
+    got = {c.label() for c in _plan(t, "best").candidates}
+    dropped = every - got
+    assert plan.PRESETS["best"].table_twins and len(dropped) == 3
+    assert all("HFW" in d and d.replace("HFW", "HFT") in got for d in dropped)
+    assert not any("HFW" in c and c.replace("HFW", "HFT") in got for c in got)
+    lined = {c.label() for c in _plan(t, "best", {"advanced": {"highlights": {"table": False}}}).candidates}
+    assert dropped <= lined and not any("HFT" in c for c in lined)

@@ -68,7 +68,10 @@ class Preset(NamedTuple):
     that leaves only dropped ones tries those); ``race_strided``: every round of
     the race fits the first round's every ``race_stride``-th pair, a later round continuing the strided fits
     where they stopped (a round may then keep every candidate its margin admits: ``race_keep`` only caps it);
-    ``race_margins``: the margin of each round (replacing ``race_margin`` where given)."""
+    ``race_margins``: the margin of each round (replacing ``race_margin`` where given); ``continue_sweeps``:
+    with ``race_continue``, the fits continued on every pair from a strided short fit (the kept candidate, a
+    vote's alternative) run at most this many ALS sweeps (0: ``linear.iterations``); ``table_twins``: a highlight
+    candidate on lines whose table twin (``with_highlights(table=True)``) is a candidate is not tried."""
 
     lookups: int
     grid_count: int
@@ -94,6 +97,8 @@ class Preset(NamedTuple):
     dropped: tuple[str, ...] = ()
     race_strided: bool = False
     race_margins: tuple[float, ...] = ()
+    continue_sweeps: int = 0
+    table_twins: bool = False
 
 
 #: The grid directions of the presets' candidates: the off-specular reflection ``r_off`` only. On the
@@ -171,6 +176,18 @@ POLISH_STRIDE = 4
 #: sweeps (about 4-5 s CPU in a fresh process) and changes no kept structure (the race keeps the lowest).
 BALANCED_DROPPED = ("E'+ROW x3+R",)
 
+#: ``best`` does not try a highlight candidate on the lines ``w(n.v)`` (``HFW``) whose table twin (``HFT``: the same
+#: terms, their highlight read from a table ``T(n.i, n.v)`` fitted as the lines ``c(n.i) w(n.v)``, at the same lookups)
+#: is a candidate (``Preset.table_twins``; at 16 lookups three: ``E'+NROW x4+HFW x1``, ``E'+ROW x4+R+HFW x2``,
+#: ``E'+ROW x6+HFW x1``). The twin holds every function the lined candidate holds (``c`` constant) and its ALS fits a
+#: superset of the lined one's unknowns. In the race on the four speed cases (gold / forest, plastic / city, mirror /
+#: studio, metal / interior) the twin read lower in all 12 pairs after 30 strided sweeps (by 0.6-9.9 %) and in 11 of 12
+#: after 10 (gold / forest's ``x2`` pair: the lined 0.7 % lower, 0.6 % higher after 30), and no lined candidate was
+#: the race's lowest after 30 sweeps (benchmarks/presets_best19_race.json, presets_best20_race.json;
+#: docs/notes/speed.md, "best, twentieth session"). Dropping them saves their race starts (11-24 s CPU each on gold /
+#: forest at load 14) and, where they pass the first round's margin, their later sweeps; without tables
+#: (``advanced.highlights.table: false``) there is no twin and they are tried.
+
 #: ``fast``'s training pairs: 32 per unknown of its largest candidate (``E'+NROW x1`` and ``E'+ROW x1+R``: 5456 texels
 #: per channel at texture size 32), about what ``balanced``'s 300 000 give its largest ones (``E'+NROW x2+R`` 10 912
 #: unknowns: 27, ``E'+ROW x3+R`` 9136: 33). The grid's lighting integrals were the largest fixed stage of ``fast``
@@ -202,7 +219,8 @@ PRESETS: dict[str, Preset] = {
                        **BALANCED_RACE),
     "best": Preset(lookups=16, grid_count=GRID_COUNT, validation=DEFAULT_VALIDATION, line_ratio=4, table=True,
                    disc_vote=True, nv_balance=0.0, polish=8, ridge=20_000, analysis=False, directions=PRESET_DIRECTIONS,
-                   polish_stride=POLISH_STRIDE, polish_direct=True, vote_screen=BEST_RACE["race"][-1], **BEST_RACE),
+                   polish_stride=POLISH_STRIDE, polish_direct=True, vote_screen=BEST_RACE["race"][-1],
+                   table_twins=True, **BEST_RACE),
 }
 
 #: The lookup budget of ``target_error`` with sum keys but no ``max_lookups``.
@@ -252,6 +270,7 @@ class Plan:
     race_continue: bool  # ... from which those kept (and the votes' screened alternatives) continue on every pair
     race_strided: bool  # every round on the first round's strided pairs (later rounds continue the strided fits)
     race_margins: tuple[float, ...]  # the margin of each round (``race_margin`` per round, or the preset's own)
+    continue_sweeps: int  # with race_continue: at most this many sweeps of a fit continued on every pair (0: all)
     vote_screen: int  # ALS sweeps of the short fits the line and disc votes read first (0: full refits only)
     vote_stride: int  # ... fitted on every k-th training pair
     ridge: int
@@ -275,7 +294,8 @@ class Plan:
                 "ridge": self.ridge,
                 "race": {"sweeps": list(self.race), "keep": list(self.race_keep), "margin": self.race_margin,
                          "stride": self.race_stride, "continue": self.race_continue,
-                         "strided": self.race_strided, "margins": list(self.race_margins)},
+                         "strided": self.race_strided, "margins": list(self.race_margins),
+                         **({"continue_sweeps": self.continue_sweeps} if self.continue_sweeps else {})},
                 "line_sizes": list(self.line_sizes),
                 "vote_screen": {"sweeps": self.vote_screen, "stride": self.vote_stride},
                 "disc_vote": self.disc_vote, "analysis": self.analysis,
@@ -301,7 +321,8 @@ class Plan:
             lines += [f"    {c.label()} ({c.describe()})" for c in self.candidates]
         if self.race:
             lines.append("  race: " + describe_race(self.race, self.race_keep, self.race_margins,
-                                                    self.race_stride, self.race_continue, self.race_strided))
+                                                    self.race_stride, self.race_continue, self.race_strided)
+                         + (f" (at most {self.continue_sweeps} ALS sweeps)" if self.continue_sweeps else ""))
         if self.linear is not None:
             lin = self.linear
             lines.append(f"  linear fit: {lin.method}, {lin.iterations} iterations (stops where one lowers the "
@@ -533,6 +554,10 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
             found = [c for c in found if grid_projection(target.kind, c.parametrization, grid) in p.directions] or found
         if p is not None and p.dropped:
             found = [c for c in found if c.label() not in p.dropped] or found
+        if p is not None and p.table_twins:  # the lined candidates whose table twin runs (a superset of them)
+            twins = set(found)
+            found = [c for c in found if not (c.highlights.terms and not (c.highlights.table or c.highlights.cosine)
+                                              and c.with_highlights(table=True) in twins)]
         cands = tuple(found)
     # the race: every candidate's first ALS sweeps rank them; only the lowest continue to the full fit
     race, race_keep = race_of(p if choosing and opts.target_error is None and als_fit and not lin.polish else None,
@@ -581,6 +606,7 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
                 race_stride=int(p.race_stride) if race else 1,
                 race_continue=carry, race_strided=bool(race and p.race_strided and p.race_stride > 1),
                 race_margins=race_margins_of(p, race),
+                continue_sweeps=int(p.continue_sweeps) if carry and 0 < p.continue_sweeps < lin.iterations else 0,
                 vote_screen=int(vote_screen), vote_stride=vote_stride,
                 line_sizes=sizes,
                 disc_vote=disc, analysis=bool(choosing and target.kind == "lighting"
