@@ -140,25 +140,3 @@ def test_the_ridge_score_in_padded_calls_is_the_score_of_every_pair_evaluated_on
                                          rv.pairs.weight)
     assert np.isfinite(want) and got == pytest.approx(want, rel=1e-5) and small == pytest.approx(want, rel=1e-5)
 
-
-def test_a_cap_on_the_continued_fit_is_planned_only_where_fits_continue_and_below_the_linear_sweeps():
-    """``continue_sweeps``: a preset that continues its kept candidate from the race's strided fit may cap that
-    fit's sweeps on every pair; the plan records it (``race.continue_sweeps``, ``--plan``'s words), and drops it
-    where nothing continues or where it is not below the linear fit's sweeps."""
-    env = hf.light.sun_sky((0.3, 0.2, 0.9), sun_radiance=300.0, sun_angle_deg=4.0, sky=(0.3, 0.4, 0.6), resolution=8)
-    t = hf.light.lighting_target(hf.brdf.cook_torrance(kd=(0.05, 0.04, 0.02), ks=1.0, roughness=0.3,
-                                                       f0=(1.0, 0.78, 0.34)), env)
-    over = {"advanced": {"validation_light": int(validation.environment(t).info["resolution"])}}
-    best = plan.PRESETS["best"]
-    try:
-        plan.PRESETS["best"] = best._replace(continue_sweeps=12)
-        capped = plan.build_plan(t, "best", over)
-        assert capped.continue_sweeps == 12 and capped.to_dict()["race"]["continue_sweeps"] == 12
-        assert "at most 12 ALS sweeps" in str(capped)
-        longer = {**over, "advanced": {**over["advanced"], "linear": {"iterations": 12}}}
-        assert plan.build_plan(t, "best", longer).continue_sweeps == 0
-        plan.PRESETS["best"] = best._replace(continue_sweeps=12, race_continue=False)
-        assert plan.build_plan(t, "best", over).continue_sweeps == 0
-    finally:
-        plan.PRESETS["best"] = best
-    assert "continue_sweeps" not in plan.build_plan(t, "balanced", over).to_dict()["race"]

@@ -299,8 +299,7 @@ def _sums(target: Target, the_plan: Plan, samples: Samples, record: dict, sample
             sf = sums.finish(sums.advance(running.pop(structure), None, log))
         elif the_plan.race_continue and (structure, line) in heads:  # ... or from its strided short fit
             head, k, n = heads.pop((structure, line))
-            clin = lin.model_copy(update={"iterations": the_plan.continue_sweeps}) if the_plan.continue_sweeps else lin
-            sf = sums.continued(tgt, structure, mapper, opts.texture_size, smp, clin, log, stride=k, sweeps=n,
+            sf = sums.continued(tgt, structure, mapper, opts.texture_size, smp, lin, log, stride=k, sweeps=n,
                                 line_size=line, slots=slots, head=head)
         else:
             sf = sums.fit_sum(tgt, structure, mapper, opts.texture_size, smp, lin, log, line_size=line, slots=slots)

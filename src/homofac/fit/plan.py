@@ -68,9 +68,7 @@ class Preset(NamedTuple):
     that leaves only dropped ones tries those); ``race_strided``: every round of
     the race fits the first round's every ``race_stride``-th pair, a later round continuing the strided fits
     where they stopped (a round may then keep every candidate its margin admits: ``race_keep`` only caps it);
-    ``race_margins``: the margin of each round (replacing ``race_margin`` where given); ``continue_sweeps``:
-    with ``race_continue``, the fits continued on every pair from a strided short fit (the kept candidate, a
-    vote's alternative) run at most this many ALS sweeps (0: ``linear.iterations``); ``table_twins``: a highlight
+    ``race_margins``: the margin of each round (replacing ``race_margin`` where given); ``table_twins``: a highlight
     candidate on lines whose table twin (``with_highlights(table=True)``) is a candidate is not tried."""
 
     lookups: int
@@ -97,7 +95,6 @@ class Preset(NamedTuple):
     dropped: tuple[str, ...] = ()
     race_strided: bool = False
     race_margins: tuple[float, ...] = ()
-    continue_sweeps: int = 0
     table_twins: bool = False
 
 
@@ -270,7 +267,6 @@ class Plan:
     race_continue: bool  # ... from which those kept (and the votes' screened alternatives) continue on every pair
     race_strided: bool  # every round on the first round's strided pairs (later rounds continue the strided fits)
     race_margins: tuple[float, ...]  # the margin of each round (``race_margin`` per round, or the preset's own)
-    continue_sweeps: int  # with race_continue: at most this many sweeps of a fit continued on every pair (0: all)
     vote_screen: int  # ALS sweeps of the short fits the line and disc votes read first (0: full refits only)
     vote_stride: int  # ... fitted on every k-th training pair
     ridge: int
@@ -294,8 +290,7 @@ class Plan:
                 "ridge": self.ridge,
                 "race": {"sweeps": list(self.race), "keep": list(self.race_keep), "margin": self.race_margin,
                          "stride": self.race_stride, "continue": self.race_continue,
-                         "strided": self.race_strided, "margins": list(self.race_margins),
-                         **({"continue_sweeps": self.continue_sweeps} if self.continue_sweeps else {})},
+                         "strided": self.race_strided, "margins": list(self.race_margins)},
                 "line_sizes": list(self.line_sizes),
                 "vote_screen": {"sweeps": self.vote_screen, "stride": self.vote_stride},
                 "disc_vote": self.disc_vote, "analysis": self.analysis,
@@ -321,8 +316,7 @@ class Plan:
             lines += [f"    {c.label()} ({c.describe()})" for c in self.candidates]
         if self.race:
             lines.append("  race: " + describe_race(self.race, self.race_keep, self.race_margins,
-                                                    self.race_stride, self.race_continue, self.race_strided)
-                         + (f" (at most {self.continue_sweeps} ALS sweeps)" if self.continue_sweeps else ""))
+                                                    self.race_stride, self.race_continue, self.race_strided))
         if self.linear is not None:
             lin = self.linear
             lines.append(f"  linear fit: {lin.method}, {lin.iterations} iterations (stops where one lowers the "
@@ -606,7 +600,6 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
                 race_stride=int(p.race_stride) if race else 1,
                 race_continue=carry, race_strided=bool(race and p.race_strided and p.race_stride > 1),
                 race_margins=race_margins_of(p, race),
-                continue_sweeps=int(p.continue_sweeps) if carry and 0 < p.continue_sweeps < lin.iterations else 0,
                 vote_screen=int(vote_screen), vote_stride=vote_stride,
                 line_sizes=sizes,
                 disc_vote=disc, analysis=bool(choosing and target.kind == "lighting"
