@@ -15,15 +15,13 @@ import os
 import sys
 
 import numpy as np
-import equinox as eqx
-import jax.numpy as jnp
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from homofac.light.environment import LUMINANCE
 import homofac as hf
 from homofac.bake import build as bb
 from homofac.bake import sources as hs
-from homofac.bake.sources import MIN_SHARE, RATIO, Source, principal_axes
+from homofac.bake.sources import MIN_SHARE, RATIO
 
 
 def brightest_region(env, radius=None, ratio=RATIO, min_share=MIN_SHARE, cap=0.2):
@@ -32,7 +30,6 @@ def brightest_region(env, radius=None, ratio=RATIO, min_share=MIN_SHARE, cap=0.2
     rad = np.asarray(env.radiance, np.float64)
     dw = np.asarray(env.solid_angle, np.float64)
     lum = rad @ np.asarray(LUMINANCE, np.float64)
-    total = float(np.sum(lum * dw))
     seed = int(np.argmax(lum))
     step = 1.5 * float(np.sqrt(dw.max()))  # neighbours: within 1.5 texel widths
     cos = d @ d[seed]
@@ -49,23 +46,7 @@ def brightest_region(env, radius=None, ratio=RATIO, min_share=MIN_SHARE, cap=0.2
     dist = (d[ball] @ cd.T).max(1)
     ring_idx = ball[(dist > np.cos(2 * step)) & ~core[ball]]
     ring = np.zeros(len(d), bool); ring[ring_idx] = True
-    fill = (rad[ring] * dw[ring, None]).sum(0) / max(float(dw[ring].sum()), 1e-300) if ring.any() else np.zeros(3)
-    excess = np.maximum(rad[core] - fill, 0.0) * dw[core, None]
-    power = excess.sum(0)
-    share = float(power @ np.asarray(LUMINANCE, np.float64)) / total if total > 0 else 0.0
-    if not (share >= min_share and np.all(power > 0)):
-        return env, None, share
-    weight = excess @ np.asarray(LUMINANCE, np.float64)
-    mean = weight @ d[core]
-    direction = mean / np.linalg.norm(mean)
-    ang = np.arccos(np.clip(d[core] @ direction, -1.0, 1.0))
-    spread = float(np.sqrt(np.sum(weight * ang * ang) / np.sum(weight)))
-    out = rad.copy()
-    out[core] = np.minimum(rad[core], fill)
-    rest = eqx.tree_at(lambda e: e.radiance, env, jnp.asarray(out, jnp.asarray(env.radiance).dtype))
-    src = Source(tuple(float(c) for c in direction), tuple(float(c) for c in power), spread,
-                 principal_axes(d[core], weight, direction) if spread > 0 else ())
-    return rest, src, share
+    return hs.take_core(env, core, ring, min_share)
 
 
 def bake(argv):

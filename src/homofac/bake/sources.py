@@ -49,7 +49,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, Bool, Float
 
 from ..brdf.gltf import gltf_lobes_at
 from ..light import Environment
@@ -151,12 +151,25 @@ def brightest_source(env: Environment, radius: float = RADIUS, ratio: float = RA
     rad = np.asarray(env.radiance, np.float64)
     dw = np.asarray(env.solid_angle, np.float64)
     lum = rad @ np.asarray(LUMINANCE, np.float64)
-    total = float(np.sum(lum * dw))
     seed = int(np.argmax(lum))
     cos = d @ d[seed]
     core = (cos > np.cos(radius)) & (lum >= lum[seed] / ratio)
     outer = max(2 * radius, radius + 2 * float(np.sqrt(dw.max())))  # at least two texels wide on a coarse map
     ring = (cos <= np.cos(radius)) & (cos > np.cos(outer))
+    return take_core(env, core, ring, min_share)
+
+
+def take_core(env: Environment, core: Bool[np.ndarray, " N"], ring: Bool[np.ndarray, " N"],
+              min_share: float = MIN_SHARE) -> tuple[Environment, Source | None, float]:
+    """``(environment without the core, source or None, its luminance power share)`` for a chosen ``core`` of
+    texels: they are replaced by the solid-angle weighted mean radiance of the ``ring`` texels ("fill"), and the
+    removed power sum (L - fill) dw becomes one Gaussian source at its power-weighted mean direction, of the
+    power-weighted RMS angle and principal axes of the removed texels. None (the environment unchanged) when
+    that luminance power is below ``min_share`` of the map's or not positive in every channel."""
+    d = np.asarray(env.directions, np.float64)
+    rad = np.asarray(env.radiance, np.float64)
+    dw = np.asarray(env.solid_angle, np.float64)
+    total = float(np.sum((rad @ np.asarray(LUMINANCE, np.float64)) * dw))
     fill = (rad[ring] * dw[ring, None]).sum(0) / max(float(dw[ring].sum()), 1e-300) if ring.any() else np.zeros(3)
     excess = np.maximum(rad[core] - fill, 0.0) * dw[core, None]  # (C, 3)
     power = excess.sum(0)
@@ -288,4 +301,4 @@ def source_terms(sources, n: Float[Array, "N 3"], v: Float[Array, "N 3"], roughn
 
 __all__ = ["CORE", "MAX_SOURCES", "MIN_SHARE", "RADIUS", "RATIO", "SPLIT", "SPREAD", "Source", "brightest_source",
            "core_and_halo", "core_widths",
-           "principal_axes", "source_terms", "widened_ratio"]
+           "principal_axes", "take_core", "source_terms", "widened_ratio"]
