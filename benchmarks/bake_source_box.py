@@ -8,7 +8,12 @@ the source term changes (Bake.evaluate with this source_terms); docs/notes/bake.
 twentieth session".
 
     PYTHONPATH=src python benchmarks/bake_source_box.py PAIRS_DIR studio 0 BAKES/studio-balanced box:2e-4:1.15 gauss:1.2
+
+``rule:BLUR[:PIXEL]`` is the built box (homofac.bake.sources.box_widths with the coupled box_blob): each source of
+the bake gets the box of its axes at that BLUR (pixel: the source map's pixel angle, default pi / 128, a 256-wide
+lat-long); ``rule:0:1`` with a huge pixel is the Gaussian (no box). Twenty-first session.
 """
+import dataclasses
 import json
 import sys
 from pathlib import Path
@@ -98,9 +103,23 @@ def main():
     b = hf.load(bake)
     a = np.asarray(b.evaluate(z["n"], z["v"], z["c"], z["m"], z["rho"]), np.float64)
     print(json.dumps({"cfg": "built", "cell": f"{name}-{band}", "bake": bake, "nrmse": round(weighted_nrmse(a, z["L"], z["w"]), 4)}))
-    hm.source_terms = source_terms
+    built = hm.source_terms
     for cfg in sys.argv[5:]:
         kind, *ks = cfg.split(":")
+        if kind == "core":  # the CORE of every later cfg (the built Gaussian's and the rule's total variance)
+            hs.CORE = float(ks[0])
+            continue
+        if kind == "rule":
+            hm.source_terms = built
+            pixel = float(ks[1]) if len(ks) > 1 else np.pi / 128
+            srcs = tuple(s._replace(box=hs.box_widths(s._replace(box=()), pixel, float(ks[0]))) for s in b.sources)
+            bb = dataclasses.replace(b, sources=srcs)
+            a = np.asarray(bb.evaluate(z["n"], z["v"], z["c"], z["m"], z["rho"]), np.float64)
+            boxed = sum(1 for s in srcs if s.box)
+            print(json.dumps({"cfg": cfg, "cell": f"{name}-{band}", "boxed": f"{boxed}/{len(srcs)}",
+                              "nrmse": round(weighted_nrmse(a, z["L"], z["w"]), 4)}), flush=True)
+            continue
+        hm.source_terms = source_terms
         if kind == "box":
             P.update(box=True, q=float(ks[0]), kbox=float(ks[1]))
         else:

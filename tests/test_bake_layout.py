@@ -68,7 +68,7 @@ def test_own_layouts_change_nothing_but_the_files(moved, kind, tmp_path):
     out = m.save(tmp_path / "b", exr="float32")
     doc = json.loads((out / "bake.json").read_text())
     maps = [t for t in doc["textures"] if t["kind"] == "prefiltered"]
-    assert doc["schema_version"] == 7 and doc["texture_bytes_half"] == m.texture_bytes()
+    assert doc["schema_version"] == 8 and doc["texture_bytes_half"] == m.texture_bytes()
     assert [[(k["x"], k["y"], k["size"]) for k in t["blocks"]] for t in maps] == [
         [(x, y, s) for (x, y), s in zip(a.offsets, a.sizes)] for a in m.atlases]
     assert [(t["width"], t["height"]) for t in maps] == [(a.width, a.height) for a in m.atlases]

@@ -13,8 +13,8 @@ import pytest
 
 import homofac as hf
 from homofac.bake import shader
-from homofac.bake.sources import (CORE, MAX_SOURCES, SPLIT, SPREAD, Source, brightest_source, core_and_halo, core_widths, principal_axes,
-                                  source_terms, widened_ratio)
+from homofac.bake.sources import (BLUR, CORE, MAX_SOURCES, SPLIT, SPREAD, Source, box_blob, box_widths, brightest_source,
+                                  core_and_halo, core_widths, principal_axes, source_terms, widened_ratio)
 from homofac.errors import HomofacError
 from homofac.io.exr import read_exr
 from homofac.light import Environment
@@ -138,6 +138,54 @@ def test_an_elongated_source_keeps_its_axes_and_its_core_reads_them(tmp_path, su
     assert back.sources == (src,) and "axes" in back.describe()
 
 
+def test_a_box_core_keeps_its_power_and_moments_reduces_to_the_gaussian_and_the_gpu_reads_it(tmp_path, sun_bake):
+    """The core's box blurred by a Gaussian (box_blob) under a coupled G (g12 != 0): unit integral and G / 2 as
+    its covariance; as its half-widths go to 0 the built Gaussian exp(-t^T G^-1 t) / (pi sqrt det G), and a
+    source with a tiny box shades as the Gaussian one; a wide box is flatter at the centre and reaches as far.
+    box_widths: a compact source (no wider than the pixels' blur) keeps the Gaussian, a wide one's box holds the
+    variance above BLUR pixel^2. bake.json keeps the box; the GLSL reads the box source as source_terms does."""
+    g11, g12, g22 = 4e-4, 1.5e-4, 2e-4
+    x = np.linspace(-0.15, 0.15, 601)
+    dx = x[1] - x[0]
+    t1, t2 = np.meshgrid(x, x, indexing="ij")
+    det = g11 * g22 - g12 * g12
+    gauss = np.exp(-(g22 * t1 * t1 - 2 * g12 * t1 * t2 + g11 * t2 * t2) / det) / (np.pi * np.sqrt(det))
+    for b in ((0.0, 0.0), (1e-6, 2e-6), (0.012, 0.004), (0.006, 0.01)):  # G minus the box: positive definite
+        k = np.asarray(box_blob(jnp.asarray(t1), jnp.asarray(t2), g11, g12, g22, *b), np.float64)
+        assert abs(k.sum() * dx * dx - 1) < 1e-4, b
+        cov = [2 * (k * p).sum() * dx * dx for p in (t1 * t1, t1 * t2, t2 * t2)]
+        np.testing.assert_allclose(cov, (g11, g12, g22), rtol=2e-3, err_msg=str(b))
+        if max(b) < 1e-5:
+            np.testing.assert_allclose(k, gauss, atol=1e-5 * gauss.max())
+        else:
+            assert k.max() < 0.995 * gauss.max(), b  # flatter at the centre for the same covariance
+    ell = np.array([0.3, -0.4, 0.866]) / np.linalg.norm([0.3, -0.4, 0.866])
+    e1 = np.cross(ell, (0, 0, 1.0))
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(ell, e1)
+    src = Source(tuple(ell), (1.0, 0.8, 0.6), 0.03, (tuple(0.04 * e2), tuple(0.02 * e1)))
+    pixel = np.pi / 128
+    assert box_widths(src._replace(axes=(tuple(0.001 * e2), tuple(0.001 * e1))), pixel) == ()
+    b = np.asarray(box_widths(src, pixel))
+    np.testing.assert_allclose(b * b / 3 + BLUR * pixel * pixel, (CORE * np.array([0.04, 0.02])) ** 2 / 2, rtol=1e-6)
+    n, v = pairs(400, seed=7)
+    n[:40] = ell + 0.05 * n[:40]  # pairs mirroring near the source, so the core is read
+    n[:40] /= np.linalg.norm(n[:40], axis=1, keepdims=True)
+    m = ell + 0.02 * np.random.default_rng(1).normal(size=(40, 3))
+    m /= np.linalg.norm(m, axis=1, keepdims=True)
+    v[:40] = 2 * np.sum(n[:40] * m, 1)[:, None] * n[:40] - m
+    gauss_terms = np.asarray(source_terms((src,), n, v, 0.05))
+    tiny = np.asarray(source_terms((src._replace(box=(1e-7, 1e-7)),), n, v, 0.05))
+    np.testing.assert_allclose(tiny, gauss_terms, rtol=1e-3, atol=1e-4 * np.abs(gauss_terms).max())
+    boxed = src._replace(box=tuple(b))
+    assert not np.allclose(np.asarray(source_terms((boxed,), n, v, 0.05)), gauss_terms, rtol=1e-2)
+    bk = dataclasses.replace(sun_bake, sources=(boxed,))
+    back = hf.load(bk.save(tmp_path / "box"))
+    assert back.sources == (boxed,) and "box" in back.describe()
+    pytest.importorskip("moderngl")
+    check_glsl_terms(bk, n, v, (0.05, 0.3), 1e-4)
+
+
 def test_the_widening_per_axis_keeps_the_lobe_normalized_and_follows_the_plane_of_incidence():
     """The tail's anisotropic GGX (widened_ratio x GGX D) integrates to 1 over projected half vectors at unequal
     widths (the source's power is unchanged); equal widths read Karis's isotropic widening; the core's covariance
@@ -259,7 +307,7 @@ def test_the_bake_takes_up_to_bake_json_s_eight_sources(tmp_path):
 def test_round_trip_and_schema_1_reads_as_no_sources(sun_bake, tmp_path):
     out = sun_bake.save(tmp_path / "bk")
     doc = json.loads((out / "bake.json").read_text())
-    assert doc["schema_version"] == 7 and len(doc["sources"]) == 1
+    assert doc["schema_version"] == 8 and len(doc["sources"]) == 1
     back = hf.load(out)
     assert back.sources == sun_bake.sources
     n, v = pairs(100, seed=8)

@@ -75,7 +75,7 @@ LIBRARY_FORMAT = "homofac.library"
 LIBRARY_VERSION = 1
 INDEX_NAME = "index.json"
 BAKE_FORMAT = "homofac.bake"
-BAKE_SCHEMA = 7
+BAKE_SCHEMA = 8
 BAKE_JSON = "bake.json"
 #: The shader files of a bake directory (homofac_ibl, homofac_ibl_terms).
 BAKE_SHADERS = {"glsl": "shader.glsl", "glsl_es": "shader_es.glsl", "hlsl": "shader.hlsl", "msl": "shader.metal",
@@ -903,6 +903,16 @@ class BakeSourceEntry(Options):
     radius: float = Field(ge=0, le=math.pi)
     #: schema 6: the two principal semi-axes (rad) of the source's core normal to ``direction``; absent: round
     axes: list[list[float]] | None = Field(None, min_length=2, max_length=2)
+    #: schema 8: the core's box half-widths (rad) along its ``axes`` (homofac.bake.sources.box_widths); absent: a
+    #: Gaussian core
+    box: list[float] | None = Field(None, min_length=2, max_length=2)
+
+    @field_validator("box")
+    @classmethod
+    def _box(cls, v):
+        if v is not None and not all(math.isfinite(c) and 0 <= c <= math.pi for c in v):
+            raise ValueError("must be two finite half-widths in [0, pi] (rad)")
+        return v
 
     @field_validator("axes")
     @classmethod
@@ -927,13 +937,14 @@ class BakeSourceEntry(Options):
 
 
 class BakeDocument(Options):
-    """bake.json (schema 7: ``plan.shared_gain``, absent in schema 6 and older: read as false; schema 6: sources may give their ``axes``; schema 5 is read with round sources; schema 5: each
+    """bake.json (schema 8: sources may give their core's ``box``, absent in schema 7 and older: Gaussian cores;
+    schema 7: ``plan.shared_gain``, absent in schema 6 and older: read as false; schema 6: sources may give their ``axes``; schema 5 is read with round sources; schema 5: each
     specular map's blocks in its own atlas; schema 4 is read with every map in the
     shelf packer's layout of ``layers``' x, y; schema 3 is read as a bake without ``plan.mixed``, schema 2 as one without the harmonic, schema 1, without ``sources``, as a
     bake without sources either): see docs/format.md."""
 
     format: Literal["homofac.bake"]
-    schema_version: Literal[1, 2, 3, 4, 5, 6, 7]
+    schema_version: Literal[1, 2, 3, 4, 5, 6, 7, 8]
     brdf: Literal["gltf"]
     plan: BakePlanEntry
     lookups: int
@@ -981,7 +992,8 @@ def bake_document(bake: Bake, exr: str = "half") -> dict:
         "texture_bytes_half": bake.texture_bytes(),
         **({"diffuse_sh9": np.asarray(bake.sh, np.float64).tolist()} if pl.diffuse_basis == "sh9" else {}),
         "sources": [{"direction": list(src.direction), "power": list(src.power), "radius": src.radius,
-                     **({"axes": [list(a) for a in src.axes]} if src.axes else {})} for src in bake.sources],
+                     **({"axes": [list(a) for a in src.axes]} if src.axes else {}),
+                     **({"box": list(src.box)} if src.box else {})} for src in bake.sources],
         "info": _jsonable(bake.info, bad),
     }
 
@@ -1113,7 +1125,8 @@ def load_bake(d, *, max_bytes: int = 1 << 28) -> Bake:
     return Bake(pl, tuple(layer.roughness for layer in doc.layers), tuple(layer.shift for layer in doc.layers), P, E, W,
                 dict(raw.get("info") or {}), sh=None if sh is None else sh.astype(np.float32), blocks=blocks,
                 sources=tuple(Source(tuple(e.direction), tuple(e.power), e.radius,
-                                     tuple(tuple(a) for a in e.axes) if e.axes else ()) for e in doc.sources), H=H,
+                                     tuple(tuple(a) for a in e.axes) if e.axes else (),
+                                     tuple(e.box) if e.box and e.axes else ()) for e in doc.sources), H=H,
                 layouts=atlases)
 
 

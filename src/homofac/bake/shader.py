@@ -223,13 +223,15 @@ def _harmonic_functions(language: str) -> list[str]:
 
 
 def _source_function(language: str) -> list[str]:
-    """``hf_source(n, v, x, roughness, l, s2, e1, w1, e2, w2)``: ((1 - s5)/pi, (1 - s5) S', s5 S') (n.l)+ of an
-    analytic light at unit l (:func:`homofac.bake.sources.source_terms`; x = n.v > 0), widened per axis of the
-    plane of incidence (u = n x v across it): the core, a Gaussian blob about l of covariance G = diag(w_1, w_2) +
-    4 alpha^2 (I - u u^T) in its unit axes e_i, read at the mirror direction, weight w = S / (alpha^2 + S) with
-    S = s2 / x; the tail, the anisotropic GGX of squared widths alpha^2 + s2 in the plane and alpha^2 + s2 / x^2
-    across it (h_y = h.u / |u|, h_x^2 = |n x h|^2 - h_y^2), weight 1 - w. Returned as a vector (d, A, B); the
-    caller multiplies by the light's RGB power."""
+    """``hf_erfc``, ``hf_box`` and ``hf_source(n, v, x, roughness, l, s2, e1, w1, e2, w2, b1, b2)``: ((1 - s5)/pi,
+    (1 - s5) S', s5 S') (n.l)+ of an analytic light at unit l (:func:`homofac.bake.sources.source_terms`; x = n.v >
+    0), widened per axis of the plane of incidence (u = n x v across it): the core, read at the mirror direction,
+    its covariance G = diag(w_1, w_2) + 4 alpha^2 (I - u u^T) in its unit axes e_i, a box of half-widths (b_1, b_2)
+    along them blurred by a Gaussian of the rest of G, read in G's principal frame
+    (:func:`homofac.bake.sources.box_blob`; b = 0: the Gaussian), weight w = S / (alpha^2 + S) with S = s2 / x; the
+    tail, the anisotropic GGX of squared widths alpha^2 + s2 in the plane and alpha^2 + s2 / x^2 across it (h_y =
+    h.u / |u|, h_x^2 = |n x h|^2 - h_y^2), weight 1 - w. Returned as a vector (d, A, B); the caller multiplies by
+    the light's RGB power. ``hf_erfc`` is Abramowitz and Stegun's 7.1.26 (|error| <= 1.5e-7)."""
     msl, wgsl = language == "msl", language == "wgsl"
     v3, ft = ("float3", "float") if msl else (("vec3<f32>", "f32") if wgsl else ("vec3", "float"))
     f = (lambda x: L.float_literal(float(x), "f")) if msl else _f
@@ -237,15 +239,32 @@ def _source_function(language: str) -> list[str]:
     def let(name, t, e):
         return f"let {name}: {t} = {e};" if wgsl else f"{t} {name} = {e};"
 
+    def sel(cond, a, b):
+        return f"select({b}, {a}, {cond})" if wgsl else f"({cond} ? {a} : {b})"
+
+    def head(name, params, ret):
+        if wgsl:
+            return f"fn {name}({', '.join(f'{a}: {t}' for a, t in params)}) -> {ret}"
+        return f"{ret} {name}({', '.join(f'{t} {a}' for a, t in params)})"
+
     one, zero = f(1.0), f(0.0)
+    erfc = [head("hf_erfc", [("x", ft)], ft) + " {  // erfc(x), Abramowitz and Stegun 7.1.26 (|error| <= 1.5e-7)",
+            "    " + let("z", ft, "abs(x)"), "    " + let("t", ft, f"{one} / ({one} + {f(0.3275911)} * z)"),
+            "    " + let("y", ft, f"t * ({f(0.254829592)} + t * ({f(-0.284496736)} + t * ({f(1.421413741)} "
+                                  f"+ t * ({f(-1.453152027)} + t * {f(1.061405429)})))) * exp(-z * z)"),
+            f"    return {sel(f'x >= {zero}', 'y', f'{f(2.0)} - y')};", "}"]
+    box = [head("hf_box", [("s", ft), ("b", ft), ("g", ft)], ft)
+           + " {  // a box of half-width b (unit integral) blurred by exp(-s^2 / g) / sqrt(pi g)",
+           "    " + let("sg", ft, "sqrt(g)"), "    " + let("a", ft, "abs(s)"),
+           f"    if (b < {f(1e-3)} * sg) {{ return exp(-s * s / g) / sqrt({f(np.pi)} * g); }}",
+           f"    return (hf_erfc((a - b) / sg) - hf_erfc((a + b) / sg)) / ({f(4.0)} * b);", "}"]
     body = [let("nl", ft, "dot(n, l)"), f"if (nl <= {zero}) {{ return {v3}({zero}, {zero}, {zero}); }}",
             let("h", v3, "normalize(l + v)"), let("c", v3, "cross(n, h)"),
             let("nh", ft, f"max(dot(n, h), {zero})"), let("vh", ft, f"min(abs(dot(v, h)), {one})"),
             let("a2", ft, "roughness * roughness * roughness * roughness"),
             let("u", v3, "cross(n, v)"), let("hu", ft, "dot(h, u)"),
             let("hy2", ft, f"hu * hu / max(dot(u, u), {f(1e-12)})"), let("hx2", ft, f"max(dot(c, c) - hy2, {zero})"),
-            let("sx", ft, "s2 / x"), let("wc", ft, f"select({zero}, sx / (a2 + sx), sx > {zero})"
-                                            if wgsl else f"sx > {zero} ? sx / (a2 + sx) : {zero}"),
+            let("sx", ft, "s2 / x"), let("wc", ft, sel(f"sx > {zero}", "sx / (a2 + sx)", zero)),
             let("ax", ft, "a2 + s2"), let("ay", ft, "a2 + s2 / (x * x)"),
             let("q", ft, "hx2 * ay + hy2 * ax + nh * nh * ax * ay"),
             let("dd", ft, f"ax * ay * sqrt(ax * ay) / ({f(np.pi)} * q * q)"),
@@ -255,19 +274,26 @@ def _source_function(language: str) -> list[str]:
             let("m", ft, f"{one} - vh"), let("s5", ft, "m * m * m * m * m"),
             let("e", v3, f"{f(2.0)} * x * n - v - l"), let("u1", ft, "dot(u, e1)"), let("u2", ft, "dot(u, e2)"),
             let("g11", ft, f"w1 + {f(4.0)} * a2 * ({one} - u1 * u1)"), let("g12", ft, f"{f(-4.0)} * a2 * u1 * u2"),
-            let("g22", ft, f"w2 + {f(4.0)} * a2 * ({one} - u2 * u2)"), let("det", ft, "g11 * g22 - g12 * g12"),
+            let("g22", ft, f"w2 + {f(4.0)} * a2 * ({one} - u2 * u2)"),
             let("t1", ft, "dot(e, e1)"), let("t2", ft, "dot(e, e2)"), let("t3", ft, "dot(e, l)"),
-            let("k", ft, f"wc * exp(-((g22 * t1 * t1 - {f(2.0)} * g12 * t1 * t2 + g11 * t2 * t2) / det "
-                         f"+ t3 * t3 / min(g11, g22))) / ({f(np.pi)} * sqrt(det) * ({one} + {f(2.0)} * lv))"),
+            # G's principal frame: cos 2 theta = (g11 - g22) / dg, sin 2 theta = 2 g12 / dg
+            let("dg", ft, f"sqrt((g11 - g22) * (g11 - g22) + {f(4.0)} * g12 * g12)"),
+            let("big", "bool", f"dg > {f(1e-6)} * (g11 + g22)"),
+            let("c2", ft, sel("big", f"(g11 - g22) / max(dg, {f(1e-30)})", one)),
+            let("cos2", ft, f"{f(0.5)} * ({one} + c2)"), let("sin2", ft, f"{f(0.5)} * ({one} - c2)"),
+            let("cs", ft, "sqrt(cos2)"), let("sn", ft, sel(f"g12 < {zero}", "-sqrt(sin2)", "sqrt(sin2)")),
+            let("l1", ft, f"{f(0.5)} * (g11 + g22 + dg)"), let("l2", ft, f"{f(0.5)} * (g11 + g22 - dg)"),
+            let("v1", ft, "b1 * b1 * cos2 + b2 * b2 * sin2"), let("v2", ft, "b1 * b1 * sin2 + b2 * b2 * cos2"),
+            let("r1", ft, f"max(l1 - {f(2.0 / 3.0)} * v1, {f(1e-3)} * l1)"),
+            let("r2", ft, f"max(l2 - {f(2.0 / 3.0)} * v2, {f(1e-3)} * l2)"),
+            let("k", ft, "wc * hf_box(cs * t1 + sn * t2, sqrt(v1), r1) * hf_box(cs * t2 - sn * t1, sqrt(v2), r2) "
+                         f"* exp(-t3 * t3 / min(g11, g22)) / ({one} + {f(2.0)} * lv)"),
             let("mx", ft, f"{one} - x"), let("m5", ft, "mx * mx * mx * mx * mx"),
             f"return {v3}(({one} - s5) / {f(np.pi)} * nl, ({one} - s5) * sv + ({one} - m5) * k, s5 * sv + m5 * k);"]
     params = [("n", v3), ("v", v3), ("x", ft), ("roughness", ft), ("l", v3), ("s2", ft), ("e1", v3), ("w1", ft),
-              ("e2", v3), ("w2", ft)]
-    if wgsl:
-        head = f"fn hf_source({', '.join(f'{a}: {t}' for a, t in params)}) -> {v3}"
-    else:
-        head = f"{v3} hf_source({', '.join(f'{t} {a}' for a, t in params)})"
-    return [head + " {  // ((1 - s5)/pi, (1 - s5) S', s5 S') (n.l)+ of a source at l: Gaussian core + widened GGX tail",
+              ("e2", v3), ("w2", ft), ("b1", ft), ("b2", ft)]
+    return [*erfc, *box, head("hf_source", params, v3)
+            + " {  // ((1 - s5)/pi, (1 - s5) S', s5 S') (n.l)+ of a source at l: box-and-Gaussian core + widened GGX tail",
             *("    " + b for b in body), "}"]
 
 
@@ -283,7 +309,7 @@ def _source_lines(bake: Bake, language: str, out: tuple[str, str, str]) -> list[
         axes, widths = src.core_frame()
         e1, e2 = (f"{v3}({', '.join(f(c) for c in a)})" for a in axes)
         g = (f"hf_source(n, v, x, roughness, {v3}({d}), {f((SPREAD * src.radius) ** 2 / 4)}, "
-             f"{e1}, {f(widths[0])}, {e2}, {f(widths[1])})")
+             f"{e1}, {f(widths[0])}, {e2}, {f(widths[1])}, {', '.join(f(b) for b in (src.box or (0.0, 0.0)))})")
         lines.append(f"let g{i}: {v3} = {g};" if wgsl else f"{v3} g{i} = {g};")
         lines += [f"{o} = {o} + g{i}.{c} * {p};" for o, c in zip(out, "xyz")]
     return lines

@@ -49,6 +49,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.scipy.special import erfc
 from jaxtyping import Array, Bool, Float
 
 from ..brdf.gltf import gltf_lobes_at
@@ -115,12 +116,17 @@ class Source(NamedTuple):
     #: The source's two principal semi-axes in the plane normal to ``direction`` (rad; :func:`principal_axes`),
     #: or () for a round source of RMS angle ``radius``: the core's shape (module docstring).
     axes: tuple = ()
+    #: The core's box half-widths (b_1, b_2) (rad) along its unit axes (:meth:`core_frame`; :func:`box_widths`), or
+    #: () for a Gaussian core: the core is then a box of these half-widths blurred by a Gaussian of the rest of its
+    #: variance (:func:`box_blob`).
+    box: tuple = ()
 
     def describe(self) -> str:
         d, p = self.direction, self.power
         shape = "" if not self.axes else f" (axes {float(np.linalg.norm(self.axes[0])):.3g}, {float(np.linalg.norm(self.axes[1])):.3g} rad)"
+        box = "" if not any(self.box) else f", box {self.box[0]:.3g} x {self.box[1]:.3g} rad"
         return (f"direction ({d[0]:.3f}, {d[1]:.3f}, {d[2]:.3f}), power ({p[0]:.4g}, {p[1]:.4g}, {p[2]:.4g}), "
-                f"radius {self.radius:.3g} rad{shape}")
+                f"radius {self.radius:.3g} rad{shape}{box}")
 
     def core_frame(self) -> tuple[np.ndarray, np.ndarray]:
         """``(e (2, 3), s2 (2,))``: unit principal axes normal to the direction and the core's squared widths
@@ -247,6 +253,67 @@ def core_widths(widths, u1, u2, a2):
     return widths[0] + g * (1 - u1 * u1), -g * u1 * u2, widths[1] + g * (1 - u2 * u2)
 
 
+#: A light's core is a box blurred by a Gaussian (:func:`box_widths`): the Gaussian holds at most BLUR x the
+#: source map's pixel angle squared of the core's variance per axis, the box the rest. The reference reads the
+#: source's pixels bilinearly (a tent, variance pixel^2 / 6 per axis); a light no wider than that stays the
+#: Gaussian of CORE. Measured on the converged cells below 0.15 (docs/notes/bake.md, "Studio below 0.15,
+#: twenty-first session").
+BLUR = 1.0 / 3.0
+
+
+def box_widths(source: Source, pixel: float, blur: float = BLUR) -> tuple:
+    """``(b_1, b_2)``: the half-widths (rad) of the box along the core's axes (:meth:`Source.core_frame`). The core's
+    variance along axis i is V_i = (CORE |a_i|)^2 / 2 (the Gaussian's); the box takes the part above ``blur``
+    ``pixel``^2 (``pixel`` the source map's pixel angle, rad): v_i = max(0, V_i - blur pixel^2), b_i = sqrt(3 v_i)
+    (a box of half-width b has variance b^2 / 3), and the Gaussian the rest, so the total variance is the
+    Gaussian core's. () for a round source or when both are 0 (a compact sun: the Gaussian core)."""
+    if len(source.axes) != 2:
+        return ()
+    _, widths = source.core_frame()
+    v = np.maximum(widths / 2 - blur * pixel * pixel, 0.0)
+    return tuple(float(b) for b in np.sqrt(3 * v)) if np.any(v > 0) else ()
+
+
+def with_boxes(sources, pixel: float, blur: float = BLUR) -> tuple[Source, ...]:
+    """``sources`` each with its :func:`box_widths` at the source map's ``pixel`` angle (rad)."""
+    return tuple(s._replace(box=box_widths(s, pixel, blur)) for s in sources)
+
+
+def box_profile(s, b, g):
+    """The 1-D box of half-width ``b`` (unit integral) convolved with exp(-s^2 / g) / sqrt(pi g) (variance g / 2),
+    at offset ``s``: (erfc((|s| - b) / sqrt g) - erfc((|s| + b) / sqrt g)) / (4 b), written with erfc so the tails
+    do not cancel; the Gaussian itself where b < 1e-3 sqrt g (the box's limit b -> 0)."""
+    sg = jnp.sqrt(g)
+    a = jnp.abs(s)
+    bs = jnp.maximum(b, 1e-3 * sg)
+    box = (erfc((a - bs) / sg) - erfc((a + bs) / sg)) / (4 * bs)
+    return jnp.where(b >= 1e-3 * sg, box, jnp.exp(-s * s / g) / jnp.sqrt(jnp.pi * g))
+
+
+def box_blob(t1, t2, g11, g12, g22, b1, b2):
+    """The core's 2-D profile at offset (t1, t2) in the source's axes: its box of half-widths (b1, b2) blurred by
+    the Gaussian of the rest of the total covariance G / 2 (G = (g11, g12; g12, g22) of :func:`core_widths`, the
+    source's and the lobe's, coupled by g12), unit integral. It is read in G's principal frame f_1, f_2 (angle
+    theta, tan 2 theta = 2 g12 / (g11 - g22), eigenvalues lambda_i): per axis the box's variance projected on f_i,
+    c_i = (2/3) (b1^2 cos^2 + b2^2 sin^2) in G's units (swapped for f_2), and the Gaussian the rest, lambda_i - c_i
+    (>= 0: G minus the box's covariance is the Gaussian part's and the lobe's), the product of two
+    :func:`box_profile`. The second moments are G's exactly; the box's own cross term in G's frame is dropped. As
+    b -> 0 it is the Gaussian exp(-t^T G^-1 t) / (pi sqrt det G) (the built core); with no lobe G is diagonal in
+    the source's axes and it is the source's box blurred, exactly."""
+    d = jnp.sqrt((g11 - g22) ** 2 + 4 * g12 * g12)
+    big = d > 1e-6 * (g11 + g22)
+    c2 = jnp.where(big, (g11 - g22) / jnp.where(big, d, 1.0), 1.0)
+    s2 = jnp.where(big, 2 * g12 / jnp.where(big, d, 1.0), 0.0)
+    cos2, sin2 = (1 + c2) / 2, (1 - c2) / 2
+    cs, sn = jnp.sqrt(cos2), jnp.where(s2 < 0, -1.0, 1.0) * jnp.sqrt(sin2)
+    lam1, lam2 = (g11 + g22 + d) / 2, (g11 + g22 - d) / 2
+    bb1, bb2 = b1 * b1, b2 * b2
+    v1, v2 = bb1 * cos2 + bb2 * sin2, bb1 * sin2 + bb2 * cos2  # the box's variance x 3 along f_1, f_2
+    r1 = jnp.maximum(lam1 - 2 * v1 / 3, 1e-3 * lam1)
+    r2 = jnp.maximum(lam2 - 2 * v2 / 3, 1e-3 * lam2)
+    return (box_profile(cs * t1 + sn * t2, jnp.sqrt(v1), r1) * box_profile(cs * t2 - sn * t1, jnp.sqrt(v2), r2))
+
+
 def source_terms(sources, n: Float[Array, "N 3"], v: Float[Array, "N 3"], roughness) -> Float[Array, "N 3 3"]:
     """``(I_d, I_A, I_B)`` (N, 3, 3) of the analytic lights ``sources`` (a sequence of :class:`Source`) at the
     pairs: I_d the point light's, I_A and I_B the core and the tail of the lobe convolved with the source, each
@@ -289,8 +356,11 @@ def source_terms(sources, n: Float[Array, "N 3"], v: Float[Array, "N 3"], roughn
         det = g11 * g22 - g12 * g12
         e = r - ell
         t1, t2, t3 = e @ e1, e @ e2, e @ ell
-        q = (g22 * t1 * t1 - 2 * g12 * t1 * t2 + g11 * t2 * t2) / det + t3 * t3 / jnp.minimum(g11, g22)
-        blob = jnp.exp(-q) / (jnp.pi * jnp.sqrt(det)) / (1 + 2 * lam)
+        if any(s.box):
+            blob = box_blob(t1, t2, g11, g12, g22, *s.box) * jnp.exp(-t3 * t3 / jnp.minimum(g11, g22)) / (1 + 2 * lam)
+        else:
+            q = (g22 * t1 * t1 - 2 * g12 * t1 * t2 + g11 * t2 * t2) / det + t3 * t3 / jnp.minimum(g11, g22)
+            blob = jnp.exp(-q) / (jnp.pi * jnp.sqrt(det)) / (1 + 2 * lam)
         tail = jnp.stack([d, la * k, lb * k], 1) * wi[2][:, None]  # (N, 3)
         core = jnp.stack([jnp.zeros_like(x), (1 - m5) * blob, m5 * blob], 1)
         lobes = jnp.where(above[:, None], (1 - w)[:, None] * tail + w[:, None] * core, 0.0)
@@ -299,6 +369,6 @@ def source_terms(sources, n: Float[Array, "N 3"], v: Float[Array, "N 3"], roughn
     return out
 
 
-__all__ = ["CORE", "MAX_SOURCES", "MIN_SHARE", "RADIUS", "RATIO", "SPLIT", "SPREAD", "Source", "brightest_source",
+__all__ = ["BLUR", "CORE", "MAX_SOURCES", "MIN_SHARE", "RADIUS", "RATIO", "SPLIT", "SPREAD", "Source", "box_blob", "box_profile", "box_widths", "brightest_source", "with_boxes",
            "core_and_halo", "core_widths",
            "principal_axes", "take_core", "source_terms", "widened_ratio"]
