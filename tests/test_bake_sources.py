@@ -21,7 +21,7 @@ from homofac.light import Environment
 from homofac.light.integrals import integrals
 from homofac.light.reference import reference_integrals, source_map
 from helpers import BAKE_SIZES, visible_pairs as pairs
-from test_bake import as_schema_4, check_glsl_terms
+from test_bake import as_schema_4, check_glsl_terms, check_glslang, check_msl, check_wgsl
 
 TINY = dict(layers=3, **BAKE_SIZES)
 
@@ -143,7 +143,8 @@ def test_a_box_core_keeps_its_power_and_moments_reduces_to_the_gaussian_and_the_
     its covariance; as its half-widths go to 0 the built Gaussian exp(-t^T G^-1 t) / (pi sqrt det G), and a
     source with a tiny box shades as the Gaussian one; a wide box is flatter at the centre and reaches as far.
     box_widths: a compact source (no wider than the pixels' blur) keeps the Gaussian, a wide one's box holds the
-    variance above BLUR pixel^2. bake.json keeps the box; the GLSL reads the box source as source_terms does."""
+    variance above BLUR pixel^2. bake.json keeps the box; every shader language compiles the box source (glslang, the MSL stand-in, the WGSL on wgpu equal to the CPU)
+    and the GLSL reads it as source_terms does."""
     g11, g12, g22 = 4e-4, 1.5e-4, 2e-4
     x = np.linspace(-0.15, 0.15, 601)
     dx = x[1] - x[0]
@@ -180,10 +181,25 @@ def test_a_box_core_keeps_its_power_and_moments_reduces_to_the_gaussian_and_the_
     boxed = src._replace(box=tuple(b))
     assert not np.allclose(np.asarray(source_terms((boxed,), n, v, 0.05)), gauss_terms, rtol=1e-2)
     bk = dataclasses.replace(sun_bake, sources=(boxed,))
-    back = hf.load(bk.save(tmp_path / "box"))
+    out = bk.save(tmp_path / "box")
+    back = hf.load(out)
     assert back.sources == (boxed,) and "box" in back.describe()
+    doc = json.loads((out / "bake.json").read_text())
+    assert doc["schema_version"] == 8 and doc["sources"][0]["box"] == list(boxed.box)
+    del doc["sources"][0]["box"]
+    (out / "bake.json").write_text(json.dumps({**doc, "schema_version": 7}))
+    assert hf.load(out).sources == (src,)  # schema 7: Gaussian cores
+    skipped = []
+    for check in [*(lambda lang=lang: check_glslang(bk, lang, tmp_path, y_ups=(False,)) for lang in ("glsl", "glsl_es", "hlsl")),
+                  lambda: check_msl(bk, tmp_path, y_ups=(False,)), lambda: check_wgsl(bk, 400, (1e-4, 2e-3))]:
+        try:
+            check()
+        except pytest.skip.Exception as e:
+            skipped.append(str(e))
     pytest.importorskip("moderngl")
     check_glsl_terms(bk, n, v, (0.05, 0.3), 1e-4)
+    if skipped:
+        pytest.skip("; ".join(skipped))
 
 
 def test_the_widening_per_axis_keeps_the_lobe_normalized_and_follows_the_plane_of_incidence():
@@ -325,7 +341,7 @@ def test_round_trip_and_schema_1_reads_as_no_sources(sun_bake, tmp_path):
 @pytest.mark.parametrize("field, value", [
     ("power", [float("nan"), 1.0, 1.0]), ("power", [1.0, -1.0, 1.0]), ("direction", [1.0, 0.0]),
     ("direction", [2.0, 0.0, 0.0]), ("radius", -1.0), ("axes", [[0.01, 0.0, 0.0]]),
-    ("axes", [[0.01, 0.0, 0.0], [float("nan"), 0.0, 0.0]]),
+    ("axes", [[0.01, 0.0, 0.0], [float("nan"), 0.0, 0.0]]), ("box", [0.01, -1.0]), ("box", [0.01]),
 ])
 def test_bad_sources_are_refused_in_one_line(sun_bake, tmp_path, field, value):
     out = sun_bake.save(tmp_path / "bk")
