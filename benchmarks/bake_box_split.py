@@ -39,8 +39,8 @@ def main():
                 continue
             print(json.dumps({"cell": f"{name}-{band}", label: f"{lo}-{hi}", "weight": round(float(w[sel].sum() / w.sum()), 4),
                               "L2": round(float(np.sum((w * np.sum(L * L, 1))[sel]) / den), 4),
-                              **{Path(b).parent.name + "/" + Path(b).name: round(float(e[sel].sum()), 5) for b, e in err.items()}}))
-    print(json.dumps({"cell": f"{name}-{band}", "total": {Path(b).parent.name + "/" + Path(b).name: round(float(np.sqrt(e.sum())), 4)
+                              **{"/".join(Path(b).parts[-3:]): round(float(e[sel].sum()), 5) for b, e in err.items()}}))
+    print(json.dumps({"cell": f"{name}-{band}", "total": {"/".join(Path(b).parts[-3:]): round(float(np.sqrt(e.sum())), 4)
                                                           for b, e in err.items()}}))
 
 
