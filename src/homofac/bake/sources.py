@@ -31,6 +31,11 @@ share of the combined width in half vectors, w = S / (alpha^2 + S), S = P / (n.v
   the plane of incidence and alpha^2 + P / (n.v)^2 across it (:func:`widened_ratio`; D' keeps D's normalization,
   Karis 2013's roughness modification per axis), so far from the source the tail is GGX's own.
 
+A core wider than the source map's pixels is a box blurred by a Gaussian instead (:func:`box_widths`,
+:func:`box_blob`): the same covariance G, the box taking the source's variance above BLUR pixel^2 per axis, read
+in G's principal frame so the lobe's coupling g_12 is kept; a softbox's image at low roughness is flat-topped, and
+a Gaussian of its covariance peaks too high at its centre and reaches too far.
+
 Each light is shaded as two such sources of the same total power (:func:`core_and_halo`): its core, the finer
 light texels at least 1/SPLIT as bright as its brightest, and its halo, the rest; one Gaussian of all the texels'
 covariance is too low at a bright sun and too wide around it (forest's sun and its dimmer neighbours).
