@@ -32,6 +32,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, UInt8
 
+from .compiling import jit
 from .errors import HomofacError
 from .param import mappers
 from .param import parametrizations as pz
@@ -304,7 +305,7 @@ def evaluate_by_factor(model: Factorization, a, b) -> np.ndarray:
     return np.zeros(a.shape[:-1] + (3,), dtype) if out is None else np.asarray(out, dtype)
 
 
-@functools.partial(jax.jit, static_argnames=("proj", "mapper"))
+@jit(kind="lookup", static_argnames=("proj", "mapper"))
 def _factor_lookup(data, a, b, context: dict, *, proj: str, mapper: str):
     """One factor's bilinear lookup ``mapper(data)`` at the projection ``proj`` of the pairs (a, b)."""
     return mappers.lookup(mapper, data, pj.apply(proj, a, b, context).astype(data.dtype))
@@ -361,7 +362,7 @@ def evaluate_quantized(model: Factorization, q: Quantized, a, b) -> Float[Array,
     return _evaluate_q(model, channels, offsets, scales, corr, tuple(bool(x) for x in q.alpha), a, b)
 
 
-@eqx.filter_jit
+@jit(kind="lookup", filter=True)
 def _evaluate_q(model, channels, offsets, scales, corrections, alpha: tuple, a, b):
     index = {t.name: k for k, t in enumerate(model.textures)}
     lookups = _lookups(model, channels, a, b)

@@ -14,6 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..compiling import jit
 from ..light import Environment
 from ..light.cubemap import cube_nearest
 from ..param import mappers
@@ -86,7 +87,7 @@ def _padded(tables: np.ndarray) -> tuple[np.ndarray, np.int32]:
     return np.concatenate([np.asarray(tables, np.float32), np.zeros((pad, tables.shape[1]), np.float32)]), np.int32(j)
 
 
-@eqx.filter_jit
+@jit(kind="filter", filter=True)
 def _filter(tables, count, dirs, light_dirs, power, chunk: int, binned: bool):
     j_count, g = tables.shape
     n = dirs.shape[0]
@@ -139,7 +140,7 @@ def normalized(values: np.ndarray, discrete: np.ndarray, exact) -> np.ndarray:
 
 
 
-@eqx.filter_jit
+@jit(kind="filter", filter=True)
 def _filter_tiles(tables, count, tiles, light_dirs, power, groups, centres, slots: int, binned: bool):
     """:func:`_filter` over tiles of nearby directions (T, B, 3), each with the lights of the ``slots`` light
     groups (:func:`_groups`: ``groups`` (G, M) light indices, ``centres`` (G, 3)) nearest its axis."""

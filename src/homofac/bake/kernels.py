@@ -21,6 +21,7 @@ import jax.numpy as jnp
 
 from ..brdf import albedo
 from ..brdf.gltf import gltf, gltf_lobes_at
+from ..compiling import jit
 
 #: Azimuth quadrature nodes (the integrand is smooth and periodic in phi: the trapezoid rule converges fast).
 PHI_NODES = 48
@@ -75,7 +76,7 @@ def _cone_lobes(rough, x, gamma, shift):
     return ga * cos, gb * cos, phi
 
 
-@jax.jit
+@jit(kind="texture")
 def _lobes(rough, x, gamma, shift):
     """(2, 2, X, G): [0] the azimuth means of the lobes (1 - s5) S and s5 S times max(n.l, 0) about the axis
     a = normalize((1 - s) r + s n) (= r for s = 0; the lobe's dominant direction leans from r to n), a = +z;
@@ -89,7 +90,7 @@ def _lobes(rough, x, gamma, shift):
     return jnp.stack([mean, second]).reshape(2, 2, x.shape[0], gamma.shape[0])
 
 
-@jax.jit
+@jit(kind="texture")
 def _diffuse(x, gamma):
     """(X, G): the azimuth mean of (1 - s5)/pi max(n.l, 0) over views on the cone n.v = x, axis n = +z."""
     phi = (jnp.arange(PHI_NODES) + 0.5) * (2 * jnp.pi / PHI_NODES)

@@ -28,6 +28,7 @@ import numpy as np
 from jaxtyping import Array
 
 from .core import BRDF, _as_float
+from ..compiling import jit
 from ..errors import HomofacError
 from ..sphere import frame
 
@@ -40,7 +41,7 @@ def _nodes(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return 0.5 * (s + 1.0), 0.5 * ws, 2.0 * np.pi * np.arange(m) / m
 
 
-@eqx.filter_jit
+@jit(kind="texture", filter=True)
 def _albedo_flat(brdf: BRDF, wo: Array, s: Array, ws: Array, phi: Array) -> Array:
     wp = 2.0 * jnp.pi / phi.shape[0]
     cphi, sphi = jnp.cos(phi), jnp.sin(phi)

@@ -43,6 +43,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
+from ..compiling import jit
 from ..param import mappers
 
 
@@ -73,7 +74,7 @@ class Flags(NamedTuple):
     c: tuple[tuple[bool, ...], ...] = ()  # per extra line beside d (at its own scalar): which terms carry it
 
 
-@functools.partial(jax.jit, static_argnames=("size",))
+@jit(kind="lookup", static_argnames=("size",))
 def line_footprint(x, size: int) -> tuple[Int[Array, "N 2"], Float[Array, "N 2"]]:
     """The two texels and weights of the pinned ``line`` lookup at scalars ``x`` (from the one bilinear)."""
     idx, w = mappers.bilinear("line", x, size)
@@ -81,7 +82,7 @@ def line_footprint(x, size: int) -> tuple[Int[Array, "N 2"], Float[Array, "N 2"]
 
 
 #: :func:`homofac.param.mappers.bilinear` as one compiled program per mapper, size and shape.
-bilinear = jax.jit(mappers.bilinear, static_argnums=(0, 2))
+bilinear = jit(mappers.bilinear, kind="lookup", static_argnums=(0, 2))
 
 
 def single_texel(mapper: str, size: int, d, unknown_of_texel: np.ndarray, tol: float = 1e-3) -> np.ndarray | None:

@@ -40,6 +40,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, UInt8
 
+from ..compiling import jit
 from ..errors import HomofacError
 from ..factorization import Factorization, Quantized, Term
 from ..param import mappers
@@ -83,7 +84,7 @@ def normalize(model: Factorization) -> Factorization:
     return eqx.tree_at(lambda m: m.terms, out, tuple(terms))
 
 
-@functools.partial(jax.jit, static_argnames=("mapper", "size"))
+@jit(kind="lookup", static_argnames=("mapper", "size"))
 def _normalized(d, *, mapper: str, size: int):
     """A texture divided by its largest |value| over the valid texels per channel (1 where that is 0), dilated
     (:func:`~homofac.param.mappers.dilate`), and that largest value: :func:`normalize`'s step per texture."""

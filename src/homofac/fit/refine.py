@@ -42,6 +42,7 @@ import optimistix as optx
 from jax.flatten_util import ravel_pytree
 from jaxtyping import Array, Float, Int
 
+from ..compiling import jit
 from ..errors import HomofacError
 from ..param import mappers
 from .solvers.inexact import Truncated
@@ -195,7 +196,7 @@ def _max_norm(tree) -> Float[Array, ""]:
     return jnp.max(jnp.stack([jnp.max(jnp.abs(x)) for x in jax.tree_util.tree_leaves(tree)]))
 
 
-@functools.partial(jax.jit, static_argnames=("terms", "iterations", "inner", "rtol"))
+@jit(kind="polish", static_argnames=("terms", "iterations", "inner", "rtol"))
 def _lm(X0, prob: Problem, *, terms, iterations: int, inner: int, rtol: float):
     """optimistix's ``LevenbergMarquardt`` (:func:`_optimistix`) as one small program: the same steps, damping
     and acceptance (step k evaluates F at the point step k-1 proposed; the classical trust region accepts it

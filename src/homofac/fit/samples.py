@@ -15,8 +15,8 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
 
+from ..compiling import jit
 from ..errors import HomofacError
 from ..light.refine import blocks
 from ..target import Target, evaluate
@@ -47,46 +47,45 @@ def check_values(y: np.ndarray, what: str) -> None:
         raise HomofacError(f"the target is zero on every {what} sample: nothing to factor")
 
 
-@eqx.filter_jit
+@jit(kind="lighting grid", filter=True)
 def _eval_groups(fn, normals, views):
     return fn.grouped(normals, views)
 
 
-#: Row widths up to this run the grouped lighting compiled by :func:`_eval_groups_quick`.
+#: Row widths up to this run the grouped lighting compiled by :func:`_eval_groups_quick` (a plan's decision,
+#: the validation values: the ``lighting rows`` programs of :mod:`homofac.compiling`); wider rows (the training
+#: grid's) run :func:`_eval_groups` (``lighting grid``).
 QUICK_WIDTH = 8
-#: XLA CPU's loop emitters instead of its fusion emitters: the compile takes about half the CPU (gold / forest,
-#: the (256, 8) program: 2.9 -> 1.5 s) and a block of rows of 8 views about 15 % more (0.17 -> 0.20 s), 64 views
-#: 55 % more (0.47 -> 0.73 s). The rows of 8 views (a plan's decision, the validation values: about 14 blocks)
-#: gain about 1 s CPU; the training grid's wider rows (14 blocks of 3x the work) would lose 2 s, and keep the
-#: fusion emitters (docs/notes/speed.md, "fast, twentieth session").
-QUICK_COMPILE = {"xla_cpu_use_fusion_emitters": False}
 
 
-@eqx.filter_jit(compiler_options=QUICK_COMPILE)
+@jit(kind="lighting rows", filter=True)
 def _eval_groups_quick(fn, normals, views):
     return fn.grouped(normals, views)
 
 
-def evaluate_grouped(target: Target, grouped) -> Float[Array, "M 3"]:
-    """Values at the valid pairs of a :class:`~homofac.fit.sampling.Grouped` set, in flattened order.
+def evaluate_grouped(target: Target, grouped) -> np.ndarray:
+    """Values at the valid pairs of a :class:`~homofac.fit.sampling.Grouped` set, in flattened order (float32
+    numpy, (M, 3)).
 
     Uses the target's per-normal fast path (``target.fn.grouped``) when it has one, with the normals
-    split over all devices when there are several (:mod:`homofac.fit.shard`).
+    split over all devices when there are several (:mod:`homofac.fit.shard`). The rows' packing, blocks and
+    the selection of the valid pairs are numpy on the host: as JAX operations outside a compiled program each
+    would compile a program of its own per shape (``concatenate``, ``dynamic_slice``, ``gather``, ...).
     """
     if grouped.mask.size == 0 or not grouped.mask.any():
-        return jnp.zeros((0, 3))
+        return np.zeros((0, 3), np.float32)
     if hasattr(target.fn, "grouped"):
         grouped = packed(grouped)
-        normals, views = jnp.asarray(grouped.normals), jnp.asarray(grouped.views)
+        mask = np.asarray(grouped.mask)
         if getattr(target.fn, "culls_lobes", False):
-            return _culled(target.fn, normals, views)[jnp.asarray(grouped.mask)]
-        if jax.device_count() > 1:
-            out = grouped_sharded(target.fn, normals, views)
+            out = _culled(target.fn, jnp.asarray(grouped.normals), jnp.asarray(grouped.views))
+        elif jax.device_count() > 1:
+            out = grouped_sharded(target.fn, jnp.asarray(grouped.normals), jnp.asarray(grouped.views))
         else:
-            out = _blocks(target.fn, normals, views)
-        return out[jnp.asarray(grouped.mask)]
+            out = _blocks(target.fn, np.asarray(grouped.normals), np.asarray(grouped.views))
+        return np.asarray(out)[mask]
     pairs = grouped.flatten()
-    return evaluate(target, pairs.a, pairs.b)
+    return np.asarray(evaluate(target, pairs.a, pairs.b))
 
 
 def evaluate_blocked(target: Target, grouped) -> np.ndarray:
@@ -110,19 +109,20 @@ def evaluate_blocked(target: Target, grouped) -> np.ndarray:
 BLOCK_ROWS = 256
 
 
-def _blocks(fn, normals, views):
+def _blocks(fn, normals: np.ndarray, views: np.ndarray) -> np.ndarray:
     """``fn.grouped`` over blocks of :data:`BLOCK_ROWS` rows (the last padded with copies of the first
     row), so that one compiled program of shape (BLOCK_ROWS, W) serves every sample set of row width W
     (the training grids of both directions, the polish pairs, ...), whatever its number of rows; rows of
-    at most :data:`QUICK_WIDTH` views by the program compiled with :data:`QUICK_COMPILE`."""
+    at most :data:`QUICK_WIDTH` views by :func:`_eval_groups_quick`. The padding and
+    the blocks are numpy (no program of their own)."""
     g = int(normals.shape[0])
     pad = (-g) % BLOCK_ROWS
     if pad:
-        normals = jnp.concatenate([normals, jnp.broadcast_to(normals[:1], (pad, 3))])
-        views = jnp.concatenate([views, jnp.broadcast_to(views[:1], (pad,) + views.shape[1:])])
+        normals = np.concatenate([normals, np.broadcast_to(normals[:1], (pad, 3))])
+        views = np.concatenate([views, np.broadcast_to(views[:1], (pad,) + views.shape[1:])])
     program = _eval_groups_quick if views.shape[1] <= QUICK_WIDTH else _eval_groups
     out = [program(fn, normals[i:i + BLOCK_ROWS], views[i:i + BLOCK_ROWS]) for i in range(0, g + pad, BLOCK_ROWS)]
-    return jnp.concatenate(out)[:g]
+    return np.concatenate([np.asarray(o) for o in out])[:g]
 
 
 #: The per-normal work of the grouped lighting (the texel weights of every light, the local frame) in
@@ -176,4 +176,4 @@ def _culled(fn, normals, views):
 
 
 
-__all__ = ["FIELDS", "QUICK_COMPILE", "QUICK_WIDTH", "ROW_COST", "Samples", "check_values", "evaluate", "evaluate_blocked", "evaluate_grouped", "packed"]
+__all__ = ["FIELDS", "QUICK_WIDTH", "ROW_COST", "Samples", "check_values", "evaluate", "evaluate_blocked", "evaluate_grouped", "packed"]

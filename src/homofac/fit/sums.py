@@ -36,6 +36,7 @@ import numpy as np
 from ..baselines import split_sum as ss
 from ..baselines.base import centres, irradiance_map
 from ..brdf import BRDF, MODELS
+from ..compiling import jit
 from ..errors import HomofacError
 from ..factorization import Factor, Factorization, Term, Texture
 from ..light import Lighting, brightest_directions, light_radii
@@ -775,13 +776,13 @@ def _needed(proj: str, context: dict | None) -> dict:
     return {k: jnp.asarray(v, jnp.float32) for k, v in (context or {}).items()}
 
 
-@functools.partial(jax.jit, static_argnames=("proj", "size"))
+@jit(kind="lookup", static_argnames=("proj", "size"))
 def _scalar_footprint(a, b, context: dict, *, proj: str, size: int):
     """The line footprint (:func:`homofac.fit.als.line_footprint`) of the scalar projection ``proj``."""
     return als.line_footprint(jnp.asarray(project(proj, a, b, context), jnp.float32), size)
 
 
-@functools.partial(jax.jit, static_argnames=("proj", "mapper", "size"))
+@jit(kind="lookup", static_argnames=("proj", "mapper", "size"))
 def _lm_lookup(a, b, context: dict, unknown_of_texel, *, proj: str, mapper: str, size: int) -> refine.Lookup:
     """The bilinear footprint of projection ``proj`` on a texture's valid unknowns (missing texels weight 0)."""
     idx, w = mappers.bilinear(mapper, project(proj, a, b, context), size)

@@ -45,6 +45,7 @@ from jaxtyping import Array, Float
 
 from .. import sphere
 from ..brdf.core import has_lobes, lobe_colors, lobe_support, lobe_terms
+from ..compiling import jit
 from ..errors import HomofacError
 from ..param import parametrizations as pz
 from ..param import projections as pj
@@ -453,7 +454,7 @@ def irradiance(env: Environment, n: Float[Array, "N 3"]) -> Float[Array, "N 3"]:
     return _irradiance(env, jnp.asarray(n))
 
 
-@eqx.filter_jit
+@jit(kind="texture", filter=True)
 def _irradiance(env: Environment, n):
     return Lighting(None, env)._weights(n) @ env.radiance.astype(n.dtype)
 
