@@ -243,7 +243,7 @@ def test_save_load_round_trip_and_schema_2(harmonic_bake, tmp_path):
     b = harmonic_bake
     out = b.save(tmp_path / "h", exr="float32")
     doc = json.loads((out / "bake.json").read_text())
-    assert doc["schema_version"] == 7 and doc["plan"]["harmonic"] == 0.3
+    assert doc["schema_version"] == 8 and doc["plan"]["harmonic"] == 0.3
     assert [t["channels"] for t in doc["textures"] if t["kind"] == "prefiltered"] == [["P0.r", "P0.g", "P0.b"], ["M.uu", "M.vv", "M.uv"]]
     back = hf.load(out)
     n, v = _pairs(300, 4)

@@ -68,7 +68,7 @@ def test_own_layouts_change_nothing_but_the_files(moved, kind, tmp_path):
     out = m.save(tmp_path / "b", exr="float32")
     doc = json.loads((out / "bake.json").read_text())
     maps = [t for t in doc["textures"] if t["kind"] == "prefiltered"]
-    assert doc["schema_version"] == 7 and doc["texture_bytes_half"] == m.texture_bytes()
+    assert doc["schema_version"] == 8 and doc["texture_bytes_half"] == m.texture_bytes()
     assert [[(k["x"], k["y"], k["size"]) for k in t["blocks"]] for t in maps] == [
         [(x, y, s) for (x, y), s in zip(a.offsets, a.sizes)] for a in m.atlases]
     assert [(t["width"], t["height"]) for t in maps] == [(a.width, a.height) for a in m.atlases]
@@ -222,3 +222,26 @@ def test_presets_layout_and_the_later_face_option():
     assert plan("balanced", later_face=1, diffuse_size=32).later_face == 1
     with pytest.raises(HomofacError, match="later_face must be a power of two"):
         hf.bake("forest", later_face=3)
+
+
+def test_the_sharp_block_is_twice_the_source_s_detail_and_the_layers_below_max_size_s_half_texel_follow_it():
+    """The sharp block's face (plan.block_face): twice the source's cube face (a texel half its lat-long pixel), at
+    most BLOCK_MAX and no finer than the sharpest lobe asks; only the layers whose lobe is at most half a texel of
+    the block share it, the other layers sharp at max_size get their own maps up to the block's face, the rest
+    keep max_size: a 256 x 128 lat-long (face 64) at balanced has the block and layers 0.079, 0.105 at 128, 0.139
+    on at most 64, and the map layouts put P_2 of the own layers at half their face."""
+    from homofac.bake.build import layer_face, map_layouts, sharp
+    from homofac.bake.plan import BLOCK_MAX, block_face, plan
+    assert block_face(64, 0.045) == 128 and block_face(256, 0.045) == BLOCK_MAX == 256
+    assert block_face(64, 0.3) == 32  # pi / 0.09: the lobe asks for no more
+    pl = plan("balanced", max_size=64, source_face=64)
+    assert pl.block == 128 and plan("balanced", max_size=64, source_face=64, block_size=64).block == 64
+    assert plan("balanced", max_size=64, source_face=64, min_roughness=0.3).block == 64  # at least max_size
+    rho = pl.roughnesses()
+    sizes = [layer_face(r, pl.max_size, pl.block) for r in rho]
+    shared = [sharp(r, pl.block) for r in rho]
+    assert sizes[:7] == [128, 128, 128, 128, 64, 64, 64] and shared[:3] == [True, True, False]
+    assert [layer_face(r, 64, 64) for r in rho][:5] == [64] * 5  # block = max_size: the previous layout
+    blocks = tuple(0 if s else j for j, s in enumerate(shared))
+    p0, p1 = map_layouts(pl, sizes, blocks, shared, [r >= pl.harmonic for r in rho])[:2]
+    assert p0.sizes[:5] == (128, 128, 128, 128, 64) and p1.sizes[:5] == (8, 8, 64, 64, 32)

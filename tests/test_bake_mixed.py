@@ -93,7 +93,7 @@ def test_save_load_round_trip_schema_4_and_3(mixed_bake, tmp_path):
     b = mixed_bake
     out = b.save(tmp_path / "m", exr="float32")
     doc = json.loads((out / "bake.json").read_text())
-    assert doc["schema_version"] == 7 and doc["plan"]["mixed"] is True and doc["lookups"] == 7
+    assert doc["schema_version"] == 8 and doc["plan"]["mixed"] is True and doc["lookups"] == 7
     assert [t["channels"] for t in doc["textures"] if t["kind"] != "diffuse"] == [
         ["P0.r", "P0.g", "P0.b"], ["P1.r/M.uu", "P1.g/M.vv", "P1.b/M.uv"],
         ["a0", "b0", "a1/hA"], ["b1/hB", "w0", "-"]]

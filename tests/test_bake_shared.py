@@ -68,7 +68,7 @@ def test_save_load_round_trip_schema_7_and_6(shared_bake, tmp_path):
     b = shared_bake
     out = b.save(tmp_path / "s", exr="float32")
     doc = json.loads((out / "bake.json").read_text())
-    assert doc["schema_version"] == 7 and doc["plan"]["shared_gain"] is True and doc["lookups"] == 8
+    assert doc["schema_version"] == 8 and doc["plan"]["shared_gain"] is True and doc["lookups"] == 8
     assert [t["channels"] for t in doc["textures"]] == [
         ["P0.r", "P0.g", "P0.b"], ["P1.r", "P1.g", "P1.b"], ["M.uu", "M.vv", "M.uv"], ["a0", "b0", "a1"], ["b1", "w0", "hA"]]
     back = hf.load(out)
