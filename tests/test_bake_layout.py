@@ -245,3 +245,26 @@ def test_the_sharp_block_is_twice_the_source_s_detail_and_the_layers_below_max_s
     blocks = tuple(0 if s else j for j, s in enumerate(shared))
     p0, p1 = map_layouts(pl, sizes, blocks, shared, [r >= pl.harmonic for r in rho])[:2]
     assert p0.sizes[:5] == (128, 128, 128, 128, 64) and p1.sizes[:5] == (8, 8, 64, 64, 32)
+
+
+def test_lights_above_the_coarse_map_come_from_the_finer_lights():
+    """After ``take_source(64, finer=256)`` a resolution between them (128, the layers below the block,
+    :func:`homofac.bake.build.layer_face`) is the finer lights box-averaged: it keeps their detail (not the 64 map
+    upsampled) and loses the same power; 32 still comes from the 64 map."""
+    from homofac.bake.build import _Lights
+    from homofac.light import load_environment
+    from homofac.light.resample import from_cube
+    from homofac.light.sources import bundled
+    lights = _Lights(bundled("forest"))
+    lights.take_source(64, 256)
+    fine, mid, coarse = lights(256), lights(128), lights(64)
+    strip = np.asarray(fine.radiance, np.float32)[: 6 * 256 * 256].reshape(256, 6 * 256, 3)
+    np.testing.assert_allclose(np.asarray(mid.radiance), np.asarray(from_cube(strip, 128).radiance), rtol=1e-6)
+
+    def power(e):
+        return np.sum(np.asarray(e.radiance, np.float64) * np.asarray(e.solid_angle, np.float64)[:, None], 0)
+    np.testing.assert_allclose(power(mid), power(fine), rtol=1e-5)
+    up = np.asarray(from_cube(np.asarray(coarse.radiance, np.float32)[: 6 * 64 * 64].reshape(64, 6 * 64, 3), 128).radiance)
+    assert np.max(np.abs(np.asarray(mid.radiance) - up)) > 0.1 * np.max(np.asarray(mid.radiance))  # not the 64 map upsampled
+    assert np.abs(power(lights(32)) - power(coarse)).max() < 1e-4 * power(coarse).max()
+    assert power(load_environment(bundled("forest"), 128))[0] > power(mid)[0]  # the source is out
