@@ -237,6 +237,7 @@ def test_the_sharp_block_is_twice_the_source_s_detail_and_the_layers_below_max_s
     pl = plan("balanced", max_size=64, source_face=64)
     assert pl.block == 128 and plan("balanced", max_size=64, source_face=64, block_size=64).block == 64
     assert plan("balanced", max_size=64, source_face=64, min_roughness=0.3).block == 64  # at least max_size
+    assert plan("fast", max_size=64, source_face=64).block == 64  # fast's factor 1: its memory rule
     rho = pl.roughnesses()
     sizes = [layer_face(r, pl.max_size, pl.block) for r in rho]
     shared = [sharp(r, pl.block) for r in rho]

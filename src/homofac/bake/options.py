@@ -18,8 +18,9 @@ class BakeOptions(Options):
     min_roughness: float = Field(0.045, ge=0.01, le=0.5, description="the sharpest roughness layer")
     max_size: Optional[int] = Field(None, ge=8, le=512, description="largest P face size; default: the source's detail (lat-long width / 4), at most 256 (and the sharp block's face: block_size)")
     block_size: Optional[int] = Field(
-        None, ge=8, le=512, description="face of the sharp layers' shared block; default: max_size when it is given, else twice the "
-                                        "source's detail (lat-long width / 2), at most 256")
+        None, ge=8, le=512, description="face of the sharp layers' shared block; default: max_size when it is given, else the "
+                                        "source's detail (lat-long width / 4) times the preset's factor (2 for balanced, "
+                                        "1 for fast and best), at most 256")
     nv_size: int = Field(32, ge=4, le=256, description="n.v columns of the weight tables")
     diffuse_size: Optional[int] = Field(None, ge=8, le=256, description="face size of the diffuse maps E_d (default: the preset's, 16 for balanced, 32 for fast and best)")
     later_face: Optional[int] = Field(

@@ -154,16 +154,23 @@ _LATER_FACE = {"fast": 1, "balanced": 2, "best": 1}
 BLOCK_MAX = 256
 
 
-def block_face(source_face: int, min_roughness: float) -> int:
+#: preset -> the sharp block's face in units of the source's (:func:`block_face`): balanced 2 (forest < 0.15
+#: 0.93 -> 0.84x the ideal split-sum, studio 1.48 -> 1.31x, within its memory rule at 0.89x, twice the bake's CPU);
+#: fast 1: at 2 its memory is 2.18x split-sum's at the same sharpness (docs/notes/bake.md, "Forest below 0.15,
+#: twenty-first session"); best 1 (not measured).
+_BLOCK_FACTOR = {"fast": 1, "balanced": 2, "best": 1}
+
+
+def block_face(source_face: int, min_roughness: float, factor: int = 2) -> int:
     """The sharp block's face for a source whose cube face holds its detail at ``source_face`` (a lat-long of
-    width 4 ``source_face``; :func:`homofac.bake.build.source_size`): 2 ``source_face``, a texel half the source's
+    width 4 ``source_face``; :func:`homofac.bake.build.source_size`): ``factor`` ``source_face``; at 2 a texel half the source's
     pixel, so that the block's bilinear read reproduces the source's own bilinear image (what the sharp lobes
     see: at roughness 0.045 the lobe, alpha = rho^2 = 0.002 rad, is a tenth of a 256-wide lat-long's pixel);
     no finer than the sharpest lobe asks (pi / alpha, as a layer's face) and at most :data:`BLOCK_MAX`.
     (docs/notes/bake.md, "Forest below 0.15, twenty-first session": forest < 0.15, balanced, 64 -> 128:
-    the maps' floor near the sun at half.)"""
+    0.1183 -> 0.1063 nrmse, converged.)"""
     lobe = 2 ** int(round(math.log2(math.pi / (min_roughness * min_roughness))))
-    return int(min(BLOCK_MAX, 2 * source_face, lobe))
+    return int(min(BLOCK_MAX, factor * source_face, lobe))
 
 
 def plan(preset: str = "balanced", *, max_size: int = 256, min_roughness: float = 0.045, nv_size: int = 32,
@@ -172,8 +179,8 @@ def plan(preset: str = "balanced", *, max_size: int = 256, min_roughness: float 
          mixed: bool | None = None, later_face: int | None = None, shared_gain: bool | None = None,
          block_size: int | None = None, source_face: int | None = None) -> BakePlan:
     """The plan of a preset, with the given overrides (validated by :class:`homofac.bake.BakeOptions`); the
-    sharp block's face ``block_size`` by default :func:`block_face` of ``source_face`` (default ``max_size``),
-    at least ``max_size``."""
+    sharp block's face ``block_size`` by default :func:`block_face` of ``source_face`` (default ``max_size``) at the
+    preset's factor, at least ``max_size``."""
     k, d, n = _STRUCTURE[preset]
     if mixed and int(terms or k) < 2:
         raise HomofacError("bake: mixed needs at least 2 specular terms (the harmonic layers keep K - 1)")
@@ -186,7 +193,7 @@ def plan(preset: str = "balanced", *, max_size: int = 256, min_roughness: float 
     return BakePlan(preset, int(terms or k), d, int(layers or n), int(nv_size), int(max_size),
                     int(diffuse_size or _DIFFUSE_SIZE[preset]), float(min_roughness),
                     str(diffuse_basis or _DIFFUSE_BASIS[preset]), h, mixed, int(later_face or _LATER_FACE[preset]),
-                    shared, int(block_size or max(max_size, block_face(source_face or max_size, min_roughness))))
+                    shared, int(block_size or max(max_size, block_face(source_face or max_size, min_roughness, _BLOCK_FACTOR[preset]))))
 
 
 __all__ = ["BLOCK_MAX", "BakePlan", "PRESETS", "Preset", "block_face", "plan"]
