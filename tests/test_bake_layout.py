@@ -222,3 +222,51 @@ def test_presets_layout_and_the_later_face_option():
     assert plan("balanced", later_face=1, diffuse_size=32).later_face == 1
     with pytest.raises(HomofacError, match="later_face must be a power of two"):
         hf.bake("forest", later_face=3)
+
+
+def test_a_sharp_block_finer_than_max_size_and_the_layers_below_max_size_s_half_texel_follow_it():
+    """The sharp block's face (plan.block_face): ``factor`` x the source's cube face (at 2 a texel half its lat-long
+    pixel), at most BLOCK_MAX and no finer than the sharpest lobe asks; the presets keep it at the source's face
+    (factor 1), ``block_size`` sets it. Only the layers whose lobe is at most half a texel of the block share it,
+    the other layers sharp at max_size get their own maps up to the block's face, the rest keep max_size: a
+    256 x 128 lat-long (face 64) with ``block_size`` 128 has the block and layers 0.079, 0.105 at 128, 0.139 on at
+    most 64, and the map layouts put P_2 of the own layers at half their face."""
+    from homofac.bake.build import layer_face, map_layouts, sharp
+    from homofac.bake.plan import BLOCK_MAX, block_face, plan
+    assert block_face(64, 0.045) == 128 and block_face(256, 0.045) == BLOCK_MAX == 256
+    assert block_face(64, 0.3) == 32  # pi / 0.09: the lobe asks for no more
+    assert block_face(64, 0.045, 1) == 64
+    assert all(plan(p, max_size=64, source_face=64).block == 64 for p in ("fast", "balanced", "best"))  # factor 1
+    pl = plan("balanced", max_size=64, source_face=64, block_size=128)
+    assert pl.block == 128
+    rho = pl.roughnesses()
+    sizes = [layer_face(r, pl.max_size, pl.block) for r in rho]
+    shared = [sharp(r, pl.block) for r in rho]
+    assert sizes[:7] == [128, 128, 128, 128, 64, 64, 64] and shared[:3] == [True, True, False]
+    assert [layer_face(r, 64, 64) for r in rho][:5] == [64] * 5  # block = max_size: the previous layout
+    blocks = tuple(0 if s else j for j, s in enumerate(shared))
+    p0, p1 = map_layouts(pl, sizes, blocks, shared, [r >= pl.harmonic for r in rho])[:2]
+    assert p0.sizes[:5] == (128, 128, 128, 128, 64) and p1.sizes[:5] == (8, 8, 64, 64, 32)
+
+
+def test_lights_above_the_coarse_map_come_from_the_finer_lights():
+    """After ``take_source(64, finer=256)`` a resolution between them (128, the layers below the block,
+    :func:`homofac.bake.build.layer_face`) is the finer lights box-averaged: it keeps their detail (not the 64 map
+    upsampled) and loses the same power; 32 still comes from the 64 map."""
+    from homofac.bake.build import _Lights
+    from homofac.light import load_environment
+    from homofac.light.resample import from_cube
+    from homofac.light.sources import bundled
+    lights = _Lights(bundled("forest"))
+    lights.take_source(64, 256)
+    fine, mid, coarse = lights(256), lights(128), lights(64)
+    strip = np.asarray(fine.radiance, np.float32)[: 6 * 256 * 256].reshape(256, 6 * 256, 3)
+    np.testing.assert_allclose(np.asarray(mid.radiance), np.asarray(from_cube(strip, 128).radiance), rtol=1e-6)
+
+    def power(e):
+        return np.sum(np.asarray(e.radiance, np.float64) * np.asarray(e.solid_angle, np.float64)[:, None], 0)
+    np.testing.assert_allclose(power(mid), power(fine), rtol=1e-5)
+    up = np.asarray(from_cube(np.asarray(coarse.radiance, np.float32)[: 6 * 64 * 64].reshape(64, 6 * 64, 3), 128).radiance)
+    assert np.max(np.abs(np.asarray(mid.radiance) - up)) > 0.1 * np.max(np.asarray(mid.radiance))  # not the 64 map upsampled
+    assert np.abs(power(lights(32)) - power(coarse)).max() < 1e-4 * power(coarse).max()
+    assert power(load_environment(bundled("forest"), 128))[0] > power(mid)[0]  # the source is out

@@ -323,7 +323,7 @@ def test_the_bake_takes_up_to_bake_json_s_eight_sources(tmp_path):
 def test_round_trip_and_schema_1_reads_as_no_sources(sun_bake, tmp_path):
     out = sun_bake.save(tmp_path / "bk")
     doc = json.loads((out / "bake.json").read_text())
-    assert doc["schema_version"] == 8 and len(doc["sources"]) == 1
+    assert doc["schema_version"] == 8 and len(doc["sources"]) == 1 and doc["sources"][0]["core"] == CORE
     back = hf.load(out)
     assert back.sources == sun_bake.sources
     n, v = pairs(100, seed=8)
@@ -338,8 +338,33 @@ def test_round_trip_and_schema_1_reads_as_no_sources(sun_bake, tmp_path):
     assert "hf_source" not in shader.source(v1) and "hf_source" in shader.source(sun_bake)
 
 
+def test_a_bake_reads_with_the_core_it_was_baked_with(sun_bake, tmp_path):
+    """bake.json schema 8 records each source's core width factor; a schema-7 bake.json (no ``core``) reads with
+    the factor of the code that wrote it: 1.2 with the twentieth session's ``info.analytic_source.lights``, else
+    1.15. The factor changes what the source reads at its mirror direction (a wider core, a lower peak)."""
+    out = sun_bake.save(tmp_path / "bk")
+    doc = json.loads((out / "bake.json").read_text())
+    doc["sources"][0]["core"] = 1.5
+    (out / "bake.json").write_text(json.dumps(doc))
+    assert hf.load(out).sources[0].core == 1.5
+    old = json.loads(json.dumps(doc))
+    old["schema_version"] = 7
+    del old["sources"][0]["core"], old["plan"]["block_size"]
+    (out / "bake.json").write_text(json.dumps(old))
+    assert "lights" in old["info"]["analytic_source"] and hf.load(out).sources[0].core == 1.2
+    del old["info"]["analytic_source"]["lights"]
+    (out / "bake.json").write_text(json.dumps(old))
+    back = hf.load(out)
+    assert back.sources[0].core == 1.15 and back.plan.block == back.plan.max_size
+    ell = np.asarray(sun_bake.sources[0].direction)
+    n = np.broadcast_to(ell, (1, 3))  # looking straight down the source: the core's peak
+    peak = [float(np.asarray(source_terms((s._replace(radius=0.02, axes=(), core=c),), n, n, 0.05))[0, 1].sum())
+            for s in sun_bake.sources[:1] for c in (1.15, 1.5)]
+    assert peak[0] > 1.2 * peak[1]
+
+
 @pytest.mark.parametrize("field, value", [
-    ("power", [float("nan"), 1.0, 1.0]), ("power", [1.0, -1.0, 1.0]), ("direction", [1.0, 0.0]),
+    ("power", [float("nan"), 1.0, 1.0]), ("core", -1.0), ("core", 100.0), ("power", [1.0, -1.0, 1.0]), ("direction", [1.0, 0.0]),
     ("direction", [2.0, 0.0, 0.0]), ("radius", -1.0), ("axes", [[0.01, 0.0, 0.0]]),
     ("axes", [[0.01, 0.0, 0.0], [float("nan"), 0.0, 0.0]]), ("box", [0.01, -1.0]), ("box", [0.01]),
 ])

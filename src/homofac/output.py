@@ -892,6 +892,9 @@ class BakePlanEntry(Options):
     later_face: int = Field(1, ge=1, le=64)
     #: schema 7: the harmonic's one table channel h_A scales I_A and I_B (schemas 1-6: h_A and h_B, or mixed)
     shared_gain: bool = False
+    #: schema 8: the sharp layers' shared block's face (0 or absent, schemas 1-7: max_size; informative: the layers'
+    #: sizes and each map's blocks give the sizes the maps are read at)
+    block_size: int = Field(0, ge=0, le=MAX_SIZE)
 
 
 class BakeSourceEntry(Options):
@@ -906,6 +909,9 @@ class BakeSourceEntry(Options):
     #: schema 8: the core's box half-widths (rad) along its ``axes`` (homofac.bake.sources.box_widths); absent: a
     #: Gaussian core
     box: list[float] | None = Field(None, min_length=2, max_length=2)
+    #: schema 8: the core's widths in units of ``axes`` (``homofac.bake.sources.CORE`` when baked); absent: the
+    #: factor of the code that wrote the bake (:func:`legacy_core`)
+    core: Optional[float] = Field(None, gt=0, le=10)
 
     @field_validator("box")
     @classmethod
@@ -937,8 +943,10 @@ class BakeSourceEntry(Options):
 
 
 class BakeDocument(Options):
-    """bake.json (schema 8: sources may give their core's ``box``, absent in schema 7 and older: Gaussian cores;
-    schema 7: ``plan.shared_gain``, absent in schema 6 and older: read as false; schema 6: sources may give their ``axes``; schema 5 is read with round sources; schema 5: each
+    """bake.json (schema 8: ``plan.block_size``, the sharp block's face, absent in schema 7 and older: max_size;
+    ``sources[i].core``, the core's width factor, absent: :func:`legacy_core`; sources may give their core's ``box``,
+    absent: Gaussian cores; schema 7: ``plan.shared_gain``, absent in schema 6 and older: read as false; schema 6:
+    sources may give their ``axes``; schema 5 is read with round sources; schema 5: each
     specular map's blocks in its own atlas; schema 4 is read with every map in the
     shelf packer's layout of ``layers``' x, y; schema 3 is read as a bake without ``plan.mixed``, schema 2 as one without the harmonic, schema 1, without ``sources``, as a
     bake without sources either): see docs/format.md."""
@@ -993,7 +1001,7 @@ def bake_document(bake: Bake, exr: str = "half") -> dict:
         **({"diffuse_sh9": np.asarray(bake.sh, np.float64).tolist()} if pl.diffuse_basis == "sh9" else {}),
         "sources": [{"direction": list(src.direction), "power": list(src.power), "radius": src.radius,
                      **({"axes": [list(a) for a in src.axes]} if src.axes else {}),
-                     **({"box": list(src.box)} if src.box else {})} for src in bake.sources],
+                     **({"box": list(src.box)} if src.box else {}), "core": src.core} for src in bake.sources],
         "info": _jsonable(bake.info, bad),
     }
 
@@ -1126,8 +1134,23 @@ def load_bake(d, *, max_bytes: int = 1 << 28) -> Bake:
                 dict(raw.get("info") or {}), sh=None if sh is None else sh.astype(np.float32), blocks=blocks,
                 sources=tuple(Source(tuple(e.direction), tuple(e.power), e.radius,
                                      tuple(tuple(a) for a in e.axes) if e.axes else (),
-                                     tuple(e.box) if e.box and e.axes else ()) for e in doc.sources), H=H,
+                                     box=tuple(e.box) if e.box and e.axes else (),
+                                     core=e.core if e.core is not None else legacy_core(doc)) for e in doc.sources), H=H,
                 layouts=atlases)
+
+
+#: The core's width factor (``homofac.bake.sources.CORE``) of the code that wrote bake.json schemas 6-7 without
+#: ``sources[i].core``: 1.15 (the eighteenth and nineteenth sessions), 1.2 from the twentieth session's core and
+#: halo per light, whose bakes record ``info.analytic_source.lights``.
+LEGACY_CORE = (1.15, 1.2)
+
+
+def legacy_core(doc: BakeDocument) -> float:
+    """The core width factor a bake.json without ``sources[i].core`` (schema 7 and older) was baked with:
+    :data:`LEGACY_CORE`'s second when its ``info.analytic_source`` counts ``lights`` (the twentieth session's
+    core-and-halo bakes), else its first."""
+    found = (doc.info or {}).get("analytic_source") or {}
+    return LEGACY_CORE[1] if isinstance(found, dict) and "lights" in found else LEGACY_CORE[0]
 
 
 def _rgba_maps(pl: BakePlan) -> int:

@@ -154,7 +154,7 @@ def source_size(source) -> int:
 class _Lights:
     """The source resampled at each light resolution the bake needs (loaded once per resolution); after
     :meth:`take_source`, the map without its brightest compact source, resampled from the resolution it was
-    found at."""
+    found at (a resolution above it, from the finer lights it was also taken from, box-averaged)."""
 
     def __init__(self, source):
         self.source = source
@@ -167,6 +167,11 @@ class _Lights:
             return self.source
         if resolution in self.fine:
             return self.fine[resolution]
+        finer = [f for f in self.fine if f % resolution == 0 and self.strip is not None and resolution > len(self.strip)]
+        if finer and resolution not in self.cache:  # above the coarse map's detail: box-averaged from the finer lights
+            fine = self.fine[min(finer)]
+            self.cache[resolution] = from_cube(np.asarray(fine.radiance, np.float32)[: 6 * min(finer) ** 2].reshape(
+                min(finer), 6 * min(finer), 3), resolution, source=str(self.source))
         if resolution not in self.cache:
             self.cache[resolution] = (load_environment(self.source, resolution) if self.strip is None
                                       else from_cube(self.strip, resolution, source=str(self.source)))
@@ -235,6 +240,18 @@ def sharp(rho: float, max_size: int) -> bool:
     one block (only their weights, the lobes' albedos, differ). (A lobe up to a whole texel measured worse: the
     three.js test's sphere read 0.075 nrmse against 0.032 with each layer's own map at max_size 32.)"""
     return math.pi / (rho * rho) >= 4 * max_size
+
+
+def layer_face(rho: float, max_size: int, block: int) -> int:
+    """P face size of a layer in a bake whose sharp block has face ``block`` (>= ``max_size``,
+    :func:`homofac.bake.plan.block_face`): ``block`` for the layers that share it (:func:`sharp` at ``block``);
+    :func:`layer_size` up to ``block`` for the other layers whose lobe is at most half a texel of ``max_size`` (they
+    read the source below its pixel, as the reference reads it, bilinearly: their maps need the source's detail
+    above ``max_size``, from the block's finer lights, :class:`_Lights`); :func:`layer_size` up to ``max_size`` for
+    the rest."""
+    if sharp(rho, block):
+        return block
+    return layer_size(rho, block if sharp(rho, max_size) else max_size)
 
 
 def block_lights(size: int) -> int:
@@ -436,12 +453,13 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
     pl = make_plan(opts.preset, max_size=max_size, min_roughness=opts.min_roughness, nv_size=opts.nv_size,
                    diffuse_size=opts.diffuse_size, layers=opts.layers, terms=opts.terms, diffuse_basis=opts.diffuse,
                    harmonic=opts.harmonic, mixed=opts.mixed, later_face=opts.later_face,
-                   shared_gain=opts.shared_gain)
+                   shared_gain=opts.shared_gain, source_face=source_size(environment),
+                   block_size=opts.block_size or (max_size if opts.max_size else None))  # max_size given: the largest face
     original = _Lights(environment)
     lights = _Lights(environment)
     roughness = pl.roughnesses()
-    sizes = [layer_size(rho, max_size) for rho in roughness]
-    shared = [sharp(rho, max_size) for rho in roughness]
+    shared = [sharp(rho, pl.block) for rho in roughness]
+    sizes = [layer_face(rho, max_size, pl.block) for rho in roughness]
     # the brightest compact source leaves the map before every filter (the sharp block's finer lights included)
     # and is shaded as a point light
     # (each next source from the map the previous ones left, while it holds MIN_SHARE of that map's power)
@@ -449,7 +467,7 @@ def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Ba
     sources, share, taken = (), None, 0
     while opts.analytic_source and taken < MAX_SOURCES:
         found, s = lights.take_source(max(max_size, opts.data_resolution, MIN_LIGHTS),
-                                      block_lights(max_size) if any(shared) else None)
+                                      block_lights(pl.block) if any(shared) else None)
         share = s if share is None else share
         if not found:
             break
@@ -556,7 +574,7 @@ def stored(fitted: Bake) -> Bake:
     in its own atlas (:func:`map_layouts`)."""
     H = tuple(None if h is None else face_gauge(h, h.shape[0]) for h in fitted.H)
     layouts = map_layouts(fitted.plan, [int(p.shape[0]) for p in fitted.P], fitted.blocks or tuple(range(len(fitted.P))),
-                          [sharp(r, fitted.plan.max_size) for r in fitted.roughness],
+                          [sharp(r, fitted.plan.block) for r in fitted.roughness],
                           [h is not None for h in H] if H else [False] * len(fitted.P))
     return dataclasses.replace(fitted, H=H, layouts=layouts)
 
@@ -592,4 +610,4 @@ def map_layouts(pl: BakePlan, sizes, blocks, shared, harmonic) -> tuple[Atlas, .
     return tuple(out)
 
 
-__all__ = ["bake", "compress", "map_layouts", "stored", "fibonacci", "harmonic_fit", "harmonic_maps", "layer_fit", "layer_size", "sharp", "source_size"]
+__all__ = ["bake", "compress", "map_layouts", "stored", "fibonacci", "harmonic_fit", "harmonic_maps", "layer_face", "layer_fit", "layer_size", "sharp", "source_size"]

@@ -25,7 +25,9 @@ class BakePlan(NamedTuple):
     """What a bake computes: ``terms`` K products P_k W_k for I_A, I_B; ``diffuse`` D products for I_d
     (``diffuse_basis``: E_d as cube textures, ``texture``, or as their 9 SH coefficients, ``sh9``);
     ``layers`` roughness layers spaced geometrically from ``min_roughness`` to 1; ``nv_size`` columns of
-    the weight tables; ``max_size`` the largest P face size (the sharpest layers'); ``diffuse_size`` the
+    the weight tables; ``max_size`` the largest P face size of the layers with their own maps (and the sharp
+    layers' criterion, :func:`homofac.bake.build.sharp`); ``block_size`` the face of the sharp layers' shared
+    block (:func:`block_face`; 0: ``max_size``, bakes of schema 7 and older); ``diffuse_size`` the
     face size of the E_d maps; ``later_face``: P_2..P_K are stored at 1 / later_face of their layer's face (at
     least 8; the layer's map box-averaged per face, :func:`homofac.bake.build.map_layouts`); ``shared_gain``: the
     harmonic's one weight h_A scales I_A and I_B by the same gain (one table channel instead of h_A, h_B)."""
@@ -43,6 +45,12 @@ class BakePlan(NamedTuple):
     mixed: bool = False
     later_face: int = 1
     shared_gain: bool = False
+    block_size: int = 0
+
+    @property
+    def block(self) -> int:
+        """The sharp block's face: ``block_size``, or ``max_size`` when it is 0 (schema 7 and older)."""
+        return self.block_size or self.max_size
 
     @property
     def channels(self) -> int:
@@ -106,7 +114,7 @@ class BakePlan(NamedTuple):
         """One printable line."""
         return (f"bake plan {self.preset}: {self.terms} specular term(s) x {self.layers} roughness layers "
                 f"({self.min_roughness:g}..1), {self.diffuse} diffuse term(s), {self.tables} weight table(s) of "
-                f"{self.nv_size} n.v columns; P up to {self.max_size}^2 x 6, E {self.diffuse_size}^2 x 6"
+                f"{self.nv_size} n.v columns; P up to {self.max_size}^2 x 6 (the sharp block {self.block}^2 x 6), E {self.diffuse_size}^2 x 6"
                 f"{' as SH9 constants' if self.diffuse_basis == 'sh9' else ''}; "
                 f"{f'second harmonic from roughness {self.harmonic:g}; ' if self.harmonic else ''}"
                 f"{self._later()}"
@@ -141,11 +149,39 @@ _DIFFUSE_SIZE = {"fast": 32, "balanced": 16, "best": 32}
 _LATER_FACE = {"fast": 1, "balanced": 2, "best": 1}
 
 
+#: Largest face of the sharp block (:func:`block_face`): a 256 face is 1.2 M half-float bytes per map, and its
+#: lights (:func:`homofac.bake.build.block_lights`) at most 256 as well.
+BLOCK_MAX = 256
+
+
+#: preset -> the sharp block's face in units of the source's (:func:`block_face`): 1 for every preset. At 2
+#: ``balanced`` reads forest < 0.15 at 0.84x the ideal split-sum instead of 0.93x and studio 1.31x instead of 1.48x,
+#: within its memory rule (0.89x), but bakes in twice the CPU (2.8-2.9x the sampler's, the goal 2x) and city /
+#: interior < 0.15 read 5-11 % worse; ``fast`` at 2 holds 2.18x split-sum's memory at the same sharpness
+#: (docs/notes/bake.md, "Forest below 0.15, twenty-first session"). ``block_size`` sets it per bake.
+_BLOCK_FACTOR = {"fast": 1, "balanced": 1, "best": 1}
+
+
+def block_face(source_face: int, min_roughness: float, factor: int = 2) -> int:
+    """The sharp block's face for a source whose cube face holds its detail at ``source_face`` (a lat-long of
+    width 4 ``source_face``; :func:`homofac.bake.build.source_size`): ``factor`` ``source_face``; at 2 a texel half the source's
+    pixel, so that the block's bilinear read reproduces the source's own bilinear image (what the sharp lobes
+    see: at roughness 0.045 the lobe, alpha = rho^2 = 0.002 rad, is a tenth of a 256-wide lat-long's pixel);
+    no finer than the sharpest lobe asks (pi / alpha, as a layer's face) and at most :data:`BLOCK_MAX`.
+    (docs/notes/bake.md, "Forest below 0.15, twenty-first session": forest < 0.15, balanced, 64 -> 128:
+    0.1183 -> 0.1063 nrmse, converged.)"""
+    lobe = 2 ** int(round(math.log2(math.pi / (min_roughness * min_roughness))))
+    return int(min(BLOCK_MAX, factor * source_face, lobe))
+
+
 def plan(preset: str = "balanced", *, max_size: int = 256, min_roughness: float = 0.045, nv_size: int = 32,
          diffuse_size: int | None = None, layers: int | None = None, terms: int | None = None,
          diffuse_basis: str | None = None, harmonic: float | None = None,
-         mixed: bool | None = None, later_face: int | None = None, shared_gain: bool | None = None) -> BakePlan:
-    """The plan of a preset, with the given overrides (validated by :class:`homofac.bake.BakeOptions`)."""
+         mixed: bool | None = None, later_face: int | None = None, shared_gain: bool | None = None,
+         block_size: int | None = None, source_face: int | None = None) -> BakePlan:
+    """The plan of a preset, with the given overrides (validated by :class:`homofac.bake.BakeOptions`); the
+    sharp block's face ``block_size`` by default :func:`block_face` of ``source_face`` (default ``max_size``) at the
+    preset's factor, at least ``max_size``."""
     k, d, n = _STRUCTURE[preset]
     if mixed and int(terms or k) < 2:
         raise HomofacError("bake: mixed needs at least 2 specular terms (the harmonic layers keep K - 1)")
@@ -158,7 +194,7 @@ def plan(preset: str = "balanced", *, max_size: int = 256, min_roughness: float 
     return BakePlan(preset, int(terms or k), d, int(layers or n), int(nv_size), int(max_size),
                     int(diffuse_size or _DIFFUSE_SIZE[preset]), float(min_roughness),
                     str(diffuse_basis or _DIFFUSE_BASIS[preset]), h, mixed, int(later_face or _LATER_FACE[preset]),
-                    shared)
+                    shared, int(block_size or max(max_size, block_face(source_face or max_size, min_roughness, _BLOCK_FACTOR[preset]))))
 
 
-__all__ = ["BakePlan", "PRESETS", "Preset", "plan"]
+__all__ = ["BLOCK_MAX", "BakePlan", "PRESETS", "Preset", "block_face", "plan"]

@@ -125,6 +125,8 @@ class Source(NamedTuple):
     #: () for a Gaussian core: the core is then a box of these half-widths blurred by a Gaussian of the rest of its
     #: variance (:func:`box_blob`).
     box: tuple = ()
+    #: The core's widths in units of the semi-axes (:data:`CORE` when baked; bake.json's ``core``, schema 8).
+    core: float = CORE
 
     def describe(self) -> str:
         d, p = self.direction, self.power
@@ -135,16 +137,16 @@ class Source(NamedTuple):
 
     def core_frame(self) -> tuple[np.ndarray, np.ndarray]:
         """``(e (2, 3), s2 (2,))``: unit principal axes normal to the direction and the core's squared widths
-        along them before the lobe's, (CORE |a_i|)^2; a round source: any orthonormal pair, (CORE radius)^2."""
+        along them before the lobe's, (core |a_i|)^2; a round source: any orthonormal pair, (core radius)^2."""
         ell = np.asarray(self.direction, np.float64)
         a = np.asarray(self.axes, np.float64).reshape(-1, 3)
         lengths = np.linalg.norm(a, axis=1)
         if len(a) == 2 and lengths.min() > 1e-9:
-            return a / lengths[:, None], (CORE * lengths) ** 2
+            return a / lengths[:, None], (self.core * lengths) ** 2
         helper = np.array([1.0, 0.0, 0.0]) if abs(ell[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
         e1 = np.cross(ell, helper)
         e1 /= np.linalg.norm(e1)
-        return np.stack([e1, np.cross(ell, e1)]), np.full(2, (CORE * max(self.radius, 1e-9)) ** 2)
+        return np.stack([e1, np.cross(ell, e1)]), np.full(2, (self.core * max(self.radius, 1e-9)) ** 2)
 
 
 def brightest_source(env: Environment, radius: float = RADIUS, ratio: float = RATIO,
