@@ -38,7 +38,7 @@ import pytest
 from xdist.scheduler import LoadFileScheduling
 
 import homofac as hf
-from helpers import BAKE_SIZES, FOREST_BAKES
+from helpers import BAKE_SIZES, FOREST_BAKES, optimized_xla
 from homofac.fit.programs import bound_compiled_programs
 
 # Samples cached by the tests go to a private directory, never to the user's ~/.cache.
@@ -128,7 +128,8 @@ def forest_bakes():
 
     def get(layout: str):
         if layout not in made:
-            made[layout] = hf.bake("forest", **FOREST_BAKES[layout], **BAKE_SIZES)
+            with optimized_xla():  # its prefilter runs long: helpers.optimized_xla
+                made[layout] = hf.bake("forest", **FOREST_BAKES[layout], **BAKE_SIZES)
         return made[layout]
 
     return get
@@ -138,4 +139,5 @@ def forest_bakes():
 def uniform_bake():
     """``fast`` under constant radiance 1 (light resolution 8), three layers at ``helpers.BAKE_SIZES``: the white
     furnace of test_bake and the map without a source of test_bake_sources."""
-    return hf.bake(hf.light.uniform(1.0, 8), preset="fast", layers=3, **BAKE_SIZES)
+    with optimized_xla():
+        return hf.bake(hf.light.uniform(1.0, 8), preset="fast", layers=3, **BAKE_SIZES)

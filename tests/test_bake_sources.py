@@ -20,7 +20,7 @@ from homofac.io.exr import read_exr
 from homofac.light import Environment
 from homofac.light.integrals import integrals
 from homofac.light.reference import reference_integrals, source_map
-from helpers import BAKE_SIZES, visible_pairs as pairs
+from helpers import BAKE_SIZES, optimized_xla, visible_pairs as pairs
 from test_bake import as_schema_4, check_glsl_terms
 
 TINY = dict(layers=3, **BAKE_SIZES)
@@ -37,7 +37,8 @@ def sun_environment(r=16, seed=3):
 
 @pytest.fixture(scope="module")
 def sun_bake():
-    return hf.bake(sun_environment()[0], preset="fast", **TINY)
+    with optimized_xla():
+        return hf.bake(sun_environment()[0], preset="fast", **TINY)
 
 
 def test_the_rule_finds_a_compact_source_and_leaves_a_uniform_map():
