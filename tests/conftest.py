@@ -24,8 +24,8 @@ every test: the two workers already fill the two cores, so the split's parts onl
 most optimizations off (``jax_disable_most_optimizations``: LLVM at -O0, no expensive passes) for the fast
 tests but those marked ``xla_optimized`` (their programs run long enough that -O0 costs more than it saves)
 and the slow ones (the true default config and the other long runs); the fixtures that make bakes turn the
-optimizations back on around the bake (``helpers.optimized_xla``: a bake's prefilter programs run long). Measured in docs/notes/suite.md; the
-programs compute the same values to float32 rounding. ``HOMOFAC_TEST_XLA_OPT=1`` keeps XLA's defaults.
+optimizations back on around the bake (``helpers.optimized_xla``: a bake's prefilter programs run long).
+Measured in docs/notes/suite.md; the programs compute the same values to float32 rounding. ``HOMOFAC_TEST_XLA_OPT=1`` keeps XLA's defaults.
 """
 
 from __future__ import annotations
