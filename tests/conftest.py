@@ -23,8 +23,9 @@ program's LLVM module compiled whole instead of split for parallel codegen (``--
 every test: the two workers already fill the two cores, so the split's parts only add work), and
 most optimizations off (``jax_disable_most_optimizations``: LLVM at -O0, no expensive passes) for the fast
 tests but those marked ``xla_optimized`` (their programs run long enough that -O0 costs more than it saves)
-and the slow ones (the true default config and the other long runs). Measured in docs/notes/suite.md; the
-programs compute the same values to float32 rounding. ``HOMOFAC_TEST_XLA_OPT=1`` keeps XLA's defaults.
+and the slow ones (the true default config and the other long runs); the fixtures that make bakes turn the
+optimizations back on around the bake (``helpers.optimized_xla``: a bake's prefilter programs run long).
+Measured in docs/notes/suite.md; the programs compute the same values to float32 rounding. ``HOMOFAC_TEST_XLA_OPT=1`` keeps XLA's defaults.
 """
 
 from __future__ import annotations
@@ -38,7 +39,7 @@ import pytest
 from xdist.scheduler import LoadFileScheduling
 
 import homofac as hf
-from helpers import BAKE_SIZES, FOREST_BAKES
+from helpers import BAKE_SIZES, FOREST_BAKES, optimized_xla
 from homofac.fit.programs import bound_compiled_programs
 
 # Samples cached by the tests go to a private directory, never to the user's ~/.cache.
@@ -128,7 +129,8 @@ def forest_bakes():
 
     def get(layout: str):
         if layout not in made:
-            made[layout] = hf.bake("forest", **FOREST_BAKES[layout], **BAKE_SIZES)
+            with optimized_xla():  # its prefilter runs long: helpers.optimized_xla
+                made[layout] = hf.bake("forest", **FOREST_BAKES[layout], **BAKE_SIZES)
         return made[layout]
 
     return get
@@ -138,4 +140,5 @@ def forest_bakes():
 def uniform_bake():
     """``fast`` under constant radiance 1 (light resolution 8), three layers at ``helpers.BAKE_SIZES``: the white
     furnace of test_bake and the map without a source of test_bake_sources."""
-    return hf.bake(hf.light.uniform(1.0, 8), preset="fast", layers=3, **BAKE_SIZES)
+    with optimized_xla():
+        return hf.bake(hf.light.uniform(1.0, 8), preset="fast", layers=3, **BAKE_SIZES)

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
+
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -11,6 +14,20 @@ from homofac.bake.model import diffuse_sh9
 from homofac.bake.plan import plan as make_plan
 from homofac.factorization import Factor, Factorization, Term, Texture
 from homofac.param import mappers
+
+
+@contextlib.contextmanager
+def optimized_xla():
+    """Compile with XLA's optimizations on inside the block (tests/conftest.py compiles the fast tests at -O0),
+    then restore the test's setting: for the fixtures that make bakes, whose prefilter programs run about five
+    times longer at -O0 than they take to compile optimized (the session's five bakes: 22.5 s CPU at -O0, 10.7 s
+    optimized; docs/notes/suite.md)."""
+    was = jax.config.read("jax_disable_most_optimizations")
+    jax.config.update("jax_disable_most_optimizations", False)
+    try:
+        yield
+    finally:
+        jax.config.update("jax_disable_most_optimizations", was)
 
 
 def smooth_texture(mapper: str, S: int, seed: int, lo=0.2, signed=False) -> np.ndarray:

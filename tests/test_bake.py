@@ -22,7 +22,7 @@ from homofac.errors import HomofacError
 from homofac.io.exr import read_exr
 from homofac.io.ktx2 import read_ktx2
 from homofac.light.integrals import integrals, material_radiance
-from helpers import BAKE_SIZES, FOREST_BAKES, visible_pairs as pairs
+from helpers import BAKE_SIZES, FOREST_BAKES, optimized_xla, visible_pairs as pairs
 
 JS = Path(__file__).resolve().parents[1] / "js"
 
@@ -132,7 +132,8 @@ def test_bake_is_closer_to_the_integrals_than_split_sum_at_its_layers():
     """At a layer's roughness, the fitted P W is never worse than split-sum (exact prefilter, exact DFG) on I_A
     (Eckart-Young on the azimuth-averaged data; measured on random pairs against the exact integrals)."""
     env = hf.light.load_environment("forest", 8)
-    b = hf.bake(env, preset="fast", layers=4, nv_size=16, samples=256, data_resolution=8, max_size=16, diffuse_size=8)
+    with optimized_xla():  # helpers.optimized_xla: a bake runs long at -O0
+        b = hf.bake(env, preset="fast", layers=4, nv_size=16, samples=256, data_resolution=8, max_size=16, diffuse_size=8)
     n, v = pairs(400, seed=7)
     x = np.sum(n * v, 1)
     r = 2 * x[:, None] * n - v

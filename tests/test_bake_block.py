@@ -11,6 +11,7 @@ from homofac.light import load_environment
 from homofac.light.sources import bundled
 from homofac.light.latlong import latlong_directions
 from homofac.param import mappers
+from helpers import optimized_xla
 
 SIZE = 8
 #: Azimuthal frequency of the test map's stripes: a period of 0.79 rad, four texels of the 8 face.
@@ -41,8 +42,9 @@ def test_the_sharp_block_reads_the_source_at_its_texel_centres(tmp_path):
     nor smoothed by one."""
     img = _radiance(latlong_directions(64, 128))[..., None].repeat(3, -1).astype(np.float32)
     path = write_exr(tmp_path / "stripes.exr", img)
-    b = hf.bake(str(path), preset="fast", layers=3, nv_size=8, samples=64, data_resolution=8, diffuse_size=8,
-                max_size=SIZE, analytic_source=False)
+    with optimized_xla():  # helpers.optimized_xla: a bake runs long at -O0
+        b = hf.bake(str(path), preset="fast", layers=3, nv_size=8, samples=64, data_resolution=8, diffuse_size=8,
+                    max_size=SIZE, analytic_source=False)
     assert b.blocks[0] == 0 and b.P[0].shape[0] == SIZE
     r = np.asarray(mappers.texel_directions("cube", SIZE), np.float64).reshape(-1, 3)
     got = np.asarray(b.terms(r, r, b.roughness[0]), np.float64)[:, 1:, 0].sum(1)  # I_A + I_B at n = v = r

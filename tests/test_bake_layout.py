@@ -14,6 +14,7 @@ import test_bake_harmonic as th
 from homofac.bake import shader
 from homofac.bake.atlas import Atlas, bottom_left, check_layout, down, pack, up
 from homofac.errors import HomofacError
+from helpers import optimized_xla
 from test_bake import as_schema_4, check_glsl_terms, check_glslang, check_msl, check_wgsl
 
 
@@ -164,8 +165,9 @@ def halved():
     """``(b, h)``: a balanced (mixed) bake in every map's full-face layout, and the same bake as it is stored
     (P_2 at half its layers' face, one shared block of zeros in the crossing, the tensors at their faces,
     skyline-packed: :func:`homofac.bake.build.map_layouts`)."""
-    h = hf.bake("forest", preset="balanced", layers=6, min_roughness=0.3, max_size=16, nv_size=8, samples=64,
-                data_resolution=4, harmonic=0.55, mixed=True, diffuse="texture")
+    with optimized_xla():  # its prefilter at -O0: 15.1 s CPU against 8.5 s
+        h = hf.bake("forest", preset="balanced", layers=6, min_roughness=0.3, max_size=16, nv_size=8, samples=64,
+                    data_resolution=4, harmonic=0.55, mixed=True, diffuse="texture")
     return dataclasses.replace(h, layouts=()), h
 
 

@@ -20,7 +20,7 @@ from homofac.io.exr import read_exr
 from homofac.light import Environment
 from homofac.light.integrals import integrals
 from homofac.light.reference import reference_integrals, source_map
-from helpers import BAKE_SIZES, visible_pairs as pairs
+from helpers import BAKE_SIZES, optimized_xla, visible_pairs as pairs
 from test_bake import as_schema_4, check_glsl_terms, check_glslang, check_msl, check_wgsl
 
 TINY = dict(layers=3, **BAKE_SIZES)
@@ -37,7 +37,8 @@ def sun_environment(r=16, seed=3):
 
 @pytest.fixture(scope="module")
 def sun_bake():
-    return hf.bake(sun_environment()[0], preset="fast", **TINY)
+    with optimized_xla():
+        return hf.bake(sun_environment()[0], preset="fast", **TINY)
 
 
 def test_the_rule_finds_a_compact_source_and_leaves_a_uniform_map():
@@ -251,7 +252,8 @@ def test_the_widening_per_axis_keeps_the_lobe_normalized_and_follows_the_plane_o
 def test_bake_takes_the_source_out_and_adds_it_back(sun_bake, uniform_bake):
     env, i = sun_environment()
     with_src = sun_bake  # hf.bake(env, preset="fast", **TINY) on this environment
-    without = hf.bake(env, preset="fast", analytic_source=False, **TINY)
+    with optimized_xla():  # helpers.optimized_xla: a bake runs long at -O0
+        without = hf.bake(env, preset="fast", analytic_source=False, **TINY)
     assert len(with_src.sources) == 1 and without.sources == ()
     assert "analytic source: direction" in with_src.describe() and "analytic source: none" in without.describe()
     n, v = pairs(400, seed=4)
@@ -269,7 +271,8 @@ def test_bake_takes_a_second_source_from_the_map_the_first_left():
     j = i + 3 * 16 * 16 // 2  # another face's texel
     rad[j] = (40.0, 50.0, 60.0)
     two = Environment(env.directions, jnp.asarray(rad), env.solid_angle, env.info, env.corners, env.moments)
-    b = hf.bake(two, preset="fast", **TINY)
+    with optimized_xla():  # helpers.optimized_xla: a bake runs long at -O0
+        b = hf.bake(two, preset="fast", **TINY)
     assert len(b.sources) == 2
     np.testing.assert_allclose(b.sources[0].direction, np.asarray(env.directions[i]), atol=1e-6)
     np.testing.assert_allclose(b.sources[1].direction, np.asarray(env.directions[j]), atol=1e-6)
@@ -314,7 +317,8 @@ def test_the_bake_takes_up_to_bake_json_s_eight_sources(tmp_path):
     for k, j in enumerate(texels):
         rad[j] = 60.0 - k
     suns = Environment(env.directions, jnp.asarray(rad), env.solid_angle, env.info, env.corners, env.moments)
-    b = hf.bake(suns, preset="fast", **TINY)
+    with optimized_xla():  # helpers.optimized_xla: a bake runs long at -O0
+        b = hf.bake(suns, preset="fast", **TINY)
     assert b.info["analytic_source"]["lights"] == MAX_SOURCES == 8 and len(b.sources) == 8  # one-texel suns: a core each
     np.testing.assert_allclose([s.direction for s in b.sources], d[texels[:8]], atol=1e-6)
     assert hf.load(b.save(tmp_path / "bk")).sources == b.sources
