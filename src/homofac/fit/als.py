@@ -26,11 +26,16 @@ One sweep costs O(N K^2) scatter-adds and a batch of K x K solves: 5-50x faster 
 Levenberg-Marquardt on the same data, to the same optimum (issue 13's prototype study). All channels
 at once, jitted, float32; the data are jit arguments.
 
+Every block's normal equations are sums over the samples, so :func:`sweep` sums them over blocks of
+samples (:func:`blocks`: one compiled program per factor kind and block size sums one block, another
+solves), from every factor gathered once at the samples after its update (:class:`Seen`): a fit on any
+multiple of a block's samples runs the programs a fit on one block compiled.
+
 The terms sit in slots (:class:`Slots`: terms without a line, with w(n.v), with d(x); extra lines), and
 which factors each slot's term has are masks, jit arguments (:class:`Masks`): a structure padded into
 larger slots is the same fit (an empty slot adds 0 and is a separate block of every system), and all
-the structures a run fits in the same slots, on the same samples, share one compiled sweep
-(:func:`sweep`; :func:`homofac.fit.sums.als_slots` chooses the slots).
+the structures a run fits in the same slots, on blocks of the same size, share one set of compiled
+programs (:func:`sweep`; :func:`homofac.fit.sums.als_slots` chooses the slots).
 """
 
 from __future__ import annotations
@@ -97,8 +102,8 @@ def single_texel(mapper: str, size: int, d, unknown_of_texel: np.ndarray, tol: f
 
 
 class Slots(NamedTuple):
-    """The padded shape of a sum's terms (static; :func:`sweep`'s program is compiled once per Slots, grid
-    size and sample count): ``plain`` slots for terms without a line factor, ``lined`` for terms with
+    """The padded shape of a sum's terms (static; :func:`sweep`'s programs are compiled once per Slots, grid
+    size and block size): ``plain`` slots for terms without a line factor, ``lined`` for terms with
     w(n.v) and no d, ``high`` for the terms with d(x) (the highlight terms), and ``extra`` extra lines of
     the highlight terms (Fresnel, cosine). The terms of any structure that fits in the slots run in the
     same program; an empty slot is masked out (its term adds 0 and none of its factors is solved for)."""
@@ -664,5 +669,5 @@ def run(P, Q, W, d: GridData, lam, *, flags: Flags, sweeps: int, jacobi: int = 3
     return unpadded(p._replace(state=tuple(state)), flags) + (hist,)
 
 
-__all__ = ["Blocked", "Flags", "GridData", "Masks", "Padded", "Seen", "blocks", "Slots", "layout", "line_footprint", "pad", "padded", "predict",
-           "run", "single_texel", "slots_of", "spd_solve", "sweep", "unpad", "unpadded"]
+__all__ = ["Blocked", "Flags", "GridData", "Masks", "Padded", "Seen", "Slots", "blocks", "layout", "line_footprint",
+           "pad", "padded", "predict", "run", "single_texel", "slots_of", "spd_solve", "sweep", "unpad", "unpadded"]

@@ -513,8 +513,8 @@ def fit_sum(target: Target, structure: Structure, mapper: str, size: int, sample
 
     ``slots``: the ALS term slots to pad the structure's terms into (a group with fewer slots than the
     structure has terms: its own count; :func:`als_slots` of every structure a run fits on these samples):
-    fits in the same slots share one compiled sweep; the same fit as without, to float rounding (default:
-    the structure's own).
+    fits in the same slots share one set of compiled sweep programs; the same fit as without, to float rounding
+    (default: the structure's own).
 
     ``block``: the ALS sums its normal equations over blocks of this many pairs (:func:`homofac.fit.als.blocks`;
     0: one block): its programs are compiled per block size, so a fit on a multiple of an earlier fit's pairs
@@ -631,8 +631,8 @@ PROGRESS_S = 3.0
 
 def als_sweeps(p: als.Padded, lam, sweeps: int, tolerance: float, log=None,
                history: np.ndarray | None = None, budget: int | None = None) -> tuple[als.Padded, int, bool, np.ndarray]:
-    """At most ``sweeps`` ALS sweeps (:func:`homofac.fit.als.sweep`, one compiled sweep per slots, called
-    per sweep) of the padded state ``p``, stopping when a sweep lowers the objective f by less than
+    """At most ``sweeps`` ALS sweeps (:func:`homofac.fit.als.sweep`, its programs compiled per slots and block
+    size, called per sweep) of the padded state ``p``, stopping when a sweep lowers the objective f by less than
     ``tolerance * f`` (relative decrease ``(f_prev - f) / f_prev``; 0: never). ``history``: the objective
     after each sweep run before (a fit continued, :func:`advance`): the rule reads it as if the sweeps had
     run in one call. Logs ``ALS sweep i / budget: objective f`` (``budget``: the fit's whole sweep budget, default
