@@ -16,10 +16,13 @@ import numpy as np
 
 from homofac.fit import als
 
-args = [a for a in sys.argv[1:] if not a.startswith("--")]
-block = int(sys.argv[sys.argv.index("--block") + 1]) if "--block" in sys.argv else 0
-if block:
-    args.remove(str(block))
+argv = sys.argv[1:]
+block = 0
+if "--block" in argv:
+    i = argv.index("--block")
+    block = int(argv[i + 1])
+    argv = argv[:i] + argv[i + 2:]
+args = argv
 counts = [int(x) for x in args[0].split(",")]
 n = 5456 // 2
 Sw = 32
