@@ -39,7 +39,8 @@ def _fit(sun, structure, slots=None):
 
 
 def _sweep_compiles(caplog) -> int:
-    return sum("compilation of jit(sweep)" in r.getMessage() for r in caplog.records)
+    """Compilations of the sweep's texel normal equations (one per slot shape and block size)."""
+    return sum("compilation of jit(_texel_block_normals)" in r.getMessage() for r in caplog.records)
 
 
 def test_the_slots_hold_every_structure_and_place_terms_by_group():
@@ -69,19 +70,19 @@ def test_a_fit_padded_into_larger_slots_is_its_fit_alone(sun):
 
 
 def test_the_structures_of_a_run_compile_one_sweep_program(sun, caplog):
-    """Three structures (and the highlight terms' starts) in the run's slots: one compiled ALS sweep; in
-    their own slots each compiles its own."""
+    """Three structures (and the highlight terms' starts) in the run's slots: one compiled set of ALS sweep
+    programs; in their own slots each compiles its own."""
     target, _ = sun
     slots = sums.als_slots(target, STRUCTURES, "dual_paraboloid", 8)
     assert slots == als.Slots(plain=2, extra=2)
     caplog.set_level(logging.WARNING, logger="jax")
     with jax.log_compiles():
-        als.sweep.clear_cache()
+        jax.clear_caches()
         for structure in STRUCTURES:
             _fit(sun, structure, slots)
         shared = _sweep_compiles(caplog)
         caplog.clear()
-        als.sweep.clear_cache()
+        jax.clear_caches()
         for structure in STRUCTURES[:2]:
             _fit(sun, structure)
         own = _sweep_compiles(caplog)
@@ -110,3 +111,32 @@ def test_a_fit_continued_from_where_it_stopped_is_the_uninterrupted_fit(sun):
     for a, b in zip(whole.model.textures, cont.model.textures):
         np.testing.assert_array_equal(np.asarray(a.data), np.asarray(b.data))
     assert short.solver["objective"] > cont.solver["objective"]  # the two sweeps' fit is a fit of its own
+
+
+def test_a_fit_in_blocks_is_the_fit_in_one_and_reuses_the_short_fits_programs(sun, caplog):
+    """The sweep sums its normal equations over blocks of pairs (``block``): on every pair in blocks of a
+    quarter of them it is the fit in one block to float rounding, and after a fit on every 4th pair (the
+    race's short fit) it compiles none of the blocks' normal-equation programs again."""
+    target, samples = sun
+    structure = STRUCTURES[2]
+    quarter = sums.strided(samples, 4)
+    opts = LinearOptions(iterations=3, tolerance=0.0)
+    caplog.set_level(logging.WARNING, logger="jax")
+
+    def normals_compiles() -> int:
+        return sum("compilation of jit(_texel_block_normals)" in r.getMessage()
+                   or "compilation of jit(_line_block_normals)" in r.getMessage() for r in caplog.records)
+
+    with jax.log_compiles():
+        jax.clear_caches()
+        sums.fit_sum(target, structure, "dual_paraboloid", 8, quarter, opts)
+        assert normals_compiles() >= 2
+        caplog.clear()
+        blocked = sums.fit_sum(target, structure, "dual_paraboloid", 8, samples, opts, block=len(quarter.a))
+        assert normals_compiles() == 0
+    whole = sums.fit_sum(target, structure, "dual_paraboloid", 8, samples, opts)
+    assert len(samples.a) > 3 * len(quarter.a)
+    for a, b in zip(whole.model.textures, blocked.model.textures):
+        scale = float(np.max(np.abs(np.asarray(a.data)))) + 1e-6
+        np.testing.assert_allclose(np.asarray(b.data), np.asarray(a.data), atol=2e-4 * scale, rtol=2e-4)
+    assert blocked.solver["objective"] == pytest.approx(whole.solver["objective"], rel=1e-4)

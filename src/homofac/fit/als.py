@@ -26,11 +26,16 @@ One sweep costs O(N K^2) scatter-adds and a batch of K x K solves: 5-50x faster 
 Levenberg-Marquardt on the same data, to the same optimum (issue 13's prototype study). All channels
 at once, jitted, float32; the data are jit arguments.
 
+Every block's normal equations are sums over the samples, so :func:`sweep` sums them over blocks of
+samples (:func:`blocks`: one compiled program per factor kind and block size sums one block, another
+solves), from every factor gathered once at the samples after its update (:class:`Seen`): a fit on any
+multiple of a block's samples runs the programs a fit on one block compiled.
+
 The terms sit in slots (:class:`Slots`: terms without a line, with w(n.v), with d(x); extra lines), and
 which factors each slot's term has are masks, jit arguments (:class:`Masks`): a structure padded into
 larger slots is the same fit (an empty slot adds 0 and is a separate block of every system), and all
-the structures a run fits in the same slots, on the same samples, share one compiled sweep
-(:func:`sweep`; :func:`homofac.fit.sums.als_slots` chooses the slots).
+the structures a run fits in the same slots, on blocks of the same size, share one set of compiled
+programs (:func:`sweep`; :func:`homofac.fit.sums.als_slots` chooses the slots).
 """
 
 from __future__ import annotations
@@ -98,8 +103,8 @@ def single_texel(mapper: str, size: int, d, unknown_of_texel: np.ndarray, tol: f
 
 
 class Slots(NamedTuple):
-    """The padded shape of a sum's terms (static; :func:`sweep`'s program is compiled once per Slots, grid
-    size and sample count): ``plain`` slots for terms without a line factor, ``lined`` for terms with
+    """The padded shape of a sum's terms (static; :func:`sweep`'s programs are compiled once per Slots, grid
+    size and block size): ``plain`` slots for terms without a line factor, ``lined`` for terms with
     w(n.v) and no d, ``high`` for the terms with d(x) (the highlight terms), and ``extra`` extra lines of
     the highlight terms (Fresnel, cosine). The terms of any structure that fits in the slots run in the
     same program; an empty slot is masked out (its term adds 0 and none of its factors is solved for)."""
@@ -304,42 +309,46 @@ def spd_solve(A, b):
     return M[..., :, K]
 
 
-def _texel_block(X, c, idx, y, d: GridData, mu, jacobi: int, terms, ridge: float = 1e-6):
-    """Solve for X (K, n, 3) given coefficients c (K, N, 3) of the samples falling in texel ``idx``; the
-    ridge ``ridge`` times the mean diagonal over the ``terms`` (a count) present. A term whose coefficients
-    are 0 (empty slot, or no such factor) is a separate block of the K x K systems, so it leaves the
-    others' solution as it is."""
-    K, n = X.shape[0], X.shape[1]
+def _texel_normals(c, idx, y, n: int):
+    """The normal equations ``(G (n, 3, K, K), h (n, 3, K))`` of one block of samples for the texel unknowns
+    X (K, n, 3) the samples read at ``idx``, given their coefficients c (K, N, 3) and targets y (N, 3):
+    ``G_j = sum_(i: idx_i = j) c_i c_i^T``, ``h_j = sum c_i y_i``. Sums over blocks are those of their union."""
+    K = c.shape[0]
 
     def normal(c, idx, y):  # c (N, K, 3) sample-major for chunking
         G = jax.ops.segment_sum(jnp.einsum("ntc,nsc->ncts", c, c), idx, num_segments=n)  # (n, 3, K, K)
         h = jax.ops.segment_sum(jnp.einsum("ntc,nc->nct", c, y), idx, num_segments=n)  # (n, 3, K)
         return G, h
 
-    G, h = _chunked(normal, (jnp.moveaxis(c, 0, 1), idx, y), y.shape[0], 3 * K * K)
-    deg = jnp.sum(d.nbm, axis=1)
+    return _chunked(normal, (jnp.moveaxis(c, 0, 1), idx, y), y.shape[0], 3 * K * K)
+
+
+def _texel_solve(X, G, h, nb, nbm, mu, jacobi: int, terms, ridge: float = 1e-6):
+    """Solve ``(G_j + mu deg_j I) x_j = h_j + mu sum_(nb of j) x_nb`` for X (K, n, 3) by ``jacobi`` block-Jacobi
+    passes (:func:`_texel_normals`' G, h), the ridge ``ridge`` times the mean diagonal over the ``terms`` (a
+    count) present. A term whose coefficients are 0 (empty slot, or no such factor) is a separate block of
+    the K x K systems, so it leaves the others' solution as it is."""
+    K = X.shape[0]
+    deg = jnp.sum(nbm, axis=1)
     tr = jnp.trace(G, axis1=-2, axis2=-1)[..., None, None] / terms
     A = G + (mu * deg[:, None, None, None] + ridge * tr + 1e-9) * jnp.eye(K, dtype=X.dtype)
     Xc = jnp.moveaxis(X, 0, -1)  # (n, 3, K)
 
     def one(Xc, _):
-        rhs = h + mu * jnp.sum(Xc[d.nb] * d.nbm[:, :, None, None], axis=1)
+        rhs = h + mu * jnp.sum(Xc[nb] * nbm[:, :, None, None], axis=1)
         return spd_solve(A, rhs), None
 
     Xc, _ = jax.lax.scan(one, Xc, None, length=jacobi)
     return jnp.moveaxis(Xc, -1, 0)
 
 
-def _w_block(pq, W, y, mu_w, vi, vw, use, lo: int, ridge: float = 1e-6):
-    """Dense normal equations of the line unknowns (S_w per term and channel) of the slots from ``lo``
-    (static) that carry the line (``use`` (K,), 1 or 0), given the other factors ``pq`` at the samples and
-    the lines' footprints ``vi, vw`` ((N, 2) shared, or (N, K, 2) per term), with first-difference
-    smoothing ``mu_w`` and a ridge ``ridge`` times the mean diagonal of the terms' unknowns. A slot that
-    does not carry the line is an identity block of the system (solution 0, the line kept as it was)."""
-    Ws, u = W[lo:], use[lo:]
-    K, Sw = Ws.shape[0], W.shape[1]
-    if K == 0:
-        return W
+def _w_normals(pq, y, vi, vw, use, lo: int, Sw: int):
+    """The dense normal equations ``(G (M*M, 3), h (M, 3))`` of one block of samples for the line unknowns
+    (S_w per slot from ``lo``, static: M = S_w (K - lo)) of the slots that carry the line (``use`` (K,), 1 or
+    0), given the other factors ``pq`` (K, N, 3) at the samples, the targets y (N, 3) and the lines'
+    footprints ``vi, vw`` ((N, 2) shared, or (N, K, 2) per term). Sums over blocks are those of their union."""
+    u = use[lo:]
+    K = u.shape[0]
     M = K * Sw
     pq = pq[lo:] * u[:, None, None]
     if vi.ndim == 3:
@@ -356,7 +365,17 @@ def _w_block(pq, W, y, mu_w, vi, vw, use, lo: int, ridge: float = 1e-6):
         h = jax.ops.segment_sum((coef * y[:, None, :]).reshape(-1, 3), cols.reshape(-1), num_segments=M)
         return G, h
 
-    G, h = _chunked(normal, (jnp.moveaxis(pq, 0, 1), vi, vw, y), y.shape[0], 12 * K * K + 6 * K)
+    return _chunked(normal, (jnp.moveaxis(pq, 0, 1), vi, vw, y), y.shape[0], 12 * K * K + 6 * K)
+
+
+def _w_solve(W, G, h, mu_w, use, lo: int, ridge: float = 1e-6):
+    """The line unknowns of the slots from ``lo`` (static) that carry the line (``use`` (K,)) from
+    :func:`_w_normals`' G, h, with first-difference smoothing ``mu_w`` and a ridge ``ridge`` times the mean
+    diagonal of the terms' unknowns. A slot that does not carry the line is an identity block of the system
+    (solution 0, the line kept as it was)."""
+    Ws, u = W[lo:], use[lo:]
+    K, Sw = Ws.shape[0], W.shape[1]
+    M = K * Sw
     G = jnp.moveaxis(G.reshape(M, M, 3), -1, 0)
     diff = np.diff(np.eye(Sw), axis=0)
     lap1 = diff.T @ diff
@@ -397,91 +416,222 @@ def _balance(P, Q, W, m: Masks, D=None, C=None):
     return P, Q, W, D, tuple(out)
 
 
-def _unless_empty(use, solve, X):
-    """``solve()`` where some term carries the factor (``use`` (K,)), else X: the block is skipped at run time."""
-    return jax.lax.cond(jnp.any(use > 0), solve, lambda: X)
+class Blocked(NamedTuple):
+    """Grid samples in blocks of one size (:func:`blocks`; the last padded with zero-weight rows): :func:`sweep`
+    runs its compiled programs once per block, so fits on any multiple of a block's pairs share them."""
+
+    blocks: tuple  # GridData of each block
+    n: int  # the samples (without the padding rows)
 
 
-@functools.partial(jax.jit, static_argnames=("slots", "sweeps", "jacobi"))
-def sweep(P, Q, W, D, C, d: GridData, lam, masks: Masks, *, slots: Slots, sweeps: int = 1, jacobi: int = 3):
-    """``sweeps`` ALS sweeps of the terms in ``slots`` (static) whose factors ``masks`` says (jit
-    arguments: one compiled program for every structure that fits in the slots, :func:`layout`), from
-    P, Q (K, n, 3), W, D (K, S_w, 3) and C (a tuple of ``slots.extra`` (K, S_w, 3)); D and C are
-    ignored where ``slots`` has no highlight slot (no extra line). Returns ``(P, Q, W, D, C, hist)``,
-    hist the data objective ``sum_i s_i^2 ||yhat_i - y_i||^2`` (``d.s``: the square roots of the sample
-    weights) after each sweep."""
-    N, n, Sw = d.y.shape[0], P.shape[1], W.shape[1]
-    mu = lam * N / n
-    mu_w = lam * N / Sw
-    col = lambda x: jnp.asarray(x, P.dtype)[:, None, None]  # noqa: E731
-    tm, up, uq = col(masks.t), col(masks.p), col(masks.q)
-    terms = jnp.maximum(jnp.sum(masks.t), 1.0)
-    Q = Q * uq + (1 - uq)
-    P = P * up + (1 - up)
-    s1 = d.s[:, None]
-    s3 = d.s[None, :, None]
-    has_d = slots.high > 0 and d.hi is not None
+#: The per-sample fields of :class:`GridData` (the others, the texel graph, every block shares).
+_PER_SAMPLE = ("a", "b", "vi", "vw", "y", "s", "hi", "hw", "ci", "cw")
+
+
+def blocks(d: GridData, size: int) -> GridData | Blocked:
+    """``d`` in blocks of ``size`` samples (:class:`Blocked`; the last padded with rows of weight 0, texel 0,
+    which add nothing to any normal equation or objective), or ``d`` itself where it has at most ``size``
+    samples (``size`` 0: one block). Split on the host: the blocks are jit arguments of one shape."""
+    N = int(d.y.shape[0])
+    if size <= 0 or N <= size:
+        return d
+    count = -(-N // size)
+
+    def split(x):
+        x = np.asarray(x)
+        x = np.concatenate([x, np.zeros((count * size - N,) + x.shape[1:], x.dtype)])
+        return [jnp.asarray(x[k * size:(k + 1) * size]) for k in range(count)]
+
+    parts = {}
+    for f in _PER_SAMPLE:
+        v = getattr(d, f)
+        if v is None:
+            parts[f] = [None] * count
+        elif isinstance(v, tuple):
+            parts[f] = [tuple(c) for c in zip(*(split(x) for x in v))] if v else [()] * count
+        else:
+            parts[f] = split(v)
+    return Blocked(tuple(d._replace(**{f: parts[f][k] for f in _PER_SAMPLE}) for k in range(count)), N)
+
+
+class Seen(NamedTuple):
+    """Every factor at one block's samples (K, N, 3; 1 where a slot lacks it): p(n), q(r), w(n.v), d(x) and
+    the extra lines (a tuple). :func:`sweep` gathers a factor once after each update and the blocks'
+    normal equations read these (no gather of their own)."""
+
+    pa: Array
+    qb: Array
+    wv: Array
+    dv: Array | None
+    cv: tuple
+
+
+@jax.jit
+def _seen(P, Q, W, D, C, d: GridData, masks: Masks) -> Seen:
+    """:class:`Seen` of the state at the samples of ``d`` (D, C None: no highlight lines)."""
+    dv = None if D is None else _line(D, d.hi, d.hw, masks.h)
+    return Seen(_factor(P, d.a, masks.p), _factor(Q, d.b, masks.q), _line(W, d.vi, d.vw, masks.w), dv,
+                tuple(_cv(C, d, masks)))
+
+
+#: One compiled gather per factor kind and block shape: a texture at the samples' texels, a line at two texels each.
+_texel_at = jax.jit(_factor)
+_line_at = jax.jit(_line)
+
+
+def _weighted(factors: tuple, y, s, fixed):
+    """The product of ``factors`` (K, N, 3) and the targets less the terms ``fixed`` (K,) leave out (their
+    whole products), both times the square roots ``s`` of the sample weights."""
+    c = _product(factors[1:], factors[0])
+    rest = _sum_terms(c, fixed)
+    return c * s[None, :, None], (y - rest) * s[:, None]
+
+
+@jax.jit
+def _texel_block_normals(G, h, factors: tuple, y, s, idx, use, t):
+    """``(G, h)`` plus one block's normal equations (:func:`_texel_normals`) of a texel factor X (q or p) of the
+    slots ``use`` (K,), whose coefficients are the products of the other ``factors`` at the samples."""
+    c, yr = _weighted(factors, y, s, t * (1 - use))
+    Gb, hb = _texel_normals(c * jnp.asarray(use, c.dtype)[:, None, None], idx, yr, G.shape[0])
+    return G + Gb, h + hb
+
+
+@functools.partial(jax.jit, static_argnames=("lo", "Sw"))
+def _line_block_normals(G, h, factors: tuple, y, s, vi, vw, use, t, *, lo: int, Sw: int):
+    """``(G, h)`` plus one block's normal equations (:func:`_w_normals`) of a line factor of the slots from
+    ``lo`` that carry it (``use``), at the footprints ``vi, vw``, given the products of the other ``factors``."""
+    c, yr = _weighted(factors, y, s, t * (1 - use))
+    Gb, hb = _w_normals(c, yr, vi, vw, use, lo, Sw)
+    return G + Gb, h + hb
+
+
+@functools.partial(jax.jit, static_argnames=("jacobi",))
+def _texel_update(X, G, h, nb, nbm, lam, n_samples, use, t, *, jacobi: int):
+    """The texel factor X (K, n, 3) of the slots ``use`` from its normal equations (:func:`_texel_solve`, the
+    Laplacian weight ``mu = lam N / n``), 1 in the slots without it."""
+    u = jnp.asarray(use, X.dtype)[:, None, None]
+    mu = lam * n_samples / X.shape[1]
+    return _texel_solve(X, G, h, nb, nbm, mu, jacobi, jnp.maximum(jnp.sum(t), 1.0)) * u + (1 - u)
+
+
+@functools.partial(jax.jit, static_argnames=("lo",))
+def _line_update(W, G, h, lam, n_samples, use, *, lo: int):
+    """The line factor W (K, S_w, 3) of the slots from ``lo`` that carry it (:func:`_w_solve`, the smoothing
+    ``mu_w = lam N / S_w``)."""
+    return _w_solve(W, G, h, lam * n_samples / W.shape[1], use, lo)
+
+
+@jax.jit
+def _seen_objective(seen: Seen, y, s, t):
+    """``sum_i s_i^2 ||yhat_i - y_i||^2`` over one block from its factors at the samples (:func:`predict`)."""
+    out = seen.pa * seen.qb * seen.wv
+    if seen.dv is not None:
+        out = out * _product(seen.cv, seen.dv)
+    r = (_sum_terms(out, t) - y) * s[:, None]
+    return jnp.sum(r * r)
+
+
+@jax.jit
+def _unit(P, Q, masks: Masks):
+    """P and Q with ones in the slots without the factor."""
+    up, uq = (jnp.asarray(x, P.dtype)[:, None, None] for x in (masks.p, masks.q))
+    return P * up + (1 - up), Q * uq + (1 - uq)
+
+
+_balanced = jax.jit(_balance)
+
+
+def _present(use) -> bool:
+    """Some slot carries the factor (``use`` (K,), 1 or 0; decided on the host: a block nobody reads is skipped)."""
+    return bool(np.any(np.asarray(use) > 0))
+
+
+def sweep(P, Q, W, D, C, d: GridData | Blocked, lam, masks: Masks, *, slots: Slots, sweeps: int = 1, jacobi: int = 3):
+    """``sweeps`` ALS sweeps of the terms in ``slots`` whose factors ``masks`` says (jit arguments: one set of
+    compiled programs for every structure that fits in the slots, :func:`layout`), from P, Q (K, n, 3), W, D
+    (K, S_w, 3) and C (a tuple of ``slots.extra`` (K, S_w, 3)); D and C are ignored where ``slots`` has no
+    highlight slot (no extra line). ``d``: the samples, or :func:`blocks` of them. Each block of the sweep (q,
+    p, d, each extra line, w: the module docstring) sums its normal equations over the blocks of samples
+    (compiled per slot shape and block size, not per sample count) and solves them once; the factor is then
+    gathered at every block's samples (:class:`Seen`) for the next. Then the terms are rebalanced. Returns
+    ``(P, Q, W, D, C, hist)``, hist the data objective ``sum_i s_i^2 ||yhat_i - y_i||^2`` (``d.s``: the square
+    roots of the sample weights) after each sweep."""
+    parts, N = (d.blocks, d.n) if isinstance(d, Blocked) else ((d,), int(d.y.shape[0]))
+    has_d = slots.high > 0 and parts[0].hi is not None
     has_c = has_d and slots.extra > 0
     lo_w, lo_h = slots.plain, slots.plain + slots.lined
-    zero = jnp.zeros((), P.dtype)
+    lam, n_samples = jnp.float32(lam), jnp.float32(N)
+    nb, nbm = parts[0].nb, parts[0].nbm
+    K, n, Sw = P.shape[0], P.shape[1], W.shape[1]
+    P, Q = _unit(P, Q, masks)
+    D_in, C_in = D, C
+    D, C = (D if has_d else None), (tuple(C) if has_c else None)
 
-    def sweep_once(carry, _):
-        P, Q, W, D, C = carry
-        D, C = (D if has_d else None), (C if has_c else None)  # None: no such factor (the carry holds 0)
-        wv = _line(W, d.vi, d.vw, masks.w)
-        # the barrier keeps XLA from fusing the line gathers into every consumer
-        hv = jax.lax.optimization_barrier(_hv(D, d, masks, C)) if has_d else 1.0
-        # weighted least squares as row scaling: coefficients and targets times sqrt(weight)
-        c = _factor(P, d.a, masks.p) * wv * hv
-        fixed = _sum_terms(c, masks.t * (1 - masks.q))
-        Q = _unless_empty(masks.q, lambda: _texel_block(Q, c * uq * s3, d.b, (d.y - fixed) * s1, d, mu, jacobi, terms)
-                          * uq + (1 - uq), Q)
-        c = _factor(Q, d.b, masks.q) * wv * hv
-        fixed = _sum_terms(c, masks.t * (1 - masks.p))
-        P = _unless_empty(masks.p, lambda: _texel_block(P, c * up * s3, d.a, (d.y - fixed) * s1, d, mu, jacobi, terms)
-                          * up + (1 - up), P)
-        if has_d:  # the highlight lines, given p q w (and the extra lines)
-            pqw = _factor(P, d.a, masks.p) * _factor(Q, d.b, masks.q) * wv
-            fixed = _sum_terms(pqw, masks.t * (1 - masks.h))
-            y = (d.y - fixed) * s1
-            cv = _cv(C, d, masks)
-            D = _unless_empty(masks.h, lambda: _w_block(pqw * _product(cv) * s3, D, y, mu_w, d.hi, d.hw, masks.h,
-                                                        lo_h), D)
-            dv = _line(D, d.hi, d.hw, masks.h)
-            if has_c:  # each extra line, given p q w d and the others
+    def zeros(*shape):
+        return jnp.asarray(np.zeros(shape, np.float32))
+
+    def texel(X, idx: str, use, others):  # the texel factor X (q or p) from every block's normal equations
+        G, h = zeros(n, 3, K, K), zeros(n, 3, K)
+        for part, sn in zip(parts, seen):
+            G, h = _texel_block_normals(G, h, others(sn), part.y, part.s, getattr(part, idx), use, masks.t)
+        return _texel_update(X, G, h, nb, nbm, lam, n_samples, use, masks.t, jacobi=jacobi)
+
+    def line(X, lo: int, foot, use, others):  # a line factor from every block's normal equations
+        M = (K - lo) * Sw
+        G, h = zeros(M * M, 3), zeros(M, 3)
+        for part, sn in zip(parts, seen):
+            vi, vw = foot(part)
+            G, h = _line_block_normals(G, h, others(sn), part.y, part.s, vi, vw, use, masks.t, lo=lo, Sw=Sw)
+        return _line_update(X, G, h, lam, n_samples, use, lo=lo)
+
+    def lines(sn: Seen) -> tuple:  # the highlight lines at the samples (none without)
+        return () if sn.dv is None else (sn.dv, *sn.cv)
+
+    hist = []
+    seen = [_seen(P, Q, W, D, C, part, masks) for part in parts]
+    for _ in range(int(sweeps)):
+        if _present(masks.q):
+            Q = texel(Q, "b", masks.q, lambda sn: (sn.pa, sn.wv, *lines(sn)))
+            seen = [sn._replace(qb=_texel_at(Q, part.b, masks.q)) for sn, part in zip(seen, parts)]
+        if _present(masks.p):
+            P = texel(P, "a", masks.p, lambda sn: (sn.qb, sn.wv, *lines(sn)))
+            seen = [sn._replace(pa=_texel_at(P, part.a, masks.p)) for sn, part in zip(seen, parts)]
+        if has_d:  # the highlight lines, given p q w (and the extra lines), then each extra line given the others
+            if _present(masks.h):
+                D = line(D, lo_h, lambda part: (part.hi, part.hw), masks.h, lambda sn: (sn.pa, sn.qb, sn.wv, *sn.cv))
+                seen = [sn._replace(dv=_line_at(D, part.hi, part.hw, masks.h)) for sn, part in zip(seen, parts)]
+            if has_c:
                 C = list(C)
                 for e in range(len(C)):
-                    rest = _product(cv[:e] + cv[e + 1:], dv)
-                    C[e] = _unless_empty(masks.c[e], lambda e=e, rest=rest: _w_block(
-                        pqw * rest * s3, C[e], y, mu_w, d.ci[e], d.cw[e], masks.c[e], lo_h), C[e])
-                    cv[e] = _line(C[e], d.ci[e], d.cw[e], masks.c[e])
+                    if _present(masks.c[e]):
+                        C[e] = line(C[e], lo_h, lambda part, e=e: (part.ci[e], part.cw[e]), masks.c[e],
+                                    lambda sn, e=e: (sn.pa, sn.qb, sn.wv, sn.dv, *sn.cv[:e], *sn.cv[e + 1:]))
+                        seen = [sn._replace(cv=sn.cv[:e] + (_line_at(C[e], part.ci[e], part.cw[e], masks.c[e]),)
+                                            + sn.cv[e + 1:]) for sn, part in zip(seen, parts)]
                 C = tuple(C)
-            hv = jax.lax.optimization_barrier(_product(cv, dv))
-        pq = _factor(P, d.a, masks.p) * _factor(Q, d.b, masks.q) * hv
-        fixed = _sum_terms(pq, masks.t * (1 - masks.w))
-        W = _unless_empty(masks.w, lambda: _w_block(pq * s3, W, (d.y - fixed) * s1, mu_w, d.vi, d.vw, masks.w, lo_w), W)
-        P, Q, W, D, C = _balance(P, Q, W, masks, D, C)
-        r = (predict(P, Q, W, d, masks, D, C) - d.y) * s1
-        return (P, Q, W, zero if D is None else D, zero if C is None else C), jnp.sum(r * r)
-
-    init = (P, Q, W, D if has_d else zero, tuple(C) if has_c else zero)
-    (P, Q, W, Dn, Cn), hist = jax.lax.scan(sweep_once, init, None, length=sweeps)
-    return P, Q, W, (Dn if has_d else D), (Cn if has_c else C), hist
+        if _present(masks.w):
+            W = line(W, lo_w, lambda part: (part.vi, part.vw), masks.w, lambda sn: (sn.pa, sn.qb, *lines(sn)))
+        P, Q, W, D, C = _balanced(P, Q, W, masks, D, C)
+        # the balanced state at the samples: its objective, and the next sweep's factors
+        seen = [_seen(P, Q, W, D, C, part, masks) for part in parts]
+        hist.append(sum(float(_seen_objective(sn, part.y, part.s, masks.t)) for sn, part in zip(seen, parts)))
+    return P, Q, W, (D if has_d else D_in), (C if has_c else C_in), np.asarray(hist, np.float32)
 
 
 class Padded(NamedTuple):
     """A sum's ALS state in slots (:func:`padded`): the arrays :func:`sweep` reads and how to read back."""
 
     state: tuple  # (P, Q, W, D, C)
-    data: GridData
+    data: GridData | Blocked
     masks: Masks
     slots: Slots
     order: np.ndarray
 
 
-def padded(P, Q, W, d: GridData, flags: Flags, D=None, C=None, slots: Slots | None = None) -> Padded:
+def padded(P, Q, W, d: GridData, flags: Flags, D=None, C=None, slots: Slots | None = None, block: int = 0) -> Padded:
     """The terms of ``flags`` (arrays P, Q, W, D, C per term, D and C None where no term has one) in
-    ``slots`` (default: their own, :func:`slots_of`): empty slots hold ones, masked out."""
+    ``slots`` (default: their own, :func:`slots_of`): empty slots hold ones, masked out; the samples in
+    :func:`blocks` of ``block`` (0: one block)."""
     slots = slots_of(flags) if slots is None else slots
     order, masks = layout(flags, slots)
     K, Sw = slots.terms, np.asarray(W).shape[1]
@@ -492,7 +642,7 @@ def padded(P, Q, W, d: GridData, flags: Flags, D=None, C=None, slots: Slots | No
              jnp.asarray(pad(np.asarray(W, np.float32), order)), jnp.asarray(Dp),
              tuple(jnp.asarray(pad(c, order)) for c in Cs))
     assert state[0].shape[0] == K
-    return Padded(state, pad_data(d, order, slots), masks, slots, order)
+    return Padded(state, blocks(pad_data(d, order, slots), block), masks, slots, order)
 
 
 def unpadded(p: Padded, flags: Flags) -> tuple:
@@ -520,5 +670,5 @@ def run(P, Q, W, d: GridData, lam, *, flags: Flags, sweeps: int, jacobi: int = 3
     return unpadded(p._replace(state=tuple(state)), flags) + (hist,)
 
 
-__all__ = ["Flags", "GridData", "Masks", "Padded", "Slots", "layout", "line_footprint", "pad", "padded", "predict",
-           "run", "single_texel", "slots_of", "spd_solve", "sweep", "unpad", "unpadded"]
+__all__ = ["Blocked", "Flags", "GridData", "Masks", "Padded", "Seen", "Slots", "blocks", "layout", "line_footprint",
+           "pad", "padded", "predict", "run", "single_texel", "slots_of", "spd_solve", "sweep", "unpad", "unpadded"]

@@ -281,7 +281,8 @@ def _sums(target: Target, the_plan: Plan, samples: Samples, record: dict, sample
         return polished["pairs", stride]
 
     fits: dict = {}  # (structure, line size) -> its SumFit (the chooser polishes the one it keeps)
-    # every candidate's ALS in one set of term slots: one compiled sweep per sample count, not per structure
+    # every candidate's ALS in one set of term slots: one set of compiled sweep programs per block size, not per
+    # structure
     slots = sums.als_slots(target, the_plan.candidates, mapper, opts.texture_size, sizes[0])
 
     running: dict = {}  # structure -> its fit under way (the race's candidates still in it)

@@ -381,7 +381,8 @@ class Running(NamedTuple):
 def begin(target: Target, structure: Structure, mapper: str, size: int, samples: Samples,
           options: LinearOptions | None = None, log: Callable[[str], None] | None = None,
           previous: Factorization | None = None, line_size: int = LINE_SIZE,
-          sample_weights: np.ndarray | None = None, chunk: int = 0, slots: als.Slots | None = None) -> Running:
+          sample_weights: np.ndarray | None = None, chunk: int = 0, slots: als.Slots | None = None,
+          block: int = 0) -> Running:
     """Steps 1-2 of :func:`fit_sum` (fixed terms, start; for highlight terms their own start) and no sweep
     of the ALS yet: a :class:`Running` fit that :func:`advance` continues and :func:`finish` reads. The
     arguments are :func:`fit_sum`'s."""
@@ -410,7 +411,7 @@ def begin(target: Target, structure: Structure, mapper: str, size: int, samples:
     if method == "als" and structure.highlights.table:  # the ALS fits the lines; the table is their product
         prev = None if previous is None else table.separate(previous, line_size)
         run = begin(target, lined(structure), mapper, size, samples, opts, log, previous=prev, line_size=line_size,
-                    sample_weights=sample_weights, slots=slots)
+                    sample_weights=sample_weights, slots=slots, block=block)
         n_unknowns = sum(lay.n_valid for lay in layouts.values())
         inner = run.done
         return run._replace(structure=structure,
@@ -464,7 +465,7 @@ def begin(target: Target, structure: Structure, mapper: str, size: int, samples:
         return Running(structure, None, np.asarray(hist, np.float32), bool(converged), int(opts.iterations),
                        float(opts.tolerance), float(opts.laplacian), lambda *_: sf)
     p, unpack = _als_start(structure, specs, fitted_terms, layouts, x0, grid, a, b, y_fit / sigma, opts, weights,
-                           target.context, log, slots, warm=previous is not None)
+                           target.context, log, slots, warm=previous is not None, block=block)
     assemble_s = time.perf_counter() - t0
 
     def done_als(state, steps, converged, hist, solve_s) -> SumFit:
@@ -494,7 +495,8 @@ def finish(run: Running) -> SumFit:
 def fit_sum(target: Target, structure: Structure, mapper: str, size: int, samples: Samples,
             options: LinearOptions | None = None, log: Callable[[str], None] | None = None,
             previous: Factorization | None = None, line_size: int = LINE_SIZE,
-            sample_weights: np.ndarray | None = None, chunk: int = 0, slots: als.Slots | None = None) -> SumFit:
+            sample_weights: np.ndarray | None = None, chunk: int = 0, slots: als.Slots | None = None,
+            block: int = 0) -> SumFit:
     """Fit ``structure`` to the training samples in linear space (see the module docstring): :func:`begin`,
     :func:`advance` through ``linear.iterations`` sweeps (or to convergence), :func:`finish`.
 
@@ -512,12 +514,16 @@ def fit_sum(target: Target, structure: Structure, mapper: str, size: int, sample
 
     ``slots``: the ALS term slots to pad the structure's terms into (a group with fewer slots than the
     structure has terms: its own count; :func:`als_slots` of every structure a run fits on these samples):
-    fits in the same slots share one compiled sweep; the same fit as without, to float rounding (default:
-    the structure's own).
+    fits in the same slots share one set of compiled sweep programs; the same fit as without, to float rounding
+    (default: the structure's own).
+
+    ``block``: the ALS sums its normal equations over blocks of this many pairs (:func:`homofac.fit.als.blocks`;
+    0: one block): its programs are compiled per block size, so a fit on a multiple of an earlier fit's pairs
+    in blocks of that count reuses them (:func:`continued`); the same fit to float rounding.
     """
     log = log or (lambda msg: None)
     run = begin(target, structure, mapper, size, samples, options, log, previous, line_size, sample_weights, chunk,
-                slots)
+                slots, block)
     return finish(advance(run, None, log))
 
 
@@ -540,8 +546,9 @@ def continued(target: Target, structure: Structure, mapper: str, size: int, samp
     if head is None:
         head = fit_sum(target, structure, mapper, size, strided(samples, stride),
                        options.model_copy(update={"iterations": int(sweeps)}), log, line_size=line_size, slots=slots)
+    # in blocks of the short fit's pair count: the sweep programs it compiled
     out = fit_sum(target, structure, mapper, size, samples, options, log, previous=head.model, line_size=line_size,
-                  slots=slots)
+                  slots=slots, block=len(strided(samples, stride).a))
     note = {"stride": int(stride), "sweeps": int(sweeps), "start": head.solver.get("start"),
             "ran": int(head.solver.get("iterations", 0))}
     record = {**out.solver, "start": head.solver.get("start"), "head": note}
@@ -625,8 +632,8 @@ PROGRESS_S = 3.0
 
 def als_sweeps(p: als.Padded, lam, sweeps: int, tolerance: float, log=None,
                history: np.ndarray | None = None, budget: int | None = None) -> tuple[als.Padded, int, bool, np.ndarray]:
-    """At most ``sweeps`` ALS sweeps (:func:`homofac.fit.als.sweep`, one compiled sweep per slots, called
-    per sweep) of the padded state ``p``, stopping when a sweep lowers the objective f by less than
+    """At most ``sweeps`` ALS sweeps (:func:`homofac.fit.als.sweep`, its programs compiled per slots and block
+    size, called per sweep) of the padded state ``p``, stopping when a sweep lowers the objective f by less than
     ``tolerance * f`` (relative decrease ``(f_prev - f) / f_prev``; 0: never). ``history``: the objective
     after each sweep run before (a fit continued, :func:`advance`): the rule reads it as if the sweeps had
     run in one call. Logs ``ALS sweep i / budget: objective f`` (``budget``: the fit's whole sweep budget, default
@@ -699,10 +706,11 @@ def als_slots(target: Target, structures, mapper: str, size: int, line_size: int
 
 
 def _als_start(structure, specs, fitted_terms, layouts, x0, grid, a, b, y, opts: LinearOptions, weights, context=None,
-               log=None, slots: als.Slots | None = None, warm: bool = False):
+               log=None, slots: als.Slots | None = None, warm: bool = False, block: int = 0):
     """The padded ALS state of the start ``x0`` (with the highlight terms' own start, :func:`_highlight_first`,
     unless ``warm``: ``x0`` is a previous model's fit, :func:`warm_start`, whose highlight terms are kept as
-    they are) and the function that reads a state back into texels by texture name."""
+    they are; the samples in :func:`homofac.fit.als.blocks` of ``block``) and the function that reads a state
+    back into texels by texture name."""
     ia, ib, lay = grid
     n = lay.n_valid
     # padded to slots with extra lines, every kind of extra line has its place (the masks say which are read)
@@ -734,7 +742,7 @@ def _als_start(structure, specs, fitted_terms, layouts, x0, grid, a, b, y, opts:
                         jnp.asarray(nb_unk >= 0, jnp.float32), jnp.asarray(np.sqrt(weights), jnp.float32), hi, hw,
                         tuple(i for i, _ in extra), tuple(w for _, w in extra))
     has_h = bool(flags.h)
-    p = als.padded(P, Q, W, data, flags, D if has_h else None, tuple(C) if flags.c else None, slots)
+    p = als.padded(P, Q, W, data, flags, D if has_h else None, tuple(C) if flags.c else None, slots, block)
     lam = jnp.float32(opts.laplacian)
     if has_h and not warm:
         p = _highlight_first(p, flags, lam, opts, log)
