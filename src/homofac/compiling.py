@@ -62,7 +62,7 @@ def jit(fun: Callable | None = None, *, kind: str, filter: bool = False, **jit_k
     ``kind`` (:func:`compiler_options`) where it is called outside any JAX trace; called with a traced
     argument (inside an outer ``jax.jit``, ``grad``, ``vmap``: JAX refuses a nested program's own options) it
     is the plain jit. Usable as ``@jit(kind=...)`` or ``jit(fun, kind=...)``; ``.lower`` is the compiled
-    program's."""
+    program's, ``.clear_cache`` drops both programs' executables."""
     if fun is None:
         return functools.partial(jit, kind=kind, filter=filter, **jit_kwargs)
     make = eqx.filter_jit if filter else jax.jit
@@ -75,7 +75,13 @@ def jit(fun: Callable | None = None, *, kind: str, filter: bool = False, **jit_k
         traced = any(isinstance(x, jax.core.Tracer) for x in jax.tree.leaves((args, kwargs)))
         return (plain if traced else own)(*args, **kwargs)
 
+    def clear_cache() -> None:
+        """Drop both programs' compiled executables (``jax.jit``'s ``clear_cache``)."""
+        for f in {id(own): own, id(plain): plain}.values():
+            getattr(f, "clear_cache", lambda: None)()
+
     call.lower = own.lower
+    call.clear_cache = clear_cache
     return call
 
 
