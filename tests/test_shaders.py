@@ -76,6 +76,34 @@ def run(cmd, **kw) -> subprocess.CompletedProcess:
     return r
 
 
+_BATCHES: dict[str, bool] = {}
+
+
+@pytest.fixture(scope="module")
+def batch_dir(tmp_path_factory) -> Path:
+    return tmp_path_factory.mktemp("batch")
+
+
+def batch_compiles(group: str, cmd: list, source, suffix: str, root: Path) -> bool:
+    """Whether one run of ``cmd`` over ``source(name, quantized, y_up)`` of every case (one file each)
+    succeeds, run once per ``group``.
+
+    The compilers take several files per run and compile each separately, so one process replaces one per
+    shader; a test whose batch fails compiles its own shaders alone, so the failure names the culprit."""
+    if group not in _BATCHES:
+        d = root / group
+        d.mkdir()
+        files = []
+        for n in sorted(CASES):
+            for q in (False, True):
+                for y in (False, True):
+                    files.append(d / f"{n}-{int(q)}{int(y)}{suffix}")
+                    files[-1].write_text(source(n, q, y))
+        r = subprocess.run([str(c) for c in (*cmd, *files)], capture_output=True, text=True, timeout=600)
+        _BATCHES[group] = r.returncode == 0
+    return _BATCHES[group]
+
+
 # --------------------------------------------------------------------------------------------------
 # Models: every mapper, one term and several terms (with every projection of the model's kind)
 
@@ -196,14 +224,16 @@ def wrapped(fac, language: str, quantized: bool = False, y_up: bool = False) -> 
 @pytest.mark.parametrize("quantized", [False, True], ids=["float", "8bit"])
 @pytest.mark.parametrize("name", sorted(CASES))
 @pytest.mark.parametrize("language", ["glsl", "glsl_es"])
-def test_glsl_compiles_with_glslang(language, name, quantized, tmp_path):
+def test_glsl_compiles_with_glslang(language, name, quantized, batch_dir, tmp_path):
     """glslangValidator accepts the library + a fragment main, as GLSL 330 core and as GLSL ES 3.00."""
     exe = tool("glslangValidator")
-    src = tmp_path / "shader.frag"
-    src.write_text(wrapped(case(name), language, quantized))
-    run([exe, "-S", "frag", src])
-    src.write_text(wrapped(case(name), language, quantized, y_up=True))
-    run([exe, "-S", "frag", src])
+    if batch_compiles(language, [exe, "-S", "frag"], lambda n, q, y: wrapped(case(n), language, q, y_up=y),
+                      ".frag", batch_dir):
+        return
+    for y_up in (False, True):  # the batch failed: compile this test's shaders alone, naming the culprit
+        src = tmp_path / "shader.frag"
+        src.write_text(wrapped(case(name), language, quantized, y_up=y_up))
+        run([exe, "-S", "frag", src])
 
 
 def hlsl_spirv(fac, quantized: bool, tmp_path: Path, y_up: bool = False) -> Path:
@@ -329,12 +359,25 @@ def metal_shim(tmp_path: Path) -> Path:
     return d
 
 
+def shim_pch(exe: str, shim: Path) -> Path:
+    """The shim precompiled (once per directory): each shader's own parse of <cmath> was most of its clang CPU."""
+    pch = shim / "metal_stdlib.pch"
+    if not pch.exists():
+        run([exe, *CLANG_FLAGS, "-x", "c++-header", shim / "metal_stdlib", "-o", pch])
+    return pch
+
+
 @pytest.mark.parametrize("quantized", [False, True], ids=["float", "8bit"])
 @pytest.mark.parametrize("name", sorted(CASES))
-def test_msl_compiles_against_the_metal_shim(name, quantized, tmp_path):
+def test_msl_compiles_against_the_metal_shim(name, quantized, batch_dir, tmp_path):
     exe = tool("clang++")
-    shim = metal_shim(tmp_path)
-    for y_up in (False, True):
+    shim = metal_shim(batch_dir)
+    assert "#include <metal_stdlib>" in case(name).shader("msl", quantized=quantized)  # the batch's -include-pch adds it
+    if batch_compiles("msl", [exe, *CLANG_FLAGS, "-fsyntax-only", "-I", shim, "-include-pch", shim_pch(exe, shim),
+                              "-x", "c++"],
+                      lambda n, q, y: case(n).shader("msl", quantized=q, y_up=y), ".metal", batch_dir):
+        return
+    for y_up in (False, True):  # the batch failed: compile this test's shaders alone, naming the culprit
         src = tmp_path / "shader.metal"
         src.write_text(case(name).shader("msl", quantized=quantized, y_up=y_up))
         run([exe, *CLANG_FLAGS, "-fsyntax-only", "-I", shim, "-x", "c++", src])
