@@ -32,6 +32,7 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
+from ..blas import blas_threads
 from ..errors import HomofacError
 from ..io.limits import image_info
 from ..light import Environment, load_environment
@@ -445,7 +446,14 @@ def _align(v: np.ndarray, previous: np.ndarray | None) -> np.ndarray:
 
 def bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Bake:
     """Bake ``environment`` (a lat-long EXR/HDR path, a cube map, a bundled name such as ``"forest"``, or an
-    :class:`Environment`) for every glTF metallic-roughness material (see the module docstring)."""
+    :class:`Environment`) for every glTF metallic-roughness material (see the module docstring). numpy's BLAS runs
+    on one thread meanwhile (its problems are small: :mod:`homofac.blas`)."""
+    with blas_threads(1):
+        return _bake(environment, options, **kwargs)
+
+
+def _bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> Bake:
+    """:func:`bake`'s work."""
     opts = options if isinstance(options, BakeOptions) else validate(BakeOptions, {**(options or {}), **kwargs}, "bake")
     clock = _Clock()
     clock("load")
