@@ -537,7 +537,7 @@ def _bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> B
             scale = float(m @ v[:, 0])
             block = np.concatenate([p, np.zeros(p.shape[:1] + (pl.terms - 1, 3))], axis=1).reshape(s, 6 * s, pl.terms, 3).astype(np.float32)
             for i in (i for i in range(pl.layers) if shared[i]):
-                a_i = np.concatenate(kn.albedos(roughness[i], x)) / scale
+                a_i = (m if i == j else np.concatenate(kn.albedos(roughness[i], x))) / scale
                 vi = np.zeros((2 * len(x), pl.terms))
                 vi[:, 0] = a_i
                 P[i], W[i], shifts[i] = block, vi, 0.0

@@ -129,10 +129,11 @@ def harmonic_kernels(roughness: float, x: np.ndarray, nodes: int = TABLE_NODES, 
 
 def albedos(roughness: float, x: np.ndarray, n: int = 128) -> np.ndarray:
     """``(2, X)``: the directional albedos of the lobes (1 - s5) S and s5 S at view cosines x (Gauss-Legendre
-    quadrature of :func:`homofac.brdf.albedo`): the exact masses of :func:`specular_kernels`' rows."""
+    quadrature of :func:`homofac.brdf.albedo`): the exact masses of :func:`specular_kernels`' rows. One
+    quadrature: a metal of base colour (1, 0, 0) reads S (f0 = 1) in red and s5 S (f0 = 0) in green."""
     wo = jnp.asarray(np.stack([np.sqrt(1.0 - x * x), 0.0 * x, x], -1), jnp.float32)
-    both = np.asarray(albedo(gltf(base_color=1.0, metallic=1.0, roughness=roughness), wo, n=n), np.float64)[:, 0]
-    b = np.asarray(albedo(gltf(base_color=0.0, metallic=1.0, roughness=roughness), wo, n=n), np.float64)[:, 0]
+    rg = np.asarray(albedo(gltf(base_color=(1.0, 0.0, 0.0), metallic=1.0, roughness=roughness), wo, n=n), np.float64)
+    both, b = rg[:, 0], rg[:, 1]
     return np.stack([both - b, b])
 
 
