@@ -401,7 +401,9 @@ def harmonic_fit(kernels: np.ndarray, ref: np.ndarray, size: int, env: Environme
     d = min(size, data_size)
     mb = harmonic_maps(basis, ref, d, env, coarse)  # (T, J', 5)
     w = mappers.texel_solid_angles("cube", d).reshape(-1)
-    gram_b = np.einsum("t,tia,ab,tjb->ij", w, mb, TENSOR_METRIC, mb)
+    # sum_t w_t mb[t, i] . METRIC mb[t, j] as one (J', 5 T) @ (5 T, J') product (a 4-operand einsum loops over t i j a b)
+    left = np.moveaxis(w[:, None, None] * mb, 1, 0).reshape(mb.shape[1], -1)
+    gram_b = left @ np.moveaxis(mb @ TENSOR_METRIC, 1, 0).reshape(mb.shape[1], -1).T
     mix = np.kron(np.asarray(MATERIALS, np.float64) / np.sqrt(len(MATERIALS)), np.eye(len(kernels) // 2))
     gram = mix @ coef @ gram_b @ coef.T @ mix.T
     vals, vecs = np.linalg.eigh(0.5 * (gram + gram.T))
