@@ -92,12 +92,13 @@ CORE = 1.2
 #: Each entry's core from its own texels (:func:`core_factor`): its width factor is 1 + CORE_PIXEL pixel / g, g =
 #: sqrt(|a_1| |a_2|) the geometric mean of its semi-axes and ``pixel`` the source map's pixel angle, so the core's
 #: mean width g x factor is the texels' own g plus CORE_PIXEL of a pixel (the reference reads the source's pixels
-#: bilinearly, which widens a sub-pixel sun relatively more than a softbox). Measured on the converged cells below
-#: 0.15 with the bakes' maps unchanged (docs/notes/bake.md, "Below 0.15, twenty-second session"): one CORE
-#: fits one cell each (forest and studio 1.15, city 1.2, interior 1.25, each losing 5-13 % at the others' best);
-#: CORE_PIXEL 0.105 / **0.11** / 0.115 read city 0.1037 / 0.1034 / 0.1037, forest 0.1141 / 0.1144 / 0.1149,
-#: interior 0.1003 / 0.1008 / 0.1019, studio 0.1229 / 0.1214 / 0.1200 (CORE 1.2: 0.1042, 0.1192, 0.1030, 0.1225).
-CORE_PIXEL = 0.11
+#: bilinearly, which widens a sub-pixel sun relatively more than a softbox). Measured with :data:`BLUR` on the
+#: converged cells with the bakes' maps unchanged (docs/notes/bake.md, "Below 0.15, twenty-second session"): one
+#: CORE fits one cell each (forest and studio 1.15, city 1.2, interior 1.25, each losing 5-13 % at the others'
+#: best); below 0.15 city, forest, interior, studio at CORE_PIXEL **0.1** / 0.11 (BLUR 1/5): **0.0951, 0.1122,
+#: 0.1008, 0.1108** / 0.0976, 0.1139, 0.1025, 0.1093; 0.11 with BLUR 1/3: 0.1034, 0.1144, 0.1008, 0.1214; CORE
+#: 1.2 with BLUR 1/3 (before): 0.1042, 0.1192, 0.1030, 0.1225.
+CORE_PIXEL = 0.1
 
 #: A light's core and halo (:func:`core_and_halo`): its finer light texels whose excess is at least 1/SPLIT of
 #: the brightest one's form the core, the rest the halo, each a Gaussian of its own covariance. Measured with
@@ -291,9 +292,14 @@ def core_widths(widths, u1, u2, a2):
 #: A light's core is a box blurred by a Gaussian (:func:`box_widths`): the Gaussian holds at most BLUR x the
 #: source map's pixel angle squared of the core's variance per axis, the box the rest. The reference reads the
 #: source's pixels bilinearly (a tent, variance pixel^2 / 6 per axis); a light no wider than that stays the
-#: Gaussian of CORE. Measured on the converged cells below 0.15 (docs/notes/bake.md, "Studio below 0.15,
-#: twenty-first session").
-BLUR = 1.0 / 3.0
+#: Gaussian of its core. Measured on the converged cells below 0.15 (docs/notes/bake.md, "Studio below 0.15,
+#: twenty-first session": 1/3 with one CORE 1.2; "Below 0.15, twenty-second session": 1/5 with each entry's
+#: :func:`core_factor`, about the tent's own pixel^2 / 6: below 0.15 city, forest, interior, studio at BLUR 1/6 /
+#: **1/5** / 2/9 / 1/4 / 1/3 (CORE_PIXEL 0.1): 0.0944 / **0.0951** / 0.0964 / 0.0984 / 0.1046, 0.1131 / **0.1122**
+#: / 0.1123 / 0.1126 / 0.1140, 0.1020 / **0.1008** / 0.1005 / 0.1003 / 0.1004, 0.1097 / **0.1108** / 0.1123 / 0.1148
+#: / 0.1245; 0.15-0.3 at 1/5 against CORE 1.2, BLUR 1/3: city 0.0964 / 0.0974, forest 0.0861 / 0.0863, interior
+#: 0.0839 / 0.0846, studio 0.1027 / 0.1022).
+BLUR = 1.0 / 5.0
 
 
 def box_widths(source: Source, pixel: float, blur: float = BLUR) -> tuple:
