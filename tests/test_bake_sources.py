@@ -13,8 +13,9 @@ import pytest
 
 import homofac as hf
 from homofac.bake import shader
-from homofac.bake.sources import (BLUR, CORE, MAX_SOURCES, SPLIT, SPREAD, Source, box_blob, box_widths, brightest_source,
-                                  core_and_halo, core_widths, principal_axes, source_terms, widened_ratio)
+from homofac.bake.sources import (BLUR, CORE, CORE_PIXEL, MAX_SOURCES, SPLIT, SPREAD, Source, box_blob, box_widths,
+                                  brightest_source, core_and_halo, core_factor, core_widths, principal_axes, source_terms,
+                                  widened_ratio, with_boxes, with_cores)
 from homofac.errors import HomofacError
 from homofac.io.exr import read_exr
 from homofac.light import Environment
@@ -305,6 +306,33 @@ def test_core_and_halo_split_a_peaked_source_into_two_gaussians_of_its_power():
     assert core_and_halo(src, d[flat], np.ones(int(flat.sum()))) == (src,)
 
 
+def test_each_core_is_its_texels_width_plus_a_fixed_part_of_the_source_pixel():
+    """core_factor: the core's mean width g x factor = g + CORE_PIXEL pixel (g the geometric mean of the semi-axes, a
+    round source its radius, at least a quarter pixel), so a sub-pixel sun's core is wider in its own units than a
+    softbox's and the factor tends to 1 as the light grows; the box then takes that core's variance."""
+    pixel = np.pi / 128
+    ell = np.array([0.3, -0.4, 0.866]) / np.linalg.norm([0.3, -0.4, 0.866])
+    e1 = np.cross(ell, (0, 0, 1.0))
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(ell, e1)
+    factors = []
+    for a1, a2 in ((0.002, 0.001), (0.01, 0.005), (0.04, 0.01), (0.1, 0.1)):
+        src = Source(tuple(ell), (1.0, 0.8, 0.6), float(np.hypot(a1, a2) / np.sqrt(2)), (tuple(a1 * e2), tuple(a2 * e1)))
+        g = np.sqrt(a1 * a2)
+        f = core_factor(src, pixel)
+        np.testing.assert_allclose(f * max(g, pixel / 4), max(g, pixel / 4) + CORE_PIXEL * pixel, rtol=1e-9)
+        factors.append(f)
+        (boxed,) = with_boxes(with_cores((src,), pixel), pixel)
+        assert boxed.core == f
+        if boxed.box:  # the box and its Gaussian hold the core's own variance along each axis
+            np.testing.assert_allclose(np.asarray(boxed.box) ** 2 / 3 + BLUR * pixel * pixel,
+                                       np.maximum((f * np.array([a1, a2])) ** 2 / 2, BLUR * pixel * pixel), rtol=1e-6)
+    assert factors == sorted(factors, reverse=True) and factors[0] == pytest.approx(1 + 4 * CORE_PIXEL) and factors[-1] < 1.03
+    round_ = Source(tuple(ell), (1.0, 1.0, 1.0), 0.02)
+    assert core_factor(round_, pixel) * 0.02 == pytest.approx(0.02 + CORE_PIXEL * pixel)
+    assert core_factor(round_._replace(radius=0.0), pixel) == pytest.approx(1 + 4 * CORE_PIXEL)  # a point: the floor
+
+
 def test_the_bake_takes_up_to_bake_json_s_eight_sources(tmp_path):
     """Nine suns far apart, each holding more than MIN_SHARE of what the others leave: the bake takes eight (the
     format's limit, MAX_SOURCES; a softbox-lit studio takes eight cores), brightest first, and they round-trip."""
@@ -327,7 +355,9 @@ def test_the_bake_takes_up_to_bake_json_s_eight_sources(tmp_path):
 def test_round_trip_and_schema_1_reads_as_no_sources(sun_bake, tmp_path):
     out = sun_bake.save(tmp_path / "bk")
     doc = json.loads((out / "bake.json").read_text())
-    assert doc["schema_version"] == 8 and len(doc["sources"]) == 1 and doc["sources"][0]["core"] == CORE
+    assert doc["schema_version"] == 8 and len(doc["sources"]) == 1
+    # the sun's own core factor (one 16-face texel: the floor's, 1 + 4 CORE_PIXEL), written as baked
+    assert doc["sources"][0]["core"] == sun_bake.sources[0].core == pytest.approx(core_factor(sun_bake.sources[0], np.pi / 32))
     back = hf.load(out)
     assert back.sources == sun_bake.sources
     n, v = pairs(100, seed=8)

@@ -909,8 +909,9 @@ class BakeSourceEntry(Options):
     #: schema 8: the core's box half-widths (rad) along its ``axes`` (homofac.bake.sources.box_widths); absent: a
     #: Gaussian core
     box: list[float] | None = Field(None, min_length=2, max_length=2)
-    #: schema 8: the core's widths in units of ``axes`` (``homofac.bake.sources.CORE`` when baked); absent: the
-    #: factor of the code that wrote the bake (:func:`legacy_core`)
+    #: schema 8: the core's widths in units of ``axes`` (each entry's own, ``homofac.bake.sources.core_factor``,
+    #: since the twenty-second session; ``CORE`` before); absent: the factor of the code that wrote the bake
+    #: (:func:`legacy_core`)
     core: Optional[float] = Field(None, gt=0, le=10)
 
     @field_validator("box")

@@ -49,7 +49,7 @@ from .gauge import face_gauge
 from .model import Bake, diffuse_sh9
 from .options import BakeOptions
 from .plan import BakePlan, plan as make_plan
-from .sources import MAX_SOURCES, Source, brightest_source, core_and_halo, principal_axes, with_boxes
+from .sources import MAX_SOURCES, Source, brightest_source, core_and_halo, principal_axes, with_boxes, with_cores
 
 #: Roughness from which layers try axis shifts (below it the choice was measured unreliable: forest, fast,
 #: rho 0.156 picked s = 2 alpha and read 0.57 nrmse on I_A where s = 0 reads 0.20; at 0.538 s = alpha: 0.33 -> 0.21).
@@ -482,8 +482,10 @@ def _bake(environment, options: BakeOptions | dict | None = None, **kwargs) -> B
         if not found:
             break
         sources, taken = sources + found, taken + 1
-    # each core a box blurred by a Gaussian where it is wider than the source map's pixels (sources.box_widths)
-    sources = with_boxes(sources, np.pi / (2 * source_size(environment)))
+    # each core's width from its own texels against the source map's pixel (sources.core_factor), then a box blurred
+    # by a Gaussian where it is wider than the source map's pixels (sources.box_widths)
+    pixel = np.pi / (2 * source_size(environment))
+    sources = with_boxes(with_cores(sources, pixel), pixel)
     x = kn.nv_centres(pl.nv_size)
     data_env = lights(opts.data_resolution)
     dirs = fibonacci(opts.samples)

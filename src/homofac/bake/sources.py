@@ -85,8 +85,20 @@ SPREAD = 1.25
 #: bakes' maps unchanged (docs/notes/bake.md, "Forest below 0.15, twentieth session"): below 0.15 city, forest,
 #: interior, studio at 1.1: 0.138, 0.122, 0.137, 0.152; 1.15: 0.116, 0.116, 0.116, 0.139; **1.2: 0.108, 0.118,
 #: 0.105, 0.134**; 1.25: 0.115, 0.126, 0.103, 0.136 (0.15-0.3: interior 0.087 / 0.093 / 0.100 / 0.105, the
-#: others within 2 %). One Gaussian per light (before the split): 1.15 (the eighteenth session's sweep).
+#: others within 2 %). One Gaussian per light (before the split): 1.15 (the eighteenth session's sweep). A bake sets
+#: each entry's own factor instead (:func:`core_factor`); CORE is :class:`Source`'s default.
 CORE = 1.2
+
+#: Each entry's core from its own texels (:func:`core_factor`): its width factor is 1 + CORE_PIXEL pixel / g, g =
+#: sqrt(|a_1| |a_2|) the geometric mean of its semi-axes and ``pixel`` the source map's pixel angle, so the core's
+#: mean width g x factor is the texels' own g plus CORE_PIXEL of a pixel (the reference reads the source's pixels
+#: bilinearly, which widens a sub-pixel sun relatively more than a softbox). Measured with :data:`BLUR` on the
+#: converged cells with the bakes' maps unchanged (docs/notes/bake.md, "Below 0.15, twenty-second session"): one
+#: CORE fits one cell each (forest and studio 1.15, city 1.2, interior 1.25, each losing 5-13 % at the others'
+#: best); below 0.15 city, forest, interior, studio at CORE_PIXEL **0.1** / 0.11 (BLUR 1/5): **0.0951, 0.1122,
+#: 0.1008, 0.1108** / 0.0976, 0.1139, 0.1025, 0.1093; 0.11 with BLUR 1/3: 0.1034, 0.1144, 0.1008, 0.1214; CORE
+#: 1.2 with BLUR 1/3 (before): 0.1042, 0.1192, 0.1030, 0.1225.
+CORE_PIXEL = 0.1
 
 #: A light's core and halo (:func:`core_and_halo`): its finer light texels whose excess is at least 1/SPLIT of
 #: the brightest one's form the core, the rest the halo, each a Gaussian of its own covariance. Measured with
@@ -241,6 +253,23 @@ def core_and_halo(source: Source, directions, weights, split: float = SPLIT) -> 
     return tuple(parts)
 
 
+def core_factor(source: Source, pixel: float, k: float = CORE_PIXEL) -> float:
+    """The core's width factor of ``source`` (:attr:`Source.core`) from its own texels against the source map's
+    ``pixel`` angle (rad): 1 + ``k`` pixel / g, g = sqrt(|a_1| |a_2|) the geometric mean of its semi-axes (a round
+    source: its ``radius``), at least pixel / 4 (the finer lights' texel, below which the axes are not measured),
+    so g x factor = g + ``k`` pixel: a sun narrower than a pixel gets a wider core in its own units than a softbox
+    (:data:`CORE_PIXEL`)."""
+    lengths = np.linalg.norm(np.asarray(source.axes, np.float64).reshape(-1, 3), axis=1)
+    g = float(np.sqrt(lengths[0] * lengths[1])) if len(lengths) == 2 else float(source.radius)
+    return float(1.0 + k * pixel / max(g, pixel / 4))
+
+
+def with_cores(sources, pixel: float, k: float = CORE_PIXEL) -> tuple[Source, ...]:
+    """``sources`` each with its :func:`core_factor` at the source map's ``pixel`` angle (rad); before
+    :func:`with_boxes`, whose box takes the core's variance."""
+    return tuple(s._replace(core=core_factor(s, pixel, k)) for s in sources)
+
+
 def widened_ratio(a2, sx2, sy2, nh2, hx2, hy2):
     """D'(h) / D(h): the anisotropic GGX of squared widths ``a2`` + ``sx2`` (along x) and ``a2`` + ``sy2`` (along y)
     over GGX at ``a2`` (alpha^2), at the unit half vector's squared components ``hx2``, ``hy2``, ``nh2`` (h.n):
@@ -263,9 +292,14 @@ def core_widths(widths, u1, u2, a2):
 #: A light's core is a box blurred by a Gaussian (:func:`box_widths`): the Gaussian holds at most BLUR x the
 #: source map's pixel angle squared of the core's variance per axis, the box the rest. The reference reads the
 #: source's pixels bilinearly (a tent, variance pixel^2 / 6 per axis); a light no wider than that stays the
-#: Gaussian of CORE. Measured on the converged cells below 0.15 (docs/notes/bake.md, "Studio below 0.15,
-#: twenty-first session").
-BLUR = 1.0 / 3.0
+#: Gaussian of its core. Measured on the converged cells below 0.15 (docs/notes/bake.md, "Studio below 0.15,
+#: twenty-first session": 1/3 with one CORE 1.2; "Below 0.15, twenty-second session": 1/5 with each entry's
+#: :func:`core_factor`, about the tent's own pixel^2 / 6: below 0.15 city, forest, interior, studio at BLUR 1/6 /
+#: **1/5** / 2/9 / 1/4 / 1/3 (CORE_PIXEL 0.1): 0.0944 / **0.0951** / 0.0964 / 0.0984 / 0.1046, 0.1131 / **0.1122**
+#: / 0.1123 / 0.1126 / 0.1140, 0.1020 / **0.1008** / 0.1005 / 0.1003 / 0.1004, 0.1097 / **0.1108** / 0.1123 / 0.1148
+#: / 0.1245; 0.15-0.3 at 1/5 against CORE 1.2, BLUR 1/3: city 0.0964 / 0.0974, forest 0.0861 / 0.0863, interior
+#: 0.0839 / 0.0846, studio 0.1027 / 0.1022).
+BLUR = 1.0 / 5.0
 
 
 def box_widths(source: Source, pixel: float, blur: float = BLUR) -> tuple:
@@ -376,6 +410,6 @@ def source_terms(sources, n: Float[Array, "N 3"], v: Float[Array, "N 3"], roughn
     return out
 
 
-__all__ = ["BLUR", "CORE", "MAX_SOURCES", "MIN_SHARE", "RADIUS", "RATIO", "SPLIT", "SPREAD", "Source", "box_blob", "box_profile", "box_widths", "brightest_source", "with_boxes",
-           "core_and_halo", "core_widths",
+__all__ = ["BLUR", "CORE", "CORE_PIXEL", "MAX_SOURCES", "MIN_SHARE", "RADIUS", "RATIO", "SPLIT", "SPREAD", "Source", "box_blob", "box_profile", "box_widths", "brightest_source", "with_boxes",
+           "core_and_halo", "core_factor", "core_widths", "with_cores",
            "principal_axes", "take_core", "source_terms", "widened_ratio"]
