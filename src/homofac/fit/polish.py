@@ -53,10 +53,12 @@ from .sums import SumFit, fit_sum, line_size_of, with_highlight_context
 
 
 def polish_pairs(target: Target, parametrization: str, lin: LinearOptions, seed: int, cache: bool,
-                 log: Callable[[str], None], stride: int = 1) -> Samples:
+                 log: Callable[[str], None], stride: int = 1, width: int | None = None) -> Samples:
     """The off-grid training pairs of the polish (texel sampling at ``lin.polish_size``, no validation);
     with ``stride`` k > 1 every k-th view of each normal of them (about 1/k of the pairs: a strided polish,
-    the plan's ``polish_stride``), only those evaluated."""
+    the plan's ``polish_stride``), only those evaluated, in rows of ``width`` views where given
+    (:func:`homofac.fit.samples.packed`: the training grid's width, :func:`homofac.fit.samples.row_width_of`,
+    so that they run the grid's compiled lighting program instead of compiling one of their own)."""
     settings = {"kind": "texels", "size": int(lin.polish_size), "validation": 0, "seed": int(seed),
                 "cache": bool(cache)}
     if stride <= 1 or target.kind != "lighting":
@@ -66,7 +68,7 @@ def polish_pairs(target: Target, parametrization: str, lin: LinearOptions, seed:
     part = Grouped(groups.normals, groups.views[:, ::stride], groups.mask[:, ::stride])
     pairs = part.flatten()
     log(f"sampling {len(pairs.a)} training pairs (every {stride}th of the polish's {int(groups.mask.sum())})")
-    y = np.asarray(evaluate_grouped(target, part), np.float32)
+    y = np.asarray(evaluate_grouped(target, part, width), np.float32)
     none = np.zeros((0, 3), np.float32)
     return Samples(pairs.a, pairs.b, y, none, none, none)
 
