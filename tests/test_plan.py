@@ -452,11 +452,14 @@ def test_the_polish_pairs_in_rows_of_the_grids_width_run_its_lighting_program(en
     flattened normals, the width ``packed`` gave it) are the same pairs with the same values, and their lighting
     compiles no program after the grid's."""
     t = hf.light.with_context(_gold(envs["sun"]), "NRO")
-    lin = hf.fit.options.LinearOptions(polish_size=6)
+    lin = hf.fit.options.LinearOptions(polish_size=12)  # 28 views a normal every 4th; 8 at polish_size 6
     own = hf.fit.polish.polish_pairs(t, "NRO", lin, 0, False, lambda m: None, stride=4)
     g = hf.fit.sampling.grouped_grid("dual_paraboloid", 8, 3000, 0)
     width = hf.fit.samples.row_width_of(g.flatten().a)
     assert width == hf.fit.samples.packed(g).views.shape[1] > hf.fit.samples.QUICK_WIDTH
+    # rows of 32 for groups of 28 views: 1.09x their own work, shared; for groups of 8: 2x, not shared
+    assert hf.fit.polish.shared_width(np.ones((10, 28), bool), width) == width
+    assert hf.fit.polish.shared_width(np.ones((10, 8), bool), width) is None
     hf.fit.samples.evaluate_grouped(t, g)
     names = []
     backend_compile = compiler.backend_compile_and_load

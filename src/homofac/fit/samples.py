@@ -132,13 +132,18 @@ def _blocks(fn, normals: np.ndarray, views: np.ndarray) -> np.ndarray:
 ROW_COST = 16
 
 
+def row_work(counts: np.ndarray, width: int) -> int:
+    """The work of groups of ``counts`` valid views in rows of ``width``: ``rows x (W + ROW_COST)``,
+    ``rows = sum ceil(counts / W)`` (what :func:`packed` minimises)."""
+    return int((-(-np.asarray(counts) // int(width))).sum() * (int(width) + ROW_COST))
+
+
 def row_width(counts: np.ndarray) -> int:
     """The row width :func:`packed` gives groups of ``counts`` valid views each: the power of 2 from 8 that
-    minimises the work ``rows x (W + ROW_COST)``, ``rows = sum ceil(counts / W)``."""
+    minimises the work :func:`row_work`."""
     counts = np.asarray(counts)
     widths = 8 * 2 ** np.arange(int(np.ceil(np.log2(max(counts.max() / 8, 1)))) + 1)  # 8, 16, ...: few programs
-    rows = -(-counts[None, :] // widths[:, None])  # (widths, G)
-    return int(widths[np.argmin(rows.sum(axis=1) * (widths + ROW_COST))])
+    return int(widths[np.argmin([row_work(counts, w) for w in widths])])
 
 
 def row_width_of(a: np.ndarray) -> int:
@@ -202,4 +207,4 @@ def _culled(fn, normals, views):
 
 
 __all__ = ["FIELDS", "QUICK_WIDTH", "ROW_COST", "Samples", "check_values", "evaluate", "evaluate_blocked", "evaluate_grouped", "packed",
-           "row_width", "row_width_of"]
+           "row_width", "row_width_of", "row_work"]
