@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from hypothesis import given, settings
+from jax._src import compiler
 from hypothesis import strategies as st
 
 import homofac as hf
@@ -444,6 +445,35 @@ def test_the_strided_polish_pairs_are_every_kth_view_of_the_polish_pairs_with_th
     key = {tuple(np.round(np.concatenate([a, b]), 5)): y for a, b, y in zip(full.a, full.b, full.y)}
     got = np.array([key[tuple(np.round(np.concatenate([a, b]), 5))] for a, b in zip(part.a, part.b)])
     np.testing.assert_allclose(part.y, got, rtol=1e-4, atol=1e-6)  # float32 sums in another row packing
+
+
+def test_the_polish_pairs_in_rows_of_the_grids_width_run_its_lighting_program(envs, monkeypatch):
+    """The off-grid pairs of a strided polish packed at the training grid's row width (``row_width_of`` its
+    flattened normals, the width ``packed`` gave it) are the same pairs with the same values, and their lighting
+    compiles no program after the grid's."""
+    t = hf.light.with_context(_gold(envs["sun"]), "NRO")
+    lin = hf.fit.options.LinearOptions(polish_size=12)  # 28 views a normal every 4th; 8 at polish_size 6
+    own = hf.fit.polish.polish_pairs(t, "NRO", lin, 0, False, lambda m: None, stride=4)
+    g = hf.fit.sampling.grouped_grid("dual_paraboloid", 8, 3000, 0)
+    width = hf.fit.samples.row_width_of(g.flatten().a)
+    assert width == hf.fit.samples.packed(g).views.shape[1] > hf.fit.samples.QUICK_WIDTH
+    # rows of 32 for groups of 28 views: 1.09x their own work, shared; for groups of 8: 2x, not shared
+    assert hf.fit.polish.shared_width(np.ones((10, 28), bool), width) == width
+    assert hf.fit.polish.shared_width(np.ones((10, 8), bool), width) is None
+    hf.fit.samples.evaluate_grouped(t, g)
+    names = []
+    backend_compile = compiler.backend_compile_and_load
+
+    def recording(backend, module, *args, **kwargs):
+        names.append(str(module.operation.attributes["sym_name"]))
+        return backend_compile(backend, module, *args, **kwargs)
+
+    monkeypatch.setattr(compiler, "backend_compile_and_load", recording)
+    part = hf.fit.polish.polish_pairs(t, "NRO", lin, 0, False, lambda m: None, stride=4, width=width)
+    assert not [n for n in names if "eval_groups" in n], names
+    np.testing.assert_array_equal(part.a, own.a)
+    np.testing.assert_array_equal(part.b, own.b)
+    np.testing.assert_allclose(part.y, own.y, rtol=1e-4, atol=1e-6)  # float32 sums in another row packing
 
 
 def test_best_drops_the_lined_highlight_candidates_whose_table_twin_it_tries(envs):

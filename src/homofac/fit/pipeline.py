@@ -28,7 +28,7 @@ from .options import AdvancedOptions, AnalysisOptions, FitOptions, SamplingOptio
 from .plan import Plan, build_plan, grid_count, validation_count
 from .product import fit_product
 from .result import Result
-from .samples import Samples, check_values
+from .samples import Samples, check_values, row_width_of
 from .sampling import GRID_COUNT
 from .state import from_fit
 from .structures import Structure
@@ -272,11 +272,12 @@ def _sums(target: Target, the_plan: Plan, samples: Samples, record: dict, sample
         _, smp, s_s = pools[proj]
         return tgt, smp, s_s
 
-    def pairs(stride: int = 1) -> Samples:  # the polish's off-grid pairs (every stride-th view), drawn once
-        if ("pairs", stride) not in polished:
+    def pairs(stride: int = 1) -> Samples:  # the polish's off-grid pairs (every stride-th view), drawn once, in rows
+        if ("pairs", stride) not in polished:  # of the training grid's width (its compiled lighting program)
             t0 = time.perf_counter()
             polished["pairs", stride] = polish.polish_pairs(target, opts.parametrization, lin, opts.sampling.seed,
-                                                            opts.sampling.cache, log, stride=stride)
+                                                            opts.sampling.cache, log, stride=stride,
+                                                            width=row_width_of(samples.a))
             polished["sample_s"] = polished.get("sample_s", 0.0) + time.perf_counter() - t0
         return polished["pairs", stride]
 

@@ -46,17 +46,37 @@ from .draw import draw_pairs, draw_samples
 from .metrics import CHUNK, _chunks
 from .options import LinearOptions, SamplingOptions
 from .ridge import RidgePairs, in_any_ridge, ridge_pairs, stratified_nrmse
-from .samples import Samples, evaluate, evaluate_grouped
+from .samples import Samples, evaluate, evaluate_grouped, row_width, row_work
 from .sampling import Grouped
 from .structures import Structure
 from .sums import SumFit, fit_sum, line_size_of, with_highlight_context
 
 
+#: How much more grouped-lighting work (:func:`homofac.fit.samples.row_work`) the polish's off-grid pairs may take in
+#: rows of the training grid's width than in their own, to run the grid's compiled program instead of compiling one:
+#: on gold / forest ``balanced``'s 100 352 pairs cost 1.25x in rows of 64 (the grid's) and saved 3.4 s CPU of 6.8
+#: (the compile of a program of their own width, 112); docs/notes/speed.md, "balanced, twenty-second session".
+SHARED_WIDTH_WORK = 1.5
+
+
+def shared_width(mask: np.ndarray, width: int | None) -> int | None:
+    """``width`` (the training grid's rows) where the groups of valid views ``mask`` cost at most
+    :data:`SHARED_WIDTH_WORK` times their own packing's work in rows of it, else None (their own width)."""
+    counts = np.asarray(mask).sum(axis=1)
+    if width is None or counts.size == 0 or not counts.any():
+        return None
+    own = min(row_width(counts), int(np.asarray(mask).shape[1]))
+    return int(width) if row_work(counts, width) <= SHARED_WIDTH_WORK * row_work(counts, own) else None
+
+
 def polish_pairs(target: Target, parametrization: str, lin: LinearOptions, seed: int, cache: bool,
-                 log: Callable[[str], None], stride: int = 1) -> Samples:
+                 log: Callable[[str], None], stride: int = 1, width: int | None = None) -> Samples:
     """The off-grid training pairs of the polish (texel sampling at ``lin.polish_size``, no validation);
     with ``stride`` k > 1 every k-th view of each normal of them (about 1/k of the pairs: a strided polish,
-    the plan's ``polish_stride``), only those evaluated."""
+    the plan's ``polish_stride``), only those evaluated, in rows of ``width`` views where given and not
+    much costlier (:func:`shared_width`; :func:`homofac.fit.samples.packed`: the training grid's width,
+    :func:`homofac.fit.samples.row_width_of`, so that they run the grid's compiled lighting program instead of
+    compiling one of their own)."""
     settings = {"kind": "texels", "size": int(lin.polish_size), "validation": 0, "seed": int(seed),
                 "cache": bool(cache)}
     if stride <= 1 or target.kind != "lighting":
@@ -66,7 +86,7 @@ def polish_pairs(target: Target, parametrization: str, lin: LinearOptions, seed:
     part = Grouped(groups.normals, groups.views[:, ::stride], groups.mask[:, ::stride])
     pairs = part.flatten()
     log(f"sampling {len(pairs.a)} training pairs (every {stride}th of the polish's {int(groups.mask.sum())})")
-    y = np.asarray(evaluate_grouped(target, part), np.float32)
+    y = np.asarray(evaluate_grouped(target, part, shared_width(part.mask, width)), np.float32)
     none = np.zeros((0, 3), np.float32)
     return Samples(pairs.a, pairs.b, y, none, none, none)
 
@@ -282,6 +302,7 @@ def recorded_linear(lin: LinearOptions, solver: dict | None) -> LinearOptions:
     return lin.model_copy(update=update)
 
 
-__all__ = ["POLISH_CHUNK", "RIDGE_NEEDS_ENVIRONMENT", "RidgeSamples", "RidgeValidation", "STAGE_STARTS", "VALIDATION_RIDGE_LIGHTS", "polish",
+__all__ = ["POLISH_CHUNK", "RIDGE_NEEDS_ENVIRONMENT", "RidgeSamples", "RidgeValidation", "SHARED_WIDTH_WORK", "STAGE_STARTS",
+           "VALIDATION_RIDGE_LIGHTS", "polish", "shared_width",
            "polish_pairs", "polish_stage", "polish_stages", "recorded_direct", "recorded_linear", "recorded_stride", "ridge_lights",
            "ridge_nrmse", "ridge_samples", "ridge_validation"]

@@ -52,7 +52,7 @@ from .pipeline import quality_warnings, resolve_sampling
 from .polish import polish, polish_pairs, recorded_direct, recorded_linear, recorded_stride
 from .product import unpack, zeros_rule
 from .result import Result
-from .samples import check_values, evaluate_grouped
+from .samples import check_values, evaluate_grouped, row_width_of
 from .state import RefitState, from_options
 from .system import Layout, System, build_system, parametrization_layout
 
@@ -471,9 +471,9 @@ def refit(fac: Result, environment: Environment | None = None, brdf: BRDF | None
                               previous=fac.model if start == "previous" else None,
                               line_size=sums.line_size_of(fac.model))
         if lin.polish > 0:  # the same off-grid pairs as the full run (deterministic), the new target's values
-            k = recorded_stride(fac.solver)
+            k = recorded_stride(fac.solver)  # in rows of the grid's width, as the full run evaluated them
             pairs = polish_pairs(tgt, opts.parametrization, lin, opts.sampling.seed, opts.sampling.cache, log,
-                                 stride=k)
+                                 stride=k, width=row_width_of(samples.a))
             sf = polish(tgt, state.structure, state.mapper, state.texture_size, sf, samples, pairs, lin, log,
                         seed=opts.sampling.seed, direct=recorded_direct(fac.solver), stride=k)
         model, record, solve_s, warnings = sf.model, {**sf.solver, "refit": True}, sf.solve_s, sf.warnings

@@ -63,19 +63,21 @@ def _eval_groups_quick(fn, normals, views):
     return fn.grouped(normals, views)
 
 
-def evaluate_grouped(target: Target, grouped) -> np.ndarray:
+def evaluate_grouped(target: Target, grouped, width: int | None = None) -> np.ndarray:
     """Values at the valid pairs of a :class:`~homofac.fit.sampling.Grouped` set, in flattened order (float32
     numpy, (M, 3)).
 
     Uses the target's per-normal fast path (``target.fn.grouped``) when it has one, with the normals
-    split over all devices when there are several (:mod:`homofac.fit.shard`). The rows' packing, blocks and
-    the selection of the valid pairs are numpy on the host: as JAX operations outside a compiled program each
-    would compile a program of its own per shape (``concatenate``, ``dynamic_slice``, ``gather``, ...).
+    split over all devices when there are several (:mod:`homofac.fit.shard`), its rows :func:`packed` (at
+    ``width`` views where given: another set's width, whose compiled program the rows then reuse). The rows'
+    packing, blocks and the selection of the valid pairs are numpy on the host: as JAX operations outside a
+    compiled program each would compile a program of its own per shape (``concatenate``, ``dynamic_slice``,
+    ``gather``, ...).
     """
     if grouped.mask.size == 0 or not grouped.mask.any():
         return np.zeros((0, 3), np.float32)
     if hasattr(target.fn, "grouped"):
-        grouped = packed(grouped)
+        grouped = packed(grouped, width)
         mask = np.asarray(grouped.mask)
         if getattr(target.fn, "culls_lobes", False):
             out = _culled(target.fn, jnp.asarray(grouped.normals), jnp.asarray(grouped.views))
@@ -130,21 +132,49 @@ def _blocks(fn, normals: np.ndarray, views: np.ndarray) -> np.ndarray:
 ROW_COST = 16
 
 
-def packed(grouped: Grouped) -> Grouped:
+def row_work(counts: np.ndarray, width: int) -> int:
+    """The work of groups of ``counts`` valid views in rows of ``width``: ``rows x (W + ROW_COST)``,
+    ``rows = sum ceil(counts / W)`` (what :func:`packed` minimises)."""
+    return int((-(-np.asarray(counts) // int(width))).sum() * (int(width) + ROW_COST))
+
+
+def row_width(counts: np.ndarray) -> int:
+    """The row width :func:`packed` gives groups of ``counts`` valid views each: the power of 2 from 8 that
+    minimises the work :func:`row_work`."""
+    counts = np.asarray(counts)
+    widths = 8 * 2 ** np.arange(int(np.ceil(np.log2(max(counts.max() / 8, 1)))) + 1)  # 8, 16, ...: few programs
+    return int(widths[np.argmin([row_work(counts, w) for w in widths])])
+
+
+def row_width_of(a: np.ndarray) -> int:
+    """The row width :func:`packed` gave a set of pairs grouped by normal, from its flattened normals ``a``
+    (:meth:`~homofac.fit.sampling.Grouped.flatten`: each normal's valid pairs in one run): :func:`row_width`
+    of the runs' lengths (where :func:`packed` left the groups as they were, at most 8 views or a width past
+    their largest group, their rows kept their own width instead)."""
+    a = np.asarray(a)
+    starts = np.flatnonzero(np.concatenate([[True], np.any(a[1:] != a[:-1], axis=1)]))
+    return row_width(np.diff(np.concatenate([starts, [len(a)]])))
+
+
+def packed(grouped: Grouped, width: int | None = None) -> Grouped:
     """The same valid pairs in the same flattened order, regrouped into rows of at most W views (a
     normal with more views gets several rows), W the power of 2 from 8 that minimises the work
-    ``rows x (W + ROW_COST)``. The grid design's groups hold 1 to about 2.2x the mean count of views, so
+    ``rows x (W + ROW_COST)`` (:func:`row_width`), or ``width`` where given (rows of exactly that many
+    views, the padding unread: the program shape of another set packed at that width, e.g. the training grid's
+    for the polish's off-grid pairs). The grid design's groups hold 1 to about 2.2x the mean count of views, so
     padding every normal to the largest evaluated the BRDF at 2.2 slots per pair (0.45 of them valid);
     the values are those of the unpacked groups (each pair is computed alike)."""
     mask = np.asarray(grouped.mask)
     counts = mask.sum(axis=1)
-    if counts.size == 0 or counts.max() <= 8:
+    if width is None:
+        if counts.size == 0 or counts.max() <= 8:
+            return grouped
+        width = row_width(counts)
+        if width >= mask.shape[1]:
+            return grouped
+    elif int(width) == mask.shape[1] or counts.size == 0:
         return grouped
-    widths = 8 * 2 ** np.arange(int(np.ceil(np.log2(max(counts.max() / 8, 1)))) + 1)  # 8, 16, ...: few programs
-    rows = -(-counts[None, :] // widths[:, None])  # (widths, G)
-    width = int(widths[np.argmin(rows.sum(axis=1) * (widths + ROW_COST))])
-    if width >= mask.shape[1]:
-        return grouped
+    width = int(width)
     per = -(-counts // width)
     first_row = np.concatenate([[0], np.cumsum(per)[:-1]])
     group = np.repeat(np.arange(len(counts)), counts)  # group of each valid pair, flattened order
@@ -176,4 +206,5 @@ def _culled(fn, normals, views):
 
 
 
-__all__ = ["FIELDS", "QUICK_WIDTH", "ROW_COST", "Samples", "check_values", "evaluate", "evaluate_blocked", "evaluate_grouped", "packed"]
+__all__ = ["FIELDS", "QUICK_WIDTH", "ROW_COST", "Samples", "check_values", "evaluate", "evaluate_blocked", "evaluate_grouped", "packed",
+           "row_width", "row_width_of", "row_work"]
