@@ -41,28 +41,3 @@ def test_a_grouped_evaluation_compiles_its_lighting_programs_and_nothing_else(mo
     pick = np.random.default_rng(0).choice(len(pairs.a), 200, replace=False)
     direct = np.asarray(hf.target.evaluate(target, pairs.a[pick], pairs.b[pick]))
     np.testing.assert_allclose(out[pick], direct, rtol=2e-4, atol=1e-6)
-
-
-def test_a_program_compiled_ahead_on_its_thread_is_not_compiled_again(monkeypatch):
-    """:func:`homofac.fit.samples.compile_ahead` compiles the grid's lighting program on a thread of its own
-    (the pairs drawn there); the evaluation then waits for it and runs it: one compile in all, same values."""
-    names = []
-    backend_compile = compiler.backend_compile_and_load
-
-    def recording(backend, module, *args, **kwargs):
-        names.append(str(module.operation.attributes["sym_name"]).strip('"'))
-        return backend_compile(backend, module, *args, **kwargs)
-
-    brdf = hf.brdf.cook_torrance(kd=0.2, ks=1.0, roughness=0.35, f0=0.4)
-    target = hf.light.lighting_target(brdf, hf.light.load_environment("forest", 6))  # lights no other test has
-    g = sampling.grouped_grid("dual_paraboloid", 8, 1000, 0)
-    monkeypatch.setattr(compiler, "backend_compile_and_load", recording)
-    S.compile_ahead(lambda: (target, g))
-    S.await_ahead()
-    assert [n for n in names if n.startswith("jit__eval_groups")] == ["jit__eval_groups"], names
-    out = S.evaluate_grouped(target, g)
-    assert [n for n in names if n.startswith("jit__eval_groups")] == ["jit__eval_groups"], names
-    pairs = g.flatten()
-    pick = np.random.default_rng(1).choice(len(pairs.a), 200, replace=False)
-    direct = np.asarray(hf.target.evaluate(target, pairs.a[pick], pairs.b[pick]))
-    np.testing.assert_allclose(out[pick], direct, rtol=2e-4, atol=1e-6)

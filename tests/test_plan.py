@@ -461,22 +461,3 @@ def test_best_drops_the_lined_highlight_candidates_whose_table_twin_it_tries(env
     assert not any("HFW" in c and c.replace("HFW", "HFT") in got for c in got)
     lined = {c.label() for c in _plan(t, "best", {"advanced": {"highlights": {"table": False}}}).candidates}
     assert dropped <= lined and not any("HFT" in c for c in lined)
-
-
-def test_a_plan_names_the_programs_compiled_ahead_and_hands_them_over_before_its_decision(envs):
-    """A chooser on a lighting target draws a training grid: its plan compiles that grid's lighting ahead
-    (``plan.AHEAD``) and calls ``ahead`` with itself before the validation lighting is decided (the plan it
-    returns is the same with the decision); a split sum, a BRDF target or given samples compile nothing
-    ahead and ``ahead`` is not called."""
-    t = _gold(envs["interior"])
-    seen = []
-    got = _plan(t, "fast", ahead=seen.append)
-    assert got.ahead == plan.AHEAD and got.to_dict()["ahead"] == list(plan.AHEAD)
-    assert len(seen) == 1 and seen[0].validation_light is None and got.validation_light is not None
-    assert dataclasses.replace(seen[0], validation_light=got.validation_light) == got
-    brdf = hf.target.brdf_target(hf.brdf.cook_torrance(kd=0.2, ks=1.0, roughness=0.3, f0=0.5))
-    for p in (_plan(t, None, {"parametrization": "split_sum"}, ahead=seen.append),
-              _plan(t, "fast", samples_given="r_off", ahead=seen.append),
-              plan.build_plan(brdf, None, {"parametrization": "PQP", "terms": 1}, ahead=seen.append)):
-        assert p.ahead == () and p.to_dict()["ahead"] == []
-    assert len(seen) == 1

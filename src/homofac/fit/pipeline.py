@@ -22,13 +22,13 @@ from ..param import parametrizations as pz
 from ..param import projections as pj
 from ..target import Target
 from . import auto, polish, programs, scene, sums
-from .draw import default_mapper, draw_pairs, draw_samples, grid_projection
+from .draw import default_mapper, draw_samples, grid_projection
 from .metrics import measure
 from .options import AdvancedOptions, AnalysisOptions, FitOptions, SamplingOptions
 from .plan import Plan, build_plan, grid_count, validation_count
 from .product import fit_product
 from .result import Result
-from .samples import Samples, check_values, compile_ahead
+from .samples import Samples, check_values
 from .sampling import GRID_COUNT
 from .state import from_fit
 from .structures import Structure
@@ -138,8 +138,7 @@ def factorize(
     if samples is not None and target.kind == "lighting" and given_opts.is_sum:  # candidates on their direction only
         own = grid_projection(target.kind, given_opts.parametrization,
                               given_opts.sampling.model_copy(update={"kind": "grid"}))
-    the_plan = build_plan(target, None, given_opts, samples_given=own,
-                          ahead=None if samples is not None else lambda draft: compile_grid_ahead(draft, target))
+    the_plan = build_plan(target, None, given_opts, samples_given=own)
     log(str(the_plan))
     return execute(the_plan, target, samples=samples, config=config, target_info=target_info, log=log,
                    keep_samples=keep_samples, t_start=t_start)
@@ -161,7 +160,8 @@ def execute(the_plan: Plan, target: Target, *, samples: Samples | None = None, c
                            f"not {opts.parametrization}")
     if opts.advanced.line_size is not None and not opts.is_sum:
         raise HomofacError(LINE_SIZE_NEEDS_SUM)
-    target = fitted_target(the_plan, target)
+    if target.kind == "lighting" and opts.parametrization in pz.PARAMETRIZATIONS:
+        target = with_context(target, opts.parametrization)  # NRHD's dominant light, NRO's shift
     t0 = time.perf_counter()
     resolved = resolve_sampling(opts, target.kind, mapper)
     if (the_plan.polish or (opts.advanced.linear is not None and opts.advanced.linear.polish)) and samples is None \
@@ -214,29 +214,6 @@ def execute(the_plan: Plan, target: Target, *, samples: Samples | None = None, c
     state = from_fit(opts, target.kind, samples, result, mapper, scene=sc)  # what hf.fit.refit reuses (fit/refit.py)
     return result.replace(timings={**result.timings, "total_s": time.perf_counter() - t_start}, target=target,
                           state=state)
-
-
-def fitted_target(the_plan: Plan, target: Target) -> Target:
-    """``target`` with the projection context of the plan's parametrization (NRHD's dominant light, NRO's
-    shift) where it is a lighting target of a parametrization of products."""
-    p = the_plan.options.parametrization
-    return with_context(target, p) if target.kind == "lighting" and p in pz.PARAMETRIZATIONS else target
-
-
-def compile_grid_ahead(the_plan: Plan, target: Target) -> None:
-    """Start compiling the lighting program of the training grid :func:`execute` draws first (the plan's
-    ``ahead``, :data:`homofac.fit.plan.AHEAD`) on a thread of its own: the grid drawn there as
-    :func:`execute` draws it (:func:`homofac.fit.samples.compile_ahead`)."""
-    def draw():
-        tgt = fitted_target(the_plan, target)
-        first = drawn_for(the_plan)
-        tgt = with_context(tgt, first)
-        _, _, groups, _ = draw_pairs(tgt.kind, first, resolve_sampling(the_plan.options, tgt.kind, the_plan.mapper),
-                                     tgt.context)
-        return tgt, groups
-
-    if the_plan.ahead:
-        compile_ahead(draw)
 
 
 def drawn_for(the_plan: Plan) -> str:

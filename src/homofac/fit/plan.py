@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
-from typing import Any, Callable, NamedTuple
+from typing import Any, NamedTuple
 
 from .. import baselines
 from ..errors import HomofacError
@@ -220,14 +220,6 @@ PRESETS: dict[str, Preset] = {
                    table_twins=True, **BEST_RACE),
 }
 
-#: The programs a plan has compiled ahead, on a second thread while its decision of the validation lighting runs
-#: (:func:`build_plan`'s ``ahead``): the training grid's lighting (``lighting grid``, the (256, 64) program of
-#: :func:`homofac.fit.samples._eval_groups`), the largest single compile of the fixed work (2.6 s CPU of ``fast``
-#: on gold / forest), whose pairs and target are known before the decision and whose first call comes after it.
-#: XLA compiles a program on one thread; the decision's own compile and runs take the first core
-#: (docs/notes/speed.md, "fast, twenty-second session").
-AHEAD = ("lighting grid",)
-
 #: The lookup budget of ``target_error`` with sum keys but no ``max_lookups``.
 DEFAULT_MAX_LOOKUPS = 16
 
@@ -283,7 +275,6 @@ class Plan:
     analysis: bool
     votes: tuple[Vote, ...]
     options: FitOptions
-    ahead: tuple[str, ...] = ()  # programs compiled on a second thread while the plan decides (:data:`AHEAD`)
 
     def to_dict(self) -> dict[str, Any]:
         """The plan as plain data (what ``--plan`` prints as JSON, and what tests compare)."""
@@ -303,7 +294,7 @@ class Plan:
                 "line_sizes": list(self.line_sizes),
                 "vote_screen": {"sweeps": self.vote_screen, "stride": self.vote_stride},
                 "disc_vote": self.disc_vote, "analysis": self.analysis,
-                "votes": [dataclasses.asdict(v) for v in self.votes], "ahead": list(self.ahead)}
+                "votes": [dataclasses.asdict(v) for v in self.votes]}
 
     def __str__(self) -> str:
         d = self.to_dict()
@@ -484,14 +475,11 @@ def _vote_figure(ridge: int) -> str:
 
 
 def build_plan(target: Target, preset: str | None = None, overrides: dict | FitOptions | None = None,
-               *, samples_given: str | None = None, ahead: Callable[[Plan], None] | None = None) -> Plan:
+               *, samples_given: str | None = None) -> Plan:
     """The plan of fitting ``target`` with ``preset`` and the options ``overrides`` (the keywords of
     :func:`homofac.fit.factorize`, or validated :class:`~homofac.fit.options.FitOptions`), refused in one
     line (:class:`~homofac.errors.HomofacError`) where they cannot run. ``samples_given``: the grid
-    direction of samples the caller provides (only the candidates on it are tried). ``ahead``: called with
-    the plan before its validation lighting is decided, where the plan's ``ahead`` names programs (a grid of
-    lighting pairs to draw: :data:`AHEAD`), to start their compilation (the executor's,
-    :func:`homofac.fit.pipeline.factorize`)."""
+    direction of samples the caller provides (only the candidates on it are tried)."""
     if isinstance(overrides, FitOptions):
         opts = overrides if preset is None else overrides.model_copy(update={"preset": preset})
     else:
@@ -599,12 +587,13 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
             votes.append(Vote("polish", stages, figure + "; the polish is kept only where it falls"))
     env = getattr(target.fn, "env", None)
     res = (getattr(env, "info", None) or {}).get("resolution") if env is not None else None
+    vlight = validation_light(target, opts, mode, validation_count(opts))
     advanced = opts.advanced.model_copy(update={"linear": lin if opts.is_sum else opts.advanced.linear})
     resolved = opts.model_copy(update={"parametrization": base, "max_lookups": budget if choosing else opts.max_lookups,
                                        "advanced": advanced})
-    draft = Plan(mode=mode, preset=name, parametrization=base, mapper=mapper, texture_size=int(opts.texture_size),
+    return Plan(mode=mode, preset=name, parametrization=base, mapper=mapper, texture_size=int(opts.texture_size),
                 sampling=kind, grid_count=grid_count(opts), validation=validation_count(opts),
-                light_resolution=int(res) if res else None, validation_light=None, max_lookups=budget if choosing else None,
+                light_resolution=int(res) if res else None, validation_light=vlight, max_lookups=budget if choosing else None,
                 candidates=cands, linear=lin, polish=int(steps or 0),
                 polish_stride=int(p.polish_stride) if steps else 1, polish_direct=direct, ridge=int(ridge or 0),
                 race=race, race_keep=race_keep, race_margin=float(p.race_margin) if race else 0.0,
@@ -615,12 +604,7 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
                 line_sizes=sizes,
                 disc_vote=disc, analysis=bool(choosing and target.kind == "lighting"
                                               and (p.analysis if p else True) or opts.advanced.analysis is not None),
-                votes=tuple(votes), options=resolved,
-                ahead=AHEAD if opts.is_sum and kind == "grid" and target.kind == "lighting" and samples_given is None
-                else ())
-    if ahead is not None and draft.ahead:
-        ahead(draft)
-    return dataclasses.replace(draft, validation_light=validation_light(target, opts, mode, validation_count(opts)))
+                votes=tuple(votes), options=resolved)
 
 
 def validation_light(target: Target, opts: FitOptions, mode: str, count: int) -> ValidationLight | None:
@@ -639,5 +623,5 @@ def dumps(plan: Plan) -> str:
     return json.dumps(plan.to_dict(), indent=2)
 
 
-__all__ = ["AHEAD", "constrained", "DEFAULT_MAX_LOOKUPS", "PRESET_DIRECTIONS", "PRESETS", "Plan", "Preset", "RIDGE_NEEDS_POLISH", "Vote", "budget_of", "describe_race", "race_margins_of", "race_of",
+__all__ = ["constrained", "DEFAULT_MAX_LOOKUPS", "PRESET_DIRECTIONS", "PRESETS", "Plan", "Preset", "RIDGE_NEEDS_POLISH", "Vote", "budget_of", "describe_race", "race_margins_of", "race_of",
            "build_plan", "dumps", "grid_count", "line_sizes", "preset_of", "validation_count", "validation_light"]

@@ -9,8 +9,7 @@ there are several (:mod:`homofac.fit.shard`).
 from __future__ import annotations
 
 import dataclasses
-import threading
-from typing import Callable, NamedTuple
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -122,51 +121,8 @@ def _blocks(fn, normals: np.ndarray, views: np.ndarray) -> np.ndarray:
         normals = np.concatenate([normals, np.broadcast_to(normals[:1], (pad, 3))])
         views = np.concatenate([views, np.broadcast_to(views[:1], (pad,) + views.shape[1:])])
     program = _eval_groups_quick if views.shape[1] <= QUICK_WIDTH else _eval_groups
-    if program is _eval_groups:
-        await_ahead()
     out = [program(fn, normals[i:i + BLOCK_ROWS], views[i:i + BLOCK_ROWS]) for i in range(0, g + pad, BLOCK_ROWS)]
     return np.concatenate([np.asarray(o) for o in out])[:g]
-
-
-#: Compilations of the grid's lighting program under way on a thread of their own (:func:`compile_ahead`).
-_AHEAD: list[threading.Thread] = []
-
-
-def compile_ahead(draw: Callable[[], tuple[Target, Grouped]]) -> None:
-    """Start compiling, on a thread of its own, the grid's lighting program (``lighting grid``,
-    :func:`_eval_groups`) that :func:`evaluate_grouped` will run on the pairs ``draw()`` returns with their
-    target (drawn on that thread too), so that its XLA compile (single-threaded) runs on the second core
-    while the caller works (a plan's decision of the validation lighting). :func:`_blocks` waits for it
-    before its first call of that program: the program is then compiled, never twice. Nothing is started
-    where :func:`evaluate_grouped` would not run that program (no grouped fast path, culled lobes, several
-    devices: rows of at most :data:`QUICK_WIDTH` views run the decision's own program); a failure on the
-    thread is left to the call itself, which compiles the program again and raises."""
-
-    def work() -> None:
-        try:
-            target, grouped = draw()
-            fn = target.fn
-            if not hasattr(fn, "grouped") or getattr(fn, "culls_lobes", False) or jax.device_count() > 1:
-                return
-            p = packed(grouped)
-            if p.views.shape[1] <= QUICK_WIDTH or not p.mask.any():
-                return
-            rows = min(BLOCK_ROWS, len(p.normals))
-            normals = np.concatenate([p.normals[:rows], np.broadcast_to(p.normals[:1], (BLOCK_ROWS - rows, 3))])
-            views = np.concatenate([p.views[:rows], np.broadcast_to(p.views[:1], (BLOCK_ROWS - rows,) + p.views.shape[1:])])
-            _eval_groups.lower(fn, np.asarray(normals), np.asarray(views)).compile()
-        except Exception:  # noqa: BLE001 - the program's own call compiles it again and reports the error
-            pass
-
-    thread = threading.Thread(target=work, name="homofac-compile-ahead", daemon=True)
-    _AHEAD.append(thread)
-    thread.start()
-
-
-def await_ahead() -> None:
-    """Wait for the compilations :func:`compile_ahead` started (none: nothing to wait for)."""
-    while _AHEAD:
-        _AHEAD.pop().join()
 
 
 #: The per-normal work of the grouped lighting (the texel weights of every light, the local frame) in
@@ -220,4 +176,4 @@ def _culled(fn, normals, views):
 
 
 
-__all__ = ["FIELDS", "QUICK_WIDTH", "ROW_COST", "Samples", "await_ahead", "check_values", "compile_ahead", "evaluate", "evaluate_blocked", "evaluate_grouped", "packed"]
+__all__ = ["FIELDS", "QUICK_WIDTH", "ROW_COST", "Samples", "check_values", "evaluate", "evaluate_blocked", "evaluate_grouped", "packed"]
