@@ -326,16 +326,9 @@ def _convert(name: str, value: Any, default: Any) -> Array:
         problem = check_value(name, value, default)
         if problem:
             raise HomofacError(f"{where} {problem}")
-        # on the host, then device_put: jnp.asarray of a numpy array, its conversion and its reshape each
-        # compile a program of their own per shape
         if kind == "array":  # tables: keep their float dtype
-            return jax.device_put(conc if conc.dtype.kind == "f" else conc.astype(np.float32))
-        host = conc.astype(np.float64).astype(jnp.result_type(float))
-        if kind == "color":
-            host = np.broadcast_to(host.reshape(-1) if host.ndim else host, (3,))
-        elif kind == "scalar":
-            host = host.reshape(())
-        return jax.device_put(np.array(host))  # a copy (broadcast_to is a view); 0-d stays 0-d
+            return jnp.asarray(conc if conc.dtype.kind == "f" else conc.astype(np.float32))
+        out = jnp.asarray(conc.astype(np.float64), dtype=jnp.result_type(float))
     else:
         shape = tuple(jnp.shape(value))
         if kind == "color" and shape not in ((), (1,), (3,)):

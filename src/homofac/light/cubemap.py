@@ -11,7 +11,6 @@ from __future__ import annotations
 import functools
 from typing import Callable, Sequence
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
@@ -137,7 +136,7 @@ def _texel_geometry(r: int) -> tuple:
     moments took about 1 s of CPU each time)."""
     d, w = cube_texels(r)
     corners = cube_corners(r)
-    return jax.device_put(corners.astype(np.float32)), moments_of(d, w, corners)
+    return jnp.asarray(corners.astype(np.float32)), moments_of(d, w, corners)
 
 
 def finish(
@@ -157,9 +156,9 @@ def finish(
     )
     corners, moments = _texel_geometry(r)
     env = Environment(
-        directions=jax.device_put(d.astype(np.float32)),  # device_put: jnp.asarray compiles a program per shape
-        radiance=jax.device_put(rad32),
-        solid_angle=jax.device_put(w32),
+        directions=jnp.asarray(d.astype(np.float32)),
+        radiance=jnp.asarray(rad32),
+        solid_angle=jnp.asarray(w32),
         info=info,
         corners=corners,
         moments=moments,

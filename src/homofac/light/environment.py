@@ -98,7 +98,7 @@ def brightest_directions(env: Environment, count: int = 1, cap_degrees: float = 
     holds no power.
     """
     d = np.asarray(env.directions, np.float64)
-    e = np.maximum(np.asarray(luminance(np.asarray(env.radiance)), np.float64), 0.0) * np.asarray(env.solid_angle, np.float64)
+    e = np.maximum(np.asarray(luminance(env.radiance), np.float64), 0.0) * np.asarray(env.solid_angle, np.float64)
     if not np.sum(e) > 0:
         raise HomofacError(f"{env.info.get('source', 'environment')}: no light to find the brightest direction of")
     cos_cap = np.cos(np.radians(cap_degrees))
@@ -130,7 +130,7 @@ def light_radii(env: Environment, directions, cap_degrees: float = PEAK_CAP_DEGR
     degrees), 0.046 at 16, where its texels are 4.9 degrees wide. Float32 NumPy ``(J,)``; 0 for a
     direction without power in its cap."""
     d = np.asarray(env.directions, np.float64)
-    e = np.maximum(np.asarray(luminance(np.asarray(env.radiance)), np.float64), 0.0) * np.asarray(env.solid_angle, np.float64)
+    e = np.maximum(np.asarray(luminance(env.radiance), np.float64), 0.0) * np.asarray(env.solid_angle, np.float64)
     ang = np.arccos(np.clip(np.asarray(directions, np.float64).reshape(-1, 3) @ d.T, -1.0, 1.0))  # (J, L)
     w = np.where(ang <= np.radians(cap_degrees), e[None, :], 0.0)
     order = np.argsort(ang, axis=1)

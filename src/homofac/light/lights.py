@@ -10,7 +10,6 @@ from __future__ import annotations
 
 from typing import Any, Sequence
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
@@ -51,8 +50,8 @@ def with_lights(env: Environment, lights: Sequence[dict]) -> Environment:
     specs = [_normalise_light(s, i, source) for i, s in enumerate(lights)]
     if not specs:
         return env
-    d = jax.device_put(np.array([s["direction"] for s in specs], np.float32))
-    rad = jax.device_put(np.array([s["irradiance"] for s in specs], np.float32))
+    d = jnp.asarray(np.array([s["direction"] for s in specs], np.float32))
+    rad = jnp.asarray(np.array([s["irradiance"] for s in specs], np.float32))
     info = dict(env.info)
     info["lights"] = list(info.get("lights", [])) + specs
     return Environment(
@@ -70,8 +69,8 @@ def with_lights(env: Environment, lights: Sequence[dict]) -> Environment:
 
 def moments_of(directions, solid_angle, corners) -> tuple:
     m, sinr = texel_moments(directions, solid_angle, corners)
-    # cast on the host and device_put: jnp.asarray compiles a conversion (or an identity program) per shape
-    return jax.device_put(np.asarray(m, np.float32)), jax.device_put(np.asarray(sinr, np.float32))
+    # cast on the host: jnp.asarray(float64, float32) compiles a conversion per shape
+    return jnp.asarray(np.asarray(m, np.float32)), jnp.asarray(np.asarray(sinr, np.float32))
 
 
 def light_corners(env: Environment) -> Float[Array, "L 4 3"]:

@@ -24,7 +24,6 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Callable
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -87,7 +86,7 @@ def bright_texels(env: Environment, share: float) -> np.ndarray:
     """Indices of the fewest cube texels of ``env`` whose power (luminance x solid angle) holds at least
     ``share`` of the texels' total, brightest first."""
     n = 6 * int(env.info["resolution"]) ** 2
-    p = np.maximum(np.asarray(luminance(np.asarray(env.radiance)[:n]), np.float64), 0.0) * np.asarray(env.solid_angle, np.float64)[:n]
+    p = np.maximum(np.asarray(luminance(env.radiance[:n]), np.float64), 0.0) * np.asarray(env.solid_angle[:n], np.float64)
     order = np.argsort(p)[::-1]
     k = int(np.searchsorted(np.cumsum(p[order]), share * p.sum())) + 1
     return order[:min(k, n)]
@@ -109,7 +108,7 @@ def mixture(coarse: Environment, fine: Environment, texels: np.ndarray) -> Envir
 
     def cat(c, f):  # on the host (jnp here compiled a program per op and light count)
         c = np.asarray(c, np.float32)
-        return jax.device_put(np.concatenate([np.asarray(f, np.float32)[fine_idx], c[keep], c[extra]]))
+        return jnp.asarray(np.concatenate([np.asarray(f, np.float32)[fine_idx], c[keep], c[extra]]))
 
     visible = len(fine_idx) + min(len(keep), 3 * r * r + 6 * r) + len(extra)
     info = {**coarse.info, "mixture": {"fine_resolution": big, "fine_texels": int(len(fine_idx)),
@@ -130,7 +129,7 @@ def difference_blocks(coarse: Environment, refined: Environment, size: int) -> l
     (:func:`homofac.fit.levels.refined`)."""
     r = int(coarse.info["resolution"])
     f = int(refined.info["mixture"]["fine_texels"])  # the mixture's first lights (mixture)
-    coarse_idx = np.unique(cube_texel(np.asarray(refined.directions, np.float64)[:f], r))
+    coarse_idx = np.unique(cube_texel(np.asarray(refined.directions[:f], np.float64), r))
     mc, sc = light_moments(coarse)
     mf, sf = light_moments(refined)
 
@@ -148,7 +147,7 @@ def difference_blocks(coarse: Environment, refined: Environment, size: int) -> l
 
         def padded(a, fill):
             pad = np.broadcast_to(np.asarray(fill, np.float32), (total - k,) + a.shape[1:])
-            return jax.device_put(np.concatenate([a[i:i + k], pad]))
+            return jnp.asarray(np.concatenate([a[i:i + k], pad]))
 
         out.append(Environment(padded(d, [0.0, 0.0, 1.0]), padded(rad, 0.0), padded(w, 0.0), dict(coarse.info),
                                padded(corners, 0.0), (padded(m, 0.0), padded(sr, -1.0))))
@@ -182,7 +181,7 @@ def blocks(env: Environment, size: int | None = None) -> list[Environment]:
     d, rad = cat(env.directions, up), cat(env.radiance, np.zeros((pad, 3)))
     w, corners = cat(env.solid_angle, np.ones(pad)), cat(light_corners(env), np.zeros((pad, 4, 3)))
     m, sr = cat(m, pm), cat(sr, ps)
-    j = jax.device_put  # jnp.asarray of a numpy array compiles a program per shape
+    j = jnp.asarray
     info = {**BLOCK_INFO, "texel_resolution": texel_resolution(env)}
     return [Environment(j(d[i:i + size]), j(rad[i:i + size]), j(w[i:i + size]), dict(info), j(corners[i:i + size]),
                         (j(m[i:i + size]), j(sr[i:i + size]))) for i in range(0, n + pad, size)]
