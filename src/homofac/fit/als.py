@@ -353,7 +353,8 @@ def _w_normals(pq, y, vi, vw, use, lo: int, Sw: int):
     0), given the other factors ``pq`` (K, N, 3) at the samples, the targets y (N, 3) and the lines'
     footprints ``vi, vw`` ((N, 2) shared, or (N, K, 2) per term). Sums over blocks are those of their union.
     A footprint every slot shares (the w line; a per-term one of a single slot) goes through
-    :func:`_shared_line_normals` (matrix products), per-term footprints of several slots through scatter-adds."""
+    :func:`_shared_line_normals`; per-term footprints of several slots each line's own block so, the blocks
+    between two lines as scatter-adds (four products a sample)."""
     u = use[lo:]
     K = u.shape[0]
     M = K * Sw
@@ -367,13 +368,20 @@ def _w_normals(pq, y, vi, vw, use, lo: int, Sw: int):
                         y.shape[0], 3 * K * (K + 1) // 2 + 4 * Sw)
 
     def normal(pq, vi, vw, y):  # pq (N, K, 3) sample-major for chunking; vi, vw (N, K, 2)
-        N = y.shape[0]
-        cols = (jnp.arange(K)[None, :, None] * Sw + vi).reshape(N, 2 * K)
-        coef = (pq[:, :, None, :] * vw[..., None]).reshape(N, 2 * K, 3)
-        flat = (cols[:, :, None] * M + cols[:, None, :]).reshape(-1)
-        G = jax.ops.segment_sum((coef[:, :, None, :] * coef[:, None, :, :]).reshape(-1, 3), flat, num_segments=M * M)
-        h = jax.ops.segment_sum((coef * y[:, None, :]).reshape(-1, 3), cols.reshape(-1), num_segments=M)
-        return G, h
+        # each line's own block (t, t) at its one footprint; the blocks of two lines (t, s) as scatter-adds
+        # of the four products of their footprints' coefficients
+        own = [_shared_line_normals(pq[:, t:t + 1], vi[:, t], vw[:, t], y, Sw=Sw) for t in range(K)]
+        coef = pq[:, :, None, :] * vw[..., None]  # (N, K, 2, 3)
+        blk = [[None] * K for _ in range(K)]
+        for t in range(K):
+            blk[t][t] = own[t][0].reshape(Sw, Sw, 3)
+            for s in range(t + 1, K):
+                flat = (vi[:, t, :, None] * Sw + vi[:, s, None, :]).reshape(-1)
+                x = (coef[:, t, :, None, :] * coef[:, s, None, :, :]).reshape(-1, 3)
+                blk[t][s] = jax.ops.segment_sum(x, flat, num_segments=Sw * Sw).reshape(Sw, Sw, 3)
+                blk[s][t] = jnp.swapaxes(blk[t][s], 0, 1)
+        G = jnp.stack([jnp.stack(row, axis=1) for row in blk])  # (K, S_w, K, S_w, 3)
+        return G.reshape(M * M, 3), jnp.concatenate([h for _, h in own])
 
     return _chunked(normal, (jnp.moveaxis(pq, 0, 1), vi, vw, y), y.shape[0], 12 * K * K + 6 * K)
 
