@@ -151,7 +151,7 @@ def test_the_line_normal_equations_are_the_dense_products_of_the_lines_coefficie
     whose row holds ``c_t(i) vw`` at each term's two texels, for every first slot ``lo`` and a slot without
     the line."""
     rng = np.random.default_rng(3)
-    N, K, Sw = 3000, 5, 16
+    N, K, Sw = 3000, 5, 16  # at most MATMUL_TEXELS: both sums (K - lo lines > 3: matrix products)
     feet = [als.line_footprint(rng.uniform(0, 1, N).astype(np.float32), Sw) for _ in range(K if per_term else 1)]
     vi, vw = (np.stack([np.asarray(f[j]) for f in feet], 1) for j in (0, 1))  # (N, K or 1, 2)
     if not per_term:

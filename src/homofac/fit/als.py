@@ -386,11 +386,13 @@ def _w_normals(pq, y, vi, vw, use, lo: int, Sw: int):
     return _chunked(normal, (jnp.moveaxis(pq, 0, 1), vi, vw, y), y.shape[0], 12 * K * K + 6 * K)
 
 
-#: Above this many pairs ``c_t c_s`` (t <= s) per channel, :func:`_shared_line_normals` sums over the samples as
-#: matrix products with one-hot texel rows; at or below it, as scatter-adds into the S_w texels (measured at
-#: 75 000 samples, CPU: K = 1-2 scatter 1.4-2.2 ms against 6-11 ms; K = 5 and 7: matmul 17 and 38 ms against
-#: 36 and 64 ms; docs/notes/speed.md, "best's sweep, twenty-second session").
+#: Above this many pairs ``c_t c_s`` (t <= s) per channel, on lines of at most :data:`MATMUL_TEXELS` texels,
+#: :func:`_shared_line_normals` sums over the samples as matrix products with one-hot texel rows (their cost grows
+#: with S_w); otherwise as scatter-adds into the S_w texels. Measured at 75 000 samples (docs/notes/speed.md,
+#: "best's sweep, twenty-second session"): a sweep of slots (1, 4, 1, 2) at 32 texels 0.31 s CPU against 0.35
+#: scattered, at 128 texels 0.67 against 0.58; K = 1-3 lines scatter faster at both.
 MATMUL_PAIRS = 6
+MATMUL_TEXELS = 32
 
 
 def _shared_line_normals(c, vi, vw, y, *, Sw: int):
@@ -401,7 +403,7 @@ def _shared_line_normals(c, vi, vw, y, *, Sw: int):
     vi_i0, ``vw_i1^2`` at vi_i1) and beside it (``vw_i0 vw_i1`` at (vi_i0, vi_i0 + 1) and its transpose), so G
     is three sums over the samples of the pairs ``c_t c_s`` (t <= s) into the S_w texels, and
     ``h[(t, a)] = sum_i e_ia c_ti y_i`` two: as (S_w, N) one-hot rows times (N, pairs) matrix products above
-    :data:`MATMUL_PAIRS` pairs, as scatter-adds at or below it."""
+    :data:`MATMUL_PAIRS` pairs on at most :data:`MATMUL_TEXELS` texels, as scatter-adds otherwise."""
     N, K, _ = c.shape
     iu = np.triu_indices(K)
     tri = np.zeros((K, K), np.int64)
@@ -409,7 +411,7 @@ def _shared_line_normals(c, vi, vw, y, *, Sw: int):
     pairs = (c[:, iu[0]] * c[:, iu[1]]).reshape(N, -1)  # (N, K(K+1)/2 * 3)
     cy = (c * y[:, None, :]).reshape(N, -1)  # (N, K * 3)
     w0, w1 = vw[:, 0], vw[:, 1]
-    if len(iu[0]) > MATMUL_PAIRS:
+    if len(iu[0]) > MATMUL_PAIRS and Sw <= MATMUL_TEXELS:
         texels = jnp.arange(Sw, dtype=vi.dtype)[:, None]
         o0, o1 = (vi[None, :, 0] == texels).astype(c.dtype), (vi[None, :, 1] == texels).astype(c.dtype)  # (S_w, N)
         R = jnp.concatenate([o0 * (w0 * w0), o1 * (w1 * w1), o0 * (w0 * w1)]) @ pairs  # (3 S_w, pairs * 3)
