@@ -6,6 +6,7 @@ from __future__ import annotations
 import logging
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -140,3 +141,35 @@ def test_a_fit_in_blocks_is_the_fit_in_one_and_reuses_the_short_fits_programs(su
         scale = float(np.max(np.abs(np.asarray(a.data)))) + 1e-6
         np.testing.assert_allclose(np.asarray(b.data), np.asarray(a.data), atol=2e-4 * scale, rtol=2e-4)
     assert blocked.solver["objective"] == pytest.approx(whole.solver["objective"], rel=1e-4)
+
+
+@pytest.mark.parametrize("per_term", [False, True])
+def test_the_line_normal_equations_are_the_dense_products_of_the_lines_coefficients(per_term):
+    """The line blocks' normal equations (shared footprint: sums into the line's texels, by scatter-adds for
+    few term pairs and matrix products for many; per-term footprints: each line's own block so, the blocks
+    between two lines by scatter-adds) equal ``A^T A``, ``A^T y`` of the dense coefficient matrix A (N, K S_w)
+    whose row holds ``c_t(i) vw`` at each term's two texels, for every first slot ``lo`` and a slot without
+    the line."""
+    rng = np.random.default_rng(3)
+    N, K, Sw = 3000, 5, 16  # at most MATMUL_TEXELS: both sums (K - lo lines > 3: matrix products)
+    feet = [als.line_footprint(rng.uniform(0, 1, N).astype(np.float32), Sw) for _ in range(K if per_term else 1)]
+    vi, vw = (np.stack([np.asarray(f[j]) for f in feet], 1) for j in (0, 1))  # (N, K or 1, 2)
+    if not per_term:
+        vi, vw = vi[:, 0], vw[:, 0]
+    pq = rng.normal(size=(K, N, 3)).astype(np.float32)
+    y = rng.normal(size=(N, 3)).astype(np.float32)
+    use = np.array([1, 1, 0, 1, 1], np.float32)
+    for lo in range(K):
+        G, h = als._w_normals(jnp.asarray(pq), jnp.asarray(y), jnp.asarray(vi), jnp.asarray(vw), jnp.asarray(use),
+                              lo, Sw)
+        k = K - lo
+        E = np.zeros((N, k, Sw))
+        for t in range(k):
+            ti, tw = (vi[:, lo + t], vw[:, lo + t]) if per_term else (vi, vw)
+            for j in range(2):
+                np.add.at(E, (np.arange(N), t, ti[:, j]), tw[:, j])
+        A = ((pq[lo:] * use[lo:, None, None]).transpose(1, 0, 2)[:, :, None, :] * E[..., None]).reshape(N, k * Sw, 3)
+        want_G = np.einsum("nac,nbc->abc", A, A).reshape(-1, 3)
+        want_h = np.einsum("nac,nc->ac", A, y)
+        np.testing.assert_allclose(np.asarray(G), want_G, atol=2e-6 * np.max(np.abs(want_G)))
+        np.testing.assert_allclose(np.asarray(h), want_h, atol=2e-6 * np.max(np.abs(want_h)))

@@ -92,7 +92,9 @@ def test_a_fit_continued_from_its_strided_short_fit_carries_it_on_every_pair(sun
     assert out.solver["start"] == head.solver["start"] != "previous"
     for x, y, z in zip(out.model.textures, given.model.textures, alone.model.textures):
         np.testing.assert_array_equal(np.asarray(x.data), np.asarray(y.data))
-        np.testing.assert_array_equal(np.asarray(x.data), np.asarray(z.data))
+        # the continued fit sums its normal equations in blocks of the short fit's pairs: float rounding apart
+        scale = float(np.max(np.abs(np.asarray(z.data))))
+        np.testing.assert_allclose(np.asarray(x.data), np.asarray(z.data), rtol=1e-4, atol=1e-5 * scale)
 
 
 def test_the_figures_evaluated_factor_by_factor_equal_the_models_and_share_their_programs(sun, caplog):

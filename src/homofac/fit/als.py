@@ -22,7 +22,8 @@ fixed q and w the least-squares problem in p splits into one K x K system per te
 * after each sweep every full term is rebalanced (mean |p_t| = mean |w_t| = 1 per channel, the scale
   moved into q_t), which removes the scale gauge freedom of the products.
 
-One sweep costs O(N K^2) scatter-adds and a batch of K x K solves: 5-50x faster than matrix-free
+One sweep costs O(N K^2) scatter-adds (the texel blocks; the w line's as matrix products over the
+samples, :func:`_shared_line_normals`) and a batch of K x K solves: 5-50x faster than matrix-free
 Levenberg-Marquardt on the same data, to the same optimum (issue 13's prototype study). All channels
 at once, jitted, float32; the data are jit arguments.
 
@@ -314,13 +315,17 @@ def _texel_normals(c, idx, y, n: int):
     X (K, n, 3) the samples read at ``idx``, given their coefficients c (K, N, 3) and targets y (N, 3):
     ``G_j = sum_(i: idx_i = j) c_i c_i^T``, ``h_j = sum c_i y_i``. Sums over blocks are those of their union."""
     K = c.shape[0]
+    iu = np.triu_indices(K)
+    tri = np.zeros((K, K), np.int64)
+    tri[iu] = tri[iu[::-1]] = np.arange(len(iu[0]))  # (t, s) -> its pair's index
 
-    def normal(c, idx, y):  # c (N, K, 3) sample-major for chunking
-        G = jax.ops.segment_sum(jnp.einsum("ntc,nsc->ncts", c, c), idx, num_segments=n)  # (n, 3, K, K)
+    def normal(c, idx, y):  # c (N, K, 3) sample-major for chunking; G's pairs t <= s only (symmetric)
+        G = jax.ops.segment_sum(jnp.moveaxis(c[:, iu[0]] * c[:, iu[1]], 1, 2), idx, num_segments=n)  # (n, 3, pairs)
         h = jax.ops.segment_sum(jnp.einsum("ntc,nc->nct", c, y), idx, num_segments=n)  # (n, 3, K)
         return G, h
 
-    return _chunked(normal, (jnp.moveaxis(c, 0, 1), idx, y), y.shape[0], 3 * K * K)
+    G, h = _chunked(normal, (jnp.moveaxis(c, 0, 1), idx, y), y.shape[0], 3 * K * (K + 1) // 2)
+    return G[..., tri], h
 
 
 def _texel_solve(X, G, h, nb, nbm, mu, jacobi: int, terms, ridge: float = 1e-6):
@@ -346,26 +351,82 @@ def _w_normals(pq, y, vi, vw, use, lo: int, Sw: int):
     """The dense normal equations ``(G (M*M, 3), h (M, 3))`` of one block of samples for the line unknowns
     (S_w per slot from ``lo``, static: M = S_w (K - lo)) of the slots that carry the line (``use`` (K,), 1 or
     0), given the other factors ``pq`` (K, N, 3) at the samples, the targets y (N, 3) and the lines'
-    footprints ``vi, vw`` ((N, 2) shared, or (N, K, 2) per term). Sums over blocks are those of their union."""
+    footprints ``vi, vw`` ((N, 2) shared, or (N, K, 2) per term). Sums over blocks are those of their union.
+    A footprint every slot shares (the w line; a per-term one of a single slot) goes through
+    :func:`_shared_line_normals`; per-term footprints of several slots each line's own block so, the blocks
+    between two lines as scatter-adds (four products a sample)."""
     u = use[lo:]
     K = u.shape[0]
     M = K * Sw
     pq = pq[lo:] * u[:, None, None]
     if vi.ndim == 3:
         vi, vw = vi[:, lo:], vw[:, lo:]
+        if K == 1:
+            vi, vw = vi[:, 0], vw[:, 0]
+    if vi.ndim == 2:
+        return _chunked(functools.partial(_shared_line_normals, Sw=Sw), (jnp.moveaxis(pq, 0, 1), vi, vw, y),
+                        y.shape[0], 3 * K * (K + 1) // 2 + 4 * Sw)
 
-    def normal(pq, vi, vw, y):  # pq (N, K, 3) sample-major for chunking; vi, vw (N, 2) or (N, K, 2)
-        N = y.shape[0]
-        vi3 = vi[:, None, :] if vi.ndim == 2 else vi
-        vw3 = vw[:, None, :] if vw.ndim == 2 else vw
-        cols = (jnp.arange(K)[None, :, None] * Sw + vi3).reshape(N, 2 * K)
-        coef = (pq[:, :, None, :] * vw3[..., None]).reshape(N, 2 * K, 3)
-        flat = (cols[:, :, None] * M + cols[:, None, :]).reshape(-1)
-        G = jax.ops.segment_sum((coef[:, :, None, :] * coef[:, None, :, :]).reshape(-1, 3), flat, num_segments=M * M)
-        h = jax.ops.segment_sum((coef * y[:, None, :]).reshape(-1, 3), cols.reshape(-1), num_segments=M)
-        return G, h
+    def normal(pq, vi, vw, y):  # pq (N, K, 3) sample-major for chunking; vi, vw (N, K, 2)
+        # each line's own block (t, t) at its one footprint; the blocks of two lines (t, s) as scatter-adds
+        # of the four products of their footprints' coefficients
+        own = [_shared_line_normals(pq[:, t:t + 1], vi[:, t], vw[:, t], y, Sw=Sw) for t in range(K)]
+        coef = pq[:, :, None, :] * vw[..., None]  # (N, K, 2, 3)
+        blk = [[None] * K for _ in range(K)]
+        for t in range(K):
+            blk[t][t] = own[t][0].reshape(Sw, Sw, 3)
+            for s in range(t + 1, K):
+                flat = (vi[:, t, :, None] * Sw + vi[:, s, None, :]).reshape(-1)
+                x = (coef[:, t, :, None, :] * coef[:, s, None, :, :]).reshape(-1, 3)
+                blk[t][s] = jax.ops.segment_sum(x, flat, num_segments=Sw * Sw).reshape(Sw, Sw, 3)
+                blk[s][t] = jnp.swapaxes(blk[t][s], 0, 1)
+        G = jnp.stack([jnp.stack(row, axis=1) for row in blk])  # (K, S_w, K, S_w, 3)
+        return G.reshape(M * M, 3), jnp.concatenate([h for _, h in own])
 
     return _chunked(normal, (jnp.moveaxis(pq, 0, 1), vi, vw, y), y.shape[0], 12 * K * K + 6 * K)
+
+
+#: Above this many pairs ``c_t c_s`` (t <= s) per channel, on lines of at most :data:`MATMUL_TEXELS` texels,
+#: :func:`_shared_line_normals` sums over the samples as matrix products with one-hot texel rows (their cost grows
+#: with S_w); otherwise as scatter-adds into the S_w texels. Measured at 75 000 samples (docs/notes/speed.md,
+#: "best's sweep, twenty-second session"): a sweep of slots (1, 4, 1, 2) at 32 texels 0.31 s CPU against 0.35
+#: scattered, at 128 texels 0.67 against 0.58; K = 1-3 lines scatter faster at both.
+MATMUL_PAIRS = 6
+MATMUL_TEXELS = 32
+
+
+def _shared_line_normals(c, vi, vw, y, *, Sw: int):
+    """:func:`_w_normals` of K lines read at one footprint per sample (``vi, vw`` (N, 2): the pinned ``line``
+    lookup's two adjacent texels, ``vi[:, 1] = vi[:, 0] + 1``), coefficients c (N, K, 3). With the texel weights
+    ``e_i = vw_i0 1[vi_i0] + vw_i1 1[vi_i1]`` (S_w,), the line unknowns' coefficients are ``c_ti e_i`` and
+    ``G[(t, a), (s, b)] = sum_i c_ti c_si e_ia e_ib``; e_ia e_ib is nonzero only on the diagonal (``vw_i0^2`` at
+    vi_i0, ``vw_i1^2`` at vi_i1) and beside it (``vw_i0 vw_i1`` at (vi_i0, vi_i0 + 1) and its transpose), so G
+    is three sums over the samples of the pairs ``c_t c_s`` (t <= s) into the S_w texels, and
+    ``h[(t, a)] = sum_i e_ia c_ti y_i`` two: as (S_w, N) one-hot rows times (N, pairs) matrix products above
+    :data:`MATMUL_PAIRS` pairs on at most :data:`MATMUL_TEXELS` texels, as scatter-adds otherwise."""
+    N, K, _ = c.shape
+    iu = np.triu_indices(K)
+    tri = np.zeros((K, K), np.int64)
+    tri[iu] = tri[iu[::-1]] = np.arange(len(iu[0]))  # (t, s) -> its pair's column
+    pairs = (c[:, iu[0]] * c[:, iu[1]]).reshape(N, -1)  # (N, K(K+1)/2 * 3)
+    cy = (c * y[:, None, :]).reshape(N, -1)  # (N, K * 3)
+    w0, w1 = vw[:, 0], vw[:, 1]
+    if len(iu[0]) > MATMUL_PAIRS and Sw <= MATMUL_TEXELS:
+        texels = jnp.arange(Sw, dtype=vi.dtype)[:, None]
+        o0, o1 = (vi[None, :, 0] == texels).astype(c.dtype), (vi[None, :, 1] == texels).astype(c.dtype)  # (S_w, N)
+        R = jnp.concatenate([o0 * (w0 * w0), o1 * (w1 * w1), o0 * (w0 * w1)]) @ pairs  # (3 S_w, pairs * 3)
+        h = o0 @ (cy * w0[:, None]) + o1 @ (cy * w1[:, None])  # (S_w, K * 3)
+    else:
+        sums = lambda x, i: jax.ops.segment_sum(x, vi[:, i], num_segments=Sw)  # noqa: E731
+        R = jnp.concatenate([sums(pairs * (w0 * w0)[:, None], 0), sums(pairs * (w1 * w1)[:, None], 1),
+                             sums(pairs * (w0 * w1)[:, None], 0)])
+        h = sums(cy * w0[:, None], 0) + sums(cy * w1[:, None], 1)
+    R = R.reshape(3, Sw, -1, 3)[:, :, tri]  # (3, S_w, K, K, 3)
+    diag, side = R[0] + R[1], R[2]
+    eye, up = jnp.eye(Sw, dtype=c.dtype), jnp.eye(Sw, k=1, dtype=c.dtype)  # up[j, j + 1] = 1
+    G = (jnp.einsum("atsc,ab->tasbc", diag, eye) + jnp.einsum("jtsc,jb->tjsbc", side, up)
+         + jnp.einsum("jtsc,ja->tasjc", side, up))
+    return G.reshape(K * Sw * K * Sw, 3), jnp.moveaxis(h.reshape(Sw, K, 3), 1, 0).reshape(K * Sw, 3)
 
 
 def _w_solve(W, G, h, mu_w, use, lo: int, ridge: float = 1e-6):
@@ -389,31 +450,41 @@ def _w_solve(W, G, h, mu_w, use, lo: int, ridge: float = 1e-6):
     return jnp.concatenate([W[:lo], new]) if lo else new
 
 
+def _balance_scales(P, Q, W, m: Masks, D=None, C=None):
+    """The per-term, per-channel factors (K, 1, 3) of :func:`_balance`: ``(fP, fQ, fW, fD, fC)`` (fD, fC None
+    where D, C were not given; fC a tuple, one per extra line), 1 in every slot that lacks the factor."""
+    col = lambda x: jnp.asarray(x, P.dtype)[:, None, None]  # noqa: E731
+    mean = lambda X: jnp.maximum(jnp.mean(jnp.abs(X), axis=1, keepdims=True), 1e-12)  # noqa: E731
+    p, q, w, h = (col(x) for x in (m.p, m.q, m.w, m.h))
+    full, fw = p * q, w * q
+    sp = mean(P) * full + (1 - full)
+    sw = mean(W) * fw + (1 - fw)
+    fP, fQ, fW = 1 / sp, sp * sw, 1 / sw
+    if D is None:
+        return fP, fQ, fW, None, None
+    hp, hw = p * h * (1 - q), w * h * (1 - q)
+    sp = mean(P * fP) * hp + (1 - hp)
+    sw = mean(W * fW) * hw + (1 - hw)
+    fP, fW, fD = fP / sp, fW / sw, sp * sw
+    if C is None:
+        return fP, fQ, fW, fD, None
+    fC = []
+    for e, Ce in enumerate(C):
+        hc = h * col(m.c[e])
+        sc = mean(Ce) * hc + (1 - hc)
+        fD, fC = fD * sc, fC + [1 / sc]
+    return fP, fQ, fW, fD, tuple(fC)
+
+
 def _balance(P, Q, W, m: Masks, D=None, C=None):
     """Rescale full terms so mean |p_t| = mean |w_t| = 1 per channel (the scale goes into q_t, or into
     d_t for a term without q; a term's extra lines also to mean |c_et| = 1, their scale into d_t). Returns
     ``(P, Q, W, D, C)``, D and C None where they were not given (C: a tuple, one array per extra line)."""
-    col = lambda x: jnp.asarray(x, P.dtype)[:, None, None]  # noqa: E731
-    p, q, w, h = (col(x) for x in (m.p, m.q, m.w, m.h))
-    full, fw = p * q, w * q
-    sp = jnp.maximum(jnp.mean(jnp.abs(P), axis=1, keepdims=True), 1e-12) * full + (1 - full)
-    sw = jnp.maximum(jnp.mean(jnp.abs(W), axis=1, keepdims=True), 1e-12) * fw + (1 - fw)
-    P, Q, W = P / sp, Q * sp * sw, W / sw
+    fP, fQ, fW, fD, fC = _balance_scales(P, Q, W, m, D, C)
+    P, Q, W = P * fP, Q * fQ, W * fW
     if D is None:
         return P, Q, W, None, None
-    hp, hw = p * h * (1 - q), w * h * (1 - q)
-    sp = jnp.maximum(jnp.mean(jnp.abs(P), axis=1, keepdims=True), 1e-12) * hp + (1 - hp)
-    sw = jnp.maximum(jnp.mean(jnp.abs(W), axis=1, keepdims=True), 1e-12) * hw + (1 - hw)
-    P, W, D = P / sp, W / sw, D * sp * sw
-    if C is None:
-        return P, Q, W, D, None
-    out = []
-    for e, Ce in enumerate(C):
-        hc = h * col(m.c[e])
-        sc = jnp.maximum(jnp.mean(jnp.abs(Ce), axis=1, keepdims=True), 1e-12) * hc + (1 - hc)
-        D, Ce = D * sc, Ce / sc
-        out.append(Ce)
-    return P, Q, W, D, tuple(out)
+    return P, Q, W, D * fD, None if C is None else tuple(Ce * f for Ce, f in zip(C, fC))
 
 
 class Blocked(NamedTuple):
@@ -538,7 +609,26 @@ def _unit(P, Q, masks: Masks):
     return P * up + (1 - up), Q * uq + (1 - uq)
 
 
-_balanced = jax.jit(_balance)
+@jax.jit
+def _balanced(P, Q, W, m: Masks, D=None, C=None):
+    """:func:`_balance` of the state and its factors ``(fP, fQ, fW, fD, fC)`` (:func:`_balance_scales`)."""
+    f = _balance_scales(P, Q, W, m, D, C)
+    fP, fQ, fW, fD, fC = f
+    P, Q, W = P * fP, Q * fQ, W * fW
+    D = None if D is None else D * fD
+    C = None if C is None else tuple(Ce * x for Ce, x in zip(C, fC))
+    return (P, Q, W, D, C), f
+
+
+@jax.jit
+def _rescaled(seen: Seen, f: tuple, y, s, t):
+    """The factors at the samples of a block after the rebalance (each a per-term scale of its texture, so the
+    gathered factors times the same scales, :func:`_balance_scales`' ``f``) and their objective
+    (:func:`_seen_objective`)."""
+    fP, fQ, fW, fD, fC = f
+    sn = Seen(seen.pa * fP, seen.qb * fQ, seen.wv * fW, None if seen.dv is None else seen.dv * fD,
+              tuple(x * fc for x, fc in zip(seen.cv, fC or ())))
+    return sn, _seen_objective(sn, y, s, t)
 
 
 def _present(use) -> bool:
@@ -553,7 +643,8 @@ def sweep(P, Q, W, D, C, d: GridData | Blocked, lam, masks: Masks, *, slots: Slo
     highlight slot (no extra line). ``d``: the samples, or :func:`blocks` of them. Each block of the sweep (q,
     p, d, each extra line, w: the module docstring) sums its normal equations over the blocks of samples
     (compiled per slot shape and block size, not per sample count) and solves them once; the factor is then
-    gathered at every block's samples (:class:`Seen`) for the next. Then the terms are rebalanced. Returns
+    gathered at every block's samples (:class:`Seen`) for the next. Then the terms are rebalanced, and the
+    gathered factors rescaled with them (:func:`_rescaled`: each factor is gathered once a sweep). Returns
     ``(P, Q, W, D, C, hist)``, hist the data objective ``sum_i s_i^2 ||yhat_i - y_i||^2`` (``d.s``: the square
     roots of the sample weights) after each sweep."""
     parts, N = (d.blocks, d.n) if isinstance(d, Blocked) else ((d,), int(d.y.shape[0]))
@@ -611,10 +702,13 @@ def sweep(P, Q, W, D, C, d: GridData | Blocked, lam, masks: Masks, *, slots: Slo
                 C = tuple(C)
         if _present(masks.w):
             W = line(W, lo_w, lambda part: (part.vi, part.vw), masks.w, lambda sn: (sn.pa, sn.qb, *lines(sn)))
-        P, Q, W, D, C = _balanced(P, Q, W, masks, D, C)
-        # the balanced state at the samples: its objective, and the next sweep's factors
-        seen = [_seen(P, Q, W, D, C, part, masks) for part in parts]
-        hist.append(sum(float(_seen_objective(sn, part.y, part.s, masks.t)) for sn, part in zip(seen, parts)))
+            seen = [sn._replace(wv=_line_at(W, part.vi, part.vw, masks.w)) for sn, part in zip(seen, parts)]
+        (P, Q, W, D, C), f = _balanced(P, Q, W, masks, D, C)
+        # the balanced state at the samples (the factors rescaled, not gathered again): its objective, and
+        # the next sweep's factors
+        out = [_rescaled(sn, f, part.y, part.s, masks.t) for sn, part in zip(seen, parts)]
+        seen = [sn for sn, _ in out]
+        hist.append(sum(float(obj) for _, obj in out))
     return P, Q, W, (D if has_d else D_in), (C if has_c else C_in), np.asarray(hist, np.float32)
 
 
