@@ -15,7 +15,7 @@ SYSTEM_PACKAGES = libegl1 libgl1 libgles2 glslang-tools spirv-tools spirv-cross 
 	chromium chromium-driver nodejs
 PYTEST_ARGS ?=
 
-.PHONY: run test test-slow test-all docs install system-packages js-packages benchmark clean
+.PHONY: run test test-slow test-all test-prerequisites docs install system-packages js-packages benchmark clean
 
 # uv installs the wheels in parallel: a fresh clone's install takes about 7 s against pip's 88 s here (most
 # of it downloads; docs/notes/suite.md). uv goes into the venv first: by $(PYTHON)'s own pip (`pip --python`, pip
@@ -47,10 +47,15 @@ system-packages:
 
 # js/'s npm packages (package-lock.json pinned) into js/node_modules, again whenever the lock file changes.
 JS_STAMP = js/node_modules/.package-lock.json
-$(JS_STAMP): js/package-lock.json
+$(JS_STAMP): js/package-lock.json | system-packages
 	cd js && npm ci --no-audit --no-fund
 
 js-packages: system-packages $(JS_STAMP)
+
+# What the test targets need, made side by side (the venv's install and js/'s `npm ci` mostly wait on downloads;
+# npm ci waits for system-packages, which may install npm).
+test-prerequisites:
+	@$(MAKE) --no-print-directory -j3 $(STAMP) system-packages js-packages
 
 # Two workers (one per core); a test file's tests stay on one worker so module fixtures are built once. A
 # worker that crashes ends the run with the test it crashed in: restarted, pytest-xdist 3.8's loadfile
@@ -59,14 +64,14 @@ XDIST = -n 2 --dist loadfile --max-worker-restart 0
 
 # The fast suite's budget: `make test` from a fresh clone in 5 minutes on a 2-core machine, install included;
 # `.ci/run` in 30. Where the time goes and how to measure it: docs/notes/suite.md (PYTEST_ARGS=--durations=20).
-test: $(STAMP) system-packages js-packages
+test: test-prerequisites
 	$(PY) -m pytest -q $(XDIST) -m "not slow" $(PYTEST_ARGS)
 
 # The tests marked slow (stress cases, subprocess CLI runs, the notebook, the docs build ...).
-test-slow: $(STAMP) system-packages js-packages
+test-slow: test-prerequisites
 	$(PY) -m pytest -q $(XDIST) -m slow $(PYTEST_ARGS)
 
-test-all: $(STAMP) system-packages js-packages
+test-all: test-prerequisites
 	$(PY) -m pytest -q $(XDIST) $(PYTEST_ARGS)
 
 # The documentation site into site/ (warnings are errors).

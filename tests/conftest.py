@@ -30,6 +30,7 @@ Measured in docs/notes/suite.md; the programs compute the same values to float32
 
 from __future__ import annotations
 
+import json
 import os
 import tempfile
 from pathlib import Path
@@ -65,12 +66,45 @@ SHARED_BAKE_FILES = ("test_bake.py", "test_bake_harmonic.py", "test_bake_layout.
                      "test_bake_shared.py", "test_bake_sources.py")
 
 
+#: Measured CPU seconds of each test file (in the worker plus the subprocesses it waits for) under a ``-m``
+#: selection, from which the scheduler hands out the costliest work unit first: ``{"not slow": {"tests/test_x.py":
+#: seconds, ...}}``, written by ``python tests/cpu_times.py DIR --costs`` from a run of that selection.
+UNIT_COSTS_FILE = Path(__file__).with_name("unit_costs.json")
+
+
+def unit_costs(markexpr: str, path: Path = UNIT_COSTS_FILE) -> dict[str, float]:
+    """The test files' measured CPU seconds under the selection ``-m markexpr``, by node id (empty: not measured)."""
+    return json.loads(path.read_text()).get(markexpr, {}) if path.exists() else {}
+
+
 class _LoadFileSharingBakes(LoadFileScheduling):
-    """``--dist loadfile``, but the files of :data:`SHARED_BAKE_FILES` are one work unit (each file its own else)."""
+    """``--dist loadfile``, but the files of :data:`SHARED_BAKE_FILES` are one work unit (each file its own else),
+    and, when the run's ``-m`` selection was measured (:data:`UNIT_COSTS_FILE`), a worker that asks for work gets
+    the costliest unit left (a file not measured counts as the median file): longest processing time first, so
+    the units left at the end are short and both workers finish at about the same time. An unmeasured selection
+    keeps xdist's order (most tests first)."""
+
+    def __init__(self, config, log=None):
+        super().__init__(config, log)
+        self.costs = unit_costs(config.getoption("markexpr") or "")
+        known = sorted(self.costs.values())
+        self.unknown_cost = known[len(known) // 2] if known else 0.0
 
     def _split_scope(self, nodeid: str) -> str:
         path = super()._split_scope(nodeid)
         return "shared bakes" if Path(path).name in SHARED_BAKE_FILES else path
+
+    def unit_cost(self, scope: str) -> float:
+        """The measured CPU seconds of the work unit ``scope`` (a file's node id, or ``shared bakes``: its files')."""
+        if scope == "shared bakes":
+            return sum(c for f, c in self.costs.items() if Path(f).name in SHARED_BAKE_FILES)
+        return self.costs.get(scope, self.unknown_cost)
+
+    def _assign_work_unit(self, node) -> None:
+        """Send ``node`` the costliest unit left (xdist's own sends the first in its queue)."""
+        if self.costs:
+            self.workqueue.move_to_end(max(self.workqueue, key=self.unit_cost), last=False)
+        super()._assign_work_unit(node)
 
 
 @pytest.hookimpl(optionalhook=True)

@@ -6,6 +6,7 @@ test phase, ``nodeid, phase, cpu s, wall s, XLA compiles, compile s, children's 
 
     PYTHONPATH=src:tests HOMOFAC_CPU_TIMES=/tmp/cpu python -m pytest -p cpu_times -n 2 --dist loadfile -m "not slow"
     python tests/cpu_times.py /tmp/cpu        # totals per worker and per file, the slowest phases
+    python tests/cpu_times.py /tmp/cpu --costs "not slow" tests/unit_costs.json   # the scheduler's costs (conftest.py)
 
 CPU time of subprocesses is a column of its own, for those the test waited for (a CLI run, a compiler); the GL
 device process and Chromium, reaped when the worker ends, are in no test's.
@@ -15,6 +16,7 @@ from __future__ import annotations
 
 import collections
 import glob
+import json
 import os
 import sys
 import time
@@ -94,5 +96,23 @@ def report(directory: str, files: int = 40, phases: int = 40) -> None:
         print(f"{r[2]:6.1f} {r[3]:7.1f}  {r[5]:5d}  {r[7]:7.1f}  {r[1]:8s} {r[0]}")
 
 
+def costs(directory: str) -> dict[str, float]:
+    """CPU seconds per test file of a directory of these records: in the worker plus the subprocesses waited for
+    (what tests/unit_costs.json holds for the scheduler in tests/conftest.py)."""
+    out: collections.Counter = collections.Counter()
+    for path in glob.glob(os.path.join(directory, "*.tsv")):
+        for line in open(path):
+            nodeid, _phase, cpu, _wall, *more = line.rstrip("\n").split("\t")
+            out[nodeid.split("::")[0]] += float(cpu) + (float(more[2]) if more[2:] else 0.0)
+    return {name: round(c, 1) for name, c in sorted(out.items(), key=lambda kv: -kv[1])}
+
+
 if __name__ == "__main__":
-    report(sys.argv[1], *(int(a) for a in sys.argv[2:]))
+    if sys.argv[2:3] == ["--costs"]:  # DIR --costs MARKEXPR FILE: the run's costs into FILE's entry for MARKEXPR
+        markexpr, target = sys.argv[3], sys.argv[4]
+        table = json.load(open(target)) if os.path.exists(target) else {}
+        table[markexpr] = costs(sys.argv[1])
+        with open(target, "w") as f:
+            f.write(json.dumps(table, indent=1) + "\n")
+    else:
+        report(sys.argv[1], *(int(a) for a in sys.argv[2:]))
