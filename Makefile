@@ -15,6 +15,13 @@ SYSTEM_PACKAGES = libegl1 libgl1 libgles2 glslang-tools spirv-tools spirv-cross 
 	chromium chromium-driver nodejs
 PYTEST_ARGS ?=
 
+# Python's bytecode cache on for everything make runs. An environment that sets PYTHONDONTWRITEBYTECODE (this
+# machine's does) with uv's install (no .pyc unless --compile-bytecode, which compiles every installed package:
+# +30 s) leaves each Python process to compile the ~1000 modules homofac imports from source: `import homofac.fit,
+# homofac.bake` 5.5-5.9 s CPU without .pyc, 2.7-3.0 s with (docs/notes/suite.md). The first process that imports a
+# module writes its .pyc (atomically: xdist's workers may race), the later ones read it.
+unexport PYTHONDONTWRITEBYTECODE
+
 .PHONY: run test test-slow test-all test-prerequisites docs install system-packages js-packages benchmark clean
 
 # uv installs the wheels in parallel: a fresh clone's install takes about 7 s against pip's 88 s here (most
