@@ -50,6 +50,7 @@ lookup budget for ``max_lookups``.
 
 from __future__ import annotations
 
+import functools
 import re
 from typing import Literal, NamedTuple, Optional, TypeVar
 
@@ -292,6 +293,7 @@ def _has_nv(parametrization: str) -> bool:
     return any(pj.get(f.projection).scalar for f in pz.get(parametrization).factors)
 
 
+@functools.lru_cache(maxsize=4096)
 def skeleton(structure: Structure, kind: str, quantity: str, mapper: str, size: int,
              line_size: int = LINE_SIZE) -> tuple[tuple[TextureSpec, ...], tuple[TermSpec, ...]]:
     """Textures and terms of ``structure`` (see the module docstring); texture names carry the term
