@@ -191,6 +191,18 @@ BALANCED_DROPPED = ("E'+ROW x3+R",)
 #: forest at load 14) and, where they pass the first round's margin, their later sweeps; without tables
 #: (``advanced.highlights.table: false``) there is no twin and they are tried.
 
+#: The candidates ``best`` does not try: the two with a reflection term and highlights on lines without the Fresnel
+#: factor beside 5 or 6 products (``E'+ROW x5+R+HW x2``, ``E'+ROW x6+R+HW x1``). In ``best``'s race (strided fits)
+#: they were the lowest on none of 6 cases; after 30 sweeps they read above the lowest by 7.8 / 12.3 % on gold /
+#: forest (ridge stratum), 8.1 / 46.6 % on mirror / studio, 15.3 / 32.4 % on metal / interior, 86 / 204 % on rough /
+#: forest and 75 / 74 % on rough / studio (plain validation nrmse), and by 30.0 / 30.6 % on plastic / city after 10
+#: (where the race stopped them); the kept structure of the accuracy benchmark's 4 sixteen-lookup rows was a table
+#: candidate (``HFT``) on each (benchmarks/presets_best19_race.json, presets_best20_race.json,
+#: race_study_best23.json, accuracy.json; docs/notes/speed.md, "best, twenty-third session"). Their race starts were
+#: 32 s CPU of the first round's 109 on gold / forest. ``E'+NROW x4+R+HW x1`` stays (2.6 % above the lowest on gold /
+#: forest, 4 % on rough / forest).
+BEST_DROPPED = ("E'+ROW x5+R+HW x2", "E'+ROW x6+R+HW x1")
+
 #: ``fast``'s training pairs: 32 per unknown of its largest candidate (``E'+NROW x1`` and ``E'+ROW x1+R``: 5456 texels
 #: per channel at texture size 32), about what ``balanced``'s 300 000 give its largest ones (``E'+NROW x2+R`` 10 912
 #: unknowns: 27, ``E'+ROW x3+R`` 9136: 33). The grid's lighting integrals were the largest fixed stage of ``fast``
@@ -207,7 +219,7 @@ FAST_GRID_COUNT = 175_000
 #: vote 32 / 4 x texture_size and the disc vote (each read on a short fit first), the plain objective, and 20 000
 #: ridge pairs in every figure and in its polish: one stage of 8 Levenberg-Marquardt steps with the ridge pairs
 #: straight from the ALS fit (``polish_direct``; the stage kept on every case where three were tried:
-#: docs/notes/sums-research.md, "A third polish stage"). On gold / forest the choice among its 11 candidates is
+#: docs/notes/sums-research.md, "A third polish stage"). On gold / forest the choice among its candidates is
 #: most of its accuracy: the full fits of the three leading structures on 300 000 pairs read 0.095 / 0.102 /
 #: 0.117 on the converged truth (docs/notes/speed.md, "best, seventeenth session"). On plastic / city the benchmark's
 #: 20000 pairs put it above ``balanced`` (0.0626 against 0.0598) and the 270 000 dense pairs, which see the city sun's
@@ -223,7 +235,7 @@ PRESETS: dict[str, Preset] = {
     "best": Preset(lookups=16, grid_count=GRID_COUNT, validation=DEFAULT_VALIDATION, line_ratio=4, table=True,
                    disc_vote=True, nv_balance=0.0, polish=8, ridge=20_000, analysis=False, directions=PRESET_DIRECTIONS,
                    polish_stride=POLISH_STRIDE, polish_direct=True, vote_screen=BEST_RACE["race"][-1],
-                   table_twins=True, **BEST_RACE),
+                   table_twins=True, dropped=BEST_DROPPED, **BEST_RACE),
 }
 
 #: The lookup budget of ``target_error`` with sum keys but no ``max_lookups``.
