@@ -31,14 +31,18 @@ from homofac.light.integrals import material_radiance
 ANGLES = (0, 1, 2, 3, 5, 8, 20, 180)  # degrees
 
 
-def light_directions(bake) -> np.ndarray:
-    """One direction per light: the first entry of each core-and-halo pair (entries within 1 degree merged)."""
+def light_directions(bake) -> tuple[np.ndarray, np.ndarray]:
+    """One direction per light, the first entry of each core-and-halo pair (entries within 1 degree merged), and
+    that entry's minor semi-axis (rad)."""
     out: list[np.ndarray] = []
+    minor: list[float] = []
     for s in bake.sources:
         d = np.asarray(s.direction, np.float64)
         if not any(float(d @ o) > np.cos(np.radians(1.0)) for o in out):
             out.append(d)
-    return np.array(out).reshape(-1, 3)
+            a = np.linalg.norm(np.asarray(s.axes, np.float64).reshape(-1, 3), axis=1)
+            minor.append(float(a.min()) if len(a) else float(s.radius))
+    return np.array(out).reshape(-1, 3), np.array(minor)
 
 
 def tile_coordinates(r: np.ndarray, ell: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -63,6 +67,9 @@ def main(argv=None) -> None:
     p.add_argument("cells", nargs="+", help="ENV:PAIRS.npz:BASE_DIR:FINE_DIR[:SOURCE_DIR]")
     p.add_argument("--tiles", type=int, nargs="*", default=[16, 32, 64], help="tile sides N in fine texels")
     p.add_argument("--face", type=int, default=128, help="the fine maps' face (the tile's density)")
+    p.add_argument("--resolved", type=float, nargs="*", default=[],
+                   help="with SOURCE_DIR: also tiles holding only the lights whose minor semi-axis is at least this many "
+                        "tile texels (the others' pairs read the base)")
     p.add_argument("--below", type=float, default=0.15, help="the tile holds the layers below this roughness")
     args = p.parse_args(argv)
     pitch = (np.pi / 2) / args.face
@@ -77,7 +84,7 @@ def main(argv=None) -> None:
         top = max(j for j, r in enumerate(base.roughness) if r < args.below)
         blended = np.ceil(u) <= top  # every layer of the pair's blend is below --below
         r = 2 * np.sum(n * v, 1)[:, None] * n - v
-        ell = light_directions(base)
+        ell, minor = light_directions(base)
         near, g = tile_coordinates(r, ell)
         ang = np.degrees(np.arccos(np.clip(np.sum(r * ell[near], 1), -1, 1)))
         den = float(np.sum(w * np.sum(ref * ref, 1)))
@@ -99,6 +106,11 @@ def main(argv=None) -> None:
             if L_own is not None:
                 rows[f"own {N}"] = np.where(inside[:, None], L_own, L_base)
                 print(f"  tile {N} holding the lights: {nrmse(rows[f'own {N}'], ref, w):.4f}")
+                for t in args.resolved:
+                    keep = inside & (minor[near] >= t * pitch)
+                    rows[f"res{t:g} {N}"] = np.where(keep[:, None], L_own, L_base)
+                    print(f"  tile {N} holding the lights resolved at {t:g} texel ({int(np.sum(minor >= t * pitch))} of "
+                          f"{len(minor)}): {nrmse(rows[f'res{t:g} {N}'], ref, w):.4f}")
             kb = len(ell) * layers * N * N * 3 * 2 / 1e3
             print(f"  tile {N} ({N * pitch / 2 * 180 / np.pi:.1f} deg half-side, {kb:.0f} KB): {nrmse(L, ref, w):.4f}, "
                   f"inside {inside.mean():.3f} of pairs, {float(np.sum(w[inside]) / np.sum(w)):.3f} of weight", flush=True)
