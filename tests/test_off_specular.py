@@ -443,3 +443,24 @@ def test_max_lookups_with_texel_sampling_fits_the_off_specular_candidates_with_t
     assert sum("training pairs" in m for m in logs) == 1  # one texel pool for all
     if "shift" in pz.get(fac.solver["structure"]["parametrization"]).context:
         assert "shift" in fac.model.context
+
+
+def test_off_grid_figures_are_the_mean_squared_residuals_on_the_strided_grid_the_off_grid_and_the_validation_pairs():
+    """The polish gate's evidence: the kept fit's mean squared residual on every k-th grid pair, on the off-grid
+    pairs and on the validation pairs (each over its own pairs and the 3 channels), the off-grid one over the
+    grid one as the ratio; evaluated in padded calls of a fixed size (the last call's padding cut off)."""
+    class Zero:  # a model that reads 0 everywhere: the residual is the target itself
+        @staticmethod
+        def evaluate(a, b):
+            return np.zeros((a.shape[0], 3), np.float32)
+
+    rng = np.random.default_rng(0)
+    a, b = (rng.normal(size=(10, 3)).astype(np.float32) for _ in range(2))
+    y = np.where((np.arange(10) % 2 == 0)[:, None], 1.0, 5.0) * np.ones((10, 3), np.float32)  # every 2nd reads 1
+    val_y = np.full((7, 3), 3.0, np.float32)
+    samples = Samples(a, b, y, a[:7], b[:7], val_y)
+    off = Samples(a[:5], b[:5], np.full((5, 3), 2.0, np.float32), a[:0], b[:0], val_y[:0])
+    fig = polish.off_grid_figures(Zero(), samples, off, stride=2, chunk=4)
+    assert (fig.grid, fig.off, fig.ratio, fig.validation) == pytest.approx((1.0, 4.0, 4.0, 9.0))
+    every = polish.off_grid_figures(Zero(), samples, off, stride=1, chunk=4)
+    assert every.grid == pytest.approx(13.0) and every.ratio == pytest.approx(4.0 / 13.0)
