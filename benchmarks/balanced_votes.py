@@ -11,7 +11,8 @@ strided sweeps, those kept after 10), the polish vote (``selection.polish``: the
 kept or not, or not run where the plan's gate said so) with the kept fit's off-grid figures
 (:func:`homofac.fit.polish.off_grid_figures`: mean squared residual on the polish's strided grid pairs, on its
 off-grid pairs, their ratio, and on the validation pairs). No ground truth: the votes read the fit's own validation
-pairs. ``--preset-values``: a variant of the preset (as benchmarks/presets.py's).
+pairs. ``--preset-values``: a variant of the preset (as benchmarks/presets.py's); without a ``polish_gate`` in them
+the gate is set to :data:`RECORD_GATE` (the figures computed and recorded, the polish never skipped).
 """
 from __future__ import annotations
 
@@ -29,8 +30,13 @@ import accuracy as acc  # noqa: E402
 import homofac as hf  # noqa: E402
 
 
+#: The polish gate of a study row: above 0, so that the off-grid figures are computed, and below any ratio.
+RECORD_GATE = 1e-9
+
+
 def run(cases: list[tuple[str, str]], preset_values: dict) -> None:
     """Fit ``balanced`` on each case; a json line per case on stdout, the fits' logs on stderr."""
+    preset_values = {"polish_gate": RECORD_GATE, **preset_values}
     if preset_values:
         hf.fit.plan.PRESETS["balanced"] = hf.fit.plan.PRESETS["balanced"]._replace(
             **{k: tuple(v) if isinstance(v, list) else v for k, v in preset_values.items()})

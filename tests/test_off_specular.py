@@ -464,3 +464,26 @@ def test_off_grid_figures_are_the_mean_squared_residuals_on_the_strided_grid_the
     assert (fig.grid, fig.off, fig.ratio, fig.validation) == pytest.approx((1.0, 4.0, 4.0, 9.0))
     every = polish.off_grid_figures(Zero(), samples, off, stride=1, chunk=4)
     assert every.grid == pytest.approx(13.0) and every.ratio == pytest.approx(4.0 / 13.0)
+
+
+@pytest.mark.slow
+def test_the_polish_gate_skips_the_polish_where_the_off_grid_residual_is_not_above_it_and_records_why(monkeypatch):
+    """A plan's ``polish_gate`` above the kept fit's off-grid / grid residual ratio skips the polish: the result is the
+    ALS fit, ``selection.polish`` records the rule, the gate and the figures, and the solver record has no polish (so a
+    refit does not polish either); a gate below the ratio polishes and votes as before, the figures recorded."""
+    brdf = hf.brdf.cook_torrance(kd=(0.05, 0.04, 0.02), ks=1.0, roughness=0.3, f0=(1.0, 0.78, 0.34))
+    target = hf.light.lighting_target(brdf, hf.light.load_environment("interior", 8))
+    kw = dict(texture_size=S, preset="balanced", max_lookups=4, sampling={"count": 20000, "validation": 3000, "cache": False},
+              advanced={"highlights": {"terms": 0}, "linear": {"iterations": 8, "polish_size": 8}})
+    monkeypatch.setitem(plan.PRESETS, "balanced", plan.PRESETS["balanced"]._replace(polish_gate=1e9))
+    gated = hf.fit.factorize(target, "NR", **kw)
+    note = gated.selection["polish"]
+    assert note["rule"] == "gate" and not note["kept"] and note["gate"] == 1e9
+    assert 0 < note["off_grid"]["ratio"] == pytest.approx(note["off_grid"]["off"] / note["off_grid"]["grid"])
+    assert "polish" not in gated.solver
+    monkeypatch.setitem(plan.PRESETS, "balanced", plan.PRESETS["balanced"]._replace(polish_gate=1e-9))
+    voted = hf.fit.factorize(target, "NR", **kw)
+    assert voted.selection["polish"]["rule"] == "vote"
+    assert voted.selection["polish"]["off_grid"] == pytest.approx(note["off_grid"])  # the same ALS fit, the same pairs
+    assert voted.selection["polish"]["validation_nrmse_before"] == pytest.approx(
+        gated.metrics["validation"]["float"]["nrmse"], rel=1e-6)
