@@ -180,7 +180,12 @@ POLISH_STRIDE = 4
 #: (benchmarks/race_study_balanced19.json; docs/notes/speed.md, "balanced, nineteenth session"). It was the only
 #: candidate of its ALS slot shape (3 lined terms): dropping it saves that sweep program's compilation and its
 #: sweeps (about 4-5 s CPU in a fresh process) and changes no kept structure (the race keeps the lowest).
-BALANCED_DROPPED = ("E'+ROW x3+R",)
+#: ``E'+NROW x1+R+HW x1`` and ``E'+NROW x1+R+HFW x1`` were the race's pick (the lowest after 10 strided sweeps) on none
+#: of the 16 cases either (the 11 of race_study_balanced19.json and the other 5 in benchmarks/balanced_votes_bal23.jsonl:
+#: nearest 0.4 % and 2.3 % behind the pick on rough / studio and rough / city, 3.7 % on plastic / forest); they fill
+#: the slot shape of two other candidates, so dropping them saves their race fits (about 1.3 s CPU each on gold /
+#: forest) and changes no pick on those cases (docs/notes/speed.md, "balanced, twenty-third session").
+BALANCED_DROPPED = ("E'+ROW x3+R", "E'+NROW x1+R+HW x1", "E'+NROW x1+R+HFW x1")
 
 #: ``best`` does not try a highlight candidate on the lines ``w(n.v)`` (``HFW``) whose table twin (``HFT``: the same
 #: terms, their highlight read from a table ``T(n.i, n.v)`` fitted as the lines ``c(n.i) w(n.v)``, at the same lookups)
