@@ -443,3 +443,47 @@ def test_max_lookups_with_texel_sampling_fits_the_off_specular_candidates_with_t
     assert sum("training pairs" in m for m in logs) == 1  # one texel pool for all
     if "shift" in pz.get(fac.solver["structure"]["parametrization"]).context:
         assert "shift" in fac.model.context
+
+
+def test_off_grid_figures_are_the_mean_squared_residuals_on_the_strided_grid_the_off_grid_and_the_validation_pairs():
+    """The polish gate's evidence: the kept fit's mean squared residual on every k-th grid pair, on the off-grid
+    pairs and on the validation pairs (each over its own pairs and the 3 channels), the off-grid one over the
+    grid one as the ratio; evaluated in padded calls of a fixed size (the last call's padding cut off)."""
+    class Zero:  # a model that reads 0 everywhere: the residual is the target itself
+        @staticmethod
+        def evaluate(a, b):
+            return np.zeros((a.shape[0], 3), np.float32)
+
+    rng = np.random.default_rng(0)
+    a, b = (rng.normal(size=(10, 3)).astype(np.float32) for _ in range(2))
+    y = np.where((np.arange(10) % 2 == 0)[:, None], 1.0, 5.0) * np.ones((10, 3), np.float32)  # every 2nd reads 1
+    val_y = np.full((7, 3), 3.0, np.float32)
+    samples = Samples(a, b, y, a[:7], b[:7], val_y)
+    off = Samples(a[:5], b[:5], np.full((5, 3), 2.0, np.float32), a[:0], b[:0], val_y[:0])
+    fig = polish.off_grid_figures(Zero(), samples, off, stride=2, chunk=4)
+    assert (fig.grid, fig.off, fig.ratio, fig.validation) == pytest.approx((1.0, 4.0, 4.0, 9.0))
+    every = polish.off_grid_figures(Zero(), samples, off, stride=1, chunk=4)
+    assert every.grid == pytest.approx(13.0) and every.ratio == pytest.approx(4.0 / 13.0)
+
+
+@pytest.mark.slow
+def test_the_polish_gate_skips_the_polish_where_the_off_grid_residual_is_not_above_it_and_records_why(monkeypatch):
+    """A plan's ``polish_gate`` above the kept fit's off-grid / grid residual ratio skips the polish: the result is the
+    ALS fit, ``selection.polish`` records the rule, the gate and the figures, and the solver record has no polish (so a
+    refit does not polish either); a gate below the ratio polishes and votes as before, the figures recorded."""
+    brdf = hf.brdf.cook_torrance(kd=(0.05, 0.04, 0.02), ks=1.0, roughness=0.3, f0=(1.0, 0.78, 0.34))
+    target = hf.light.lighting_target(brdf, hf.light.load_environment("interior", 8))
+    kw = dict(texture_size=S, preset="balanced", max_lookups=4, sampling={"count": 20000, "validation": 3000, "cache": False},
+              advanced={"highlights": {"terms": 0}, "linear": {"iterations": 8, "polish_size": 8}})
+    monkeypatch.setitem(plan.PRESETS, "balanced", plan.PRESETS["balanced"]._replace(polish_gate=1e9))
+    gated = hf.fit.factorize(target, "NR", **kw)
+    note = gated.selection["polish"]
+    assert note["rule"] == "gate" and not note["kept"] and note["gate"] == 1e9
+    assert 0 < note["off_grid"]["ratio"] == pytest.approx(note["off_grid"]["off"] / note["off_grid"]["grid"])
+    assert "polish" not in gated.solver
+    monkeypatch.setitem(plan.PRESETS, "balanced", plan.PRESETS["balanced"]._replace(polish_gate=1e-9))
+    voted = hf.fit.factorize(target, "NR", **kw)
+    assert voted.selection["polish"]["rule"] == "vote"
+    assert voted.selection["polish"]["off_grid"] == pytest.approx(note["off_grid"])  # the same ALS fit, the same pairs
+    assert voted.selection["polish"]["validation_nrmse_before"] == pytest.approx(
+        gated.metrics["validation"]["float"]["nrmse"], rel=1e-6)

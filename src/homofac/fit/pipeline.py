@@ -426,16 +426,31 @@ def _sums(target: Target, the_plan: Plan, samples: Samples, record: dict, sample
     if steps and result.solver.get("method") == "als":
         tgt, smp, _ = pool(structure)
         k = the_plan.polish_stride  # on every k-th grid pair and every k-th view of the off-grid pairs
-        plin = lin.model_copy(update={"polish": steps, "ridge": ridge})
-        args = (tgt, structure, mapper, opts.texture_size, fits[structure, line], smp, pairs(k), plin, log)
-        if the_plan.polish_direct:  # only the ridge stage straight from the ALS fit (the third of polish_stages)
-            stages = [as_result(structure, polish.polish(*args, seed=opts.sampling.seed, direct=True, stride=k))]
-            which = (2,)
+        og = None  # the off-grid figures: only where the plan gates the polish on them
+        if the_plan.polish_gate > 0:
+            og = polish.off_grid_figures(fits[structure, line].model, smp, pairs(k), k)
+            log(f"off-grid figures of {structure.label()}: mean squared residual on the grid pairs {og.grid:.5g}, "
+                f"off the grid {og.off:.5g} ({og.ratio:.3f}x), validation {og.validation:.5g}")
+        if og is not None and og.ratio <= the_plan.polish_gate:  # nothing between the texel centres to lower
+            log(f"polish of {structure.label()}: not run (the off-grid residual {og.ratio:.3f}x the grid's, at most "
+                f"{the_plan.polish_gate:g}x)")
+            result = result.replace(selection={**result.selection, "polish": {
+                "steps": steps, "rule": "gate", "gate": float(the_plan.polish_gate), "kept": False, "stage": None,
+                "ridge": 0, "start": None, "stride": int(k), "off_grid": og._asdict()}})
         else:
-            stages = [as_result(structure, sf) for sf in polish.polish_stages(*args, seed=opts.sampling.seed,
-                                                                                direct=True, stride=k)]
-            which = tuple(range(len(stages)))
-        result = _polish_vote(result, stages, score, steps, ridge, structure.label(), log, k, which)
+            plin = lin.model_copy(update={"polish": steps, "ridge": ridge})
+            args = (tgt, structure, mapper, opts.texture_size, fits[structure, line], smp, pairs(k), plin, log)
+            if the_plan.polish_direct:  # only the ridge stage straight from the ALS fit (the third of polish_stages)
+                stages = [as_result(structure, polish.polish(*args, seed=opts.sampling.seed, direct=True, stride=k))]
+                which = (2,)
+            else:
+                stages = [as_result(structure, sf) for sf in polish.polish_stages(*args, seed=opts.sampling.seed,
+                                                                                    direct=True, stride=k)]
+                which = tuple(range(len(stages)))
+            result = _polish_vote(result, stages, score, steps, ridge, structure.label(), log, k, which)
+            if og is not None:
+                result = result.replace(selection={**result.selection, "polish": {**result.selection["polish"],
+                                                                                   "off_grid": og._asdict()}})
     return kept(result if analysis is None else result.replace(analysis=analysis))
 
 

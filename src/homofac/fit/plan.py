@@ -69,7 +69,9 @@ class Preset(NamedTuple):
     the race fits the first round's every ``race_stride``-th pair, a later round continuing the strided fits
     where they stopped (a round may then keep every candidate its margin admits: ``race_keep`` only caps it);
     ``race_margins``: the margin of each round (replacing ``race_margin`` where given); ``table_twins``: a highlight
-    candidate on lines whose table twin (``with_highlights(table=True)``) is a candidate is not tried."""
+    candidate on lines whose table twin (``with_highlights(table=True)``) is a candidate is not tried;
+    ``polish_gate``: the polish runs only where the kept fit's mean squared residual on the polish's off-grid pairs is
+    above this multiple of the one on its grid pairs (:func:`homofac.fit.polish.off_grid_figures`; 0: always)."""
 
     lookups: int
     grid_count: int
@@ -96,6 +98,7 @@ class Preset(NamedTuple):
     race_strided: bool = False
     race_margins: tuple[float, ...] = ()
     table_twins: bool = False
+    polish_gate: float = 0.0
 
 
 #: The grid directions of the presets' candidates: the off-specular reflection ``r_off`` only. On the
@@ -177,7 +180,12 @@ POLISH_STRIDE = 4
 #: (benchmarks/race_study_balanced19.json; docs/notes/speed.md, "balanced, nineteenth session"). It was the only
 #: candidate of its ALS slot shape (3 lined terms): dropping it saves that sweep program's compilation and its
 #: sweeps (about 4-5 s CPU in a fresh process) and changes no kept structure (the race keeps the lowest).
-BALANCED_DROPPED = ("E'+ROW x3+R",)
+#: ``E'+NROW x1+R+HW x1`` and ``E'+NROW x1+R+HFW x1`` were the race's pick (the lowest after 10 strided sweeps) on none
+#: of the 16 cases either (the 11 of race_study_balanced19.json and the other 5 in benchmarks/balanced_votes_bal23.jsonl:
+#: nearest 0.4 % and 2.3 % behind the pick on rough / studio and rough / city, 3.7 % on plastic / forest); they fill
+#: the slot shape of two other candidates, so dropping them saves their race fits (about 1.3 s CPU each on gold /
+#: forest) and changes no pick on those cases (docs/notes/speed.md, "balanced, twenty-third session").
+BALANCED_DROPPED = ("E'+ROW x3+R", "E'+NROW x1+R+HW x1", "E'+NROW x1+R+HFW x1")
 
 #: ``best`` does not try a highlight candidate on the lines ``w(n.v)`` (``HFW``) whose table twin (``HFT``: the same
 #: terms, their highlight read from a table ``T(n.i, n.v)`` fitted as the lines ``c(n.i) w(n.v)``, at the same lookups)
@@ -278,6 +286,7 @@ class Plan:
     polish: int  # steps of the kept structure's polish (0: none, or every candidate polished by linear.polish)
     polish_stride: int  # the polish fits every k-th grid pair and every k-th view of its off-grid pairs
     polish_direct: bool  # the polish is only the ridge stage straight from the ALS fit (with ridge pairs)
+    polish_gate: float  # ... run only where the off-grid residual is above this multiple of the grid's (0: always)
     race: tuple[int, ...]  # ALS sweeps after which the candidates still in are ranked (empty: no race)
     race_keep: tuple[int, ...]  # at most this many continue after each round
     race_margin: float  # ... the lowest and those within this relative margin of its figure
@@ -305,6 +314,7 @@ class Plan:
                 "candidates": [{"label": c.label(), "structure": c.record()} for c in self.candidates],
                 "linear": None if self.linear is None else self.linear.model_dump(),
                 "polish": self.polish, "polish_stride": self.polish_stride, "polish_direct": self.polish_direct,
+                "polish_gate": self.polish_gate,
                 "ridge": self.ridge,
                 "race": {"sweeps": list(self.race), "keep": list(self.race_keep), "margin": self.race_margin,
                          "stride": self.race_stride, "continue": self.race_continue,
@@ -346,7 +356,9 @@ class Plan:
                              + (f", {self.ridge} ridge pairs" if self.ridge else "")
                              + (" from the ALS fit (one stage)" if self.polish_direct else "")
                              + (f" on every {self.polish_stride}th grid pair and off-grid view"
-                                if self.polish_stride > 1 else ""))
+                                if self.polish_stride > 1 else "")
+                             + (f", where the kept fit's off-grid residual is above {self.polish_gate:g}x its grid "
+                                "residual" if self.polish_gate > 0 else ""))
         if len(self.line_sizes) > 1 or self.mode in ("sum", "choose"):
             lines.append("  line textures: " + " or ".join(str(n) for n in self.line_sizes) + " texels")
         if self.analysis:
@@ -614,6 +626,7 @@ def build_plan(target: Target, preset: str | None = None, overrides: dict | FitO
                 light_resolution=int(res) if res else None, validation_light=vlight, max_lookups=budget if choosing else None,
                 candidates=cands, linear=lin, polish=int(steps or 0),
                 polish_stride=int(p.polish_stride) if steps else 1, polish_direct=direct, ridge=int(ridge or 0),
+                polish_gate=float(p.polish_gate) if steps else 0.0,
                 race=race, race_keep=race_keep, race_margin=float(p.race_margin) if race else 0.0,
                 race_stride=int(p.race_stride) if race else 1,
                 race_continue=carry, race_strided=bool(race and p.race_strided and p.race_stride > 1),
