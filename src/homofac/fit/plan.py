@@ -211,13 +211,14 @@ BALANCED_DROPPED = ("E'+ROW x3+R", "E'+NROW x1+R+HW x1", "E'+NROW x1+R+HFW x1")
 #: forest, 4 % on rough / forest).
 BEST_DROPPED = ("E'+ROW x5+R+HW x2", "E'+ROW x6+R+HW x1")
 
-#: ``fast``'s training pairs: 32 per unknown of its largest candidate (``E'+NROW x1`` and ``E'+ROW x1+R``: 5456 texels
-#: per channel at texture size 32), about what ``balanced``'s 300 000 give its largest ones (``E'+NROW x2+R`` 10 912
-#: unknowns: 27, ``E'+ROW x3+R`` 9136: 33). The grid's lighting integrals were the largest fixed stage of ``fast``
-#: (10 s CPU of 28 on gold / forest); on the four speed cases 175 000 pairs moved the nrmse on the converged truth by
-#: -0.6 to -2.5 % (docs/notes/speed.md, "The fixed work, seventeenth session"; 150 000 had flipped plastic / city's
-#: vote before the race, +5.6 %).
-FAST_GRID_COUNT = 175_000
+#: ``fast``'s training pairs: 22 per unknown of its largest candidate (``E'+NROW x1`` and ``E'+ROW x1+R``: 5456 texels
+#: per channel at texture size 32). The grid's lighting integrals are the largest fixed stage of ``fast`` (10 s CPU of
+#: 27 on gold / forest at 175 000 pairs; its 1624 normals stay, the views per normal shrink: 14 -> 11 blocks of
+#: (256, 64) rows, 1 s CPU less). On the four speed cases 120 000 pairs moved the nrmse on the converged truth by
+#: +0.8 % (gold / forest), -1.0 % (plastic / city), -0.8 % (mirror / studio), -0.3 % (metal / interior) against 175 000,
+#: every vote picking the same structure; 90 000 flipped plastic / city's vote (+8.3 %), as 150 000 had (+5.6 %):
+#: that vote is close at every count (docs/notes/speed.md, "fast, twenty-third session").
+FAST_GRID_COUNT = 120_000
 
 #: The presets (names pinned). ``fast`` and ``balanced`` are the 4- and 8-lookup settings measured on
 #: the accuracy benchmark (docs/notes/sums-research.md). ``best`` is ``balanced``'s machinery at 16 lookups
