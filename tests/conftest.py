@@ -37,6 +37,8 @@ from pathlib import Path
 
 import jax
 import pytest
+from jax import monitoring
+from _pytest.pathlib import import_path
 from xdist.scheduler import LoadFileScheduling
 
 import homofac as hf
@@ -114,6 +116,31 @@ def pytest_xdist_make_scheduler(config, log):
     return _LoadFileSharingBakes(config, log) if config.getvalue("dist") == "loadfile" else None
 
 
+def collected_files(config) -> list[Path]:
+    """The test files the run's path arguments name (a directory: its ``test_*.py``, at any depth), in path order."""
+    paths = [Path(config.invocation_params.dir, a.split("::")[0]) for a in config.args]
+    return sorted({f.resolve() for p in paths for f in (p.rglob("test_*.py") if p.is_dir() else [p])})
+
+
+def pytest_collection(session):
+    """Every xdist worker imports every test module (its collection), and in a fresh clone (no ``.pyc`` yet) each
+    compiles them and what they import (assertion rewriting included) from source: about 8 CPU s a worker that the
+    other worker also pays (docs/notes/suite.md). So the odd-numbered workers import the test modules last to first
+    before their collection: the two workers compile from opposite ends and read the other's ``.pyc`` past the
+    middle. Same modules, same import function as the collection's (which then finds them imported); a module that
+    fails here is left to the collection to report."""
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "")
+    if not worker.startswith("gw") or int(worker[2:]) % 2 == 0:
+        return
+    config = session.config
+    for path in reversed(collected_files(config)):
+        try:
+            import_path(path, mode=config.getoption("importmode"), root=config.rootpath,
+                        consider_namespace_packages=config.getini("consider_namespace_packages"))
+        except (Exception, pytest.skip.Exception):
+            pass
+
+
 def pytest_configure(config):
     config.addinivalue_line("markers", "xla_optimized: compile with XLA's optimizations on (tests/conftest.py)")
 
@@ -147,11 +174,27 @@ def x64_module():
     yield from _float64()
 
 
+#: XLA backend compiles of this process since the last check of its mappings (JAX's compile event).
+_COMPILES_SINCE_CHECK = [0]
+
+
+def _count_compile(event: str, seconds: float, **_) -> None:
+    if event == "/jax/core/compile/backend_compile_duration":
+        _COMPILES_SINCE_CHECK[0] += 1
+
+
+monitoring.register_event_duration_secs_listener(_count_compile)
+
+
 @pytest.fixture(autouse=True)
 def _bounded_mappings():
-    """Keep the worker's memory mappings below the kernel's limit (see the module docstring)."""
+    """Keep the worker's memory mappings below the kernel's limit (see the module docstring), checked after the
+    tests that compiled a program: the programs are what holds the mappings, and reading ``/proc/self/maps``
+    (some 10 000 lines) after each of the three quarters of the tests that compile nothing cost ~5 ms each."""
     yield
-    bound_compiled_programs()
+    if _COMPILES_SINCE_CHECK[0]:
+        _COMPILES_SINCE_CHECK[0] = 0
+        bound_compiled_programs()
 
 
 @pytest.fixture(scope="session")

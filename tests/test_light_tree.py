@@ -47,14 +47,16 @@ def _groups():
     return sampling.grouped_random(400, 3, views=8)
 
 
-@pytest.mark.xla_optimized  # under the suite's -O0 the two programs' float32 sums differ by up to 4e-5 (docs/notes/speed.md)
 def test_refining_every_cell_is_the_full_sum_for_a_lobe_model_and_a_measured_table():
+    """Equal to float32 rounding: the two programs add the 6 * 64 + 1 positive terms in different orders, each
+    within about n * 2**-24 = 2.3e-5 of the sum (under the suite's -O0 they differ by up to 4e-5 of it,
+    docs/notes/speed.md; compiled with XLA's optimizations this test took twice the CPU)."""
     env, groups = _env(), _groups()
     ct = hf.brdf.cook_torrance(**GLOSSY)
     for brdf in (ct, merl(table=tabulate_merl(ct, (16, 16, 32)))):
         full = _values(brdf, env, groups)
         every = _values(brdf, env, groups, light_tree(env, 4, 10_000))  # refine >= the visible cells
-        np.testing.assert_allclose(every, full, rtol=2e-5, atol=1e-6 * np.abs(full).max())
+        np.testing.assert_allclose(every, full, rtol=6e-5, atol=1e-6 * np.abs(full).max())
 
 
 def test_few_refined_cells_stay_close_to_the_full_sum_and_more_get_closer():
