@@ -114,10 +114,17 @@ def main(argv=None) -> None:
             kb = len(ell) * layers * N * N * 3 * 2 / 1e3
             print(f"  tile {N} ({N * pitch / 2 * 180 / np.pi:.1f} deg half-side, {kb:.0f} KB): {nrmse(L, ref, w):.4f}, "
                   f"inside {inside.mean():.3f} of pairs, {float(np.sum(w[inside]) / np.sum(w)):.3f} of weight", flush=True)
-        for lo, hi in zip(ANGLES[:-1], ANGLES[1:]):
-            sel = (ang >= lo) & (ang < hi)
-            parts = " ".join(f"{k} {float(np.sum(w[sel] * np.sum((L - ref)[sel] ** 2, 1)) / den):.4f}" for k, L in rows.items())
-            print(f"  {lo}-{hi} deg: L2 {float(np.sum((w * np.sum(ref * ref, 1))[sel]) / den):.3f} | err^2 {parts}")
+        by_angle(rows, ang, ref, w, den, share=True)
+
+
+def by_angle(rows: dict, ang, ref, w, den: float, share: bool = False) -> None:
+    """Print each row's weighted squared error (a share of the cell's nrmse^2 denominator ``den``) per band of
+    :data:`ANGLES` (degrees from the nearest light), and the reference's own share of L^2 if ``share``."""
+    for lo, hi in zip(ANGLES[:-1], ANGLES[1:]):
+        sel = (ang >= lo) & (ang < hi)
+        parts = " ".join(f"{k} {float(np.sum(w[sel] * np.sum((L - ref)[sel] ** 2, 1)) / den):.4f}" for k, L in rows.items())
+        l2 = f"L2 {float(np.sum((w * np.sum(ref * ref, 1))[sel]) / den):.3f} | " if share else ""
+        print(f"  {lo}-{hi} deg: {l2}err^2 {parts}")
 
 
 if __name__ == "__main__":

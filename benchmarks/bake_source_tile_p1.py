@@ -37,7 +37,7 @@ from homofac.light import Environment, load_environment
 from homofac.light.integrals import material_radiance
 
 sys.path.insert(0, str(Path(__file__).parent))
-from bake_source_tile import ANGLES, light_directions, nrmse  # noqa: E402
+from bake_source_tile import by_angle, light_directions, nrmse  # noqa: E402
 
 
 def frame(ell: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -142,10 +142,7 @@ def main(argv=None) -> None:
             out[f"tile {N}"] = radiance(inside_terms(grid, inside))
             print(f"  N {N}: exact at r {nrmse(out[f'exact {N}'], ref, w):.4f} | tile {nrmse(out[f'tile {N}'], ref, w):.4f} "
                   f"| inside {inside.mean():.3f} of pairs", flush=True)
-        for lo, hi in zip(ANGLES[:-1], ANGLES[1:]):
-            sel = (ang >= lo) & (ang < hi)
-            parts = " ".join(f"{k} {float(np.sum(w[sel] * np.sum((L - ref)[sel] ** 2, 1)) / den):.4f}" for k, L in out.items())
-            print(f"  {lo}-{hi} deg: err^2 {parts}")
+        by_angle(out, ang, ref, w, den)
 
 
 if __name__ == "__main__":
