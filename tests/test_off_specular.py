@@ -207,7 +207,6 @@ def test_sampling_cache_keys_the_grid_projection_and_its_shift():
     assert a["grid_projection"] == {"projection": "r_off", "shift": pytest.approx(0.3)} and a != b
 
 
-@pytest.mark.xla_optimized  # its fits run long enough that XLA at -O0 doubles its CPU (88 s against 44 s)
 def test_max_lookups_draws_grid_pairs_per_direction_and_keeps_the_chosen_structures_own():
     """With NR the preset's candidates lie on its grid directions (r_off: NRO, RO) and get grid pairs of
     their own, drawn once, not NR's; the kept result carries the pairs it was fitted on (its refit state)
@@ -217,7 +216,7 @@ def test_max_lookups_draws_grid_pairs_per_direction_and_keeps_the_chosen_structu
     logs = []
     fac = hf.fit.factorize(target, "NR", texture_size=S, max_lookups=4,
                            advanced={"linear": {"iterations": 8, "polish": 0}, "validation_light": 8},
-                           sampling={"count": 20000, "validation": 3000, "cache": False}, log=logs.append)
+                           sampling={"count": 4000, "validation": 1000, "cache": False}, log=logs.append)
     tried = {t["label"]: t for t in fac.selection["tried"]}
     raced = fac.selection["race"]["rounds"][0]["labels"]  # every candidate runs the race's first sweeps
     assert set(raced) == {"E'+NROW x1", "E'+ROW x1+R", "E'+RO x1+HW x1"}  # fast's directions: r_off
@@ -238,8 +237,8 @@ def test_max_lookups_draws_grid_pairs_per_direction_and_keeps_the_chosen_structu
         for k, v in fac.model.context.items():
             np.testing.assert_allclose(np.asarray(fac.target.context[k]), np.asarray(v))
     # samples given: only the candidates on their direction
-    s = hf.fit.draw_samples(target, "NR", {"kind": "grid", "size": S, "mapper": "dual_paraboloid", "count": 20000,
-                                           "validation": 3000, "cache": False})
+    s = hf.fit.draw_samples(target, "NR", {"kind": "grid", "size": S, "mapper": "dual_paraboloid", "count": 4000,
+                                           "validation": 1000, "cache": False})
     only = hf.fit.factorize(target, "NR", texture_size=S, max_lookups=4, samples=s,
                             advanced={"linear": {"iterations": 8, "nv_balance": 0.0, "polish": 0},
                                       "validation_light": 8})
