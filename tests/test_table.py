@@ -68,10 +68,10 @@ def target():
     return hf.light.lighting_target(hf.brdf.ggx(kd=0.3, ks=1.0, roughness=0.4, f0=0.04), env, parametrization="RO")
 
 
-def _fit(target, samples, polish: int, **highlights):
+def _fit(target, samples, polish: int, linear: dict | None = None, **highlights):
     return hf.fit.factorize(target, "RO", texture_size=8, samples=samples, diffuse="fitted", nv_factor=True,
                             advanced={"highlights": {"terms": 1, "fresnel": True, **highlights},
-                                      "linear": {"polish": polish}})
+                                      "linear": {"polish": polish, **(linear or {})}})
 
 
 @pytest.fixture(scope="module")
@@ -82,7 +82,7 @@ def samples(target):
 @pytest.fixture(scope="module")
 def lines(target, samples):
     """A dielectric under a sun, fitted with lines (the ALS fit alone: what tabulate and separate read)."""
-    return _fit(target, samples, 0, cosine=True)
+    return _fit(target, samples, 0, {"iterations": 4}, cosine=True)
 
 
 @pytest.fixture(scope="module")
