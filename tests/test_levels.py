@@ -51,7 +51,7 @@ def test_a_refined_level_is_the_fit_lighting_plus_its_texels_difference_in_the_f
                                  hf.light.sun_sky(resolution=8, sun_radiance=300.0, sun_angle_deg=4.0))
     env, pairs = t.fn.env, validation.decision_pairs(400, 3)
     y = levels.evaluate(t, pairs, refined=False)  # compiles the fit's own program
-    fine = validation.lighting_at(t, 32, None)  # the brightest texels at 32, every light summed
+    fine = validation.lighting_at(t, 16, None)  # the brightest texels at 16, every light summed
     for b in difference_blocks(env, fine.fn.env, 100):  # the fit's shapes and static data, every block
         assert b.info == env.info and b.directions.shape == env.directions.shape
     monkeypatch.setattr(levels, "VALUE_BLOCKS", 64)
