@@ -171,7 +171,7 @@ def test_draw_pairs_train_and_validation_come_from_the_scene_with_their_seeds():
 
 @pytest.fixture(scope="module")
 def fac(target):
-    return hf.fit.factorize(target, "NR", texture_size=8,
+    return hf.fit.factorize(target, "NR", texture_size=8, solver={"max_iterations": 20},
                             sampling={"kind": "scene", "mesh": "demo", "validation": 2000, "cache": False})
 
 
