@@ -35,9 +35,13 @@ def envs():
     return hf.light.load_environment("forest", resolution=RES), hf.light.load_environment("city", resolution=RES)
 
 
+#: The config a run records (what :func:`homofac.fit.prepare_refit` redraws a saved result's pairs from).
+CFG = {"parametrization": "NR", "texture_size": 16, "sampling": KW["sampling"]}
+
+
 @pytest.fixture(scope="module")
 def base(envs):
-    return hf.fit.factorize(hf.light.lighting_target(gold(), envs[0]), "NR", **KW)
+    return hf.fit.factorize(hf.light.lighting_target(gold(), envs[0]), "NR", config=CFG, **KW)
 
 
 @pytest.mark.slow
@@ -133,8 +137,7 @@ def test_lsmr_path_for_large_layouts(base, envs, monkeypatch):
 
 
 def test_refit_of_a_saved_result(base, envs, tmp_path):
-    cfg = {"parametrization": "NR", "texture_size": 16, "sampling": KW["sampling"]}
-    fac = hf.fit.factorize(hf.light.lighting_target(gold(), envs[0]), "NR", config=cfg, **KW)
+    fac = base  # the run with its config recorded
     fac.save(tmp_path / "out")
     loaded = hf.output.load(tmp_path / "out")
     assert loaded.state is None
