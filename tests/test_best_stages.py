@@ -3,6 +3,9 @@ structure is fitted in full only where its short fit's figure is below the kept 
 
 from __future__ import annotations
 
+import logging
+
+import jax
 import numpy as np
 import pytest
 
@@ -139,4 +142,34 @@ def test_the_ridge_score_in_padded_calls_is_the_score_of_every_pair_evaluated_on
     want = hf.fit.ridge.stratified_nrmse(approx, np.asarray(smp.val_y, np.float64), rv.inside, ridge, rv.y,
                                          rv.pairs.weight)
     assert np.isfinite(want) and got == pytest.approx(want, rel=1e-5) and small == pytest.approx(want, rel=1e-5)
+
+    # another structure on the same textures (one more term): its figure reads the lookup programs already
+    # compiled (one per projection, mapper and texture shape), not a program of its own
+    more = hf.factorization.Factorization(fac.model.kind, fac.model.quantity, fac.model.textures,
+                                          fac.model.terms + (fac.model.terms[0],), fac.model.context)
+    with jax.log_compiles():
+        logging.getLogger("jax").setLevel(logging.WARNING)
+        handler = _Count()
+        logging.getLogger("jax").addHandler(handler)
+        try:
+            other = polish.ridge_nrmse(more, smp, rv)
+        finally:
+            logging.getLogger("jax").removeHandler(handler)
+    approx = np.asarray(more.evaluate(smp.val_a, smp.val_b), np.float64)
+    ridge = np.asarray(more.evaluate(rv.pairs.a, rv.pairs.b), np.float64)
+    want = hf.fit.ridge.stratified_nrmse(approx, np.asarray(smp.val_y, np.float64), rv.inside, ridge, rv.y,
+                                         rv.pairs.weight)
+    assert other == pytest.approx(want, rel=1e-5) and other != pytest.approx(got, rel=1e-3)
+    assert handler.compiles == 0
+
+
+class _Count(logging.Handler):
+    """Counts JAX's compile messages (``jax.log_compiles``)."""
+
+    def __init__(self):
+        super().__init__(logging.WARNING)
+        self.compiles = 0
+
+    def emit(self, record):
+        self.compiles += "compilation of jit(" in record.getMessage()
 

@@ -38,6 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..errors import HomofacError
+from ..factorization import Factorization, evaluate_by_factor
 from ..light import brightest_directions
 from ..param import projections as pj
 from ..target import Target
@@ -45,6 +46,7 @@ from ..options import validate
 from .draw import draw_pairs, draw_samples
 from .metrics import CHUNK, _chunks
 from .options import LinearOptions, SamplingOptions
+from .result import Result
 from .ridge import RidgePairs, in_any_ridge, ridge_pairs, stratified_nrmse
 from .samples import Samples, evaluate, evaluate_grouped, row_width, row_work
 from .sampling import Grouped
@@ -159,17 +161,21 @@ def ridge_validation(target: Target, samples: Samples, count: int, seed: int) ->
     return RidgeValidation(rp, y, inside, lights)
 
 
-def ridge_nrmse(model, samples: Samples, rv: RidgeValidation, chunk: int = CHUNK) -> float:
-    """The validation nrmse of ``model`` (float textures) with the ridge as its own stratum
-    (:func:`homofac.fit.ridge.stratified_nrmse`): under a sun the 30-80 validation pairs on the ridge
-    decide the plain figure (gold under the city sun at 16 lookups: 0.062 plain, 0.128 stratified,
-    0.148 on 270 000 uniform pairs). The model is evaluated in calls of ``chunk`` pairs, the last padded
-    (:data:`homofac.fit.metrics.CHUNK`: the program shape the candidates' metrics compiled)."""
+def ridge_nrmse(model: Result | Factorization, samples: Samples, rv: RidgeValidation, chunk: int = CHUNK) -> float:
+    """The validation nrmse of ``model`` (float textures; a result or its factorization) with the ridge as
+    its own stratum (:func:`homofac.fit.ridge.stratified_nrmse`): under a sun the 30-80 validation pairs on
+    the ridge decide the plain figure (gold under the city sun at 16 lookups: 0.062 plain, 0.128 stratified,
+    0.148 on 270 000 uniform pairs). The model is evaluated factor by factor
+    (:func:`homofac.factorization.evaluate_by_factor`: the lookup programs the candidates' metrics compiled,
+    one per projection, mapper and texture shape, not one per structure) in calls of ``chunk`` pairs, the
+    last padded (:data:`homofac.fit.metrics.CHUNK`: the program shape of those metrics)."""
+    fac = model.model if isinstance(model, Result) else model
+
     def values(a, b) -> np.ndarray:
         if len(a) == 0:
             return np.zeros((0, 3))
-        return np.asarray(_chunks(model.evaluate, jnp.asarray(a, jnp.float32), jnp.asarray(b, jnp.float32),
-                                  int(chunk)), np.float64)
+        return np.asarray(_chunks(lambda x, z: evaluate_by_factor(fac, x, z), np.asarray(a, np.float32),
+                                  np.asarray(b, np.float32), int(chunk)), np.float64)
 
     approx = values(np.asarray(samples.val_a), np.asarray(samples.val_b))
     ridge = values(np.asarray(rv.pairs.a), np.asarray(rv.pairs.b))
